@@ -1,0 +1,36 @@
+# Two commands: `make demo` and `make test`. Both create .venv when missing and install the package
+# (ROS 2 from PyPI wheels) into it; nothing is installed by hand.
+PYTHON ?= python3
+VENV := .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed
+export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
+export RMW_IMPLEMENTATION := rmw_fastrtps_cpp
+export MPLBACKEND := Agg
+
+.PHONY: demo test install bench paper clean
+
+$(PY):
+	$(PYTHON) -m venv $(VENV)
+
+$(STAMP): $(PY) setup.py
+	$(PY) -m pip install --quiet --upgrade pip setuptools wheel
+	$(PY) -m pip install --quiet -e '.[ros,test]'
+	touch $(STAMP)
+
+install: $(STAMP)
+
+demo: $(STAMP)
+	$(VENV)/bin/tensegrity run config/scenes/fb_column.yaml --plot --out runs/demo
+
+test: $(STAMP)
+	$(PY) -m pytest -q test
+
+bench: $(STAMP)
+	$(VENV)/bin/tensegrity bench
+
+paper: $(STAMP)
+	$(VENV)/bin/tensegrity paper
+
+clean:
+	rm -rf $(VENV) build *.egg-info runs

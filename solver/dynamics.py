@@ -1,0 +1,342 @@
+"""Numba kernels of the constrained dynamics (physics.md section 1.1).
+
+Two levels, as everywhere in the solver: :func:`pack` (Python) validates and allocates, the ``@jit``
+kernels take arrays and tuples of arrays only and write into ``out`` arrays.
+
+``net`` tuple (read-only model arrays, see :class:`solver.network.Network`)::
+
+    (w_diag, partner, w_off, con_tail, con_head, con_length, con_coef, cable_a, cable_b)
+
+``act`` tuple (actuation, mutable by commands)::
+
+    (cable_rest_length (n_cables,) m, cable_EA (n_cables,) N, f_ext (n_nodes, 3) N)
+
+``ws`` workspace tuple (scratch, preallocated once): see :func:`workspace`.
+
+Status codes returned by kernels: ``OK``, ``SINGULAR`` (constraint matrix not positive definite:
+dependent or degenerate rigid members), ``NONFINITE`` (NaN or inf appeared), ``NOT_CONVERGED``
+(the position projection did not reach its tolerance).
+"""
+import math
+
+import numpy as np
+
+from ._jit import jit
+
+OK, SINGULAR, NONFINITE, NOT_CONVERGED = 0, 1, 2, 3
+STATUS_TEXT = {OK: 'ok', SINGULAR: 'constraint matrix singular (degenerate rigid members)',
+               NONFINITE: 'non-finite positions or velocities',
+               NOT_CONVERGED: 'position projection did not converge'}
+
+
+def pack(network, cable_rest_length=None, cable_EA=None, f_ext=None):
+    """The ``(net, act)`` tuples of a network; ``act`` arrays are fresh writable copies."""
+    net = (network.w_diag, network.partner, network.w_off, network.con_tail, network.con_head,
+           network.con_length, network.con_coef, network.cable_a, network.cable_b)
+    rest = np.array(network.cable_rest_length if cable_rest_length is None else cable_rest_length,
+                    dtype=np.float64)
+    EA = np.array(network.cable_EA if cable_EA is None else cable_EA, dtype=np.float64)
+    f = np.zeros((network.n_nodes, 3)) if f_ext is None else np.array(f_ext, dtype=np.float64)
+    return net, (rest, EA, f)
+
+
+def workspace(n_nodes, n_con, bandwidth):
+    """Scratch arrays: ``(f, wf, bvec, band, lam, stage arrays...)``."""
+    def z(*shape):
+        return np.zeros(shape)
+    return (z(n_nodes, 3), z(n_nodes, 3), z(n_con, 3), z(n_con, bandwidth + 1), z(n_con),
+            z(n_nodes, 3), z(n_nodes, 3), z(n_nodes, 3), z(n_nodes, 3), z(n_nodes, 3), z(n_nodes, 3))
+
+
+@jit
+def cable_forces(x, cable_a, cable_b, rest, EA, f):
+    """Add tension-only cable forces to ``f`` (n_nodes, 3) N. ``T = EA (s - L) / L`` when ``s > L``."""
+    for c in range(cable_a.shape[0]):
+        a = cable_a[c]
+        b = cable_b[c]
+        dx = x[b, 0] - x[a, 0]
+        dy = x[b, 1] - x[a, 1]
+        dz = x[b, 2] - x[a, 2]
+        s = math.sqrt(dx * dx + dy * dy + dz * dz)
+        L = rest[c]
+        if s > L:
+            g = EA[c] / L * (s - L) / s   # force density gamma = T / s
+            f[a, 0] += g * dx
+            f[a, 1] += g * dy
+            f[a, 2] += g * dz
+            f[b, 0] -= g * dx
+            f[b, 1] -= g * dy
+            f[b, 2] -= g * dz
+
+
+@jit
+def apply_w(f, w_diag, partner, w_off, out):
+    """``out = W f``: the inverse mass operator, node-wise (a partner only for massive bars)."""
+    for p in range(f.shape[0]):
+        w = w_diag[p]
+        q = partner[p]
+        for i in range(3):
+            out[p, i] = w * f[p, i]
+        if q >= 0:
+            wo = w_off[p]
+            for i in range(3):
+                out[p, i] += wo * f[q, i]
+
+
+@jit
+def member_vectors(x, tail, head, bvec):
+    for c in range(tail.shape[0]):
+        for i in range(3):
+            bvec[c, i] = x[head[c], i] - x[tail[c], i]
+
+
+@jit
+def assemble_band(bvec, coef, band):
+    """``band[c, k] = A[c, c-k] = coef[c, k] * (b_c . b_{c-k})``."""
+    m, width = coef.shape
+    for c in range(m):
+        for k in range(width):
+            cf = coef[c, k]
+            if cf == 0.0 or k > c:
+                band[c, k] = 0.0
+                continue
+            d = c - k
+            band[c, k] = cf * (bvec[c, 0] * bvec[d, 0] + bvec[c, 1] * bvec[d, 1]
+                               + bvec[c, 2] * bvec[d, 2])
+
+
+@jit
+def _tridiag_ldl_solve(band, rhs):
+    """:func:`band_ldl_solve` for bandwidth 1 (bar chains of flexible-base columns), unrolled."""
+    m = band.shape[0]
+    d = band[0, 0]
+    if not d > 0.0:
+        return SINGULAR
+    inv = 1.0 / d
+    band[0, 0] = inv
+    y = rhs[0]
+    for i in range(1, m):
+        w = band[i, 1]
+        lij = w * inv
+        d = band[i, 0] - w * lij
+        if not d > 0.0:
+            return SINGULAR
+        inv = 1.0 / d
+        band[i, 1] = lij
+        band[i, 0] = inv
+        y = rhs[i] - lij * y
+        rhs[i] = y
+    z = rhs[m - 1] * band[m - 1, 0]
+    rhs[m - 1] = z
+    for i in range(m - 2, -1, -1):
+        z = rhs[i] * band[i, 0] - band[i + 1, 1] * z
+        rhs[i] = z
+    return OK
+
+
+@jit
+def band_ldl_solve(band, rhs):
+    """Solve ``A y = rhs`` in place (``rhs`` becomes y) for SPD banded A given by its lower band.
+
+    Square-root-free LDL^T: ``band`` is overwritten with the unit lower factor L off the diagonal and
+    ``1 / d_i`` on it (one division per row keeps the sequential dependency chain short).
+    Returns ``OK`` or ``SINGULAR`` (a pivot that is not positive).
+    """
+    m, width = band.shape
+    bw = width - 1
+    if bw == 1:
+        return _tridiag_ldl_solve(band, rhs)
+    for i in range(m):
+        lo = max(0, i - bw)
+        for j in range(lo, i):          # w_j = A_ij - sum_k w_k L_jk  (w_k = L_ik d_k)
+            s = band[i, i - j]
+            for k in range(lo, j):
+                s -= band[i, i - k] * band[j, j - k]
+            band[i, i - j] = s
+        d = band[i, 0]
+        for j in range(lo, i):
+            w = band[i, i - j]
+            lij = w * band[j, 0]
+            band[i, i - j] = lij
+            d -= w * lij
+        if not d > 0.0:
+            return SINGULAR
+        band[i, 0] = 1.0 / d
+    for i in range(m):
+        s = rhs[i]
+        for k in range(max(0, i - bw), i):
+            s -= band[i, i - k] * rhs[k]
+        rhs[i] = s
+    for i in range(m - 1, -1, -1):
+        s = rhs[i] * band[i, 0]
+        for k in range(i + 1, min(m, i + bw + 1)):
+            s -= band[k, k - i] * rhs[k]
+        rhs[i] = s
+    return OK
+
+
+@jit
+def add_constraint_forces(lam, bvec, tail, head, f):
+    """``f += sum_c lam_c G_c``: ``+lam b`` on the head node, ``-lam b`` on the tail node."""
+    for c in range(tail.shape[0]):
+        h = head[c]
+        t = tail[c]
+        for i in range(3):
+            g = lam[c] * bvec[c, i]
+            f[h, i] += g
+            f[t, i] -= g
+
+
+@jit
+def accelerations(x, v, net, act, ws, out):
+    """Accelerations (n_nodes, 3) m/s^2 of the constrained system into ``out``; multipliers
+    (bar force densities, > 0 in compression) are left in ``ws[4]``. Returns a status code."""
+    w_diag, partner, w_off, tail, head, length, coef, cable_a, cable_b = net
+    rest, EA, f_ext = act
+    f, wf, bvec, band, lam = ws[0], ws[1], ws[2], ws[3], ws[4]
+    f[:, :] = f_ext
+    cable_forces(x, cable_a, cable_b, rest, EA, f)
+    apply_w(f, w_diag, partner, w_off, wf)
+    member_vectors(x, tail, head, bvec)
+    for c in range(tail.shape[0]):
+        h = head[c]
+        t = tail[c]
+        s = 0.0
+        for i in range(3):
+            db = v[h, i] - v[t, i]
+            s += bvec[c, i] * (wf[h, i] - wf[t, i]) + db * db
+        lam[c] = -s
+    assemble_band(bvec, coef, band)
+    status = band_ldl_solve(band, lam)
+    if status != OK:
+        return status
+    add_constraint_forces(lam, bvec, tail, head, f)
+    apply_w(f, w_diag, partner, w_off, out)
+    return OK
+
+
+@jit
+def constraint_error(x, net):
+    """max_c |g_c| / L_c^2 with ``g_c = (|b_c|^2 - L_c^2) / 2`` (dimensionless)."""
+    tail, head, length = net[3], net[4], net[5]
+    worst = 0.0
+    for c in range(tail.shape[0]):
+        dx = x[head[c], 0] - x[tail[c], 0]
+        dy = x[head[c], 1] - x[tail[c], 1]
+        dz = x[head[c], 2] - x[tail[c], 2]
+        L2 = length[c] * length[c]
+        e = abs(0.5 * (dx * dx + dy * dy + dz * dz - L2)) / L2
+        if not e <= worst:          # also catches NaN
+            worst = e
+    return worst
+
+
+@jit
+def project_positions(x, net, ws, tol, max_iter):
+    """Mass-weighted Gauss-Newton projection of positions onto the rigid-member manifold:
+    ``A dmu = -g``, ``x += W sum_c dmu_c G_c`` until ``|g_c| < tol L_c^2``. Returns a status code."""
+    w_diag, partner, w_off, tail, head, length, coef, cable_a, cable_b = net
+    f, wf, bvec, band, lam = ws[0], ws[1], ws[2], ws[3], ws[4]
+    for it in range(max_iter + 1):
+        member_vectors(x, tail, head, bvec)
+        worst = 0.0
+        for c in range(tail.shape[0]):
+            L2 = length[c] * length[c]
+            g = 0.5 * (bvec[c, 0] ** 2 + bvec[c, 1] ** 2 + bvec[c, 2] ** 2 - L2)
+            lam[c] = -g
+            e = abs(g) / L2
+            if not e <= worst:
+                worst = e
+        if worst < tol:
+            return OK
+        if it == max_iter or not math.isfinite(worst):
+            break
+        assemble_band(bvec, coef, band)
+        status = band_ldl_solve(band, lam)
+        if status != OK:
+            return status
+        f[:, :] = 0.0
+        add_constraint_forces(lam, bvec, tail, head, f)
+        apply_w(f, w_diag, partner, w_off, wf)
+        for p in range(x.shape[0]):
+            for i in range(3):
+                x[p, i] += wf[p, i]
+    return NOT_CONVERGED
+
+
+@jit
+def project_velocities(x, v, net, ws):
+    """Mass-weighted projection of velocities onto the constraint tangent space:
+    ``A mu = -J v``, ``v += W J^T mu`` (the impulse that removes every velocity violating a rigid
+    member while changing momentum least in the mass metric). Returns a status code."""
+    w_diag, partner, w_off, tail, head, length, coef, cable_a, cable_b = net
+    f, wf, bvec, band, lam = ws[0], ws[1], ws[2], ws[3], ws[4]
+    member_vectors(x, tail, head, bvec)
+    for c in range(tail.shape[0]):
+        h = head[c]
+        t = tail[c]
+        lam[c] = -(bvec[c, 0] * (v[h, 0] - v[t, 0]) + bvec[c, 1] * (v[h, 1] - v[t, 1])
+                   + bvec[c, 2] * (v[h, 2] - v[t, 2]))
+    assemble_band(bvec, coef, band)
+    status = band_ldl_solve(band, lam)
+    if status != OK:
+        return status
+    f[:, :] = 0.0
+    add_constraint_forces(lam, bvec, tail, head, f)
+    apply_w(f, w_diag, partner, w_off, wf)
+    for p in range(x.shape[0]):
+        for i in range(3):
+            v[p, i] += wf[p, i]
+    return OK
+
+
+@jit
+def all_finite(a):
+    for p in range(a.shape[0]):
+        for i in range(a.shape[1]):
+            if not math.isfinite(a[p, i]):
+                return False
+    return True
+
+
+@jit
+def kinetic_energy(v, node_mass, clamped, bar_a, bar_b, bar_mass):
+    """``sum 1/2 m_p |v_p|^2 + sum_bars m_b / 6 (|v_a|^2 + v_a.v_b + |v_b|^2)`` J."""
+    e = 0.0
+    for p in range(v.shape[0]):
+        if not clamped[p]:
+            e += 0.5 * node_mass[p] * (v[p, 0] ** 2 + v[p, 1] ** 2 + v[p, 2] ** 2)
+    for j in range(bar_a.shape[0]):
+        mb = bar_mass[j]
+        if mb != 0.0:
+            a = bar_a[j]
+            b = bar_b[j]
+            e += mb / 6.0 * (v[a, 0] ** 2 + v[a, 1] ** 2 + v[a, 2] ** 2
+                             + v[a, 0] * v[b, 0] + v[a, 1] * v[b, 1] + v[a, 2] * v[b, 2]
+                             + v[b, 0] ** 2 + v[b, 1] ** 2 + v[b, 2] ** 2)
+    return e
+
+
+@jit
+def cable_energy(x, cable_a, cable_b, rest, EA):
+    """``sum 1/2 k (s - L)_+^2`` J with ``k = EA / L``."""
+    e = 0.0
+    for c in range(cable_a.shape[0]):
+        a = cable_a[c]
+        b = cable_b[c]
+        s = math.sqrt((x[b, 0] - x[a, 0]) ** 2 + (x[b, 1] - x[a, 1]) ** 2
+                      + (x[b, 2] - x[a, 2]) ** 2)
+        if s > rest[c]:
+            e += 0.5 * EA[c] / rest[c] * (s - rest[c]) ** 2
+    return e
+
+
+@jit
+def cable_tensions(x, cable_a, cable_b, rest, EA, out):
+    """Tension per cable (n_cables,) N, zero when slack."""
+    for c in range(cable_a.shape[0]):
+        a = cable_a[c]
+        b = cable_b[c]
+        s = math.sqrt((x[b, 0] - x[a, 0]) ** 2 + (x[b, 1] - x[a, 1]) ** 2
+                      + (x[b, 2] - x[a, 2]) ** 2)
+        out[c] = EA[c] / rest[c] * (s - rest[c]) if s > rest[c] else 0.0

@@ -1,0 +1,78 @@
+"""Headless runs: a scene from its impact to ``t_end``, recorded at ``output_dt``, and its summary."""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import observables
+from .scene import Scene
+from .simulation import Simulation
+
+
+@dataclass
+class RunRecord:
+    """Everything a run recorded. ``times`` (n_t,) s, ``strain`` (n_t, n_columns, n_prisms),
+    ``energy`` (n_t,) J, ``constraint_error`` (n_t,), ``wall_time_s`` of the time stepping only."""
+    times: np.ndarray
+    strain: np.ndarray
+    energy: np.ndarray
+    constraint_error: np.ndarray
+    wall_time_s: float
+    steps: int
+    steps_taken: int
+    pulses: list = field(default_factory=list)
+
+
+def run(sim: Simulation, t_end, output_dt, on_frame=None, progress=None):
+    """Advance ``sim`` to ``t_end`` in ``output_dt`` intervals, calling ``on_frame(frame)`` at each
+    output time (including the first) and ``progress(n)`` with the steps of each interval."""
+    n_out = int(round(t_end / output_dt))
+    times, strain, energy, cerr = [], [], [], []
+
+    def record(frame):
+        times.append(frame.t)
+        strain.append(frame.strain)
+        energy.append(frame.energy)
+        cerr.append(frame.constraint_error)
+        if on_frame is not None:
+            on_frame(frame)
+
+    record(sim.frame())
+    wall = 0.0
+    for _ in range(n_out):
+        t0 = time.perf_counter()
+        sim.advance(output_dt)
+        wall += time.perf_counter() - t0
+        record(sim.frame())
+        if progress is not None:
+            progress(1)
+    rec = RunRecord(np.array(times), np.array(strain), np.array(energy), np.array(cerr), wall,
+                    sim.step, sim.steps_taken)
+    if sim.network.levels.size:
+        rec.pulses = [observables.track_pulse(rec.times, rec.strain[:, c], sim.network.h0)
+                      for c in range(sim.network.n_columns)]
+    return rec
+
+
+def summary(scene: Scene, sim: Simulation, rec: RunRecord, outputs=None):
+    """The JSON summary of ``tensegrity run`` (interfaces.md section 2)."""
+    t_end = float(rec.times[-1] - rec.times[0])
+    e0 = rec.energy[0]
+    drift = float(np.max(np.abs(rec.energy - e0)) / abs(e0)) if e0 else 0.0
+    out = {
+        'scene': scene.name, 'model': sim.model.name, 'integrator': sim.integrator.name,
+        'dt': sim.dt, 't_end': t_end,
+        'n_nodes': sim.network.n_nodes, 'n_bars': sim.network.n_bars,
+        'n_cables': sim.network.n_cables, 'n_rigid_edges': sim.network.n_edges,
+        'steps': int(rec.steps), 'steps_taken': int(rec.steps_taken),
+        'wall_time_s': rec.wall_time_s,
+        'real_time_factor': t_end / rec.wall_time_s if rec.wall_time_s > 0 else float('inf'),
+        'energy_drift_rel': drift / t_end if t_end > 0 else drift,
+        'constraint_error_rel': float(np.max(rec.constraint_error)),
+        'pulse': rec.pulses[0].as_dict() if rec.pulses else None,
+        'pulses': [p.as_dict() for p in rec.pulses],
+        'outputs': dict({'mcap': None, 'rerun': None, 'plot': None}, **(outputs or {})),
+    }
+    return out

@@ -1,0 +1,135 @@
+"""Builders: networks from a few parameters (physics.md sections 2 and 3).
+
+- :func:`column`: ``n_columns`` columns of ``n_prisms`` right-handed minimal triangular prisms stacked on
+  shared bases, flexible (FB) or rigid (RB) bases; a single prism is ``n_prisms=1``.
+- :func:`explicit`: any network given as nodes, bars, cables (and optional rigid edges).
+
+To add a structure: write a function returning a :class:`~solver.network.Network` whose cable rest
+lengths put it at rest (check 1 of physics.md section 7), register it in :data:`BUILDERS`, and list
+its parameters with their defaults in :data:`solver.scene.STRUCTURE_DEFAULTS`.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .network import Network, NetworkError
+
+PHI0 = 5.0 * math.pi / 6.0   # self-equilibrated twist of the minimal triangular prism
+
+
+def cross_prestrain_rest(length, p):
+    """Rest length of a cable of current length ``length`` at prestrain ``p = (s - L) / L``."""
+    return length / (1.0 + p)
+
+
+def rest_for_tension(length, EA, tension):
+    """Rest length ``L`` with ``EA (length - L) / L = tension``."""
+    return EA * length / (EA + tension)
+
+
+def column(n_prisms=50, radius=0.005, h0=0.0062, cable_E=5.48e6, cable_radius=1.4e-4,
+           unit_mass=0.0249, bar_mass=0.0, prestrain=0.002, bases='flexible', stacking='shared',
+           rigid_bases_as='edges', kappa=100.0, n_columns=1, column_spacing=0.03,
+           clamped_levels=(0,), handedness='right'):
+    """Columns of tensegrity prisms along z (physics.md section 3).
+
+    Level j of column c (j = 0..n_prisms) holds nodes ``3 j + k`` (+ ``c * 3 (n_prisms + 1)``) at
+    ``(r cos(j phi0 + 2 pi k / 3) + c * spacing, r sin(...), j h0)``. Bars ``(j, k) -> (j+1, k)``, cross
+    cables ``(j, k) -> (j+1, (k-1) mod 3)``, base cables ``(j, k) -> (j, k+1)``. Cross cables get
+    prestrain ``p``; base cables get the tension of the prism self-stress ``t_l = gamma_s r`` (twice at
+    interior levels with ``stacking='shared'``; one cable per prism with ``stacking='parallel'``).
+    Rigid bases are rigid edges (``rigid_bases_as='edges'``) or base cables with EA x ``kappa``.
+    ``unit_mass`` (kg per prism) is lumped on the base nodes, a third per node.
+    """
+    if n_prisms < 1 or n_columns < 1:
+        raise NetworkError('n_prisms and n_columns must be at least 1')
+    sign = 1.0 if handedness == 'right' else -1.0
+    phi0 = sign * PHI0
+    n_levels = n_prisms + 1
+    EA = cable_E * math.pi * cable_radius ** 2
+    per_col = 3 * n_levels
+    x = np.zeros((n_columns * per_col, 3))
+    bars, cables, edges, kinds = [], [], [], []
+    cable_EA, cable_rest = [], []
+    levels = np.zeros((n_columns, n_levels, 3), dtype=np.int64)
+
+    def node(c, j, k):
+        return c * per_col + 3 * j + (k % 3)
+
+    for c in range(n_columns):
+        for j in range(n_levels):
+            for k in range(3):
+                t = j * phi0 + 2.0 * math.pi * k / 3.0
+                x[node(c, j, k)] = (radius * math.cos(t) + c * column_spacing,
+                                    radius * math.sin(t), j * h0)
+                levels[c, j, k] = node(c, j, k)
+
+    # cross-cable geometry is the same in every prism: s, rest length, force density
+    s_len = np.linalg.norm(x[node(0, 1, -1)] - x[node(0, 0, 0)])
+    L_s = cross_prestrain_rest(s_len, prestrain)
+    gamma_s = EA * (s_len - L_s) / (L_s * s_len)
+    t_l = gamma_s * radius
+    side = math.sqrt(3.0) * radius
+    rigid = bases == 'rigid'
+    base_EA = EA * kappa if (rigid and rigid_bases_as == 'stiff_cables') else EA
+
+    for c in range(n_columns):
+        for j in range(n_levels):
+            if j < n_prisms:
+                for k in range(3):
+                    bars.append((node(c, j, k), node(c, j + 1, k)))
+                for k in range(3):
+                    cables.append((node(c, j, k), node(c, j + 1, k - 1)))
+                    cable_EA.append(EA)
+                    cable_rest.append(L_s)
+                    kinds.append('cross')
+            n_adjacent = 2 if 0 < j < n_prisms else 1
+            for k in range(3):
+                a, b = node(c, j, k), node(c, j, k + 1)
+                if rigid and rigid_bases_as == 'edges':
+                    edges.append((a, b))
+                elif stacking == 'parallel':
+                    for _ in range(n_adjacent):
+                        cables.append((a, b))
+                        cable_EA.append(base_EA)
+                        cable_rest.append(rest_for_tension(side, base_EA, t_l))
+                        kinds.append('base')
+                else:
+                    cables.append((a, b))
+                    cable_EA.append(base_EA)
+                    cable_rest.append(rest_for_tension(side, base_EA, n_adjacent * t_l))
+                    kinds.append('base')
+
+    node_mass = np.full(len(x), unit_mass / 3.0)
+    clamped = [node(c, j, k) for c in range(n_columns) for j in clamped_levels for k in range(3)]
+    meta = dict(builder='column', n_prisms=n_prisms, radius=radius, h0=h0, EA=EA, prestrain=prestrain,
+                bases=bases, stacking=stacking, rigid_bases_as=rigid_bases_as, kappa=kappa,
+                cross_length=s_len, cross_rest_length=L_s, gamma_s=gamma_s, base_tension=t_l,
+                bar_length=float(np.linalg.norm(x[node(0, 1, 0)] - x[node(0, 0, 0)])),
+                unit_mass=unit_mass, twist=phi0)
+    return Network.build(x, node_mass, bars, cables, cable_rest, cable_EA, rigid_edges=edges,
+                         clamped=clamped, bar_mass=bar_mass, cable_kind=kinds, levels=levels, h0=h0,
+                         meta=meta)
+
+
+def explicit(nodes, bars, cables, node_mass, cable_EA, cable_rest_length=None, prestrain=None,
+             rigid_edges=(), clamped=(), bar_mass=0.0):
+    """A network given member by member. Cable rest lengths are given, or follow from a prestrain
+    applied to the given geometry (the geometry must then be an equilibrium for that prestress)."""
+    nodes = np.asarray(nodes, dtype=np.float64)
+    cables_arr = np.asarray(cables, dtype=np.int64).reshape(-1, 2)
+    if cable_rest_length is None:
+        if prestrain is None:
+            raise NetworkError('explicit structure needs cable_rest_length or prestrain')
+        if cables_arr.size and (cables_arr.min() < 0 or cables_arr.max() >= len(nodes)):
+            raise NetworkError(f'cables: node index out of range 0..{len(nodes) - 1}')
+        s = np.linalg.norm(nodes[cables_arr[:, 1]] - nodes[cables_arr[:, 0]], axis=1)
+        cable_rest_length = cross_prestrain_rest(s, prestrain)
+    return Network.build(nodes, node_mass, bars, cables_arr, cable_rest_length, cable_EA,
+                         rigid_edges=rigid_edges, clamped=clamped, bar_mass=bar_mass,
+                         meta=dict(builder='explicit'))
+
+
+BUILDERS = {'column': column, 'prism': column, 'explicit': explicit}

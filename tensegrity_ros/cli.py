@@ -1,0 +1,124 @@
+"""The ``tensegrity`` command (interfaces.md section 2).
+
+User errors (bad scene, bad option, diverged simulation) print one line on stderr and exit 2 (1 for a
+diverged run), never a traceback.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+
+class UserError(Exception):
+    """An error the user caused; printed as one line."""
+
+
+def _progress(total, desc):
+    """A tqdm bar on a terminal; nothing otherwise."""
+    if not sys.stderr.isatty():
+        return None, (lambda: None)
+    from tqdm import tqdm
+    bar = tqdm(total=total, desc=desc, unit='frame', leave=False)
+    return bar.update, bar.close
+
+
+def cmd_run(args):
+    from solver.runner import run, summary
+    from solver.scene import Scene
+    from solver.simulation import Simulation
+
+    scene = Scene.load(args.scene)
+    sets = list(args.set or [])
+    if args.v0 is not None:
+        sets.append(('loading.impact.v0', args.v0))
+    if args.prestrain is not None:
+        sets.append(('prestrain', args.prestrain))
+    if args.t_end is not None:
+        sets.append(('run.t_end', args.t_end))
+    if sets:
+        scene = scene.with_overrides(sets)
+    sim = Simulation(scene)
+    sim.advance(sim.dt)          # compile (or load cached) kernels outside the timed loop
+    sim.reset()
+    v0 = scene['loading.impact.v0']
+    if v0:
+        sim.apply_impact(v0, scene['loading.impact.columns'])
+    t_end, output_dt = scene['run.t_end'], scene['run.output_dt']
+    out_dir = Path(args.out) if args.out else None
+    if out_dir is None and args.plot:
+        out_dir = Path('runs') / scene.name
+    if out_dir is not None:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    update, close = _progress(int(round(t_end / output_dt)), scene.name)
+    try:
+        rec = run(sim, t_end, output_dt, progress=update)
+    finally:
+        close()
+    outputs = {}
+    if args.plot:
+        from .plots import strain_wave
+        outputs['plot'] = str(strain_wave(rec, out_dir / 'strain_wave.png',
+                                          title=f'{scene.name}: v0 = {v0} m/s'))
+    result = summary(scene, sim, rec, outputs)
+    if out_dir is not None:
+        (out_dir / 'summary.json').write_text(json.dumps(result, indent=2))
+    if args.json:
+        print(json.dumps(result))
+    else:
+        p = result['pulse'] or {}
+        print(f"{result['scene']}: {result['model']} + {result['integrator']}, dt = {result['dt']:g} s,"
+              f" t_end = {result['t_end']:g} s, {result['steps_taken']} steps in "
+              f"{result['wall_time_s']:.2f} s ({result['real_time_factor']:.1f}x real time)")
+        print(f"  energy drift {result['energy_drift_rel']:.2e} /s, constraint error "
+              f"{result['constraint_error_rel']:.2e}")
+        if p:
+            print(f"  pulse: amplitude {p['amplitude']:.4f} at t = {p['t_ref']:g} s (median "
+                  f"{p['amplitude_median']:.4f}), speed {p['speed_m_s']:.3f} m/s, width "
+                  f"{p['width_prisms']} prisms")
+        for key, path in result['outputs'].items():
+            if path:
+                print(f'  {key}: {path}')
+    return 0
+
+
+def build_parser():
+    parser = argparse.ArgumentParser(prog='tensegrity', description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest='command', required=True)
+    p = sub.add_parser('run', help='run a scene headless and summarise the strain wave')
+    p.add_argument('scene', help='scene YAML file (config/scenes/*.yaml)')
+    p.add_argument('--set', action='append', metavar='KEY=VALUE',
+                   help='override a scene value, e.g. integrator.dt=2e-4 (repeatable)')
+    p.add_argument('--v0', type=float, help='impact velocity, m/s (positive = compressive)')
+    p.add_argument('--prestrain', type=float, help='cross-cable prestrain p')
+    p.add_argument('--t-end', type=float, help='simulated time, s')
+    p.add_argument('--out', help='output directory (summary.json, plots)')
+    p.add_argument('--plot', action='store_true', help='write a PNG of the strain wave')
+    p.add_argument('--json', action='store_true', help='print the summary as one JSON object')
+    p.set_defaults(func=cmd_run)
+    return parser
+
+
+def main(argv=None):
+    from solver.network import NetworkError
+    from solver.scene import SceneError
+    from solver.simulation import SimulationDiverged
+
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return args.func(args)
+    except SimulationDiverged as exc:
+        print(f'tensegrity: {exc}', file=sys.stderr)
+        return 1
+    except (SceneError, NetworkError, UserError, ValueError) as exc:
+        print(f'tensegrity: {exc}', file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print('tensegrity: interrupted', file=sys.stderr)
+        return 130
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,35 @@
+"""Pictures of a run (matplotlib, Agg backend: works headless)."""
+from __future__ import annotations
+
+import numpy as np
+
+
+def strain_wave(rec, path, title='', column=0, snapshots=(0.1, 0.3, 0.5, 0.7, 0.9)):
+    """Two panels: strain against prism index at several times (like the paper's figures) and a
+    prism-by-time heat map of the whole wave. Writes a PNG to ``path``; returns ``path``."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+
+    strain = rec.strain[:, column]
+    n_prisms = strain.shape[1]
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(12, 4.5), constrained_layout=True)
+    for t in snapshots:
+        if t > rec.times[-1]:
+            continue
+        k = int(np.argmin(np.abs(rec.times - t)))
+        ax1.plot(np.arange(1, n_prisms + 1), strain[k], label=f't = {rec.times[k]:.2f} s')
+    ax1.set_xlabel('prism (1 = clamped end, %d = impacted end)' % n_prisms)
+    ax1.set_ylabel('axial strain (h - h0) / h')
+    ax1.legend(fontsize=8)
+    ax1.grid(alpha=0.3)
+    lim = float(np.max(np.abs(strain))) or 1.0
+    im = ax2.imshow(strain.T, aspect='auto', origin='lower', cmap='RdBu', vmin=-lim, vmax=lim,
+                    extent=(rec.times[0], rec.times[-1], 0.5, n_prisms + 0.5))
+    fig.colorbar(im, ax=ax2, label='strain')
+    ax2.set_xlabel('time (s)')
+    ax2.set_ylabel('prism')
+    fig.suptitle(title)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
