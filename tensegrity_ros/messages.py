@@ -1,0 +1,233 @@
+"""Frame -> ROS 2 messages: pure functions shared by the node and the MCAP writer.
+
+Nothing here talks to ROS middleware: the functions build message objects from a
+:class:`solver.simulation.Frame` and a :class:`solver.network.Network`, so the node, the MCAP log and
+the tests see exactly the same bytes.
+
+Stable API (keep it so; the recorder depends on it):
+
+- :data:`TYPES`: topic key -> ROS type name, e.g. ``'~/nodes' -> 'sensor_msgs/msg/PointCloud2'``.
+  Keys starting with ``~/`` are private to the node, ``/clock`` and ``/diagnostics`` are absolute.
+- :data:`MSG_CLASSES`: topic key -> message class.
+- :func:`resolve_topic`: ``'~/nodes' -> '/tensegrity/tensegrity_sim/nodes'``.
+- :func:`frame_messages` ``(frame, network, stamp=None, markers=True, clock=False)``: dict topic key
+  -> message for one publish frame (stamps from simulation time ``frame.t``).
+- :func:`diagnostics_message`, :func:`command_array`, :func:`sim_stamp`, :func:`stamp_to_ns`,
+  :func:`nodes_cloud` / :func:`cloud_positions`, :func:`multi_array`, :func:`marker_array`.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import Point
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import PointCloud2, PointField
+from std_msgs.msg import ColorRGBA, Float64MultiArray, MultiArrayDimension
+from visualization_msgs.msg import Marker, MarkerArray
+
+FRAME_ID = 'world'
+NAMESPACE = '/tensegrity'
+NODE_NAME = 'tensegrity_sim'
+
+TYPES = {
+    '~/nodes': 'sensor_msgs/msg/PointCloud2',
+    '~/strain': 'std_msgs/msg/Float64MultiArray',
+    '~/cable_tension': 'std_msgs/msg/Float64MultiArray',
+    '~/markers': 'visualization_msgs/msg/MarkerArray',
+    '/clock': 'rosgraph_msgs/msg/Clock',
+    '/diagnostics': 'diagnostic_msgs/msg/DiagnosticArray',
+    '~/cmd/prestrain': 'std_msgs/msg/Float64MultiArray',
+    '~/cmd/impact': 'std_msgs/msg/Float64MultiArray',
+}
+MSG_CLASSES = {
+    '~/nodes': PointCloud2, '~/strain': Float64MultiArray, '~/cable_tension': Float64MultiArray,
+    '~/markers': MarkerArray, '/clock': Clock, '/diagnostics': DiagnosticArray,
+    '~/cmd/prestrain': Float64MultiArray, '~/cmd/impact': Float64MultiArray,
+}
+PUBLISHED = ('~/nodes', '~/strain', '~/cable_tension', '~/markers', '/clock', '/diagnostics')
+COMMANDS = ('~/cmd/prestrain', '~/cmd/impact')
+
+BAR_COLOR = (0.55, 0.55, 0.6, 1.0)
+LINE_WIDTH_M = 3.0e-4
+
+
+def resolve_topic(key, namespace=NAMESPACE, node=NODE_NAME):
+    """Full topic name of a key: ``'~/nodes'`` -> ``'/tensegrity/tensegrity_sim/nodes'``;
+    absolute keys are returned unchanged."""
+    if key.startswith('~/'):
+        ns = namespace.rstrip('/')
+        return f'{ns}/{node}/{key[2:]}'
+    return key
+
+
+def sim_stamp(t):
+    """``builtin_interfaces/Time`` of a simulation time ``t`` s (>= 0), rounded to the ns."""
+    ns = int(round(float(t) * 1e9))
+    if ns < 0:
+        raise ValueError(f'stamp: negative simulation time {t!r}')
+    return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+
+
+def stamp_to_ns(stamp):
+    """Nanoseconds of a ``builtin_interfaces/Time``."""
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def _header(msg, stamp):
+    msg.header.stamp = stamp
+    msg.header.frame_id = FRAME_ID
+    return msg
+
+
+def multi_array(values, labels):
+    """``Float64MultiArray`` of a C-ordered array ``values`` with one layout dimension per axis,
+    named by ``labels`` (stride = product of the sizes of that axis and the ones after it)."""
+    a = np.ascontiguousarray(values, dtype=np.float64)
+    if a.ndim != len(labels):
+        raise ValueError(f'multi_array: {a.ndim} axes but {len(labels)} labels')
+    msg = Float64MultiArray()
+    stride = int(a.size)
+    dims = []
+    for label, size in zip(labels, a.shape):
+        dims.append(MultiArrayDimension(label=label, size=int(size), stride=int(stride)))
+        stride = stride // size if size else 0
+    msg.layout.dim = dims
+    msg.layout.data_offset = 0
+    msg.data = a.ravel()
+    return msg
+
+
+def command_array(values, label):
+    """A command message (``~/cmd/prestrain`` or ``~/cmd/impact``): a flat vector with one layout
+    dimension labelled ``label`` (``'all'``, ``'column'`` or ``'cross_cable'``)."""
+    return multi_array(np.atleast_1d(np.asarray(values, dtype=np.float64)).ravel(), (label,))
+
+
+def nodes_cloud(positions, stamp):
+    """``PointCloud2`` of node positions (n_nodes, 3) m: float32 x y z, little endian, dense."""
+    p = np.ascontiguousarray(positions, dtype='<f4')
+    msg = _header(PointCloud2(), stamp)
+    msg.height = 1
+    msg.width = int(p.shape[0])
+    msg.fields = [PointField(name=n, offset=4 * i, datatype=PointField.FLOAT32, count=1)
+                  for i, n in enumerate('xyz')]
+    msg.is_bigendian = False
+    msg.point_step = 12
+    msg.row_step = 12 * msg.width
+    msg.is_dense = True
+    msg.data = p.tobytes()
+    return msg
+
+
+def cloud_positions(msg):
+    """Inverse of :func:`nodes_cloud`: (n_nodes, 3) float64 positions of a ``PointCloud2``."""
+    raw = np.frombuffer(bytes(msg.data), dtype='<f4')
+    return raw.reshape(msg.width * msg.height, 3).astype(np.float64)
+
+
+def tension_colors(tension, t_max):
+    """RGBA (n_cables, 4) in [0, 1]: blue (low) to red (``t_max``); slack cables dimmed grey."""
+    t = np.asarray(tension, dtype=np.float64)
+    u = np.clip(t / t_max, 0.0, 1.0) if t_max > 0 else np.zeros_like(t)
+    rgba = np.empty((len(t), 4))
+    rgba[:, 0] = u
+    rgba[:, 1] = 0.2 * (1.0 - u)
+    rgba[:, 2] = 1.0 - u
+    rgba[:, 3] = 1.0
+    slack = t <= 0.0
+    rgba[slack] = (0.5, 0.5, 0.5, 0.25)
+    return rgba
+
+
+def _line_list(marker_id, ns, stamp, x, a, b, colors=None, color=BAR_COLOR):
+    m = _header(Marker(), stamp)
+    m.ns = ns
+    m.id = marker_id
+    m.type = Marker.LINE_LIST
+    m.action = Marker.ADD
+    m.pose.orientation.w = 1.0
+    m.scale.x = LINE_WIDTH_M
+    m.color = ColorRGBA(r=color[0], g=color[1], b=color[2], a=color[3])
+    ends = np.empty((2 * len(a), 3))
+    ends[0::2] = x[a]
+    ends[1::2] = x[b]
+    m.points = [Point(x=float(p[0]), y=float(p[1]), z=float(p[2])) for p in ends.tolist()]
+    if colors is not None:
+        m.colors = [ColorRGBA(r=c[0], g=c[1], b=c[2], a=c[3])
+                    for c in np.repeat(colors, 2, axis=0).tolist()]
+    return m
+
+
+def marker_array(frame, network, stamp, t_max=None):
+    """``MarkerArray``: bars and rigid edges (id 0, grey line list) and cables (id 1, line list
+    coloured by tension, scale ``t_max`` N, default 2x the largest reference tension)."""
+    x = np.asarray(frame.positions, dtype=np.float64)
+    if t_max is None:
+        t_max = 2.0 * reference_tension_scale(network)
+    bar_a = np.concatenate([network.bar_a, network.edge_a])
+    bar_b = np.concatenate([network.bar_b, network.edge_b])
+    arr = MarkerArray()
+    arr.markers = [
+        _line_list(0, 'bars', stamp, x, bar_a, bar_b),
+        _line_list(1, 'cables', stamp, x, network.cable_a, network.cable_b,
+                   colors=tension_colors(frame.tension, t_max)),
+    ]
+    return arr
+
+
+def reference_tension_scale(network):
+    """Largest cable tension N of the reference geometry at the network's rest lengths."""
+    s = np.linalg.norm(network.x0[network.cable_b] - network.x0[network.cable_a], axis=1)
+    L = network.cable_rest_length
+    t = np.where(s > L, network.cable_EA * (s - L) / L, 0.0)
+    return float(t.max()) if t.size and t.max() > 0 else 1.0
+
+
+def frame_messages(frame, network, stamp=None, markers=True, clock=False, t_max=None):
+    """Messages of one publish frame: dict topic key -> message.
+
+    Always ``'~/nodes'`` (PointCloud2), ``'~/strain'`` (dims ``column``, ``prism``) and
+    ``'~/cable_tension'`` (dim ``cable``, N); ``'~/markers'`` when ``markers``; ``'/clock'`` when
+    ``clock``. ``stamp`` defaults to :func:`sim_stamp` of ``frame.t``. Raises ``ValueError`` if the
+    frame holds a non-finite value (nothing NaN is ever published)."""
+    for name in ('positions', 'strain', 'tension'):
+        if not np.all(np.isfinite(getattr(frame, name))):
+            raise ValueError(f'frame at t = {frame.t:.6g} s: {name} is not finite')
+    if stamp is None:
+        stamp = sim_stamp(frame.t)
+    out = {
+        '~/nodes': nodes_cloud(frame.positions, stamp),
+        '~/strain': multi_array(np.asarray(frame.strain).reshape(network.n_columns,
+                                                                 network.n_prisms),
+                                ('column', 'prism')),
+        '~/cable_tension': multi_array(frame.tension, ('cable',)),
+    }
+    if markers:
+        out['~/markers'] = marker_array(frame, network, stamp, t_max)
+    if clock:
+        out['/clock'] = Clock(clock=stamp)
+    return out
+
+
+def diagnostics_message(stamp, values, level=0, message='', name='tensegrity_sim',
+                        hardware_id='simulation'):
+    """``DiagnosticArray`` with one status: ``values`` a dict name -> value (floats formatted with
+    ``%.6g``, non-finite floats as ``'n/a'``), ``level`` 0 OK, 1 WARN, 2 ERROR, 3 STALE."""
+    status = DiagnosticStatus(level=bytes([int(level)]), name=name, message=str(message),
+                              hardware_id=hardware_id)
+    kv = []
+    for key, value in values.items():
+        if isinstance(value, float):
+            text = f'{value:.6g}' if math.isfinite(value) else 'n/a'
+        else:
+            text = str(value)
+        kv.append(KeyValue(key=str(key), value=text))
+    status.values = kv
+    arr = DiagnosticArray()
+    arr.header.stamp = stamp
+    arr.header.frame_id = FRAME_ID
+    arr.status = [status]
+    return arr
