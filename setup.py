@@ -33,7 +33,7 @@ CORE = [
 setup(
     name=package_name,
     version='0.1.0',
-    packages=['solver', package_name],
+    packages=['solver', package_name, 'bench'],
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),

@@ -83,6 +83,20 @@ def cmd_run(args):
     return 0
 
 
+def cmd_bench(args):
+    """Work-precision chart, stability map and (``--peers``) the peer comparison into ``--out``."""
+    from bench.main import main as bench_main
+
+    def log(msg):
+        print(msg, file=sys.stderr, flush=True)
+
+    only = None if args.only is None else set(args.only)
+    written = bench_main(args.out, quick=args.quick, peers=args.peers, only=only, log=log)
+    for path in written:
+        print(path)
+    return 0
+
+
 def build_parser():
     parser = argparse.ArgumentParser(prog='tensegrity', description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest='command', required=True)
@@ -97,6 +111,13 @@ def build_parser():
     p.add_argument('--plot', action='store_true', help='write a PNG of the strain wave')
     p.add_argument('--json', action='store_true', help='print the summary as one JSON object')
     p.set_defaults(func=cmd_run)
+    p = sub.add_parser('bench', help='work-precision chart, stability map, peer comparison')
+    p.add_argument('--quick', action='store_true', help='small grids and short windows (smoke run)')
+    p.add_argument('--out', default='bench/results', help='output directory (CSV and PNG)')
+    p.add_argument('--peers', action='store_true', help='also run the peer comparison')
+    p.add_argument('--only', action='append', choices=('work_precision', 'stability', 'peers'),
+                   help='run only this benchmark (repeatable)')
+    p.set_defaults(func=cmd_bench)
     return parser
 
 

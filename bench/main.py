@@ -1,0 +1,25 @@
+"""Entry point of ``tensegrity bench``: work-precision chart, stability map, optional peers."""
+from __future__ import annotations
+
+from pathlib import Path
+
+
+def main(out_dir='bench/results', quick=False, peers=False, only=None, log=print):
+    """Run the benchmarks into ``out_dir``; ``only`` is None or a subset of
+    ``{'work_precision', 'stability', 'peers'}`` (``peers=True`` adds the peer comparison, which
+    :mod:`bench.peers` provides). Returns the list of files written."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    written = []
+    if only is None or 'work_precision' in only:
+        from . import work_precision
+        written += work_precision.main(out, quick=quick, log=log)
+    if only is None or 'stability' in only:
+        from . import stability
+        written += stability.main(out, quick=quick, log=log)
+    if peers or (only is not None and 'peers' in only):
+        from . import peers as peer_bench  # lazy: optional dependencies
+        result = peer_bench.main(out, quick)
+        if isinstance(result, (list, tuple)):
+            written += [str(p) for p in result]
+    return written
