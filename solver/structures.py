@@ -37,7 +37,7 @@ def column(n_prisms=50, radius=0.005, h0=0.0062, cable_E=5.48e6, cable_radius=1.
 
     Level j of column c (j = 0..n_prisms) holds nodes ``3 j + k`` (+ ``c * 3 (n_prisms + 1)``) at
     ``(r cos(j phi0 + 2 pi k / 3) + c * spacing, r sin(...), j h0)``. Bars ``(j, k) -> (j+1, k)``, cross
-    cables ``(j, k) -> (j+1, (k-1) mod 3)``, base cables ``(j, k) -> (j, k+1)``. Cross cables get
+    cables ``(j, k) -> (j+1, (k-1) mod 3)`` (``k+1`` when left-handed), base cables ``(j, k) -> (j, k+1)``. Cross cables get
     prestrain ``p``; base cables get the tension of the prism self-stress ``t_l = gamma_s r`` (twice at
     interior levels with ``stacking='shared'``; one cable per prism with ``stacking='parallel'``).
     Rigid bases are rigid edges (``rigid_bases_as='edges'``) or base cables with EA x ``kappa``.
@@ -47,6 +47,7 @@ def column(n_prisms=50, radius=0.005, h0=0.0062, cable_E=5.48e6, cable_radius=1.
         raise NetworkError('n_prisms and n_columns must be at least 1')
     sign = 1.0 if handedness == 'right' else -1.0
     phi0 = sign * PHI0
+    cross = -1 if handedness == 'right' else 1     # mirror image: cross cables to (k + 1) mod 3
     n_levels = n_prisms + 1
     EA = cable_E * math.pi * cable_radius ** 2
     per_col = 3 * n_levels
@@ -67,7 +68,7 @@ def column(n_prisms=50, radius=0.005, h0=0.0062, cable_E=5.48e6, cable_radius=1.
                 levels[c, j, k] = node(c, j, k)
 
     # cross-cable geometry is the same in every prism: s, rest length, force density
-    s_len = np.linalg.norm(x[node(0, 1, -1)] - x[node(0, 0, 0)])
+    s_len = np.linalg.norm(x[node(0, 1, cross)] - x[node(0, 0, 0)])
     L_s = cross_prestrain_rest(s_len, prestrain)
     gamma_s = EA * (s_len - L_s) / (L_s * s_len)
     t_l = gamma_s * radius
@@ -81,7 +82,7 @@ def column(n_prisms=50, radius=0.005, h0=0.0062, cable_E=5.48e6, cable_radius=1.
                 for k in range(3):
                     bars.append((node(c, j, k), node(c, j + 1, k)))
                 for k in range(3):
-                    cables.append((node(c, j, k), node(c, j + 1, k - 1)))
+                    cables.append((node(c, j, k), node(c, j + 1, k + cross)))
                     cable_EA.append(EA)
                     cable_rest.append(L_s)
                     kinds.append('cross')

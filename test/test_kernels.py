@@ -1,0 +1,131 @@
+"""Each numba kernel against its slow dense NumPy twin (test/twins.py) on perturbed, moving states."""
+import numpy as np
+import pytest
+
+import twins
+from solver import dynamics as dyn
+from solver import structures
+
+
+def _networks():
+    return {
+        'prism_fb': structures.column(n_prisms=1),
+        'prism_massive_bars': structures.column(n_prisms=1, bar_mass=0.004),
+        'column_fb': structures.column(n_prisms=4),
+        'column_rb_edges': structures.column(n_prisms=4, bases='rigid'),
+        'column_rb_stiff': structures.column(n_prisms=3, bases='rigid',
+                                             rigid_bases_as='stiff_cables', kappa=50.0),
+        'column_parallel': structures.column(n_prisms=3, stacking='parallel'),
+        'two_columns_rb': structures.column(n_prisms=2, n_columns=2, bases='rigid'),
+    }
+
+
+NETWORKS = _networks()
+
+
+def _state(net, seed, amp=2e-4, vamp=0.05):
+    rng = np.random.default_rng(seed)
+    x = np.array(net.x0) + amp * rng.standard_normal(net.x0.shape)
+    v = vamp * rng.standard_normal(net.x0.shape)
+    x[net.clamped] = net.x0[net.clamped]
+    v[net.clamped] = 0.0
+    return x, v
+
+
+def _relclose(a, b, rtol=1e-8):
+    scale = max(np.max(np.abs(b)), 1e-300)
+    return np.max(np.abs(a - b)) / scale < rtol
+
+
+@pytest.mark.parametrize('name', sorted(NETWORKS))
+def test_cable_forces_match_twin(name):
+    net = NETWORKS[name]
+    x, _ = _state(net, 1, amp=5e-4)     # big enough that some cables go slack
+    rest = np.array(net.cable_rest_length)
+    f = np.zeros_like(x)
+    dyn.cable_forces(x, net.cable_a, net.cable_b, rest, np.array(net.cable_EA), f)
+    ref = twins.cable_forces(x, net, rest, np.array(net.cable_EA))
+    assert _relclose(f, ref, 1e-12)
+
+
+@pytest.mark.parametrize('name', sorted(NETWORKS))
+def test_accelerations_and_multipliers_match_dense_kkt(name):
+    net = NETWORKS[name]
+    net_t, act = dyn.pack(net)
+    ws = dyn.workspace(net.n_nodes, net.n_constraints, net.bandwidth)
+    for seed in range(3):
+        x, v = _state(net, seed)
+        a = np.zeros_like(x)
+        assert dyn.accelerations(x, v, net_t, act, ws, a) == dyn.OK
+        lam = dict(zip(zip(net.con_tail, net.con_head), ws[4]))
+        a_ref, lam_ref, members = twins.accelerations(x, v, net, act[0], act[1])
+        assert _relclose(a, a_ref, 1e-8)
+        lam_fast = np.array([lam[(t, h)] for t, h in members])
+        assert _relclose(lam_fast, lam_ref, 1e-8)
+
+
+@pytest.mark.parametrize('bw', [1, 2, 6])
+def test_band_solver_matches_dense_solve(bw):
+    rng = np.random.default_rng(bw)
+    m = 40
+    A = np.zeros((m, m))
+    for i in range(m):
+        for j in range(max(0, i - bw), i):
+            A[i, j] = A[j, i] = rng.uniform(-1, 1)
+    A += np.diag(np.sum(np.abs(A), axis=1) + 1.0)     # diagonally dominant: SPD
+    band = np.zeros((m, bw + 1))
+    for i in range(m):
+        for k in range(min(i, bw) + 1):
+            band[i, k] = A[i, i - k]
+    rhs = rng.standard_normal(m)
+    y = rhs.copy()
+    assert dyn.band_ldl_solve(band, y) == dyn.OK
+    assert np.allclose(y, np.linalg.solve(A, rhs), rtol=1e-12, atol=1e-12)
+
+
+def test_band_solver_reports_singular_matrix():
+    band = np.array([[1.0, 0.0], [1.0, 1.0]])     # A = [[1, 1], [1, 1]]
+    assert dyn.band_ldl_solve(band, np.ones(2)) == dyn.SINGULAR
+
+
+@pytest.mark.parametrize('name', sorted(NETWORKS))
+def test_velocity_projection_matches_twin(name):
+    net = NETWORKS[name]
+    net_t, _ = dyn.pack(net)
+    ws = dyn.workspace(net.n_nodes, net.n_constraints, net.bandwidth)
+    x, v = _state(net, 7)
+    ref = twins.project_velocities(x, v, net)
+    assert dyn.project_velocities(x, v, net_t, ws) == dyn.OK
+    assert _relclose(v, ref, 1e-9)
+    # the projected velocity does not stretch any rigid member
+    b = x[net.con_head] - x[net.con_tail]
+    bd = v[net.con_head] - v[net.con_tail]
+    assert np.max(np.abs(np.einsum('ij,ij->i', b, bd))) < 1e-14
+
+
+@pytest.mark.parametrize('name', sorted(NETWORKS))
+def test_position_projection_matches_twin(name):
+    net = NETWORKS[name]
+    net_t, _ = dyn.pack(net)
+    ws = dyn.workspace(net.n_nodes, net.n_constraints, net.bandwidth)
+    x, _ = _state(net, 3, amp=1e-5)
+    ref = twins.project_positions(x, net, iterations=1)
+    one = x.copy()
+    assert dyn.project_positions(one, net_t, ws, 1e-300, 1) == dyn.NOT_CONVERGED
+    assert np.max(np.abs(one - ref)) < 1e-15 + 1e-9 * np.max(np.abs(ref - x))
+    assert dyn.project_positions(x, net_t, ws, 1e-12, 5) == dyn.OK
+    b = x[net.con_head] - x[net.con_tail]
+    rel = np.abs(np.linalg.norm(b, axis=1) / net.con_length - 1)
+    assert rel.max() < 1e-12
+
+
+@pytest.mark.parametrize('name', sorted(NETWORKS))
+def test_energies_match_twin(name):
+    net = NETWORKS[name]
+    x, v = _state(net, 11, amp=5e-4)
+    ke = dyn.kinetic_energy(v, net.node_mass, net.clamped, net.bar_a, net.bar_b, net.bar_mass)
+    assert ke == pytest.approx(twins.kinetic_energy(v, net), rel=1e-12)
+    rest, EA = np.array(net.cable_rest_length), np.array(net.cable_EA)
+    d = np.linalg.norm(x[net.cable_b] - x[net.cable_a], axis=1)
+    pe_ref = np.sum(0.5 * EA / rest * np.clip(d - rest, 0, None) ** 2)
+    assert dyn.cable_energy(x, net.cable_a, net.cable_b, rest, EA) == pytest.approx(pe_ref, rel=1e-12)
