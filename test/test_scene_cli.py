@@ -1,0 +1,106 @@
+"""Scene validation, the `tensegrity run` command line, and the one-way layering of the packages."""
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from solver.scene import Scene, SceneError
+
+ROOT = Path(__file__).resolve().parents[1]
+SCENES = ROOT / 'config' / 'scenes'
+
+
+@pytest.mark.parametrize('name', ['prism', 'fb_column', 'rb_column'])
+def test_shipped_scenes_load(name):
+    scene = Scene.load(SCENES / f'{name}.yaml')
+    assert scene.name == name
+
+
+@pytest.mark.parametrize('raw,key', [
+    ({'structur': {}}, 'structur'),
+    ({'structure': {'n_prism': 3}}, 'structure.n_prism'),
+    ({'structure': {'n_prisms': 'many'}}, 'structure.n_prisms'),
+    ({'structure': {'n_prisms': 2.5}}, 'structure.n_prisms'),
+    ({'structure': {'bases': 'wobbly'}}, 'structure.bases'),
+    ({'structure': {'builder': 'dome'}}, 'structure.builder'),
+    ({'prestrain': -0.1}, 'prestrain'),
+    ({'prestrain': float('nan')}, 'prestrain'),
+    ({'integrator': {'dt': 0}}, 'integrator.dt'),
+    ({'integrator': {'land_on_kinks': 'yes'}}, 'integrator.land_on_kinks'),
+    ({'model': 'quantum'}, 'model'),
+    ({'loading': {'impact': {'columns': [3]}}}, 'loading.impact.columns'),
+    ({'run': {'output_dt': 1e-5}}, 'run.output_dt'),
+    ([1, 2], 'scene'),
+])
+def test_bad_scene_values_name_the_key(raw, key):
+    with pytest.raises(SceneError) as err:
+        Scene(raw)
+    assert str(err.value).startswith(key)
+
+
+def test_overrides_parse_values_and_reject_unknown_keys():
+    scene = Scene.load(SCENES / 'fb_column.yaml')
+    s2 = scene.with_overrides(['integrator.dt=2.5e-4', 'structure.bases=rigid',
+                               'integrator=rk4_projected'])
+    assert s2['integrator.dt'] == 2.5e-4 and s2['structure.bases'] == 'rigid'
+    assert scene['integrator.dt'] == 5e-4          # the original is unchanged
+    with pytest.raises(SceneError, match='integrator.dtt'):
+        scene.with_overrides(['integrator.dtt=1'])
+    with pytest.raises(SceneError, match='expected KEY=VALUE'):
+        scene.with_overrides(['dt'])
+
+
+def test_bad_yaml_names_the_file_and_line(tmp_path):
+    path = tmp_path / 'bad.yaml'
+    path.write_text('structure:\n  n_prisms: [1,\n')
+    with pytest.raises(SceneError, match='bad.yaml: line'):
+        Scene.load(path)
+
+
+def _cli(*args, cwd=ROOT):
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    return subprocess.run([sys.executable, '-m', 'tensegrity_ros.cli', *args], cwd=cwd, env=env,
+                          capture_output=True, text=True, timeout=300)
+
+
+def test_run_json_summary_has_the_documented_keys(tmp_path):
+    res = _cli('run', str(SCENES / 'prism.yaml'), '--t-end', '0.05', '--json', '--out',
+               str(tmp_path))
+    assert res.returncode == 0, res.stderr
+    out = json.loads(res.stdout)
+    for key in ('scene', 'model', 'integrator', 'dt', 't_end', 'n_nodes', 'n_bars', 'n_cables',
+                'steps', 'wall_time_s', 'real_time_factor', 'energy_drift_rel',
+                'constraint_error_rel', 'pulse', 'outputs'):
+        assert key in out
+    assert out['n_nodes'] == 6 and out['n_bars'] == 3 and out['n_cables'] == 9
+    assert out['t_end'] == pytest.approx(0.05)
+    assert json.loads((tmp_path / 'summary.json').read_text())['scene'] == 'prism'
+
+
+@pytest.mark.parametrize('args,needle', [
+    (('run', 'no/such/scene.yaml'), 'cannot read scene file'),
+    (('run', str(SCENES / 'prism.yaml'), '--set', 'integrator.dt=-1'), 'integrator.dt'),
+    (('run', str(SCENES / 'prism.yaml'), '--set', 'integrator=euler'), 'euler'),
+    (('run', str(SCENES / 'prism.yaml'), '--prestrain', '2'), 'prestrain'),
+])
+def test_user_errors_are_one_line_without_traceback(args, needle):
+    res = _cli(*args)
+    assert res.returncode != 0
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and needle in lines[0], res.stderr
+    assert 'Traceback' not in res.stderr
+
+
+def test_solver_imports_without_ros_mcap_or_rerun():
+    code = ('import sys\n'
+            'for m in ("rclpy", "mcap", "mcap_ros2", "rerun"):\n'
+            '    sys.modules[m] = None\n'
+            'import pkgutil, importlib, solver\n'
+            'for mod in pkgutil.iter_modules(solver.__path__):\n'
+            '    importlib.import_module("solver." + mod.name)\n')
+    res = subprocess.run([sys.executable, '-c', code], cwd=ROOT, capture_output=True, text=True,
+                         env=dict(os.environ, PYTHONPATH=str(ROOT)), timeout=300)
+    assert res.returncode == 0, res.stderr
