@@ -82,14 +82,15 @@ class Pulse:
                 't_ref': self.t_ref, 'arrival_time_s': self.arrival_time_s}
 
 
-def leading_peak(eps, threshold=0.25):
+def leading_peak(eps, threshold=0.25, floor=1e-6):
     """Index (from the impacted end, 0 = prism next to it) and strain of the leading compressive peak
     of one strain profile ``eps`` (n_prisms,), ordered from the impacted end. The front is the farthest
     prism whose compression exceeds ``threshold`` times the largest compression of the profile; the
-    peak is the local minimum reached walking back from the front. ``(nan, nan)`` when at rest."""
+    peak is the local minimum reached walking back from the front. ``(nan, nan)`` when at rest (no
+    compression above ``floor``, which keeps round-off noise from being tracked as a pulse)."""
     comp = -eps
     top = comp.max()
-    if not top > 0:
+    if not top > floor:
         return np.nan, np.nan
     above = np.nonzero(comp >= threshold * top)[0]
     i = above[-1]
