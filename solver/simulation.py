@@ -19,7 +19,9 @@ import numpy as np
 
 from . import dynamics as dyn
 from . import integrators, models, observables, structures
-from .scene import Scene
+from .scene import RANGES, Scene
+
+PRESTRAIN_RANGE = RANGES['prestrain']     # (lower, upper, lower inclusive): 0 < p <= 0.5
 
 
 class SimulationDiverged(RuntimeError):
@@ -97,6 +99,11 @@ class Simulation:
         self.t = 0.0
         self.step = 0
         self.steps_taken = 0
+        self._prestrain_map = None
+        self._prestrain = None          # (n_columns, n_prisms) current cross prestrain, or None
+        self._ramp = None               # (t0, duration, p_start, p_target) of a prestrain ramp
+        if net.levels.size and net.meta.get('builder') == 'column':
+            self._prestrain = np.full((net.n_columns, net.n_prisms), float(net.meta['prestrain']))
         self._energy_ref = self.energy()
 
     def energy(self):
@@ -148,6 +155,99 @@ class Simulation:
         self._energy_ref = self.energy()
         return self._energy_ref - before
 
+    @property
+    def prestrain(self):
+        """Current cross prestrain per prism (n_columns, n_prisms) (a copy), None if not a column."""
+        return None if self._prestrain is None else self._prestrain.copy()
+
+    @property
+    def prestrain_map(self):
+        """The :class:`~solver.structures.PrestrainMap` of the network (built on first use)."""
+        if self._prestrain_map is None:
+            self._prestrain_map = structures.PrestrainMap(self.network)
+        return self._prestrain_map
+
+    def prestrain_target(self, p, columns=None):
+        """Per-prism prestrain (n_columns, n_prisms) of a command: ``p`` a scalar (all addressed
+        columns), one value per addressed column, or an (n_addressed, n_prisms) array; columns not
+        addressed keep their current (target) values. Raises ``ValueError`` naming the problem."""
+        if self._prestrain is None:
+            raise ValueError('prestrain needs a column structure built by the column builder')
+        net = self.network
+        cols = list(range(net.n_columns)) if columns is None else list(columns)
+        if not cols or any(not 0 <= c < net.n_columns for c in cols):
+            raise ValueError(f'prestrain: columns must be indices 0..{net.n_columns - 1}')
+        p = np.asarray(p, dtype=np.float64)
+        if p.ndim == 0:
+            p = np.full((len(cols), net.n_prisms), float(p))
+        elif p.shape == (len(cols),):
+            p = np.repeat(p[:, None], net.n_prisms, axis=1)
+        elif p.shape != (len(cols), net.n_prisms):
+            raise ValueError(f'prestrain: expected 1, {len(cols)} or {len(cols)} x {net.n_prisms} '
+                             f'values, got shape {p.shape}')
+        if not np.all(np.isfinite(p)):
+            raise ValueError('prestrain: value is not finite')
+        lo, hi, _ = PRESTRAIN_RANGE
+        if np.any(p <= lo) or np.any(p > hi):
+            bad = p[(p <= lo) | (p > hi)].flat[0]
+            raise ValueError(f'prestrain: {bad:g} is outside ({lo:g}, {hi:g}]')
+        target = self._ramp[3].copy() if self._ramp is not None else self._prestrain.copy()
+        target[cols] = p
+        return target
+
+    def apply_prestrain(self, p, columns=None, ramp_s=0.0):
+        """Change the cross prestrain of the addressed columns (see :meth:`prestrain_target`) by
+        changing the rest lengths of all their cables so that the reference geometry stays in
+        equilibrium (:class:`~solver.structures.PrestrainMap`), linearly in ``p`` over ``ramp_s``
+        s of simulation time (0 = at once). A ramp in progress continues from where it is.
+        The actuator's work is added to the energy reference of the divergence check."""
+        target = self.prestrain_target(p, columns)
+        if not (math.isfinite(ramp_s) and ramp_s >= 0):
+            raise ValueError(f'prestrain: ramp duration {ramp_s!r} must be >= 0')
+        self.prestrain_map            # validate the network before changing anything
+        if ramp_s < self.dt:
+            self._ramp = None
+            self._set_prestrain(target)
+        else:
+            self._ramp = (self.t, float(ramp_s), self._prestrain.copy(), target)
+
+    def _set_prestrain(self, p):
+        e0 = self.energy()
+        self.prestrain_map.rest_lengths(p, self.model.act[1], out=self.model.act[0])
+        self._prestrain = np.array(p, dtype=np.float64)
+        self._energy_ref += self.energy() - e0
+
+    def _ramp_to(self, t):
+        t0, duration, p0, p1 = self._ramp
+        u = (t - t0) / duration
+        if u >= 1.0:
+            self._ramp = None
+            self._set_prestrain(p1)
+        else:
+            self._set_prestrain(p0 + max(u, 0.0) * (p1 - p0))
+
+    def _integrate(self, n):
+        """``n`` steps; while a prestrain ramp runs, one step at a time with rest lengths updated
+        at the start of each step. Returns ``(steps, status)`` of the integrator."""
+        m = self.model
+        done = total = 0
+        status = dyn.OK
+        while done < n and self._ramp is not None:
+            self._ramp_to(self.t + done * self.dt)
+            steps, status = self.integrator.run(m.x, m.v, self.dt, 1, m.net, m.act, m.ws, self.tol,
+                                                self.max_iter, self.kinks)
+            total += steps
+            done += 1
+            if status != dyn.OK:
+                return total, status
+        if done < n:
+            steps, status = self.integrator.run(m.x, m.v, self.dt, n - done, m.net, m.act, m.ws,
+                                                self.tol, self.max_iter, self.kinks)
+            total += steps
+        if self._ramp is not None:
+            self._ramp_to(self.t + n * self.dt)
+        return total, status
+
     # -- time -----------------------------------------------------------------------------------
     def advance(self, duration):
         """Advance by ``duration`` s in whole steps of ``dt`` (the last one shortened to land on
@@ -157,8 +257,8 @@ class Simulation:
             return 0
         m = self.model
         x_keep, v_keep = m.x.copy(), m.v.copy()
-        steps, status = self.integrator.run(m.x, m.v, self.dt, n, m.net, m.act, m.ws, self.tol,
-                                            self.max_iter, self.kinks)
+        keep = (m.act[0].copy(), self._prestrain, self._ramp, self._energy_ref)
+        steps, status = self._integrate(n)
         problem = None
         if status != dyn.OK:
             problem = ('state', dyn.STATUS_TEXT[status])
@@ -173,6 +273,8 @@ class Simulation:
                                      f'{self.div["energy_growth"]:g}')
         if problem is not None:
             m.x[:], m.v[:] = x_keep, v_keep
+            m.act[0][:] = keep[0]
+            self._prestrain, self._ramp, self._energy_ref = keep[1:]
             raise SimulationDiverged(self.t + steps * self.dt, self.step + steps, problem[0],
                                      problem[1], 'try a smaller integrator.dt or another method')
         self.t += n * self.dt

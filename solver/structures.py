@@ -134,3 +134,80 @@ def explicit(nodes, bars, cables, node_mass, cable_EA, cable_rest_length=None, p
 
 
 BUILDERS = {'column': column, 'prism': column, 'explicit': explicit}
+
+
+# -- prestrain as an actuator (column networks) ---------------------------------------------------
+class PrestrainMap:
+    """Which prism self-stress each cable of a column network carries, from ``network.levels``.
+
+    A prism's self-stress is self-equilibrated in the reference geometry and scales with its cross
+    prestrain ``p``, so per-prism values superpose: a cross cable of prism i carries prism i's
+    self-stress, an interior shared base cable at level j carries ``t_l(p_{j-1}) + t_l(p_j)``
+    (``stacking='parallel'``: the first cable of a side carries prism j-1, the second prism j), with
+    ``t_l(p) = gamma_s(p) r`` and ``gamma_s(p) = EA_s p / s`` (physics.md section 2). Rigid base edges
+    carry any base force as constraint forces. Prism index: ``column * n_prisms + prism``.
+
+    Arrays: ``cross`` (n_cross,) cable indices in cable order (the per-cable command order),
+    ``cross_prism`` (n_cross,), ``base`` (n_base,) cable indices, ``base_prisms`` (n_base, 2) prism
+    indices (-1 = none), ``length`` (n_cables,) m reference lengths, ``radius`` (n_base,) m.
+    """
+
+    def __init__(self, network):
+        if network.levels.size == 0:
+            raise ValueError('prestrain needs a column structure (levels)')
+        self.n_columns, self.n_prisms = network.n_columns, network.n_prisms
+        n_lev = self.n_prisms + 1
+        where = -np.ones((network.n_nodes, 2), dtype=np.int64)      # node -> (column, level)
+        for c in range(self.n_columns):
+            for j in range(n_lev):
+                where[network.levels[c, j]] = (c, j)
+        x0 = network.x0
+        self.length = np.linalg.norm(x0[network.cable_b] - x0[network.cable_a], axis=1)
+        cross, cross_prism, base, base_prisms, radius = [], [], [], [], []
+        seen = {}
+        for i, (a, b) in enumerate(zip(network.cable_a, network.cable_b)):
+            (ca, ja), (cb, jb) = where[a], where[b]
+            if ca < 0 or cb < 0 or ca != cb:
+                raise ValueError(f'prestrain: cable {i} does not belong to one column')
+            if abs(ja - jb) == 1:
+                cross.append(i)
+                cross_prism.append(ca * self.n_prisms + min(ja, jb))
+            elif ja == jb:
+                below = ca * self.n_prisms + ja - 1 if ja > 0 else -1
+                above = ca * self.n_prisms + ja if ja < self.n_prisms else -1
+                if network.meta.get('stacking') == 'parallel' and below >= 0 and above >= 0:
+                    key = (min(a, b), max(a, b))
+                    first = key not in seen
+                    seen[key] = True
+                    below, above = (below, -1) if first else (-1, above)
+                base.append(i)
+                base_prisms.append((below, above))
+                centre = x0[network.levels[ca, ja]].mean(axis=0)
+                radius.append(np.linalg.norm(x0[a] - centre))
+            else:
+                raise ValueError(f'prestrain: cable {i} spans more than one prism')
+        self.cross = np.array(cross, dtype=np.int64)
+        self.cross_prism = np.array(cross_prism, dtype=np.int64)
+        self.base = np.array(base, dtype=np.int64)
+        self.base_prisms = np.array(base_prisms, dtype=np.int64).reshape(-1, 2)
+        self.radius = np.array(radius)
+        counts = np.bincount(self.cross_prism, minlength=self.n_columns * self.n_prisms)
+        if np.any(counts == 0):
+            raise ValueError('prestrain: a prism has no cross cable')
+        self._count = counts
+
+    def rest_lengths(self, p, cable_EA, out=None):
+        """Cable rest lengths (n_cables,) m that keep the reference geometry in equilibrium at the
+        per-prism cross prestrain ``p`` (n_columns, n_prisms); ``cable_EA`` (n_cables,) N."""
+        p = np.asarray(p, dtype=np.float64).reshape(-1)
+        rest = np.empty(len(self.length)) if out is None else out
+        s = self.length[self.cross]
+        rest[self.cross] = s / (1.0 + p[self.cross_prism])
+        # gamma_s per prism: mean over its cross cables of EA p / s
+        gamma = np.bincount(self.cross_prism, weights=cable_EA[self.cross] * p[self.cross_prism] / s,
+                            minlength=len(p)) / self._count
+        g_ext = np.append(gamma, 0.0)               # index -1 -> no prism
+        t = (g_ext[self.base_prisms[:, 0]] + g_ext[self.base_prisms[:, 1]]) * self.radius
+        EA_b = cable_EA[self.base]
+        rest[self.base] = EA_b * self.length[self.base] / (EA_b + t)
+        return rest
