@@ -6,6 +6,7 @@ diverged run), never a traceback.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import sys
 from pathlib import Path
@@ -22,6 +23,25 @@ def _progress(total, desc):
     from tqdm import tqdm
     bar = tqdm(total=total, desc=desc, unit='frame', leave=False)
     return bar.update, bar.close
+
+
+def _open_mcap(stack, frame_sinks, scene, sim, path):
+    """Record the run to ``path`` (MCAP, the node's topics); closed by ``stack``, also on SIGTERM.
+    Logs the impact command applied before the run, then every output frame."""
+    from .mcap_run import FrameLog, marker_every
+    from .recording import McapRecorder, signals_as_interrupt
+    stack.enter_context(signals_as_interrupt())
+    recorder = stack.enter_context(McapRecorder(path))
+    log = FrameLog(recorder, sim.network, marker_every=marker_every(scene['run.output_dt']))
+    v0, columns = scene['loading.impact.v0'], scene['loading.impact.columns']
+    if v0:
+        if columns is None:
+            log.command('~/cmd/impact', [v0], 'all', sim.t)
+        else:
+            per_column = [v0 if c in list(columns) else 0.0 for c in range(sim.network.n_columns)]
+            log.command('~/cmd/impact', per_column, 'column', sim.t)
+    frame_sinks.append(log.frame)
+    return str(path)
 
 
 def cmd_run(args):
@@ -47,16 +67,21 @@ def cmd_run(args):
         sim.apply_impact(v0, scene['loading.impact.columns'])
     t_end, output_dt = scene['run.t_end'], scene['run.output_dt']
     out_dir = Path(args.out) if args.out else None
-    if out_dir is None and args.plot:
+    if out_dir is None and (args.plot or args.mcap):
         out_dir = Path('runs') / scene.name
     if out_dir is not None:
         out_dir.mkdir(parents=True, exist_ok=True)
     update, close = _progress(int(round(t_end / output_dt)), scene.name)
-    try:
-        rec = run(sim, t_end, output_dt, progress=update)
-    finally:
-        close()
-    outputs = {}
+    outputs, frame_sinks = {}, []
+    with contextlib.ExitStack() as stack:
+        if args.mcap:
+            outputs['mcap'] = _open_mcap(stack, frame_sinks, scene, sim, out_dir / 'run.mcap')
+        try:
+            rec = run(sim, t_end, output_dt, progress=update,
+                      on_frame=(lambda f: [sink(f) for sink in frame_sinks]) if frame_sinks
+                      else None)
+        finally:
+            close()
     if args.plot:
         from .plots import strain_wave
         outputs['plot'] = str(strain_wave(rec, out_dir / 'strain_wave.png',
@@ -97,6 +122,23 @@ def cmd_bench(args):
     return 0
 
 
+def cmd_replay(args):
+    """``tensegrity replay RUN.mcap``: republish a log over ROS 2, or convert it to Rerun."""
+    from .loader import LogError, McapLog
+    from .replay import ReplayError, replay_main, to_rerun
+    try:
+        McapLog(args.log)
+        if args.to_rerun:
+            n = to_rerun(args.log, args.to_rerun)
+            print(f'{args.log}: {n} messages -> {args.to_rerun}')
+            return 0
+        ros_args = ['--ros-args', *args.ros_args] if args.ros_args else None
+        replay_main(args.log, rate=args.rate, loop=args.loop, delay_s=args.delay, args=ros_args)
+    except (LogError, ReplayError) as exc:
+        raise UserError(str(exc)) from None
+    return 0
+
+
 def build_parser():
     parser = argparse.ArgumentParser(prog='tensegrity', description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest='command', required=True)
@@ -109,8 +151,20 @@ def build_parser():
     p.add_argument('--t-end', type=float, help='simulated time, s')
     p.add_argument('--out', help='output directory (summary.json, plots)')
     p.add_argument('--plot', action='store_true', help='write a PNG of the strain wave')
+    p.add_argument('--mcap', action='store_true',
+                   help='record the run to OUT/run.mcap (ROS 2 profile, the node\'s topics)')
     p.add_argument('--json', action='store_true', help='print the summary as one JSON object')
     p.set_defaults(func=cmd_run)
+    p = sub.add_parser('replay', help='republish an MCAP log over ROS 2 (with /clock), or '
+                       'convert it to a Rerun recording')
+    p.add_argument('log', metavar='RUN.mcap', help='MCAP log (tensegrity run --mcap, node)')
+    p.add_argument('--rate', type=float, default=1.0, help='playback speed factor (default 1)')
+    p.add_argument('--loop', action='store_true', help='play again from the start when done')
+    p.add_argument('--delay', type=float, default=0.5,
+                   help='seconds to wait for subscribers before playing (default 0.5)')
+    p.add_argument('--to-rerun', metavar='OUT.rrd', help='write a Rerun recording instead')
+    p.add_argument('--ros-args', nargs=argparse.REMAINDER, help='ROS arguments (remapping)')
+    p.set_defaults(func=cmd_replay)
     p = sub.add_parser('bench', help='work-precision chart, stability map, peer comparison')
     p.add_argument('--quick', action='store_true', help='small grids and short windows (smoke run)')
     p.add_argument('--out', default='bench/results', help='output directory (CSV and PNG)')

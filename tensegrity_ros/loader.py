@@ -27,7 +27,7 @@ STRAIN, NODES, TENSION = 'strain', 'nodes', 'cable_tension'
 COMMAND_PREFIX = '/cmd/'
 
 
-class LogError(Exception):
+class LogError(ValueError):
     """A file that is not a readable MCAP log."""
 
 

@@ -10,8 +10,8 @@
 
 Crash safety: chunks are small and a chunk is closed and handed to the operating system at least
 every ``flush_period_s`` seconds of wall time (a background thread does it while nothing is being
-written), so a SIGKILL loses at most that much. SIGINT and SIGTERM finish the file properly when the
-recorder is used as a context manager inside :func:`signals_as_interrupt` (or rclpy's own handlers).
+written), so a SIGKILL loses at most that much. SIGINT and SIGTERM finish the file properly when
+the recorder is a context manager inside :func:`signals_as_interrupt` (or rclpy's own handlers).
 Log times are the messages' simulation-time stamps in nanoseconds, never the wall clock.
 """
 from __future__ import annotations
@@ -35,7 +35,7 @@ INFINITE = {'sec': 9223372036, 'nsec': 854775807}
 PROFILE = 'ros2'
 
 
-class RecordingError(Exception):
+class RecordingError(ValueError):
     """A recording could not be written (bad path, unknown message type)."""
 
 

@@ -1,0 +1,69 @@
+"""The MCAP log of a headless run (``tensegrity run --mcap``).
+
+:class:`FrameLog` turns solver frames into the messages the node publishes, built by the same
+:mod:`tensegrity_ros.messages` functions, under the same topic names, and writes them to a
+:class:`~tensegrity_ros.recording.McapRecorder`; so a log is the same whichever way it was made.
+Commands applied by the command line (the impact) are logged as the node would log them on receipt.
+"""
+from __future__ import annotations
+
+from . import messages as M
+
+MARKER_RATE_HZ = 20.0       # the node's default marker_rate_hz (interfaces.md section 4)
+
+
+def marker_every(output_dt, marker_rate_hz=MARKER_RATE_HZ):
+    """Frames between marker (and diagnostics) messages for frames every ``output_dt`` s."""
+    return max(1, int(round(1.0 / (marker_rate_hz * output_dt))))
+
+
+def topic_qos():
+    """The QoS the node offers on every topic (reliable, volatile, keep last 10)."""
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    return QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.VOLATILE)
+
+
+class FrameLog:
+    """Writes frames of ``network`` to ``recorder`` under ``namespace``.
+
+    ``marker_every``: markers and diagnostics every that many frames (the node publishes them at
+    ``marker_rate_hz`` <= ``publish_rate_hz``); ``clock``: also ``/clock`` per frame."""
+
+    def __init__(self, recorder, network, namespace=M.NAMESPACE, node=M.NODE_NAME, marker_every=1,
+                 clock=False):
+        if int(marker_every) < 1:
+            raise ValueError(f'marker_every must be >= 1, not {marker_every!r}')
+        self.rec, self.net = recorder, network
+        self.namespace, self.node = namespace, node
+        self.marker_every, self.clock = int(marker_every), bool(clock)
+        self.n_frames = 0
+        qos = topic_qos()
+        for key in M.PUBLISHED + M.COMMANDS:
+            if key == '/clock' and not clock:
+                continue
+            recorder.declare(self.topic(key), M.MSG_CLASSES[key], qos)
+
+    def topic(self, key):
+        return M.resolve_topic(key, self.namespace, self.node)
+
+    def frame(self, frame):
+        """Write one :class:`solver.simulation.Frame` (raises ValueError if it is not finite)."""
+        stamp = M.sim_stamp(frame.t)
+        ns = M.stamp_to_ns(stamp)
+        extra = self.n_frames % self.marker_every == 0
+        msgs = M.frame_messages(frame, self.net, stamp=stamp, markers=extra, clock=self.clock)
+        if extra:
+            msgs['/diagnostics'] = M.diagnostics_message(stamp, {
+                'sim_time': float(frame.t), 'step': int(frame.step),
+                'energy': float(frame.energy), 'constraint_error': float(frame.constraint_error)})
+        for key, msg in msgs.items():
+            self.rec.write(self.topic(key), msg, ns)
+        self.n_frames += 1
+
+    def command(self, key, values, label, t):
+        """Log a command (``'~/cmd/impact'`` or ``'~/cmd/prestrain'``) received at time ``t`` s."""
+        if key not in M.COMMANDS:
+            raise ValueError(f'unknown command topic {key!r}')
+        self.rec.write(self.topic(key), M.command_array(values, label),
+                       M.stamp_to_ns(M.sim_stamp(t)))

@@ -1,0 +1,235 @@
+"""Replay an MCAP log over ROS 2 (``tensegrity replay``) and convert it to a Rerun recording.
+
+:class:`Replayer` republishes every recorded topic with its recorded QoS (from the channel's
+``offered_qos_profiles``), the recorded CDR bytes unchanged, at the recorded log times scaled by
+``rate``, and publishes ``/clock`` (``rosgraph_msgs/msg/Clock``) at each new log time. A recorded
+``/clock`` channel is not republished (the replay clock replaces it). Killed logs replay up to
+their last complete chunk.
+
+:func:`to_rerun` writes a ``.rrd`` through an owned :class:`rerun.RecordingStream` (never the
+global one): timeline ``sim_time``; ``nodes`` as points, ``bars`` and ``cables`` as line strips
+(from ``~/markers``, cables in their tension colours), ``strain`` per prism and ``cable_tension``
+as scalar series, energy and constraint error from ``/diagnostics`` as scalar series.
+"""
+from __future__ import annotations
+
+import importlib
+import time
+
+import numpy as np
+
+from .loader import LogError, McapLog, cloud_xyz, multi_array_values
+
+CLOCK_TOPIC = '/clock'
+
+
+class ReplayError(ValueError):
+    """A log that cannot be replayed (bad rate, unknown message type)."""
+
+
+def message_class(type_name):
+    """The rclpy class of ``'pkg/msg/Type'``."""
+    parts = type_name.split('/')
+    if len(parts) == 2:
+        parts = [parts[0], 'msg', parts[1]]
+    if len(parts) != 3:
+        raise ReplayError(f'message type {type_name!r} not understood')
+    try:
+        return getattr(importlib.import_module(f'{parts[0]}.{parts[1]}'), parts[2])
+    except (ImportError, AttributeError):
+        raise ReplayError(f'message type {type_name} is not installed') from None
+
+
+def qos_from_yaml(text):
+    """An rclpy ``QoSProfile`` from ``offered_qos_profiles`` YAML (first profile; reliable,
+    volatile, keep last 10 when empty or unreadable). Only history, depth, reliability and
+    durability are taken: they decide compatibility and delivery."""
+    import yaml
+    from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy)
+    qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
+                     durability=DurabilityPolicy.VOLATILE)
+    try:
+        profiles = yaml.safe_load(text or '') or []
+        p = profiles[0] if isinstance(profiles, list) and profiles else {}
+    except yaml.YAMLError:
+        return qos
+
+    def policy(enum, value):
+        if isinstance(value, int):
+            return enum(value)
+        try:
+            return enum[str(value).upper()]
+        except KeyError:
+            return None
+
+    for key, enum in (('reliability', ReliabilityPolicy), ('durability', DurabilityPolicy),
+                      ('history', HistoryPolicy)):
+        if key in p:
+            v = policy(enum, p[key])
+            if v is not None and v.name not in ('SYSTEM_DEFAULT', 'UNKNOWN'):
+                setattr(qos, key, v)
+    if int(p.get('depth', 0) or 0) > 0:
+        qos.depth = int(p['depth'])
+    return qos
+
+
+def log_channels(path):
+    """topic -> (type name, offered_qos_profiles YAML) of every channel in the log, in order."""
+    log = McapLog(path)
+    out = {}
+    for m in log.messages():
+        if m.topic not in out:
+            out[m.topic] = (m.type_name, m.channel.metadata.get('offered_qos_profiles', ''))
+    return out
+
+
+class Replayer:
+    """Publishes a log through an rclpy ``node`` (created by the caller, who owns the context).
+
+    ``rate`` > 0 scales the recorded timing (2 = twice as fast). ``clock`` publishes ``/clock``.
+    ``delay_s`` waits after creating the publishers so that subscribers can match them."""
+
+    def __init__(self, node, path, rate=1.0, clock=True, delay_s=0.0):
+        if not (np.isfinite(rate) and rate > 0):
+            raise ReplayError(f'--rate must be a positive number, not {rate!r}')
+        if not (np.isfinite(delay_s) and delay_s >= 0):
+            raise ReplayError(f'--delay must be >= 0 s, not {delay_s!r}')
+        from rosgraph_msgs.msg import Clock
+        self.node, self.path, self.rate, self.delay_s = node, path, float(rate), float(delay_s)
+        self.channels = log_channels(path)
+        if not self.channels:
+            raise ReplayError(f'{path}: the log holds no messages')
+        self.publishers = {}
+        for topic, (type_name, qos_text) in self.channels.items():
+            if topic == CLOCK_TOPIC:
+                continue
+            self.publishers[topic] = node.create_publisher(message_class(type_name), topic,
+                                                           qos_from_yaml(qos_text))
+        self._clock_cls = Clock
+        self.clock_pub = node.create_publisher(Clock, CLOCK_TOPIC, 10) if clock else None
+        self.published = 0
+        self.truncated = False
+
+    def _publish_clock(self, ns):
+        from builtin_interfaces.msg import Time
+        if self.clock_pub is not None:
+            self.clock_pub.publish(self._clock_cls(
+                clock=Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)))
+
+    def play_once(self, should_stop=lambda: False):
+        """Publish the whole log once with its timing; returns the number of messages published.
+        Stops early (returning what was published) when ``should_stop()`` becomes true."""
+        if self.delay_s:
+            time.sleep(self.delay_s)
+            self.delay_s = 0.0
+        log = McapLog(self.path)
+        wall0 = t0 = None
+        last_clock = None
+        n = 0
+        for m in log.messages():
+            if should_stop():
+                break
+            if m.topic == CLOCK_TOPIC:
+                continue
+            if t0 is None:
+                wall0, t0 = time.monotonic(), m.log_time_ns
+            due = wall0 + (m.log_time_ns - t0) * 1e-9 / self.rate
+            wait = due - time.monotonic()
+            if wait > 0:
+                time.sleep(wait)
+            if m.log_time_ns != last_clock:
+                self._publish_clock(m.log_time_ns)
+                last_clock = m.log_time_ns
+            self.publishers[m.topic].publish(m.data)
+            n += 1
+        self.truncated = log.truncated
+        self.published += n
+        return n
+
+    def play(self, loop=False, should_stop=lambda: False):
+        """Play once, or forever with ``loop`` (until ``should_stop()``)."""
+        total = self.play_once(should_stop)
+        while loop and not should_stop():
+            total += self.play_once(should_stop)
+        return total
+
+
+def replay_main(path, rate=1.0, loop=False, delay_s=0.5, clock=True, args=None):
+    """``tensegrity replay``: init rclpy, play, shut down. Returns the messages published."""
+    import rclpy
+    from rclpy.executors import ExternalShutdownException
+    McapLog(path)                         # clear error for a missing file before starting ROS
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = rclpy.create_node('tensegrity_replay')
+        player = Replayer(node, path, rate=rate, clock=clock, delay_s=delay_s)
+        n = player.play(loop=loop, should_stop=lambda: not rclpy.ok())
+        node.get_logger().info(f'replayed {player.published} messages from {path}'
+                               + (' (file truncated: read up to its last complete chunk)'
+                                  if player.truncated else ''))
+        return n
+    except (KeyboardInterrupt, ExternalShutdownException):
+        return 0
+    finally:
+        if node is not None:
+            node.destroy_node()
+        if rclpy.ok():
+            rclpy.shutdown()
+
+
+def _diag_values(msg):
+    out = {}
+    for status in msg.status:
+        for kv in status.values:
+            try:
+                out[kv.key] = float(kv.value)
+            except ValueError:
+                pass
+    return out
+
+
+def _rgba(colors):
+    return np.array([[c.r, c.g, c.b, c.a] for c in colors], dtype=np.float32)
+
+
+def to_rerun(path, out, application_id='tensegrity_ros', recording_id=None):
+    """Convert a log to a Rerun ``.rrd`` file ``out`` through an owned recording stream.
+    Returns the number of messages converted."""
+    import rerun as rr
+    log = McapLog(path)
+    rec = rr.RecordingStream(application_id, recording_id=recording_id or str(path))
+    rec.set_log_time_enabled(False)     # one clock: simulation time only
+    rec.save(str(out))
+    n = 0
+    try:
+        for m in log.messages():
+            leaf = m.topic.rsplit('/', 1)[-1]
+            if m.topic == CLOCK_TOPIC:
+                continue
+            rec.set_time('sim_time', duration=m.log_time_ns * 1e-9)
+            msg = log.decode(m)
+            if m.type_name == 'sensor_msgs/msg/PointCloud2':
+                rec.log(leaf, rr.Points3D(cloud_xyz(msg), radii=rr.Radius.ui_points(3.0)))
+            elif m.type_name == 'visualization_msgs/msg/MarkerArray':
+                for mk in msg.markers:
+                    pts = np.array([[p.x, p.y, p.z] for p in mk.points]).reshape(-1, 2, 3)
+                    colors = _rgba(mk.colors)[0::2] if len(mk.colors) else _rgba([mk.color])
+                    rec.log(mk.ns or f'marker_{mk.id}', rr.LineStrips3D(pts, colors=colors))
+            elif m.type_name == 'std_msgs/msg/Float64MultiArray':
+                shape, values = multi_array_values(msg)
+                rec.log(m.topic.split('/', 3)[-1] if '/cmd/' in m.topic else leaf,
+                        rr.Scalars(values.ravel()))
+            elif m.type_name == 'diagnostic_msgs/msg/DiagnosticArray':
+                for key, value in _diag_values(msg).items():
+                    if np.isfinite(value):
+                        rec.log(f'diagnostics/{key}', rr.Scalars(value))
+            else:
+                continue
+            n += 1
+    finally:
+        rec.flush()
+        rec.disconnect()
+    if n == 0:
+        raise LogError(f'{path}: nothing to convert')
+    return n
