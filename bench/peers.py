@@ -1,0 +1,340 @@
+"""``tensegrity bench --peers``: speed against peers at equal accuracy, measured side by side.
+
+On the paper's FB column (p = 0.002, v0 = 0.1 m/s, 1 s) this runs, in one process:
+
+1. a converged reference: ``full3d`` + ``rk4_projected`` at ``dt = 5 ms / 160``, shown converged by
+   comparing with ``5 ms / 80``;
+2. our solver: every exact model (``full3d``, ``sym3d`` if present) with every integrator, at the
+   largest step (or loosest ``rtol``) whose strain error meets the target; the fastest is ours;
+3. MuJoCo (:mod:`bench.peers_mujoco`): the same column as a kinematic tree, its RK4, largest step
+   meeting the target; checked at rest before the impact and against the reference pulse;
+4. the plain SciPy baseline (:mod:`bench.peers_scipy`): ``solve_ivp`` DOP853, loosest ``rtol``
+   meeting the target;
+5. the kernel bound (:mod:`bench.peers_kernels`) of our best configuration.
+
+Accuracy metric: ``max`` over the output times (every 5 ms) and the 50 prisms of
+``|eps - eps_ref|`` (absolute strain), target 1e-3. Writes ``peers.json``, ``peers.csv`` (every
+run tried) and ``peers.png`` into ``out_dir``.
+"""
+from __future__ import annotations
+
+import ctypes
+import glob
+import json
+import math
+import os
+import platform
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from solver import integrators, models
+from solver.observables import track_pulse
+from solver.scene import Scene
+from solver.simulation import Simulation, SimulationDiverged
+
+from . import peers_report
+
+ROOT = Path(__file__).resolve().parents[1]
+SCENE = ROOT / 'config' / 'scenes' / 'fb_column.yaml'
+TARGET = 1e-3                 # strain error (absolute, max over time and prisms)
+V0, PRESTRAIN, OUTPUT_DT = 0.1, 0.002, 0.005
+LADDER = (1, 2, 3, 5, 7, 10, 14, 20, 28, 40, 56, 80, 112, 160)   # steps per 5 ms output interval
+RTOLS = (1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9, 1e-10)
+EXCLUDED_MODELS = ('chain1d',)  # not the same physics (no base rotation)
+
+
+def single_thread_blas():
+    """Limit NumPy's OpenBLAS to one thread (every peer runs on one core); True if done."""
+    import numpy
+    libs = glob.glob(os.path.join(os.path.dirname(numpy.__file__) + '.libs', '*openblas*.so*'))
+    for path in libs:
+        lib = ctypes.CDLL(path)
+        for name in ('scipy_openblas_set_num_threads64_', 'openblas_set_num_threads64_',
+                     'openblas_set_num_threads'):
+            if hasattr(lib, name):
+                getattr(lib, name)(1)
+                return True
+    return False
+
+
+def fb_scene(overrides=()):
+    return Scene.load(SCENE).with_overrides(
+        [('prestrain', PRESTRAIN), ('loading.impact.v0', V0)] + list(overrides))
+
+
+def strain_error(eps, ref):
+    n = min(len(eps), len(ref))
+    return float(np.max(np.abs(np.asarray(eps[:n]) - np.asarray(ref[:n]))))
+
+
+def run_ours(overrides, t_end, ref=None, abort=True):
+    """One run of our solver. Returns a dict with the strain history (n_t, n_prisms), the wall time
+    of ``advance`` only, the steps taken and the simulation (its final state)."""
+    sim = Simulation(fb_scene(overrides))
+    sim.advance(sim.dt)                      # compile or load cached kernels, untimed
+    sim.reset()
+    sim.apply_impact(V0)
+    n_out = int(round(t_end / OUTPUT_DT))
+    eps = [sim.frame().strain[0]]
+    wall, err, done = 0.0, 0.0, True
+    for k in range(n_out):
+        t0 = time.perf_counter()
+        try:
+            sim.advance(OUTPUT_DT)
+        except SimulationDiverged:
+            err, done = math.inf, False
+            break
+        wall += time.perf_counter() - t0
+        eps.append(sim.frame().strain[0])
+        if ref is not None:
+            err = max(err, float(np.max(np.abs(eps[-1] - ref[k + 1]))))
+            if abort and err > TARGET:
+                done = False
+                break
+    return {'eps': np.array(eps), 'wall_s': wall, 'steps': sim.steps_taken, 'error': err,
+            'completed': done, 'sim': sim, 'model': sim.model.name,
+            'method': sim.integrator.name}
+
+
+def run_mujoco(network, n_sub, t_end, ref=None, abort=True):
+    from .peers_mujoco import MujocoColumn
+    import mujoco
+    mc = MujocoColumn(network, OUTPUT_DT / n_sub)
+    mc.impact(V0)
+    n_out = int(round(t_end / OUTPUT_DT))
+    eps = [mc.strain()[0]]
+    wall, err, done = 0.0, 0.0, True
+    bad = mujoco.mjtWarning.mjWARN_BADQACC
+    for k in range(n_out):
+        t0 = time.perf_counter()
+        mc.advance(n_sub)
+        wall += time.perf_counter() - t0
+        if mc.data.warning[bad].number > 0 or not np.all(np.isfinite(mc.data.qpos)):
+            err, done = math.inf, False
+            break
+        eps.append(mc.strain()[0])
+        if ref is not None:
+            err = max(err, float(np.max(np.abs(eps[-1] - ref[k + 1]))))
+            if abort and err > TARGET:
+                done = False
+                break
+    return {'eps': np.array(eps), 'wall_s': wall, 'steps': n_sub * (len(eps) - 1),
+            'error': err, 'completed': done, 'column': mc}
+
+
+def _row(peer, config, knob, value, r, t_end):
+    wall = r['wall_s']
+    return {'peer': peer, 'configuration': config, 'knob': knob, 'value': value,
+            'strain_error': r['error'], 'completed': r['completed'], 't_end_s': t_end,
+            'wall_s': wall if r['completed'] else None, 'steps': r.get('steps'),
+            'real_time_factor': t_end / wall if r['completed'] and wall > 0 else None}
+
+
+def search_ours(ref, t_end, ladder, rtols, rows, log):
+    """Largest step (loosest rtol) meeting the target for each exact model and integrator, re-timed
+    (median of 3). Returns the list of passing candidates, fastest first."""
+    names = [m for m in models.MODELS if m not in EXCLUDED_MODELS]
+    found = []
+    for model in names:
+        for method, cls in integrators.METHODS.items():
+            adaptive = getattr(cls, 'adaptive', False)
+            knob = 'rtol' if adaptive else 'dt'
+            values = rtols if adaptive else [OUTPUT_DT / n for n in ladder]
+            for value in values:
+                ov = [('model', model), ('integrator.method', method)]
+                ov += ([('integrator.dt', OUTPUT_DT), ('integrator.rtol', value),
+                        ('integrator.atol', 1e-2 * value)] if adaptive
+                       else [('integrator.dt', value)])
+                try:
+                    r = run_ours(ov, t_end, ref)
+                except ValueError as exc:      # a model that does not apply to this scene
+                    log(f'  ours {model}/{method}: {exc}')
+                    break
+                config = f'{r["model"]}+{r["method"]}'
+                rows.append(_row('ours', config, knob, value, r, t_end))
+                if r['completed'] and r['error'] <= TARGET:
+                    walls = [r['wall_s']] + [run_ours(ov, t_end)['wall_s'] for _ in range(2)]
+                    r['wall_s'] = statistics.median(walls)
+                    found.append(dict(r, knob=knob, value=value, overrides=ov, config=config))
+                    log(f'  ours {config} {knob}={value:.3g}: error {r["error"]:.2e}, '
+                        f'{r["wall_s"]:.3f} s')
+                    break
+            else:
+                log(f'  ours {model}/{method}: target not reached')
+    return sorted(found, key=lambda c: c['wall_s'])
+
+
+def search_mujoco(network, ref, t_end, ladder, rows, log):
+    best = None
+    for n in ladder:
+        r = run_mujoco(network, n, t_end, ref)
+        rows.append(_row('mujoco', 'tree+RK4', 'dt', OUTPUT_DT / n, r, t_end))
+        log(f'  mujoco dt={OUTPUT_DT / n:.3g}: error {r["error"]:.2e}'
+            + (f', {r["wall_s"]:.2f} s' if r['completed'] else ' (stopped)'))
+        if r['completed'] and r['error'] <= TARGET:
+            return dict(r, knob='dt', value=OUTPUT_DT / n, met=True)
+        if r['completed']:
+            best = dict(r, knob='dt', value=OUTPUT_DT / n, met=False)
+    return best
+
+
+def search_scipy(network, x, v, ref, t_end, rtols, rows, log):
+    """Loosest rtol meeting the target, starting in the middle of ``rtols``."""
+    from .peers_scipy import ScipyColumn
+    sc = ScipyColumn(network)
+    times = np.arange(int(round(t_end / OUTPUT_DT)) + 1) * OUTPUT_DT
+    cache = {}
+
+    def attempt(rtol):
+        if rtol not in cache:
+            try:
+                pos, wall, stats = sc.solve(x, v, times, rtol)
+                from solver.observables import prism_strains
+                eps = np.array([prism_strains(p, network.levels, network.h0)[0] for p in pos])
+                r = {'eps': eps, 'wall_s': wall, 'error': strain_error(eps, ref),
+                     'completed': True, 'steps': None, 'evaluations': stats['evaluations']}
+            except (RuntimeError, np.linalg.LinAlgError) as exc:
+                r = {'eps': None, 'wall_s': math.nan, 'error': math.inf, 'completed': False,
+                     'steps': None, 'evaluations': None, 'reason': str(exc)}
+            rows.append(_row('scipy', 'solve_ivp DOP853', 'rtol', rtol, r, t_end))
+            log(f'  scipy rtol={rtol:.0e}: error {r["error"]:.2e}, {r["wall_s"]:.1f} s, '
+                f'{r["evaluations"]} evaluations')
+            cache[rtol] = dict(r, knob='rtol', value=rtol, met=r['error'] <= TARGET)
+        return cache[rtol]
+
+    i = len(rtols) // 2
+    if attempt(rtols[i])['met']:
+        while i > 0 and attempt(rtols[i - 1])['met']:
+            i -= 1
+        return cache[rtols[i]]
+    for j in range(i + 1, len(rtols)):
+        if attempt(rtols[j])['met']:
+            return cache[rtols[j]]
+    return cache[rtols[-1]]
+
+
+def pulse_figures(eps, times, h0):
+    p = track_pulse(times, eps, h0)
+    return {'amplitude': p.amplitude, 'amplitude_median': p.amplitude_median,
+            'speed_m_s': p.speed_m_s}
+
+
+def machine_and_versions():
+    import numba
+    import scipy
+    try:
+        import mujoco
+        mj = mujoco.__version__
+    except ImportError:
+        mj = None
+    cpu = platform.processor()
+    try:
+        for line in Path('/proc/cpuinfo').read_text().splitlines():
+            if line.startswith('model name'):
+                cpu = line.split(':', 1)[1].strip()
+                break
+    except OSError:
+        pass
+    try:
+        rev = subprocess.run(['git', 'rev-parse', '--short', 'HEAD'], cwd=ROOT, text=True,
+                             capture_output=True, timeout=10).stdout.strip() or None
+    except (OSError, subprocess.SubprocessError):
+        rev = None
+    machine = {'cpu': cpu, 'cores': os.cpu_count(), 'platform': platform.platform(),
+               'load_average_start': list(os.getloadavg())}
+    versions = {'python': sys.version.split()[0], 'numpy': np.__version__,
+                'numba': numba.__version__, 'scipy': scipy.__version__, 'mujoco': mj,
+                'tensegrity_ros_git': rev}
+    return machine, versions
+
+
+def main(out_dir='bench/results', quick=False, log=print):
+    """Run the comparison; returns the list of files written into ``out_dir``."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    blas1 = single_thread_blas()
+    machine, versions = machine_and_versions()
+    t_end = 0.25 if quick else 1.0
+    ref_n = 80 if quick else 160
+    ladder = LADDER[:9] if quick else LADDER
+    rows = []
+    t_start = time.perf_counter()
+
+    log(f'peers: reference full3d+rk4_projected dt = 5 ms/{ref_n} and 5 ms/{ref_n // 2}')
+    ref_ov = [('model', 'full3d'), ('integrator.method', 'rk4_projected')]
+    ref = run_ours(ref_ov + [('integrator.dt', OUTPUT_DT / ref_n)], t_end)
+    half = run_ours(ref_ov + [('integrator.dt', 2 * OUTPUT_DT / ref_n)], t_end)
+    eps_ref = ref['eps']
+    times = np.arange(len(eps_ref)) * OUTPUT_DT
+    network = ref['sim'].network
+    halving = strain_error(half['eps'], eps_ref)
+    log(f'  halving changes the strain by {halving:.2e} (target {TARGET:g})')
+
+    log('peers: our solver')
+    ours_all = search_ours(eps_ref, t_end, ladder, RTOLS[:6], rows, log)
+    ours = ours_all[0] if ours_all else None
+
+    log('peers: kernel bound')
+    kernel = None
+    if ours is not None:
+        from .peers_kernels import profile
+        sim = ours['sim']
+        evals = getattr(sim.integrator, 'evaluations_per_step', 4)
+        try:
+            prof = profile(sim.model, sim.dt, evals)
+            per_step = ours['wall_s'] / ours['steps']
+            kernel = dict(prof, evaluations_per_step=evals, time_per_step_s=per_step,
+                          step_over_kernel_bound=per_step / prof['kernel_bound_step'],
+                          configuration=ours['config'])
+            log(f'  step {per_step * 1e6:.1f} us, bound {prof["kernel_bound_step"] * 1e6:.1f} us')
+        except TypeError as exc:
+            log(f'  {exc}')
+
+    sim0 = Simulation(fb_scene([('model', 'full3d')]))
+    x0 = np.array(sim0.model.positions())
+    v_imp = sim0.impact_velocities(V0)
+    mj = None
+    try:
+        import mujoco  # noqa: F401
+        have_mujoco = True
+    except ImportError:
+        have_mujoco = False
+        log('peers: mujoco is not installed (pip install -e .[peers]); skipped')
+    if have_mujoco:
+        log('peers: MuJoCo')
+        mj = search_mujoco(network, eps_ref, t_end, ladder[1:12], rows, log)
+        if mj is not None:
+            mj['check'] = peers_report.mujoco_check(network, v_imp, OUTPUT_DT / 10, V0)
+
+    log('peers: SciPy solve_ivp DOP853')
+    sp = search_scipy(network, x0, v_imp, eps_ref, t_end, RTOLS, rows, log)
+
+    pulse_ref = pulse_figures(eps_ref, times, network.h0)
+    result = peers_report.assemble(
+        target=TARGET, t_end=t_end, quick=quick, ref_n=ref_n, halving=halving,
+        pulse_ref=pulse_ref, ours=ours, ours_all=ours_all, mj=mj, sp=sp, kernel=kernel,
+        times=times, h0=network.h0, machine=machine, versions=versions, blas1=blas1,
+        pulse_fn=pulse_figures, output_dt=OUTPUT_DT, v0=V0, prestrain=PRESTRAIN)
+    result['machine']['load_average_end'] = list(os.getloadavg())
+    result['bench_wall_s'] = time.perf_counter() - t_start
+    paths = [out / 'peers.json', out / 'peers.csv', out / 'peers.png']
+    paths[0].write_text(json.dumps(result, indent=2, allow_nan=False,
+                                   default=peers_report.json_default) + '\n')
+    peers_report.write_csv(rows, paths[1])
+    peers_report.plot(rows, result, paths[2])
+    log(peers_report.table(result))
+    return [str(p) for p in paths]
+
+
+if __name__ == '__main__':
+    import argparse
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument('--out', default=str(ROOT / 'bench' / 'results'))
+    ap.add_argument('--quick', action='store_true')
+    a = ap.parse_args()
+    main(a.out, a.quick)

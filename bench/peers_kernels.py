@@ -1,0 +1,94 @@
+"""The kernel bound of ``tensegrity bench --peers``: kernels timed in numba loops (no Python).
+
+``profile(model, dt, evaluations_per_step)`` times, at the model's current state, one force-and-
+constraint evaluation (:func:`solver.dynamics.accelerations`) and the other per-step kernels of the
+projected Runge-Kutta methods (kink prediction, position and velocity projection), each as the
+mean over a jitted loop of ``n`` calls, so that no interpreter overhead is included.
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from solver import dynamics as dyn
+from solver._jit import jit
+from solver.integrators import next_kink
+
+
+@jit
+def _loop_acc(x, v, net, act, ws, out, n):
+    bad = 0
+    for _ in range(n):
+        bad += dyn.accelerations(x, v, net, act, ws, out)
+    return bad
+
+
+@jit
+def _loop_kink(x, v, acc, net, act, h, n):
+    s = 0.0
+    for _ in range(n):
+        s += next_kink(x, v, acc, net, act, h, 1e-3 * h)
+    return s
+
+
+@jit
+def _loop_project_positions(x_off, xs, net, ws, tol, max_iter, n):
+    bad = 0
+    for _ in range(n):
+        xs[:, :] = x_off
+        bad += dyn.project_positions(xs, net, ws, tol, max_iter)
+    return bad
+
+
+@jit
+def _loop_copy(x_off, xs, n):
+    for _ in range(n):
+        xs[:, :] = x_off
+    return xs[0, 0]
+
+
+@jit
+def _loop_project_velocities(x, v_off, vs, net, ws, n):
+    bad = 0
+    for _ in range(n):
+        vs[:, :] = v_off
+        bad += dyn.project_velocities(x, vs, net, ws)
+    return bad
+
+
+def _timed(fn, *args, n):
+    fn(*args, 2)                            # compile / warm
+    best = np.inf
+    for _ in range(3):
+        t0 = time.perf_counter()
+        fn(*args, n)
+        best = min(best, (time.perf_counter() - t0) / n)
+    return best
+
+
+def profile(model, dt, evaluations_per_step, n=2000, tol=1e-12, max_iter=3):
+    """Seconds per call of each per-step kernel at the model's state (best of 3 loops of ``n``).
+
+    Returns ``{'accelerations': s, 'next_kink': s, 'project_positions': s,
+    'project_velocities': s, 'kernel_bound_step': evaluations_per_step * accelerations}``. The
+    projections are timed from a state pushed off the constraint manifold by one explicit Euler
+    step of ``dt`` (what they see after a Runge-Kutta step); the copy that restores it is
+    subtracted. Raises ``TypeError`` for a model without the ``(net, act, ws)`` kernel tuples."""
+    for attr in ('x', 'v', 'net', 'act', 'ws'):
+        if not hasattr(model, attr):
+            raise TypeError(f'model {model.name!r} has no {attr!r}: cannot time its kernels')
+    x, v, net, act, ws = (np.array(model.x), np.array(model.v), model.net, model.act, model.ws)
+    acc = np.zeros_like(x)
+    t_acc = _timed(_loop_acc, x, v, net, act, ws, acc, n=n)
+    dyn.accelerations(x, v, net, act, ws, acc)
+    t_kink = _timed(_loop_kink, x, v, acc, net, act, dt, n=n)
+    x_off = x + dt * v + 0.5 * dt * dt * acc
+    v_off = v + dt * acc
+    xs = np.zeros_like(x)
+    t_copy = _timed(_loop_copy, x_off, xs, n=n)
+    t_pp = _timed(_loop_project_positions, x_off, xs, net, ws, tol, max_iter, n=n) - t_copy
+    t_pv = _timed(_loop_project_velocities, x, v_off, xs, net, ws, n=n) - t_copy
+    return {'accelerations': t_acc, 'next_kink': t_kink, 'project_positions': max(t_pp, 0.0),
+            'project_velocities': max(t_pv, 0.0),
+            'kernel_bound_step': evaluations_per_step * t_acc}

@@ -1,0 +1,195 @@
+"""Checks, JSON assembly, CSV, PNG and the text table of ``tensegrity bench --peers``."""
+from __future__ import annotations
+
+import csv
+import math
+
+import numpy as np
+
+TARGETS = {'speedup_vs_mujoco': 10.0, 'speedup_vs_scipy': 50.0, 'step_over_kernel_bound': 1.5,
+           'real_time_factor_fb': 50.0}
+
+
+def json_default(o):
+    if isinstance(o, (np.integer,)):
+        return int(o)
+    if isinstance(o, (np.floating,)):
+        return float(o)
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    raise TypeError(f'not JSON serialisable: {type(o).__name__}')
+
+
+def clean(o):
+    """Replace NaN and infinities by None, recursively (JSON has neither)."""
+    if isinstance(o, dict):
+        return {k: clean(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [clean(v) for v in o]
+    if isinstance(o, (float, np.floating)):
+        return float(o) if math.isfinite(o) else None
+    return o
+
+
+def mujoco_check(network, v_ours, dt, v0, rest_time=0.05):
+    """Is the MuJoCo column the same physics? At rest before the impact (node accelerations at
+    t = 0, drift over ``rest_time`` s without impact) and the same impulse (node velocities right
+    after the impact against the solver's ``v_ours`` (n_nodes, 3) m/s)."""
+    from .peers_mujoco import MujocoColumn
+    mc = MujocoColumn(network, dt)
+    acc = mc.node_accelerations()
+    mc.advance(int(round(rest_time / dt)))
+    drift = float(np.max(np.abs(mc.positions() - np.asarray(network.x0))))
+    mc.reset()
+    mc.impact(v0)
+    dv = float(np.max(np.abs(mc.node_velocities() - v_ours)))
+    return {'rest_max_node_acceleration_m_s2': float(np.max(np.abs(acc))),
+            'rest_drift_m': drift, 'rest_time_s': rest_time,
+            'impact_velocity_max_diff_m_s': dv,
+            'impact_velocity_max_m_s': float(np.max(np.abs(v_ours))),
+            'at_rest': bool(np.max(np.abs(acc)) < 1e-10 and drift < 1e-12),
+            'nv': int(mc.model.nv), 'n_bodies': int(mc.model.nbody - 1),
+            'n_tendons': int(mc.model.ntendon)}
+
+
+def _rel(a, b):
+    if a is None or b is None or not (math.isfinite(a) and math.isfinite(b)) or b == 0:
+        return None
+    return abs(a - b) / abs(b)
+
+
+def _peer(r, t_end, pulse_fn, times, h0, pulse_ref):
+    if r is None:
+        return None
+    out = {'knob': r['knob'], 'value': r['value'], 'strain_error': r['error'],
+           'met_target': bool(r.get('met', True)), 'wall_s': r['wall_s'],
+           'real_time_factor': t_end / r['wall_s'] if r['wall_s'] else None,
+           'steps': r.get('steps'), 'evaluations': r.get('evaluations')}
+    if r.get('eps') is not None:
+        p = pulse_fn(r['eps'], times[:len(r['eps'])], h0)
+        out['pulse'] = p
+        out['pulse_amplitude_rel_diff'] = _rel(p['amplitude'], pulse_ref['amplitude'])
+        out['pulse_speed_rel_diff'] = _rel(p['speed_m_s'], pulse_ref['speed_m_s'])
+    return out
+
+
+def assemble(*, target, t_end, quick, ref_n, halving, pulse_ref, ours, ours_all, mj, sp, kernel,
+             times, h0, machine, versions, blas1, pulse_fn, output_dt, v0, prestrain):
+    peer = dict(t_end=t_end, pulse_fn=pulse_fn, times=times, h0=h0, pulse_ref=pulse_ref)
+    res = {
+        'scene': 'config/scenes/fb_column.yaml', 'prestrain': prestrain, 'v0_m_s': v0,
+        't_end_s': t_end, 'quick': quick, 'target_strain_error': target,
+        'error_metric': (f'max over output times (every {output_dt * 1e3:g} ms) and prisms of '
+                         '|eps - eps_ref| (absolute axial strain)'),
+        'reference': {'model': 'full3d', 'integrator': 'rk4_projected', 'dt': output_dt / ref_n,
+                      'halving_strain_change': halving, 'pulse': pulse_ref},
+        'ours': None, 'ours_candidates': [], 'mujoco': None, 'scipy': None, 'kernel': kernel,
+    }
+    if ours is not None:
+        res['ours'] = dict(_peer(ours, **peer), configuration=ours['config'])
+        res['ours_candidates'] = [{'configuration': c['config'], 'knob': c['knob'],
+                                   'value': c['value'], 'strain_error': c['error'],
+                                   'wall_s': c['wall_s'], 'steps': c['steps']}
+                                  for c in ours_all]
+    if mj is not None:
+        res['mujoco'] = dict(_peer(mj, **peer), model='kinematic tree (ball joints) + '
+                             'tendons springlength="0 L", RK4', check=mj.get('check'))
+        c = res['mujoco']
+        c['same_physics'] = bool(c['check'] and c['check']['at_rest']
+                                 and (c.get('pulse_amplitude_rel_diff') or 1) < 0.02
+                                 and (c.get('pulse_speed_rel_diff') or 1) < 0.02)
+    if sp is not None:
+        res['scipy'] = dict(_peer(sp, **peer), method='solve_ivp DOP853, atol = 1e-3 rtol, '
+                            'dense NumPy KKT per evaluation', blas_single_thread=blas1)
+    w = res['ours']['wall_s'] if res['ours'] else None
+    res['speedup_vs_mujoco'] = (res['mujoco']['wall_s'] / w) if w and res['mujoco'] else None
+    res['speedup_vs_scipy'] = (res['scipy']['wall_s'] / w) if w and res['scipy'] else None
+    res['step_over_kernel_bound'] = kernel['step_over_kernel_bound'] if kernel else None
+    res['real_time_factor_fb'] = t_end / w if w else None
+    if kernel:
+        per = kernel['time_per_step_s']
+        parts = {'accelerations': kernel['evaluations_per_step'] * kernel['accelerations'],
+                 'next_kink': kernel['next_kink'], 'project_positions':
+                 kernel['project_positions'], 'project_velocities': kernel['project_velocities']}
+        parts['rest (integrator arithmetic, Python, checks)'] = per - sum(parts.values())
+        kernel['profile_fraction_of_step'] = {k: v / per for k, v in parts.items()}
+    met = {}
+    for key, goal in TARGETS.items():
+        val = res[key]
+        met[key] = None if val is None else bool(val <= goal if key == 'step_over_kernel_bound'
+                                                  else val >= goal)
+    res['targets'] = dict(TARGETS, met=met)
+    res['machine'] = machine
+    res['versions'] = versions
+    return clean(res)
+
+
+def write_csv(rows, path):
+    keys = ['peer', 'configuration', 'knob', 'value', 'strain_error', 'completed', 't_end_s',
+            'wall_s', 'steps', 'real_time_factor']
+    with open(path, 'w', newline='') as fh:
+        w = csv.DictWriter(fh, fieldnames=keys)
+        w.writeheader()
+        for r in rows:
+            w.writerow({k: ('' if r.get(k) is None else r.get(k)) for k in keys})
+
+
+def plot(rows, res, path):
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4.2))
+    colours = {'ours': 'tab:blue', 'mujoco': 'tab:red', 'scipy': 'tab:green'}
+    for peer, col in colours.items():
+        pts = [(r['wall_s'], r['strain_error']) for r in rows
+               if r['peer'] == peer and r['completed'] and r['wall_s']]
+        if pts:
+            wall, err = zip(*pts)
+            a1.loglog(wall, err, 'o', color=col, label=peer, alpha=0.8)
+    a1.axhline(res['target_strain_error'], color='k', ls='--', lw=0.8, label='target')
+    a1.set_xlabel(f'wall time for {res["t_end_s"]:g} s simulated (s)')
+    a1.set_ylabel('max |strain - reference|')
+    a1.set_title('work-precision, FB column (completed runs)')
+    a1.legend(fontsize=8)
+    names, walls = [], []
+    for key, label in (('ours', 'ours'), ('mujoco', 'MuJoCo'), ('scipy', 'SciPy DOP853')):
+        if res.get(key):
+            names.append(label)
+            walls.append(res[key]['wall_s'])
+    k = res.get('kernel')
+    if k and res.get('ours') and res['ours'].get('steps'):
+        names.append('kernel bound')
+        walls.append(k['kernel_bound_step'] * res['ours']['steps'])
+    a2.barh(names, walls, color=['tab:blue', 'tab:red', 'tab:green', 'tab:gray'][:len(names)])
+    a2.set_xscale('log')
+    a2.axvline(res['t_end_s'], color='k', ls=':', lw=0.8, label='real time')
+    a2.set_xlabel('wall time at the target accuracy (s)')
+    a2.set_title(f'strain error <= {res["target_strain_error"]:g}')
+    a2.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _fmt(v, spec):
+    return '-' if v is None else format(v, spec)
+
+
+def table(res):
+    """The Markdown table of the README section."""
+    lines = ['| peer | configuration | step / tolerance | strain error | wall (s) | x real time |',
+             '|---|---|---|---|---|---|']
+    for key, name in (('ours', 'ours'), ('mujoco', 'MuJoCo'), ('scipy', 'SciPy')):
+        r = res.get(key)
+        if not r:
+            continue
+        conf = r.get('configuration') or r.get('model') or r.get('method')
+        lines.append(f"| {name} | {conf} | {r['knob']} = {r['value']:.3g} | "
+                     f"{_fmt(r['strain_error'], '.2e')} | {_fmt(r['wall_s'], '.3f')} | "
+                     f"{_fmt(r['real_time_factor'], '.1f')} |")
+    lines.append('')
+    for key, goal in TARGETS.items():
+        lines.append(f"- {key}: {_fmt(res.get(key), '.2f')} (target "
+                     f"{'<=' if key == 'step_over_kernel_bound' else '>='} {goal:g}, met: "
+                     f"{res['targets']['met'].get(key)})")
+    return '\n'.join(lines)
