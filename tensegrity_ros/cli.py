@@ -139,6 +139,38 @@ def cmd_replay(args):
     return 0
 
 
+def cmd_node(args):
+    """``tensegrity node [--ros-args ...]``: the ROS 2 node, as ``tensegrity_node``."""
+    from .node import main as node_main
+    return node_main(['tensegrity_node', *(args.ros_args or [])])
+
+
+def cmd_demo(args):
+    """``tensegrity demo``: the node in a second process, an impact over the topic, a summary."""
+    import os
+
+    from .commander import format_summary, run_demo
+    try:
+        v0 = [float(v) for v in args.v0.split(',')]
+        prestrain = None if args.prestrain is None else [float(p) for p in
+                                                         args.prestrain.split(',')]
+    except ValueError:
+        raise UserError('--v0 and --prestrain take numbers separated by commas') from None
+    domain = args.domain_id if args.domain_id is not None else int(os.environ.get('ROS_DOMAIN_ID',
+                                                                                  42))
+    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    try:
+        summary = run_demo(args.scene, v0=v0, duration_s=args.duration, rtf=args.rtf,
+                           out_dir=args.out, domain_id=domain, record=not args.no_record,
+                           prestrain=prestrain)
+    except RuntimeError as exc:
+        raise UserError(f'demo: {exc}') from None
+    for line in format_summary(summary):
+        print(line)
+    print(f'  summary: {args.out}/summary.json')
+    return 0 if summary['node_exit_code'] == 0 else 1
+
+
 def build_parser():
     parser = argparse.ArgumentParser(prog='tensegrity', description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest='command', required=True)
@@ -172,6 +204,21 @@ def build_parser():
     p.add_argument('--only', action='append', choices=('work_precision', 'stability', 'peers'),
                    help='run only this benchmark (repeatable)')
     p.set_defaults(func=cmd_bench)
+    p = sub.add_parser('node', help='the ROS 2 node tensegrity_sim (as tensegrity_node)')
+    p.add_argument('ros_args', nargs=argparse.REMAINDER, metavar='--ros-args ...',
+                   help='ROS arguments: --ros-args -p NAME:=VALUE --params-file config/node.yaml')
+    p.set_defaults(func=cmd_node)
+    p = sub.add_parser('demo', help='start the node, command an impact over ROS 2, summarise')
+    p.add_argument('--scene', default='config/scenes/fb_column.yaml', help='scene YAML')
+    p.add_argument('--v0', default='0.1', help='impact velocity m/s, or one per column: 0.1,0.12')
+    p.add_argument('--prestrain', help='prestrain before the impact, or one per column')
+    p.add_argument('--duration', type=float, default=1.2,
+                   help='simulated seconds collected after the impact (default 1.2)')
+    p.add_argument('--rtf', type=float, default=1.0, help='real-time factor (0 = fast as possible)')
+    p.add_argument('--out', default='runs/demo', help='output directory (default runs/demo)')
+    p.add_argument('--domain-id', type=int, help='ROS_DOMAIN_ID (default: env or 42)')
+    p.add_argument('--no-record', action='store_true', help='no MCAP / Rerun recording')
+    p.set_defaults(func=cmd_demo)
     return parser
 
 

@@ -1,0 +1,232 @@
+"""A small commander for the ``tensegrity_sim`` node, and the demo (``tensegrity demo``).
+
+:class:`Commander` is an ordinary rclpy node: it publishes ``~/cmd/impact`` and ``~/cmd/prestrain``
+of the simulation node, listens to its ``~/strain`` and ``/diagnostics`` and calls its services.
+:func:`run_demo` starts the node in a second process, commands an impact over the topic, collects the
+strain wave for a while, stops the node with SIGINT and returns a summary dict.
+"""
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from sensor_msgs.msg import PointCloud2
+from std_msgs.msg import Float64MultiArray
+from std_srvs.srv import SetBool, Trigger
+
+from . import messages
+from .node import QOS
+
+
+def strain_matrix(msg):
+    """(n_columns, n_prisms) strain of a ``~/strain`` message, shaped by its layout."""
+    dims = [d.size for d in msg.layout.dim]
+    return np.asarray(msg.data, dtype=np.float64).reshape(dims)
+
+
+class Commander(Node):
+    """Talks to the node ``<namespace>/<node_name>``. Keeps what it receives: ``clouds`` (list of
+    (t s, (n_nodes, 3) positions) from ``~/nodes``, stamped with simulation time), ``strain``
+    (list of (n_columns, n_prisms) arrays from ``~/strain``, which has no header) and
+    ``diagnostics`` (list of (level, message, dict of values))."""
+
+    def __init__(self, namespace=messages.NAMESPACE, node_name=messages.NODE_NAME, context=None):
+        super().__init__('tensegrity_commander', context=context)
+        base = messages.resolve_topic('~/', namespace, node_name).rstrip('/')
+        self.base = base
+        self.pub_impact = self.create_publisher(Float64MultiArray, f'{base}/cmd/impact', QOS)
+        self.pub_prestrain = self.create_publisher(Float64MultiArray, f'{base}/cmd/prestrain',
+                                                   QOS)
+        self.clouds, self.strain, self.tension, self.diagnostics = [], [], [], []
+        self.create_subscription(PointCloud2, f'{base}/nodes', self._on_cloud, QOS)
+        self.create_subscription(Float64MultiArray, f'{base}/strain',
+                                 lambda m: self.strain.append(strain_matrix(m)), QOS)
+        self.create_subscription(Float64MultiArray, f'{base}/cable_tension',
+                                 lambda m: self.tension.append(np.asarray(m.data)), QOS)
+        self.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, QOS)
+        self.cli_reset = self.create_client(Trigger, f'{base}/reset')
+        self.cli_running = self.create_client(SetBool, f'{base}/set_running')
+
+    def _on_cloud(self, msg):
+        self.clouds.append((messages.stamp_to_ns(msg.header.stamp) * 1e-9,
+                            messages.cloud_positions(msg)))
+
+    def _on_diag(self, msg):
+        for st in msg.status:
+            if st.name == messages.NODE_NAME:
+                self.diagnostics.append((ord(st.level) if isinstance(st.level, bytes)
+                                         else int(st.level), st.message,
+                                         {kv.key: kv.value for kv in st.values}))
+
+    def connected(self):
+        """True once the node subscribes to our commands and we receive its strain."""
+        return self.pub_impact.get_subscription_count() > 0 and \
+            self.pub_prestrain.get_subscription_count() > 0 and bool(self.clouds)
+
+    def impact(self, v0, label='all'):
+        self.pub_impact.publish(messages.command_array(v0, label))
+
+    def prestrain(self, p, label='all'):
+        self.pub_prestrain.publish(messages.command_array(p, label))
+
+
+def spin_until(executor, predicate, timeout_s, step_s=0.02):
+    """Spin ``executor`` until ``predicate()`` is true or ``timeout_s`` wall seconds pass."""
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        if predicate():
+            return True
+        executor.spin_once(timeout_sec=step_s)
+    return predicate()
+
+
+def node_process(params, domain_id, extra_env=None):
+    """Start ``tensegrity_node`` in a second process with ``params`` (dict name -> value)."""
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
+               **(extra_env or {}))
+    root = str(Path(__file__).resolve().parent.parent)
+    env['PYTHONPATH'] = root + os.pathsep + env.get('PYTHONPATH', '')
+    cmd = [sys.executable, '-m', 'tensegrity_ros.node', '--ros-args']
+    for k, v in params.items():
+        text = str(v).lower() if isinstance(v, bool) else str(v)
+        cmd += ['-p', f'{k}:={text}']
+    return subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True)
+
+
+def stop_process(proc, timeout_s=15.0):
+    """SIGINT, then SIGTERM, then SIGKILL; returns (exit code, output)."""
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
+        if proc.poll() is not None:
+            break
+        proc.send_signal(sig)
+        try:
+            proc.wait(timeout_s)
+        except subprocess.TimeoutExpired:
+            continue
+    out = proc.stdout.read() if proc.stdout else ''
+    return proc.returncode, out
+
+
+def _recorder_available(module):
+    import importlib.util
+    return importlib.util.find_spec(f'tensegrity_ros.{module}') is not None
+
+
+def run_demo(scene_file='config/scenes/fb_column.yaml', v0=(0.1,), duration_s=1.2, rtf=1.0,
+             out_dir='runs/demo', domain_id=42, record=True, prestrain=None, publish_rate_hz=200.0,
+             connect_timeout_s=120.0):
+    """Start the node (second process), wait for it, optionally command a prestrain (per column,
+    waiting for its ramp), command an impact ``v0`` (1 value or one per column) over the topic,
+    collect ``~/nodes`` for ``duration_s`` s of simulation time, stop the node with SIGINT.
+    Returns the summary dict (also written to ``out_dir/summary.json``)."""
+    import json
+
+    from solver import observables
+    from solver.scene import Scene
+    from solver.simulation import build_network
+
+    from .node import find_config
+
+    scene_path = find_config(scene_file)
+    network = build_network(Scene.load(scene_path))
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    params = {'scene_file': str(scene_path), 'real_time_factor': float(rtf),
+              'publish_rate_hz': float(publish_rate_hz)}
+    outputs = {'mcap': None, 'rerun': None}
+    if record and _recorder_available('recording'):
+        outputs['mcap'] = params['record_mcap'] = str(out / 'run.mcap')
+    if record and _recorder_available('rerun_log'):
+        outputs['rerun'] = params['record_rerun'] = str(out / 'run.rrd')
+    v0 = [float(v) for v in np.atleast_1d(v0)]
+    proc = node_process(params, domain_id)
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=domain_id)
+    cmd = Commander(context=ctx)
+    ex = SingleThreadedExecutor(context=ctx)
+    ex.add_node(cmd)
+    info = {}
+    try:
+        w0 = time.monotonic()
+        spin_until(ex, lambda: cmd.connected() or proc.poll() is not None, connect_timeout_s)
+        if not cmd.connected():
+            raise RuntimeError('the node did not come up within '
+                               f'{connect_timeout_s:g} s (exit code {proc.poll()})')
+        info['startup_s'] = time.monotonic() - w0
+        if prestrain is not None:
+            cmd.prestrain(prestrain, 'all' if np.size(prestrain) == 1 else 'column')
+            t_p = cmd.clouds[-1][0]
+            spin_until(ex, lambda: cmd.clouds[-1][0] >= t_p + 0.2, 30.0)
+        n_diag = len(cmd.diagnostics)
+        cmd.impact(v0, 'all' if len(v0) == 1 else 'column')
+
+        def accepted():
+            return [d for d in cmd.diagnostics[n_diag:]
+                    if d[2].get('last_command_topic') == '~/cmd/impact']
+        spin_until(ex, lambda: bool(accepted()), 30.0)
+        if not accepted() or accepted()[0][2]['last_command'] != 'accepted':
+            raise RuntimeError(f'impact not accepted: {accepted()[:1]}')
+        t_imp = float(accepted()[0][2]['sim_time_s'])
+        n_c = len(cmd.clouds)
+        w1 = time.monotonic()
+        spin_until(ex, lambda: cmd.clouds[-1][0] >= t_imp + duration_s,
+                   duration_s / max(rtf, 0.05) * 3.0 + 30.0)
+        info['wall_s'] = time.monotonic() - w1
+        info['frames'] = len(cmd.clouds) - n_c
+    finally:
+        code, output = stop_process(proc)
+        ex.shutdown()
+        cmd.destroy_node()
+        rclpy.shutdown(context=ctx)
+    got = [(t, x) for t, x in cmd.clouds if t >= t_imp]
+    times = np.array([t for t, _ in got]) - t_imp
+    strain = np.array([observables.prism_strains(x, network.levels, network.h0) for _, x in got])
+    pulses = [observables.track_pulse(times, strain[:, c], network.h0).as_dict()
+              for c in range(network.n_columns)]
+    last = cmd.diagnostics[-1][2] if cmd.diagnostics else {}
+    span = float(times[-1]) if len(times) else 0.0
+    summary = {
+        'scene': str(scene_path), 'domain_id': domain_id, 'v0': v0, 'prestrain': prestrain,
+        'startup_s': info.get('startup_s'), 't_impact': t_imp, 'sim_span_s': span,
+        'wall_s': info.get('wall_s'), 'frames': info.get('frames'),
+        'real_time_factor': span / info['wall_s'] if info.get('wall_s') else None,
+        'receive_rate_hz': info['frames'] / info['wall_s'] if info.get('wall_s') else None,
+        'min_strain': float(strain.min()) if strain.size else None,
+        'pulses': pulses, 'diagnostics': last, 'node_exit_code': code,
+        'node_output_tail': output.strip().splitlines()[-5:], 'outputs': outputs,
+    }
+    (out / 'summary.json').write_text(json.dumps(summary, indent=2, default=str))
+    return summary
+
+
+def format_summary(s):
+    """Human-readable lines of a :func:`run_demo` summary."""
+    lines = [f"demo: {Path(s['scene']).name} over ROS 2 (domain {s['domain_id']}): node up in "
+             f"{s['startup_s']:.1f} s, impact v0 = {s['v0']} m/s accepted at t = "
+             f"{s['t_impact']:.3f} s",
+             f"  received {s['frames']} frames covering {s['sim_span_s']:.3f} s of simulation in "
+             f"{s['wall_s']:.2f} s wall: {s['real_time_factor']:.2f}x real time, "
+             f"{s['receive_rate_hz']:.0f} Hz"]
+    for c, p in enumerate(s['pulses']):
+        amp = p['amplitude']
+        lines.append(f"  column {c}: leading pulse |strain| {amp:.4f} at {p['t_ref']:g} s after "
+                     f"impact, speed {p['speed_m_s']:.3f} m/s, width {p['width_prisms']} prisms")
+    d = s['diagnostics']
+    if d:
+        lines.append(f"  node: energy {d.get('energy_J')} J, constraint error "
+                     f"{d.get('constraint_error')}, commands accepted "
+                     f"{d.get('commands_accepted')}, rejected {d.get('commands_rejected')}")
+    lines.append(f"  node stopped with exit code {s['node_exit_code']}")
+    for key, path in s['outputs'].items():
+        lines.append(f'  {key}: {path}' if path else f'  {key}: not recorded')
+    return lines

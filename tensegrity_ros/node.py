@@ -1,0 +1,406 @@
+"""The ROS 2 node ``tensegrity_sim`` (interfaces.md section 4): one node class and :func:`main`.
+
+    tensegrity_node [--ros-args -p real_time_factor:=0.0 --params-file config/node.yaml]
+
+One timer drives everything: each tick advances the simulation towards the paced target time (or as
+far as fits in the tick with ``real_time_factor`` 0), never working longer than one publish period,
+then publishes one frame (messages built once by :mod:`tensegrity_ros.messages`). Commands arrive in
+the same single-threaded executor, so they never race a step. Stamps are simulation time.
+
+Recorders hook in through three lists (see :meth:`TensegritySim.add_sink`): ``_sinks`` get
+``(topic, msg, stamp_ns)`` for every published message and every received command, ``_frame_sinks``
+get each published :class:`solver.simulation.Frame`, ``_event_sinks`` get ``(t, text)`` per command.
+"""
+from __future__ import annotations
+
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import rclpy
+from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from std_msgs.msg import Float64MultiArray
+from std_srvs.srv import SetBool, Trigger
+
+from solver.scene import Scene
+from solver.simulation import Simulation, SimulationDiverged
+
+from . import commands, messages
+
+# Defaults of every parameter (config/node.yaml repeats them; a test keeps the two equal).
+DEFAULTS = {
+    'scene_file': 'config/scenes/fb_column.yaml',
+    'model': '',                 # '' = the scene's
+    'integrator': '',            # '' = the scene's
+    'dt': 0.0,                   # 0 = the scene's, s
+    'publish_rate_hz': 200.0,
+    'real_time_factor': 1.0,     # 1 = wall clock, 0 = as fast as possible
+    'use_sim_clock': True,
+    'record_mcap': '',
+    'record_rerun': '',
+    'marker_rate_hz': 20.0,
+    'prestrain_ramp_s': 0.05,    # s of simulation time
+    'diagnostics_rate_hz': 2.0,
+}
+DESCRIPTIONS = {
+    'scene_file': 'scene YAML (absolute, relative to the working directory, or to the package)',
+    'model': 'model override (auto, full3d, ...); empty = the scene value',
+    'integrator': 'integrator.method override; empty = the scene value',
+    'dt': 'integrator.dt override, s; 0 = the scene value',
+    'publish_rate_hz': 'frames published per wall-clock second (timer rate)',
+    'real_time_factor': 'simulated seconds per wall second; 0 = as fast as possible',
+    'use_sim_clock': 'publish /clock with the simulation time',
+    'record_mcap': 'MCAP file to record every topic to; empty = none',
+    'record_rerun': 'Rerun .rrd file to record to; empty = none',
+    'marker_rate_hz': 'MarkerArray publications per wall second (<= publish_rate_hz)',
+    'prestrain_ramp_s': 'simulation time over which a prestrain command is ramped, s',
+    'diagnostics_rate_hz': 'periodic /diagnostics per wall second (also sent on every command)',
+}
+POSITIVE = ('publish_rate_hz', 'marker_rate_hz', 'diagnostics_rate_hz')
+NON_NEGATIVE = ('real_time_factor', 'prestrain_ramp_s', 'dt')
+QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
+WORK_FRACTION = 0.8              # share of a publish period the stepping may use
+
+
+class ParameterError(ValueError):
+    """A parameter value that cannot be used; the message names it."""
+
+
+def find_config(path):
+    """A config file given absolute, relative to the working directory, to the source checkout or
+    to the installed share directory."""
+    p = Path(path)
+    candidates = [p] if p.is_absolute() else [
+        Path.cwd() / p, Path(__file__).resolve().parent.parent / p,
+        Path(sys.prefix) / 'share' / 'tensegrity_ros' / p]
+    for c in candidates:
+        if c.is_file():
+            return c
+    raise ParameterError(f'scene_file: {path!r} not found')
+
+
+def check_parameters(values):
+    """Validate a dict of parameter values (names as in :data:`DEFAULTS`); integers are accepted
+    for floating-point parameters. Returns the coerced dict."""
+    values = dict(values)
+    for name, default in DEFAULTS.items():
+        v = values[name]
+        if isinstance(default, float) and isinstance(v, int) and not isinstance(v, bool):
+            values[name] = v = float(v)
+        if type(v) is not type(default):
+            raise ParameterError(f'{name}: expected {type(default).__name__}, got {v!r}')
+    for name in POSITIVE:
+        if not (math.isfinite(values[name]) and values[name] > 0):
+            raise ParameterError(f'{name}: must be a positive number, got {values[name]!r}')
+    for name in NON_NEGATIVE:
+        if not (math.isfinite(values[name]) and values[name] >= 0):
+            raise ParameterError(f'{name}: must be >= 0, got {values[name]!r}')
+    return values
+
+
+def load_simulation(values):
+    """The :class:`Simulation` the parameters describe, kernels compiled (one step, then reset)."""
+    scene = Scene.load(find_config(values['scene_file']))
+    sets = []
+    if values['model']:
+        sets.append(('model', values['model']))
+    if values['integrator']:
+        sets.append(('integrator.method', values['integrator']))
+    if values['dt'] > 0:
+        sets.append(('integrator.dt', values['dt']))
+    if sets:
+        scene = scene.with_overrides(sets)
+    sim = Simulation(scene)
+    sim.advance(sim.dt)
+    sim.reset()
+    return sim
+
+
+class TensegritySim(Node):
+    def __init__(self, sim=None, **kwargs):
+        kwargs.setdefault('namespace', messages.NAMESPACE)
+        super().__init__(messages.NODE_NAME, **kwargs)
+        for name, default in DEFAULTS.items():
+            self.declare_parameter(name, default, ParameterDescriptor(
+                description=DESCRIPTIONS[name], dynamic_typing=True))
+        self.params = check_parameters({n: self.get_parameter(n).value for n in DEFAULTS})
+        self.sim = sim if sim is not None else load_simulation(self.params)
+        net = self.sim.network
+        self._sinks, self._frame_sinks, self._event_sinks, self._closers = [], [], [], []
+        self._cross_prism = (self.sim.prestrain_map.cross_prism
+                             if self.sim.prestrain is not None else None)
+        self._t_max = 2.0 * messages.reference_tension_scale(net)
+        self._pubs = {key: self.create_publisher(messages.MSG_CLASSES[key], key, QOS)
+                      for key in messages.PUBLISHED
+                      if key != '/clock' or self.params['use_sim_clock']}
+        self._topics = {key: self.resolve_topic_name(key) for key in messages.TYPES}
+        self.create_subscription(Float64MultiArray, '~/cmd/impact', self._on_impact, QOS)
+        self.create_subscription(Float64MultiArray, '~/cmd/prestrain', self._on_prestrain, QOS)
+        self.create_service(Trigger, '~/reset', self._on_reset)
+        self.create_service(SetBool, '~/set_running', self._on_set_running)
+        self.running = True
+        self.counts = {'accepted': 0, 'rejected': 0, 'frames': 0}
+        self.last_command = ('none', 'none', '')      # (topic, accepted/rejected, detail)
+        self.problem = ''
+        self.period = 1.0 / self.params['publish_rate_hz']
+        self._step_cost = self._measure_step_cost()
+        self._publish_cost = 0.0
+        self._last_marker = self._last_diag = -math.inf
+        self._rtf_window = (time.monotonic(), self.sim.t)
+        self.achieved_rtf = 0.0
+        self._anchor()
+        self._open_recorders()
+        self._publish_frame(time.monotonic())
+        self.timer = self.create_timer(self.period, self._tick)
+        self.get_logger().info(
+            f'{self.sim.scene.name}: {net.n_nodes} nodes, {net.n_cables} cables, '
+            f'{self.sim.model.name} + {self.sim.integrator.name}, dt = {self.sim.dt:g} s, '
+            f'publishing at {self.params["publish_rate_hz"]:g} Hz, real-time factor '
+            f'{self.params["real_time_factor"]:g}')
+
+    # -- hooks for recorders --------------------------------------------------------------------
+    def add_sink(self, sink=None, frame_sink=None, event_sink=None, close=None):
+        """Register recorder callbacks: ``sink(topic, msg, stamp_ns)`` (full topic names),
+        ``frame_sink(frame)``, ``event_sink(t, text)``, ``close()`` at shutdown."""
+        for lst, fn in ((self._sinks, sink), (self._frame_sinks, frame_sink),
+                        (self._event_sinks, event_sink), (self._closers, close)):
+            if fn is not None:
+                lst.append(fn)
+
+    def _open_recorders(self):
+        if self.params['record_mcap']:
+            from .recording import McapRecorder
+            rec = McapRecorder(self.params['record_mcap'])
+            for key, topic in self._topics.items():
+                if key != '/clock' or self.params['use_sim_clock']:
+                    rec.declare(topic, messages.MSG_CLASSES[key], QOS)
+            self.add_sink(sink=rec.write, close=rec.close)
+        if self.params['record_rerun']:
+            from .rerun_log import RerunRecorder
+            rr = RerunRecorder(self.sim.network, self.params['record_rerun'],
+                               tension_scale=self._t_max)
+            self.add_sink(frame_sink=rr.frame, event_sink=rr.command, close=rr.close)
+
+    def _emit(self, sinks, *args):
+        for fn in list(sinks):
+            try:
+                fn(*args)
+            except Exception as exc:   # a broken recorder must not stop the simulation
+                sinks.remove(fn)
+                self.get_logger().error(f'recorder {fn!r} failed and was removed: {exc}')
+
+    def close(self):
+        """Close the recorders (idempotent)."""
+        closers, self._closers = self._closers, []
+        for fn in closers:
+            try:
+                fn()
+            except Exception as exc:
+                self.get_logger().error(f'closing a recorder failed: {exc}')
+
+    # -- pacing ---------------------------------------------------------------------------------
+    def _measure_step_cost(self, n=20):
+        """Wall seconds per step, measured on ``n`` steps from the current state (then undone)."""
+        m, sim = self.sim.model, self.sim
+        x, v, t, step, taken = m.x.copy(), m.v.copy(), sim.t, sim.step, sim.steps_taken
+        t0 = time.perf_counter()
+        try:
+            self.sim.advance(n * self.sim.dt)
+        except SimulationDiverged:
+            pass
+        cost = (time.perf_counter() - t0) / n
+        m.x[:], m.v[:] = x, v
+        sim.t, sim.step, sim.steps_taken = t, step, taken
+        return cost
+
+    def _anchor(self):
+        self._anchor_wall = time.monotonic()
+        self._anchor_t = self.sim.t
+
+    def steps_this_tick(self, now):
+        """Steps to take now: towards the paced target time, capped by the work budget."""
+        budget = max(WORK_FRACTION * self.period - self._publish_cost, 0.2 * self.period)
+        cap = max(1, int(budget / max(self._step_cost, 1e-9)))
+        rtf = self.params['real_time_factor']
+        if rtf <= 0:
+            return cap
+        target = self._anchor_t + rtf * (now - self._anchor_wall)
+        want = int(math.floor((target - self.sim.t) / self.sim.dt + 1e-9))
+        if want > cap:                 # cannot keep up: do what fits, do not accumulate debt
+            self._anchor_t = self.sim.t + cap * self.sim.dt
+            self._anchor_wall = now
+            return cap
+        return max(want, 0)
+
+    def _tick(self):
+        now = time.monotonic()
+        if self.running:
+            n = self.steps_this_tick(now)
+            if n > 0:
+                t0 = time.perf_counter()
+                try:
+                    self.sim.advance(n * self.sim.dt)
+                except SimulationDiverged as exc:
+                    self._pause(f'paused: {exc}')
+                    return
+                cost = (time.perf_counter() - t0) / n
+                self._step_cost = 0.8 * self._step_cost + 0.2 * cost
+                self._publish_frame(now)
+        if now - self._last_diag >= 1.0 / self.params['diagnostics_rate_hz']:
+            self._publish_diagnostics(now)
+
+    def _pause(self, why):
+        self.running = False
+        self.problem = why
+        self.get_logger().error(why)
+        self._emit(self._event_sinks, self.sim.t, why)
+        self._publish_diagnostics(time.monotonic())
+
+    # -- publishing -----------------------------------------------------------------------------
+    def _publish_frame(self, now):
+        t0 = time.perf_counter()
+        frame = self.sim.frame()
+        markers = now - self._last_marker >= 1.0 / self.params['marker_rate_hz']
+        try:
+            msgs = messages.frame_messages(frame, self.sim.network, markers=markers,
+                                           clock=self.params['use_sim_clock'], t_max=self._t_max)
+        except ValueError as exc:          # non-finite frame: never published
+            self._pause(f'paused: {exc}')
+            return
+        if markers:
+            self._last_marker = now
+        stamp_ns = messages.stamp_to_ns(messages.sim_stamp(frame.t))
+        for key, msg in msgs.items():
+            self._pubs[key].publish(msg)
+            self._emit(self._sinks, self._topics[key], msg, stamp_ns)
+        self._emit(self._frame_sinks, frame)
+        self.counts['frames'] += 1
+        wall, t_sim = self._rtf_window
+        if now - wall >= 1.0:
+            self.achieved_rtf = (frame.t - t_sim) / (now - wall)
+            self._rtf_window = (now, frame.t)
+        self._publish_cost = 0.8 * self._publish_cost + 0.2 * (time.perf_counter() - t0)
+
+    def diagnostics_values(self):
+        """The key/value pairs of ``/diagnostics`` (dict name -> float, int or str)."""
+        topic, verdict, detail = self.last_command
+        return {
+            'sim_time_s': float(self.sim.t), 'steps': int(self.sim.step),
+            'running': str(self.running).lower(),
+            'real_time_factor_target': float(self.params['real_time_factor']),
+            'real_time_factor_achieved': float(self.achieved_rtf),
+            'energy_J': float(self.sim.energy()),
+            'constraint_error': float(self.sim.constraint_error()),
+            'frames_published': self.counts['frames'],
+            'commands_accepted': self.counts['accepted'],
+            'commands_rejected': self.counts['rejected'],
+            'last_command_topic': topic, 'last_command': verdict, 'last_command_detail': detail,
+        }
+
+    def _publish_diagnostics(self, now, level=None, message=None):
+        self._last_diag = now
+        if level is None:
+            level = 2 if self.problem else 0
+            message = self.problem or ('running' if self.running else 'paused')
+        stamp = messages.sim_stamp(self.sim.t)
+        msg = messages.diagnostics_message(stamp, self.diagnostics_values(), level, message)
+        self._pubs['/diagnostics'].publish(msg)
+        self._emit(self._sinks, self._topics['/diagnostics'], msg, messages.stamp_to_ns(stamp))
+
+    # -- commands -------------------------------------------------------------------------------
+    def _command(self, key, msg, apply):
+        stamp_ns = messages.stamp_to_ns(messages.sim_stamp(self.sim.t))
+        self._emit(self._sinks, self._topics[key], msg, stamp_ns)
+        try:
+            detail = apply()
+        except (commands.CommandError, ValueError) as exc:
+            text = str(exc) if str(exc).startswith('~/') else f'{key}: {exc}'
+            self.counts['rejected'] += 1
+            self.last_command = (key, 'rejected', text)
+            self.get_logger().warning(f'rejected {text}')
+            self._emit(self._event_sinks, self.sim.t, f'rejected {text}')
+            self._publish_diagnostics(time.monotonic(), 1, f'rejected {text}')
+            return False
+        self.counts['accepted'] += 1
+        self.last_command = (key, 'accepted', detail)
+        self.get_logger().info(f'{key}: {detail}')
+        self._emit(self._event_sinks, self.sim.t, f'{key}: {detail}')
+        self._publish_diagnostics(time.monotonic(), 0, f'accepted {key}')
+        return True
+
+    def _on_impact(self, msg):
+        def apply():
+            v0 = commands.parse_impact(msg.data, msg.layout, self.sim.network.n_columns)
+            added = self.sim.apply_impact(v0)
+            return f'impact v0 = {commands.describe(v0)} m/s, kinetic energy +{added:.3g} J'
+        return self._command('~/cmd/impact', msg, apply)
+
+    def _on_prestrain(self, msg):
+        def apply():
+            if self._cross_prism is None:
+                raise commands.CommandError('~/cmd/prestrain: this scene is not a column of '
+                                            'prisms; prestrain commands need one')
+            net = self.sim.network
+            p = commands.parse_prestrain(msg.data, msg.layout, net.n_columns, net.n_prisms,
+                                         self._cross_prism)
+            ramp = self.params['prestrain_ramp_s']
+            self.sim.apply_prestrain(p, ramp_s=ramp)
+            per_col = p.mean(axis=1)
+            return f'prestrain per column {commands.describe(per_col)} over {ramp:g} s'
+        return self._command('~/cmd/prestrain', msg, apply)
+
+    def _on_reset(self, request, response):
+        self.sim.reset()
+        self.problem = ''
+        self._anchor()
+        self._rtf_window = (time.monotonic(), self.sim.t)
+        self._emit(self._event_sinks, self.sim.t, 'reset')
+        self._publish_frame(time.monotonic())
+        self._publish_diagnostics(time.monotonic(), 0, 'reset')
+        response.success = True
+        response.message = 'reset to the reference geometry at rest, t = 0'
+        return response
+
+    def _on_set_running(self, request, response):
+        self.running = bool(request.data)
+        if self.running:
+            self.problem = ''
+            self._anchor()
+        self._publish_diagnostics(time.monotonic())
+        response.success = True
+        response.message = 'running' if self.running else 'paused'
+        return response
+
+
+def main(args=None):
+    """Console script ``tensegrity_node``: spin the node until Ctrl-C / SIGTERM; exit 2 with one
+    line on stderr for a bad parameter or scene."""
+    from solver.network import NetworkError
+    from solver.scene import SceneError
+    rclpy.init(args=args)
+    node = None
+    code = 0
+    try:
+        node = TensegritySim()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except (ParameterError, SceneError, NetworkError, ValueError) as exc:
+        print(f'tensegrity_node: {exc}', file=sys.stderr)
+        code = 2
+    finally:
+        if node is not None:
+            node.close()
+            node.destroy_node()
+        if rclpy.ok():
+            rclpy.shutdown()
+    return code
+
+
+if __name__ == '__main__':
+    sys.exit(main())
