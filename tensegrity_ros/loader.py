@@ -190,7 +190,7 @@ def load_run(path):
         leaf = _leaf(m.topic)
         if COMMAND_PREFIX in m.topic and m.type_name == 'std_msgs/msg/Float64MultiArray':
             _, values = multi_array_values(log.decode(m))
-            cmd_t.append(m.log_time_ns * 1e-9)
+            cmd_t.append(m.log_time_ns / 1e9)
             cmd_topic.append(leaf)
             cmd_values.append(values.ravel())
         elif leaf in (STRAIN, TENSION) and m.type_name == 'std_msgs/msg/Float64MultiArray':
@@ -208,7 +208,7 @@ def load_run(path):
     strain = stack(STRAIN, (0, 0))
     if strain.ndim == 2:            # a strain message without layout: one column
         strain = strain[:, None, :]
-    return RunLog(time=np.array(stamps, dtype=np.int64) * 1e-9, strain=strain,
+    return RunLog(time=np.array(stamps, dtype=np.int64) / 1e9, strain=strain,
                   positions=stack(NODES, (0, 3)), tensions=stack(TENSION, (0,)),
                   command_time=np.array(cmd_t, dtype=np.float64),
                   command_topic=np.array(cmd_topic, dtype=str), command_values=cmd_values,

@@ -316,6 +316,11 @@ class McapRecorder:
     def closed(self):
         return self._closed
 
+    @property
+    def pending(self):
+        """True while some written message is not yet handed to the operating system."""
+        return self._pending
+
     def __enter__(self):
         return self
 

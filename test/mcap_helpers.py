@@ -52,7 +52,7 @@ class Capture:
 
 
 def record_frames(path, frames, net, marker_every=2, **kw):
-    """Write ``frames`` (and one impact command at t = 0) with FrameLog; returns what was written."""
+    """Write ``frames`` and an impact command (t = 0) with FrameLog; returns what was written."""
     from tensegrity_ros.mcap_run import FrameLog
     from tensegrity_ros.recording import McapRecorder
     with McapRecorder(path, **kw) as rec:

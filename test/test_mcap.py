@@ -39,7 +39,7 @@ def test_round_trip_what_was_published_is_what_the_loader_reads(log, frames, net
     run = load_run(path)
     assert not run.truncated
     t = np.array([f.t for f in frames])
-    np.testing.assert_array_equal(run.time, np.round(t * 1e9).astype(np.int64) * 1e-9)
+    np.testing.assert_array_equal(run.time, np.round(t * 1e9).astype(np.int64) / 1e9)
     np.testing.assert_array_equal(run.strain, np.stack([f.strain for f in frames]))
     np.testing.assert_array_equal(run.tensions, np.stack([f.tension for f in frames]))
     # positions travel as float32 (PointCloud2)
