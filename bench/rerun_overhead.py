@@ -1,0 +1,99 @@
+"""Cost of a Rerun recording: a run with and without :class:`RerunRecorder`, side by side.
+
+    python -m bench.rerun_overhead [--scene config/scenes/fb_column.yaml] [--repeats 3] [--out DIR]
+
+The same simulation is run from its impact to ``run.t_end`` at the scene's default output rate
+(``run.output_dt``), alternately plain and recording to a ``.rrd`` file (recorder construction,
+every frame and the final flush included), ``repeats`` pairs after one discarded warm-up pair.
+Reports the overhead ``recorded / plain - 1`` of wall time and of process CPU time (all threads,
+so Rerun's encoder and writer threads count), per pair and as the median, and writes
+``rerun_overhead.csv``. Only ratios measured in the same process are reported; the machine may be
+busy.
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+
+def _one(sim, scene, path):
+    from solver.runner import run
+    from tensegrity_ros.rerun_log import RerunRecorder
+
+    v0 = scene['loading.impact.v0']
+    t_end, output_dt = scene['run.t_end'], scene['run.output_dt']
+    sim.reset()
+    sim.apply_impact(v0, scene['loading.impact.columns'])
+    w0, c0 = time.perf_counter(), time.process_time()
+    if path is None:
+        run(sim, t_end, output_dt)
+    else:
+        with RerunRecorder(sim.network, path) as rec:
+            rec.command(sim.t, f'impact v0 = {v0} m/s')
+            run(sim, t_end, output_dt, on_frame=rec.frame)
+    return time.perf_counter() - w0, time.process_time() - c0
+
+
+def measure(scene_path='config/scenes/fb_column.yaml', repeats=3, log=print):
+    """List of dicts, one per measured pair: wall and CPU seconds plain / recorded, and ratios."""
+    from solver.scene import Scene
+    from solver.simulation import Simulation
+
+    scene = Scene.load(scene_path)
+    sim = Simulation(scene)
+    sim.advance(sim.dt)                       # compile (or load cached) kernels first
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for i in range(repeats + 1):
+            rrd = Path(tmp) / f'run{i}.rrd'
+            order = (None, rrd) if i % 2 == 0 else (rrd, None)
+            got = {}
+            for path in order:
+                got['rec' if path is not None else 'plain'] = _one(sim, scene, path)
+            if i == 0:
+                continue                       # warm-up pair (thread start-up, page cache)
+            row = {'pair': i, 'wall_plain_s': got['plain'][0], 'wall_rec_s': got['rec'][0],
+                   'cpu_plain_s': got['plain'][1], 'cpu_rec_s': got['rec'][1],
+                   'rrd_bytes': rrd.stat().st_size}
+            row['wall_overhead'] = row['wall_rec_s'] / row['wall_plain_s'] - 1.0
+            row['cpu_overhead'] = row['cpu_rec_s'] / row['cpu_plain_s'] - 1.0
+            log(f"pair {i}: wall {row['wall_plain_s']:.3f} s plain, {row['wall_rec_s']:.3f} s "
+                f"recorded ({100 * row['wall_overhead']:+.1f} %); cpu {row['cpu_plain_s']:.3f} / "
+                f"{row['cpu_rec_s']:.3f} s ({100 * row['cpu_overhead']:+.1f} %); "
+                f"{row['rrd_bytes'] / 1e6:.2f} MB")
+            rows.append(row)
+    return rows
+
+
+def main(out='bench/results', quick=False, log=print, scene='config/scenes/fb_column.yaml',
+         repeats=None):
+    """Run :func:`measure`, write ``rerun_overhead.csv`` into ``out``; returns the files
+    written."""
+    rows = measure(scene, repeats or (2 if quick else 3), log=log)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / 'rerun_overhead.csv'
+    with path.open('w', newline='') as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    wall = statistics.median(r['wall_overhead'] for r in rows)
+    cpu = statistics.median(r['cpu_overhead'] for r in rows)
+    log(f'rerun recording overhead (median of {len(rows)} pairs): wall {100 * wall:+.1f} %, '
+        f'cpu {100 * cpu:+.1f} %  -> {path}')
+    return [str(path)]
+
+
+if __name__ == '__main__':
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument('--scene', default='config/scenes/fb_column.yaml')
+    ap.add_argument('--repeats', type=int, default=3)
+    ap.add_argument('--out', default='bench/results')
+    a = ap.parse_args()
+    main(a.out, scene=a.scene, repeats=a.repeats)
+    sys.exit(0)

@@ -1,0 +1,217 @@
+"""Rerun recordings (tensegrity_ros/rerun_log.py) read back with rerun's own reader.
+
+rerun-sdk 0.41 has no ``rerun.dataframe`` module any more (its dataframe queries need the optional
+``datafusion`` package); the recording is read with ``rerun.chunk.RrdReader``, chunk by chunk, as
+Arrow record batches. Every value is compared with the solver's own frames, the network arrays or
+an independent colour computation (the ROS marker colours of messages.py).
+"""
+import math
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pytest
+
+rr = pytest.importorskip('rerun')
+from rerun.chunk import RrdReader  # noqa: E402
+
+from solver.runner import run  # noqa: E402
+from solver.scene import Scene  # noqa: E402
+from solver.simulation import Simulation  # noqa: E402
+from tensegrity_ros.rerun_log import RerunRecorder, reference_tension_scale  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+FB = ROOT / 'config' / 'scenes' / 'fb_column.yaml'
+
+
+# -- reading helpers ---------------------------------------------------------------------------
+def flat(arr):
+    """A nested Arrow list array -> 1-D numpy of its leaf values."""
+    if isinstance(arr, pa.ChunkedArray):
+        arr = arr.combine_chunks()
+    while pa.types.is_list(arr.type) or pa.types.is_fixed_size_list(arr.type) \
+            or pa.types.is_large_list(arr.type):
+        arr = arr.flatten()
+    return arr.to_numpy(zero_copy_only=False)
+
+
+def read(path):
+    """{entity_path: {'static': {component: row-0 Arrow value list}, 'rows': [(t_ns, {component:
+    one-row Arrow slice})]}} of the first recording in ``path``, rows sorted by sim_time."""
+    out = {}
+    for chunk in RrdReader(path).stream():
+        ent = out.setdefault(chunk.entity_path, {'static': {}, 'rows': []})
+        rb = chunk.to_record_batch()
+        comps = [n for n in rb.schema.names if ':' in n or n not in ('sim_time',)
+                 and not n.startswith('rerun.')]
+        if chunk.is_static:
+            for n in comps:
+                ent['static'][n] = rb.column(n).slice(0, 1)
+            continue
+        assert chunk.timeline_names == ['sim_time']
+        times = rb.column('sim_time').cast(pa.int64()).to_numpy()
+        for i, t in enumerate(times):
+            ent['rows'].append((int(t), {n: rb.column(n).slice(i, 1) for n in comps}))
+    for ent in out.values():
+        ent['rows'].sort(key=lambda r: r[0])
+    return out
+
+
+def at(ent, t, comp):
+    """Leaf values of ``comp`` of the row at sim_time ``t`` s (exactly one row expected)."""
+    ns = round(t * 1e9)
+    rows = [r for tt, r in ent['rows'] if tt == ns and comp in r]
+    assert len(rows) == 1, f'{len(rows)} rows at t = {t}'
+    return flat(rows[0][comp])
+
+
+def tensor(ent, row=-1):
+    """(shape, float64 values) of the Tensor logged in row ``row``."""
+    data = ent['rows'][row][1]['Tensor:data'].flatten().to_pylist()
+    assert len(data) == 1
+    return tuple(data[0]['shape']), np.array(data[0]['buffer'], dtype=np.float64)
+
+
+# -- fixtures ----------------------------------------------------------------------------------
+def small_run(tmp_path, n_prisms=8, t_end=0.1, v0=0.1, **kw):
+    scene = Scene.load(FB).with_overrides([f'structure.n_prisms={n_prisms}',
+                                           f'run.t_end={t_end}', 'model=full3d'])
+    sim = Simulation(scene)
+    sim.apply_impact(v0)
+    frames = []
+    path = tmp_path / 'run.rrd'
+    with RerunRecorder(sim.network, path, **kw) as rec:
+        rec.command(0.0, f'impact v0 = {v0} m/s')
+        run(sim, t_end, scene['run.output_dt'], on_frame=lambda f: (frames.append(f),
+                                                                        rec.frame(f)))
+    return sim, frames, path
+
+
+@pytest.fixture(scope='module')
+def recorded(tmp_path_factory):
+    sim, frames, path = small_run(tmp_path_factory.mktemp('rerun'), flush_every=7)
+    return sim, frames, read(path), path
+
+
+# -- tests -------------------------------------------------------------------------------------
+def test_entities_timeline_and_frame_count(recorded):
+    sim, frames, data, _ = recorded
+    expected = {'/world/nodes', '/world/bars', '/world/cables', '/strain/column_0', '/energy',
+                '/constraint_error', '/wave/column_0', '/commands', '/topology'}
+    assert expected <= set(data)
+    times = [round(f.t * 1e9) for f in frames]
+    assert len(frames) == 21                          # t_end / output_dt + the first frame
+    for ent in ('/world/nodes', '/world/bars', '/world/cables', '/strain/column_0', '/energy',
+                '/constraint_error'):
+        assert [t for t, _ in data[ent]['rows']] == times, ent
+
+
+def test_values_equal_the_solver_frames_at_chosen_times(recorded):
+    sim, frames, data, _ = recorded
+    net = sim.network
+    for f in (frames[0], frames[7], frames[13], frames[-1]):     # across flush boundaries (7)
+        x = at(data['/world/nodes'], f.t, 'Points3D:positions').reshape(-1, 3)
+        np.testing.assert_array_equal(x, f.positions.astype(np.float32))
+        bars = at(data['/world/bars'], f.t, 'LineStrips3D:strips').reshape(-1, 2, 3)
+        np.testing.assert_array_equal(bars[:, 0], f.positions[net.bar_a].astype(np.float32))
+        np.testing.assert_array_equal(bars[:, 1], f.positions[net.bar_b].astype(np.float32))
+        cables = at(data['/world/cables'], f.t, 'LineStrips3D:strips').reshape(-1, 2, 3)
+        np.testing.assert_array_equal(cables[:, 0], f.positions[net.cable_a].astype(np.float32))
+        np.testing.assert_array_equal(cables[:, 1], f.positions[net.cable_b].astype(np.float32))
+        np.testing.assert_array_equal(at(data['/strain/column_0'], f.t, 'Scalars:scalars'),
+                                      f.strain[0])
+        assert at(data['/energy'], f.t, 'Scalars:scalars')[0] == f.energy
+        assert at(data['/constraint_error'], f.t, 'Scalars:scalars')[0] == f.constraint_error
+    assert frames[-1].strain.min() < -1e-3        # the wave is in the data compared
+
+
+def test_cable_colours_follow_tension_and_dim_slack_cables(recorded):
+    messages = pytest.importorskip('tensegrity_ros.messages')
+    sim, frames, data, _ = recorded
+    scale = reference_tension_scale(sim.network)
+    f = max(frames, key=lambda fr: int(np.sum(fr.tension <= 0)))
+    slack = f.tension <= 0
+    assert slack.any() and (~slack).any()
+    packed = at(data['/world/cables'], f.t, 'LineStrips3D:colors').astype(np.uint32)
+    rgba = np.stack([(packed >> s) & 0xFF for s in (24, 16, 8, 0)], axis=1).astype(float)
+    want = 255.0 * messages.tension_colors(f.tension, scale)   # the ROS markers' colours
+    assert np.max(np.abs(rgba - want)) <= 1.5                   # 256 colour levels
+    assert np.all(rgba[slack, 3] < 100) and np.all(rgba[~slack, 3] == 255)
+
+
+def test_topology_is_static_and_matches_the_network(recorded):
+    sim, _, data, _ = recorded
+    net, topo = sim.network, data['/topology']
+    assert topo['rows'] == []                                  # static only
+    for name in ('bar_a', 'bar_b', 'cable_a', 'cable_b'):
+        np.testing.assert_array_equal(flat(topo['static'][name]), getattr(net, name))
+    assert list(flat(topo['static']['cable_kind'])) == list(net.cable_kind)
+    np.testing.assert_array_equal(flat(topo['static']['x0']).reshape(-1, 3), net.x0)
+    shape = tuple(flat(topo['static']['levels_shape']))
+    np.testing.assert_array_equal(flat(topo['static']['levels']).reshape(shape), net.levels)
+
+
+def test_wave_image_is_the_strain_of_every_frame(recorded):
+    sim, frames, data, _ = recorded
+    wave = data['/wave/column_0']
+    assert wave['rows'][-1][0] == round(frames[-1].t * 1e9)
+    shape, values = tensor(wave)
+    assert shape == (sim.network.n_prisms, len(frames))
+    np.testing.assert_array_equal(values.reshape(shape),
+                                  np.stack([f.strain[0] for f in frames], axis=1))
+
+
+def test_commands_are_text_events_and_a_blueprint_is_stored(recorded):
+    _, _, data, path = recorded
+    rows = data['/commands']['rows']
+    assert [t for t, _ in rows] == [0]
+    assert list(flat(rows[0][1]['TextLog:text'])) == ['impact v0 = 0.1 m/s']
+    assert len(RrdReader(path).blueprints()) == 1
+
+
+def test_bad_frames_are_rejected_and_change_nothing(tmp_path):
+    scene = Scene.load(FB).with_overrides(['structure.n_prisms=3'])
+    sim = Simulation(scene)
+    good = sim.frame()
+    path = tmp_path / 'bad.rrd'
+    with RerunRecorder(sim.network, path) as rec:
+        rec.frame(good)
+        bad = sim.frame()
+        bad.t = 0.01
+        bad.positions[4, 2] = math.nan
+        with pytest.raises(ValueError, match='non-finite positions'):
+            rec.frame(bad)
+        bad = sim.frame()
+        bad.t = 0.01
+        bad.tension = bad.tension[:-1]
+        with pytest.raises(ValueError, match='does not match the network'):
+            rec.frame(bad)
+        assert rec.n_frames == 1
+        later = sim.frame()
+        later.t = 0.02
+        rec.frame(later)
+    data = read(path)
+    assert [t for t, _ in data['/world/nodes']['rows']] == [0, 20_000_000]
+    for t in (0.0, 0.02):
+        assert np.all(np.isfinite(at(data['/world/nodes'], t, 'Points3D:positions')))
+    with pytest.raises(ValueError, match='file path or a viewer URL'):
+        RerunRecorder(sim.network)
+    with pytest.raises(ValueError, match='tension_scale'):
+        RerunRecorder(sim.network, tmp_path / 'x.rrd', tension_scale=-1.0)
+
+
+def test_a_reset_clock_keeps_recording(tmp_path):
+    """The node resets the simulation (t back to 0): both stretches are kept."""
+    scene = Scene.load(FB).with_overrides(['structure.n_prisms=3'])
+    sim = Simulation(scene)
+    path = tmp_path / 'reset.rrd'
+    with RerunRecorder(sim.network, path, flush_every=4) as rec:
+        for stretch in range(2):
+            sim.reset()
+            sim.apply_impact(0.05 * (stretch + 1))
+            for _ in range(3):
+                rec.frame(sim.frame())
+                sim.advance(0.005)
+        assert rec.n_restarts == 1
+    rows = read(path)['/energy']['rows']
+    assert [t for t, _ in rows] == [0, 0, 5_000_000, 5_000_000, 10_000_000, 10_000_000]
