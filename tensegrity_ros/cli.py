@@ -35,11 +35,12 @@ def _open_mcap(stack, frame_sinks, scene, sim, path):
     log = FrameLog(recorder, sim.network, marker_every=marker_every(scene['run.output_dt']))
     v0, columns = scene['loading.impact.v0'], scene['loading.impact.columns']
     if v0:
+        detail = f'impact v0 = {v0:g} m/s (scene {scene.name})'
         if columns is None:
-            log.command('~/cmd/impact', [v0], 'all', sim.t)
+            log.command('~/cmd/impact', [v0], 'all', sim.frame(), detail)
         else:
             per_column = [v0 if c in list(columns) else 0.0 for c in range(sim.network.n_columns)]
-            log.command('~/cmd/impact', per_column, 'column', sim.t)
+            log.command('~/cmd/impact', per_column, 'column', sim.frame(), detail)
     frame_sinks.append(log.frame)
     return str(path)
 

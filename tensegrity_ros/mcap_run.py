@@ -28,16 +28,19 @@ class FrameLog:
     """Writes frames of ``network`` to ``recorder`` under ``namespace``.
 
     ``marker_every``: markers and diagnostics every that many frames (the node publishes them at
-    ``marker_rate_hz`` <= ``publish_rate_hz``); ``clock``: also ``/clock`` per frame."""
+    ``marker_rate_hz`` <= ``publish_rate_hz``); ``clock``: also ``/clock`` per frame (the node's
+    default ``use_sim_clock``)."""
 
     def __init__(self, recorder, network, namespace=M.NAMESPACE, node=M.NODE_NAME, marker_every=1,
-                 clock=False):
+                 clock=True):
         if int(marker_every) < 1:
             raise ValueError(f'marker_every must be >= 1, not {marker_every!r}')
         self.rec, self.net = recorder, network
         self.namespace, self.node = namespace, node
         self.marker_every, self.clock = int(marker_every), bool(clock)
         self.n_frames = 0
+        self.accepted = 0
+        self.last_command = ('none', 'none', '')
         qos = topic_qos()
         for key in M.PUBLISHED + M.COMMANDS:
             if key == '/clock' and not clock:
@@ -53,17 +56,36 @@ class FrameLog:
         ns = M.stamp_to_ns(stamp)
         extra = self.n_frames % self.marker_every == 0
         msgs = M.frame_messages(frame, self.net, stamp=stamp, markers=extra, clock=self.clock)
-        if extra:
-            msgs['/diagnostics'] = M.diagnostics_message(stamp, {
-                'sim_time': float(frame.t), 'step': int(frame.step),
-                'energy': float(frame.energy), 'constraint_error': float(frame.constraint_error)})
         for key, msg in msgs.items():
             self.rec.write(self.topic(key), msg, ns)
         self.n_frames += 1
+        if extra:
+            self._diagnostics(frame, 'running')
 
-    def command(self, key, values, label, t):
-        """Log a command (``'~/cmd/impact'`` or ``'~/cmd/prestrain'``) received at time ``t`` s."""
+    def diagnostics_values(self, frame):
+        """The node's ``/diagnostics`` keys that a headless run knows (no wall-clock pacing)."""
+        topic, verdict, detail = self.last_command
+        return {'sim_time_s': float(frame.t), 'steps': int(frame.step), 'running': 'true',
+                'energy_J': float(frame.energy),
+                'constraint_error': float(frame.constraint_error),
+                'frames_published': self.n_frames, 'commands_accepted': self.accepted,
+                'commands_rejected': 0, 'last_command_topic': topic, 'last_command': verdict,
+                'last_command_detail': detail}
+
+    def _diagnostics(self, frame, message):
+        stamp = M.sim_stamp(frame.t)
+        self.rec.write(self.topic('/diagnostics'),
+                       M.diagnostics_message(stamp, self.diagnostics_values(frame), 0, message),
+                       M.stamp_to_ns(stamp))
+
+    def command(self, key, values, label, frame, detail=''):
+        """Log a command (``'~/cmd/impact'`` or ``'~/cmd/prestrain'``) applied at ``frame``
+        (a :class:`solver.simulation.Frame`, for its time and the diagnostics), as the node logs
+        one it receives and accepts: the command, then a ``/diagnostics`` saying so."""
         if key not in M.COMMANDS:
             raise ValueError(f'unknown command topic {key!r}')
         self.rec.write(self.topic(key), M.command_array(values, label),
-                       M.stamp_to_ns(M.sim_stamp(t)))
+                       M.stamp_to_ns(M.sim_stamp(frame.t)))
+        self.accepted += 1
+        self.last_command = (key, 'accepted', detail)
+        self._diagnostics(frame, f'accepted {key}')

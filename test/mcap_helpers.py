@@ -58,7 +58,7 @@ def record_frames(path, frames, net, marker_every=2, **kw):
     with McapRecorder(path, **kw) as rec:
         cap = Capture(rec)
         log = FrameLog(cap, net, marker_every=marker_every)
-        log.command('~/cmd/impact', [0.1], 'all', 0.0)
+        log.command('~/cmd/impact', [0.1], 'all', frames[0], 'impact v0 = 0.1 m/s')
         for f in frames:
             log.frame(f)
     return cap.written
