@@ -21,7 +21,7 @@ $(STAMP): $(PY) setup.py
 install: $(STAMP)
 
 demo: $(STAMP)
-	$(VENV)/bin/tensegrity run config/scenes/fb_column.yaml --plot --out runs/demo
+	$(VENV)/bin/tensegrity demo
 
 test: $(STAMP)
 	$(PY) -m pytest -q test
