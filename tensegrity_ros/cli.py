@@ -45,6 +45,20 @@ def _open_mcap(stack, frame_sinks, scene, sim, path):
     return str(path)
 
 
+def _open_rerun(stack, frame_sinks, scene, sim, path=None, url=None):
+    """Record the run to a Rerun ``.rrd`` at ``path`` and/or stream it to the viewer at ``url``;
+    closed by ``stack``. Logs the impact applied before the run as a command event."""
+    from .rerun_log import RerunRecorder
+    recorder = stack.enter_context(RerunRecorder(sim.network, path, connect=url))
+    v0 = scene['loading.impact.v0']
+    if v0:
+        columns = scene['loading.impact.columns']
+        recorder.command(sim.t, f'impact v0 = {v0:g} m/s on '
+                                f'{"all columns" if columns is None else f"columns {columns}"}')
+    frame_sinks.append(recorder.frame)
+    return str(path) if path is not None else url
+
+
 def cmd_run(args):
     from solver.runner import run, summary
     from solver.scene import Scene
@@ -68,7 +82,7 @@ def cmd_run(args):
         sim.apply_impact(v0, scene['loading.impact.columns'])
     t_end, output_dt = scene['run.t_end'], scene['run.output_dt']
     out_dir = Path(args.out) if args.out else None
-    if out_dir is None and (args.plot or args.mcap):
+    if out_dir is None and (args.plot or args.mcap or args.rerun):
         out_dir = Path('runs') / scene.name
     if out_dir is not None:
         out_dir.mkdir(parents=True, exist_ok=True)
@@ -77,6 +91,10 @@ def cmd_run(args):
     with contextlib.ExitStack() as stack:
         if args.mcap:
             outputs['mcap'] = _open_mcap(stack, frame_sinks, scene, sim, out_dir / 'run.mcap')
+        if args.rerun or args.rerun_connect:
+            outputs['rerun'] = _open_rerun(stack, frame_sinks, scene, sim,
+                                           out_dir / 'run.rrd' if args.rerun else None,
+                                           args.rerun_connect)
         try:
             rec = run(sim, t_end, output_dt, progress=update,
                       on_frame=(lambda f: [sink(f) for sink in frame_sinks]) if frame_sinks
@@ -186,6 +204,11 @@ def build_parser():
     p.add_argument('--plot', action='store_true', help='write a PNG of the strain wave')
     p.add_argument('--mcap', action='store_true',
                    help='record the run to OUT/run.mcap (ROS 2 profile, the node\'s topics)')
+    p.add_argument('--rerun', action='store_true',
+                   help='record the run to OUT/run.rrd (Rerun; open with `rerun OUT/run.rrd`)')
+    p.add_argument('--rerun-connect', nargs='?', metavar='URL',
+                   const='rerun+http://127.0.0.1:9876/proxy',
+                   help='stream the run to a running Rerun viewer (default URL %(const)s)')
     p.add_argument('--json', action='store_true', help='print the summary as one JSON object')
     p.set_defaults(func=cmd_run)
     p = sub.add_parser('replay', help='republish an MCAP log over ROS 2 (with /clock), or '

@@ -27,6 +27,8 @@ Rerun is a fresh copy (Arrow may keep referencing it after the call; the buffers
 from __future__ import annotations
 
 import math
+import socket
+import urllib.parse
 from collections import deque
 
 import numpy as np
@@ -96,6 +98,19 @@ def _segments(x32, a, b):
 _STRIP_TYPE = rr.components.LineStrip3DBatch._ARROW_DATATYPE
 
 
+def check_viewer(url, timeout_s=1.0):
+    """Raise ValueError unless ``url`` is a Rerun gRPC URL with something listening on its port
+    (a quick TCP probe, so that a missing viewer is reported before the run, not after it)."""
+    u = urllib.parse.urlsplit(str(url))
+    if u.scheme not in ('rerun', 'rerun+http', 'rerun+https') or not u.hostname:
+        raise ValueError(f'rerun: {url!r} is not a viewer URL (expected e.g. {DEFAULT_URL})')
+    try:
+        socket.create_connection((u.hostname, u.port or 9876), timeout=timeout_s).close()
+    except OSError as exc:
+        raise ValueError(f'rerun: no viewer listening at {url} ({exc.strerror or exc}); start '
+                         f'one with `rerun` or record to a file instead') from None
+
+
 def blueprint(n_columns=1):
     """The default layout: the 3D column beside the strain plots (series per prism, prism-by-time
     wave), with energy, constraint error and the command log below."""
@@ -146,6 +161,8 @@ class RerunRecorder:
         self.net = network
         self.path = None if path is None else str(path)
         self.url = (DEFAULT_URL if connect is True else connect) or None
+        if self.url is not None:
+            check_viewer(self.url)
         self.tension_scale = (reference_tension_scale(network) if tension_scale is None
                               else float(tension_scale))
         self.flush_every = int(flush_every)
@@ -305,8 +322,12 @@ class RerunRecorder:
             return
         self.flush()
         self._closed = True
-        self.stream.flush()
-        self.stream.disconnect()
+        try:
+            self.stream.flush()
+        except RuntimeError as exc:             # the viewer went away: the file is still written
+            raise ValueError(f'rerun: {exc}') from None
+        finally:
+            self.stream.disconnect()
 
     def __enter__(self):
         return self

@@ -6,6 +6,11 @@ Arrow record batches. Every value is compared with the solver's own frames, the 
 an independent colour computation (the ROS marker colours of messages.py).
 """
 import math
+import os
+import socket
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -215,3 +220,91 @@ def test_a_reset_clock_keeps_recording(tmp_path):
         assert rec.n_restarts == 1
     rows = read(path)['/energy']['rows']
     assert [t for t, _ in rows] == [0, 0, 5_000_000, 5_000_000, 10_000_000, 10_000_000]
+
+
+def test_run_cli_records_what_the_solver_computes(tmp_path, capsys):
+    import json
+
+    from tensegrity_ros.cli import main
+    args = ['run', str(FB), '--set', 'structure.n_prisms=4', '--set', 'model=full3d',
+            '--t-end', '0.02', '--out', str(tmp_path), '--rerun', '--json']
+    assert main(args) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out['outputs']['rerun'] == str(tmp_path / 'run.rrd')
+    data = read(out['outputs']['rerun'])
+    # the same scene run again without recording (the solver is deterministic)
+    scene = Scene.load(FB).with_overrides(['structure.n_prisms=4', 'model=full3d'])
+    sim = Simulation(scene)
+    sim.apply_impact(scene['loading.impact.v0'])
+    frames = []
+    run(sim, 0.02, scene['run.output_dt'], on_frame=frames.append)
+    assert [t for t, _ in data['/energy']['rows']] == [round(f.t * 1e9) for f in frames]
+    for f in frames:
+        assert at(data['/energy'], f.t, 'Scalars:scalars')[0] == pytest.approx(f.energy,
+                                                                                rel=1e-12)
+    text = flat(data['/commands']['rows'][0][1]['TextLog:text'])[0]
+    assert text.startswith(f"impact v0 = {scene['loading.impact.v0']:g} m/s")
+
+
+def test_connect_needs_a_listening_viewer(tmp_path):
+    scene = Scene.load(FB).with_overrides(['structure.n_prisms=3'])
+    net = Simulation(scene).network
+    with socket.socket() as s:                   # a port nobody listens on
+        s.bind(('127.0.0.1', 0))
+        port = s.getsockname()[1]
+    with pytest.raises(ValueError, match='no viewer listening'):
+        RerunRecorder(net, connect=f'rerun+http://127.0.0.1:{port}/proxy')
+    with pytest.raises(ValueError, match='not a viewer URL'):
+        RerunRecorder(net, connect='localhost:9876')
+
+
+@pytest.mark.filterwarnings('ignore:RRD file has no footer')
+def test_connect_streams_to_a_running_viewer(tmp_path):
+    """A headless Rerun server (``rerun --save``) stands in for the viewer."""
+    exe = Path(sys.executable).parent / 'rerun'
+    if not exe.exists():
+        pytest.skip('rerun CLI not installed')
+    env = dict(os.environ, HOME=str(tmp_path), XDG_CONFIG_HOME=str(tmp_path / 'cfg'),
+               XDG_DATA_HOME=str(tmp_path / 'data'), XDG_CACHE_HOME=str(tmp_path / 'cache'))
+    subprocess.run([str(exe), 'analytics', 'disable'], env=env, timeout=60,
+                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    with socket.socket() as s:
+        s.bind(('127.0.0.1', 0))
+        port = s.getsockname()[1]
+    saved = tmp_path / 'viewer.rrd'
+    server = subprocess.Popen([str(exe), '--bind', '127.0.0.1', '--port', str(port),
+                               '--save', str(saved)], env=env, stdout=subprocess.DEVNULL,
+                              stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 30
+        while True:
+            try:
+                socket.create_connection(('127.0.0.1', port), timeout=0.5).close()
+                break
+            except OSError:
+                assert time.monotonic() < deadline, 'rerun server did not start'
+                time.sleep(0.2)
+        scene = Scene.load(FB).with_overrides(['structure.n_prisms=3', 'model=full3d'])
+        sim = Simulation(scene)
+        sim.apply_impact(0.1)
+        frames = []
+        with RerunRecorder(sim.network, connect=f'rerun+http://127.0.0.1:{port}/proxy',
+                           flush_every=4) as rec:
+            run(sim, 0.03, 0.005, on_frame=lambda f: (frames.append(f), rec.frame(f)))
+        deadline = time.monotonic() + 30
+        while True:                              # the server writes what it received
+            try:
+                rows = read(saved).get('/energy', {'rows': []})['rows']
+            except Exception:
+                rows = []
+            if len(rows) == len(frames) or time.monotonic() > deadline:
+                break
+            time.sleep(0.3)
+    finally:
+        server.terminate()
+        server.wait(timeout=30)
+    data = read(saved)
+    assert [t for t, _ in data['/energy']['rows']] == [round(f.t * 1e9) for f in frames]
+    f = frames[4]
+    np.testing.assert_array_equal(at(data['/strain/column_0'], f.t, 'Scalars:scalars'),
+                                  f.strain[0])
