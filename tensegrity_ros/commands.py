@@ -70,13 +70,13 @@ def parse_impact(data, layout, n_columns):
     v = _values(topic, data, layout)
     label = _label(topic, layout)
     if label == 'cross_cable':
-        raise CommandError(f'{topic}: per-cross-cable impact is not defined (1 or {n_columns} '
-                           'values)')
+        raise CommandError(f'{topic}: per-cross-cable impact is not defined (1 value, or one per '
+                           'column)')
     if v.size == 1 and label in ('', 'all') or (v.size == n_columns and label in ('', 'column')):
         pass
     else:
-        want = '1' if label == 'all' else (str(n_columns) if label == 'column'
-                                           else f'1 or {n_columns}')
+        want = '1' if label == 'all' or n_columns == 1 else (
+            str(n_columns) if label == 'column' else f'1 or {n_columns}')
         raise CommandError(f'{topic}: expected {want} values, got {v.size}')
     lo, hi = IMPACT_RANGE
     out = (v > hi) | (v < lo)

@@ -1,0 +1,262 @@
+"""The node tensegrity_sim in a real rclpy context (own domain id): commands in over topics, messages
+out, services, malformed commands, divergence, pacing logic and parameters."""
+import os
+
+import numpy as np
+import pytest
+import yaml
+
+rclpy = pytest.importorskip('rclpy')
+from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from rclpy.parameter import Parameter  # noqa: E402
+from std_msgs.msg import Float64MultiArray, MultiArrayDimension  # noqa: E402
+from std_srvs.srv import SetBool, Trigger  # noqa: E402
+
+from solver.scene import Scene  # noqa: E402
+from tensegrity_ros.commander import Commander, spin_until  # noqa: E402
+from tensegrity_ros.node import (DEFAULTS, ParameterError, TensegritySim,  # noqa: E402
+                                 check_parameters)
+
+DOMAIN = 10 + os.getpid() % 20
+N_PRISMS = 10
+SMALL = ['structure.n_prisms=%d' % N_PRISMS]
+
+
+class Ros:
+    """One context, the node and a commander in one executor."""
+
+    def __init__(self, tmp_path, sim=None, **params):
+        scene = Scene.load('config/scenes/fb_column.yaml').with_overrides(SMALL)
+        path = tmp_path / 'small.yaml'
+        path.write_text(yaml.safe_dump(scene.data))
+        self.ctx = rclpy.Context()
+        rclpy.init(context=self.ctx, domain_id=DOMAIN)
+        values = dict(scene_file=str(path), real_time_factor=0.0, **params)
+        overrides = [Parameter(k, value=v) for k, v in values.items()]
+        self.node = TensegritySim(sim=sim, context=self.ctx, parameter_overrides=overrides)
+        self.sunk = []
+        self.node.add_sink(sink=lambda topic, msg, ns: self.sunk.append((topic, msg, ns)))
+        self.cmd = Commander(context=self.ctx)
+        self.ex = SingleThreadedExecutor(context=self.ctx)
+        self.ex.add_node(self.node)
+        self.ex.add_node(self.cmd)
+        assert self.spin(self.cmd.connected, 30), 'commander never connected'
+
+    def spin(self, predicate, timeout_s=20.0):
+        return spin_until(self.ex, predicate, timeout_s, step_s=0.005)
+
+    def call(self, client, request):
+        assert client.wait_for_service(timeout_sec=10)
+        future = client.call_async(request)
+        assert self.spin(future.done, 10)
+        return future.result()
+
+    def close(self):
+        self.ex.shutdown()
+        self.node.close()
+        self.cmd.destroy_node()
+        self.node.destroy_node()
+        rclpy.shutdown(context=self.ctx)
+
+
+@pytest.fixture
+def ros(tmp_path):
+    r = Ros(tmp_path)
+    yield r
+    r.close()
+
+
+def test_impact_in_strain_and_nodes_out(ros):
+    net = ros.node.sim.network
+    assert ros.spin(lambda: len(ros.cmd.strain) >= 3)
+    assert np.abs(ros.cmd.strain[-1]).max() < 1e-12          # at rest before the impact
+    n_s, n_c = len(ros.cmd.strain), len(ros.cmd.clouds)
+    ros.cmd.impact([0.1])
+    assert ros.spin(lambda: len(ros.cmd.strain) >= n_s + 40 and len(ros.cmd.clouds) >= n_c + 40)
+    strains = np.array(ros.cmd.strain[n_s:])
+    assert strains.shape[1:] == (1, N_PRISMS)
+    assert strains.min() < -0.01                              # a compressive pulse
+    assert np.all(np.isfinite(strains))
+    t, x = ros.cmd.clouds[-1]
+    assert x.shape == (net.n_nodes, 3)
+    assert len(ros.cmd.tension[-1]) == net.n_cables
+    times = np.array([c[0] for c in ros.cmd.clouds])
+    assert np.all(np.diff(times) > 0)                         # stamps: simulation time, increasing
+    steps = times / ros.node.sim.dt
+    assert np.allclose(steps, np.round(steps), atol=1e-6)
+    # the impacted (top) level moved down; the clamped level did not move
+    assert x[net.levels[0, -1], 2].mean() < net.x0[net.levels[0, -1], 2].mean()
+    x0_f32 = net.x0.astype(np.float32).astype(np.float64)            # the cloud is float32
+    assert np.array_equal(x[net.levels[0, 0]], x0_f32[net.levels[0, 0]])
+    assert ros.node.counts['accepted'] == 1 and ros.node.counts['rejected'] == 0
+    # the command itself was handed to the recorder sinks
+    assert any(topic.endswith('/cmd/impact') for topic, _, _ in ros.sunk)
+
+
+def test_prestrain_changes_tensions_and_column_stays_at_rest(ros):
+    net = ros.node.sim.network
+    EA, p_new = net.meta['EA'], 0.004
+    cross = np.array([k == 'cross' for k in net.cable_kind])
+    ros.cmd.prestrain([p_new])
+    assert ros.spin(lambda: ros.node.counts['accepted'] == 1)
+    assert ros.spin(lambda: ros.node.sim.t > ros.node.params['prestrain_ramp_s'] + 0.01)
+    n = len(ros.cmd.tension)
+    assert ros.spin(lambda: len(ros.cmd.tension) > n + 2)
+    T = ros.cmd.tension[-1]
+    assert np.allclose(T[cross], EA * p_new, rtol=1e-9)      # T = EA (s - L) / L = EA p
+    t, x = ros.cmd.clouds[-1]
+    assert np.abs(x - net.x0).max() < 1e-7                   # float32 cloud of the reference
+    assert np.abs(ros.node.sim.model.velocities()).max() < 1e-12
+    assert np.abs(ros.cmd.strain[-1]).max() < 1e-9
+
+
+def test_reset_service(ros):
+    sim, net = ros.node.sim, ros.node.sim.network
+    ros.cmd.impact([0.1])
+    assert ros.spin(lambda: sim.t > 0.05)
+    res = ros.call(ros.cmd.cli_running, SetBool.Request(data=False))
+    assert res.success and not ros.node.running
+    t_paused = sim.t
+    ros.spin(lambda: False, 0.3)
+    assert sim.t == t_paused and t_paused > 0.05
+    n = len(ros.cmd.clouds)
+    res = ros.call(ros.cmd.cli_reset, Trigger.Request())
+    assert res.success
+    assert sim.t == 0.0 and np.array_equal(sim.model.positions(), net.x0)
+    assert np.abs(sim.model.velocities()).max() == 0.0
+    assert ros.spin(lambda: len(ros.cmd.clouds) > n)
+    t, x = ros.cmd.clouds[-1]
+    assert t == 0.0 and np.array_equal(x, net.x0.astype(np.float32).astype(np.float64))
+    ros.call(ros.cmd.cli_running, SetBool.Request(data=True))
+    assert ros.spin(lambda: sim.t > 0.01)
+    assert np.abs(sim.model.velocities()).max() < 1e-12     # at rest again: the impact is gone
+
+
+def _malformed(rng, n_columns, n_cross):
+    """One random malformed command: (topic, data, label)."""
+    kind = rng.integers(8)
+    topic = 'impact' if rng.random() < 0.5 else 'prestrain'
+    good = 0.1 if topic == 'impact' else 0.003
+    if kind == 0:
+        return topic, [], ''                                       # empty
+    if kind == 1:
+        size = int(rng.choice([2, 3, 7, n_cross + 1, n_cross - 1]))
+        return topic, [good] * size, ''                            # wrong length
+    n = int(rng.choice([1, n_columns] if topic == 'impact' else [1, n_cross]))
+    data = [good] * n
+    i = int(rng.integers(n))
+    if kind == 2:
+        data[i] = float('nan')
+    elif kind == 3:
+        data[i] = float(rng.choice([np.inf, -np.inf]))
+    elif kind == 4:                                                # outside the physical range
+        data[i] = (float(rng.choice([-1, 1]) * rng.uniform(10.001, 1e6)) if topic == 'impact'
+                   else float(rng.choice([rng.uniform(-1, 0), rng.uniform(0.5001, 10)])))
+    elif kind == 5:
+        return topic, data, str(rng.choice(['bogus', 'prism', 'xyz']))    # unknown label
+    elif kind == 6:
+        if topic == 'impact':                                      # label mismatch
+            return topic, data, 'cross_cable'
+        return topic, data, 'cross_cable' if n == 1 else 'all'
+    else:
+        if topic == 'prestrain':                                   # unequal within one prism
+            data = [good] * n_cross
+            data[3 * int(rng.integers(n_cross // 3)) + 1] = 0.004
+        else:
+            data[i] = float('nan') if rng.random() < 0.5 else 11.0
+    return topic, data, ''
+
+
+def test_malformed_commands_rejected_and_reported(ros):
+    node, sim = ros.node, ros.node.sim
+    ros.call(ros.cmd.cli_running, SetBool.Request(data=False))
+    keep = [np.array(a) for a in (sim.model.positions(), sim.model.velocities(),
+                                  sim.model.act[0], sim.prestrain)] + [sim.t]
+    n_cross = len(sim.prestrain_map.cross)
+    rng = np.random.default_rng(2024)
+    n_diag = len([s for s in ros.sunk if s[0] == '/diagnostics'])
+    sent = 0
+    while sent < 1000:
+        for _ in range(5):
+            topic, data, label = _malformed(rng, sim.network.n_columns, n_cross)
+            msg = Float64MultiArray()
+            msg.data = [float(v) for v in data]
+            if label:
+                msg.layout.dim = [MultiArrayDimension(label=label, size=len(data),
+                                                      stride=len(data))]
+            (ros.cmd.pub_impact if topic == 'impact' else ros.cmd.pub_prestrain).publish(msg)
+            sent += 1
+        assert ros.spin(lambda: node.counts['rejected'] == sent, 10), \
+            f'{node.counts} after {sent} commands ({node.last_command})'
+    assert node.counts == {'accepted': 0, 'rejected': 1000, 'frames': node.counts['frames']}
+    now = [sim.model.positions(), sim.model.velocities(), sim.model.act[0], sim.prestrain]
+    assert all(np.array_equal(a, b) for a, b in zip(keep[:4], now)) and sim.t == keep[4]
+    diags = [m for topic, m, _ in ros.sunk if topic == '/diagnostics'][n_diag:]
+    rejected = [d.status[0] for d in diags if d.status[0].message.startswith('rejected')]
+    assert len(rejected) == 1000
+    assert all(st.level == b'\x01' and '~/cmd/' in st.message for st in rejected)
+    # still alive: a good command after all that is accepted and the node steps on
+    ros.call(ros.cmd.cli_running, SetBool.Request(data=True))
+    ros.cmd.impact([0.05])
+    assert ros.spin(lambda: node.counts['accepted'] == 1)
+    assert ros.spin(lambda: sim.t > keep[4] + 0.01)
+
+
+def _finite_outputs(sunk):
+    for topic, msg, _ in sunk:
+        if topic.endswith(('/strain', '/cable_tension')):
+            assert np.all(np.isfinite(np.asarray(msg.data)))
+        elif topic.endswith('/nodes'):
+            assert np.all(np.isfinite(np.frombuffer(bytes(msg.data), dtype='<f4')))
+        elif topic == '/diagnostics':
+            assert all(kv.value.lower() not in ('nan', 'inf', '-inf')
+                       for kv in msg.status[0].values)
+
+
+def test_divergence_pauses_and_publishes_no_nan(ros):
+    node, sim = ros.node, ros.node.sim
+    ros.cmd.impact([0.1])
+    assert ros.spin(lambda: sim.t > 0.02)
+    sim.div['constraint_error'] = 1e-300           # every step now counts as diverged
+    assert ros.spin(lambda: not node.running, 10)
+    assert 'diverged' in node.problem
+    assert ros.spin(lambda: any(d[0] == 2 for d in ros.cmd.diagnostics), 5)
+    t = sim.t
+    ros.spin(lambda: False, 0.2)
+    assert sim.t == t                                          # paused, last good state kept
+    assert np.all(np.isfinite(sim.model.positions()))
+    # a corrupted state (NaN) is never published either: the node pauses instead
+    sim.div['constraint_error'] = 1e-6
+    ros.call(ros.cmd.cli_running, SetBool.Request(data=True))
+    sim.model.x[5, 0] = np.nan
+    assert ros.spin(lambda: not node.running, 10)
+    _finite_outputs(ros.sunk)
+
+
+def test_pacing_logic(ros):
+    node, sim = ros.node, ros.node.sim
+    node.period, node._publish_cost, node._step_cost = 0.005, 0.0, 1e-6
+    node.params['real_time_factor'] = 1.0
+    node._anchor_wall, node._anchor_t = 100.0, sim.t
+    assert node.steps_this_tick(100.01) == round(0.01 / sim.dt)
+    node.params['real_time_factor'] = 2.5
+    assert node.steps_this_tick(100.01) == round(0.025 / sim.dt)
+    node.params['real_time_factor'] = 0.0
+    assert node.steps_this_tick(100.01) == int(0.8 * 0.005 / 1e-6)
+    # a solver too slow for the requested factor: the tick does what fits in 80 % of a period
+    node.params['real_time_factor'] = 1.0
+    node._step_cost = 1e-3
+    assert node.steps_this_tick(101.0) == 4
+    assert node._anchor_wall == 101.0                          # no debt accumulated
+
+
+def test_parameters_file_matches_defaults_and_bad_values_named():
+    with open('config/node.yaml') as f:
+        raw = yaml.safe_load(f)
+    (params,) = [v['ros__parameters'] for v in raw.values()]
+    assert params == DEFAULTS
+    for name, value in [('publish_rate_hz', 0.0), ('real_time_factor', -1.0),
+                        ('marker_rate_hz', float('nan')), ('scene_file', 3), ('dt', -1e-3)]:
+        with pytest.raises(ParameterError, match=name):
+            check_parameters(dict(DEFAULTS, **{name: value}))
+    assert check_parameters(dict(DEFAULTS, dt=0))['dt'] == 0.0
