@@ -5,7 +5,15 @@ kernels take arrays and tuples of arrays only and write into ``out`` arrays.
 
 ``net`` tuple (read-only model arrays, see :class:`solver.network.Network`)::
 
-    (w_diag, partner, w_off, con_tail, con_head, con_length, con_coef, cable_a, cable_b)
+    (w_diag, partner, w_off, con_tail, con_head, con_length, con_coef, cable_a, cable_b,
+     con_rot, cable_rot, con_coef3)
+
+The last three serve the symmetric reduction (:mod:`solver.sym3d`) and are empty for a plain network:
+a member then joins its tail node to the ROTATED IMAGE ``R^r x_head`` of its head node, ``R`` the
+rotation by 2 pi / 3 about z and ``r = con_rot[c]`` (``cable_rot`` for cables) in {0, 1, 2}; the force
+on the image is rotated back onto the node. ``con_coef3`` (n_con, bw + 1, 3) replaces ``con_coef``:
+``A[c, c-k] = coef3[c, k] . (b_c^z b_d^z, b_c^x b_d^x + b_c^y b_d^y, b_c^y b_d^x - b_c^x b_d^y)``.
+With empty arrays every kernel takes the plain path (r = 0), so ``full3d`` pays nothing for them.
 
 ``act`` tuple (actuation, mutable by commands)::
 
@@ -29,10 +37,22 @@ STATUS_TEXT = {OK: 'ok', SINGULAR: 'constraint matrix singular (degenerate rigid
                NOT_CONVERGED: 'position projection did not converge'}
 
 
+NO_ROT = np.zeros(0, dtype=np.int64)
+NO_ROT.setflags(write=False)
+NO_COEF3 = np.zeros((0, 1, 3))
+NO_COEF3.setflags(write=False)
+# R^r = [[C[r], -S[r], 0], [S[r], C[r], 0], [0, 0, 1]]: rotation by 2 pi r / 3 about z
+ROT_C = np.array([1.0, -0.5, -0.5])
+ROT_S = np.array([0.0, math.sqrt(3.0) / 2.0, -math.sqrt(3.0) / 2.0])
+
+
 def pack(network, cable_rest_length=None, cable_EA=None, f_ext=None):
-    """The ``(net, act)`` tuples of a network; ``act`` arrays are fresh writable copies."""
+    """The ``(net, act)`` tuples of a network; ``act`` arrays are fresh writable copies. A network
+    with rotated members (:class:`solver.sym3d.ReducedNetwork`) fills the last three ``net`` slots."""
     net = (network.w_diag, network.partner, network.w_off, network.con_tail, network.con_head,
-           network.con_length, network.con_coef, network.cable_a, network.cable_b)
+           network.con_length, network.con_coef, network.cable_a, network.cable_b,
+           getattr(network, 'con_rot', NO_ROT), getattr(network, 'cable_rot', NO_ROT),
+           getattr(network, 'con_coef3', NO_COEF3))
     rest = np.array(network.cable_rest_length if cable_rest_length is None else cable_rest_length,
                     dtype=np.float64)
     EA = np.array(network.cable_EA if cable_EA is None else cable_EA, dtype=np.float64)
@@ -188,29 +208,160 @@ def add_constraint_forces(lam, bvec, tail, head, f):
 
 
 @jit
-def accelerations(x, v, net, act, ws, out):
-    """Accelerations (n_nodes, 3) m/s^2 of the constrained system into ``out``; multipliers
-    (bar force densities, > 0 in compression) are left in ``ws[4]``. Returns a status code."""
-    w_diag, partner, w_off, tail, head, length, coef, cable_a, cable_b = net
-    rest, EA, f_ext = act
-    f, wf, bvec, band, lam = ws[0], ws[1], ws[2], ws[3], ws[4]
-    f[:, :] = f_ext
-    cable_forces(x, cable_a, cable_b, rest, EA, f)
-    apply_w(f, w_diag, partner, w_off, wf)
-    member_vectors(x, tail, head, bvec)
+def cable_forces_rot(x, cable_a, cable_b, cable_rot, rest, EA, f):
+    """:func:`cable_forces` for cables from ``x_a`` to the image ``R^r x_b``: the force on the image
+    is rotated back onto node b."""
+    for c in range(cable_a.shape[0]):
+        a = cable_a[c]
+        b = cable_b[c]
+        cr = ROT_C[cable_rot[c]]
+        sr = ROT_S[cable_rot[c]]
+        dx = cr * x[b, 0] - sr * x[b, 1] - x[a, 0]
+        dy = sr * x[b, 0] + cr * x[b, 1] - x[a, 1]
+        dz = x[b, 2] - x[a, 2]
+        s = math.sqrt(dx * dx + dy * dy + dz * dz)
+        L = rest[c]
+        if s > L:
+            g = EA[c] / L * (s - L) / s
+            fx = g * dx
+            fy = g * dy
+            f[a, 0] += fx
+            f[a, 1] += fy
+            f[a, 2] += g * dz
+            f[b, 0] -= cr * fx + sr * fy
+            f[b, 1] -= cr * fy - sr * fx
+            f[b, 2] -= g * dz
+
+
+@jit
+def member_vectors_rot(x, tail, head, rot, bvec):
+    """``bvec[c] = R^rot[c] x[head[c]] - x[tail[c]]``."""
     for c in range(tail.shape[0]):
         h = head[c]
         t = tail[c]
-        s = 0.0
-        for i in range(3):
-            db = v[h, i] - v[t, i]
-            s += bvec[c, i] * (wf[h, i] - wf[t, i]) + db * db
-        lam[c] = -s
-    assemble_band(bvec, coef, band)
+        cr = ROT_C[rot[c]]
+        sr = ROT_S[rot[c]]
+        bvec[c, 0] = cr * x[h, 0] - sr * x[h, 1] - x[t, 0]
+        bvec[c, 1] = sr * x[h, 0] + cr * x[h, 1] - x[t, 1]
+        bvec[c, 2] = x[h, 2] - x[t, 2]
+
+
+@jit
+def assemble_band_rot(bvec, coef3, band):
+    """``band[c, k] = A[c, c-k] = coef3[c, k] . (zz, xx + yy, y_c x_d - x_c y_d)`` of b_c, b_d."""
+    m = coef3.shape[0]
+    width = coef3.shape[1]
+    for c in range(m):
+        for k in range(width):
+            if k > c:
+                band[c, k] = 0.0
+                continue
+            d = c - k
+            band[c, k] = (coef3[c, k, 0] * bvec[c, 2] * bvec[d, 2]
+                          + coef3[c, k, 1] * (bvec[c, 0] * bvec[d, 0] + bvec[c, 1] * bvec[d, 1])
+                          + coef3[c, k, 2] * (bvec[c, 1] * bvec[d, 0] - bvec[c, 0] * bvec[d, 1]))
+
+
+@jit
+def add_constraint_forces_rot(lam, bvec, tail, head, rot, f):
+    """:func:`add_constraint_forces` with the head force ``R^-r (lam b)`` rotated back."""
+    for c in range(tail.shape[0]):
+        h = head[c]
+        t = tail[c]
+        cr = ROT_C[rot[c]]
+        sr = ROT_S[rot[c]]
+        gx = lam[c] * bvec[c, 0]
+        gy = lam[c] * bvec[c, 1]
+        gz = lam[c] * bvec[c, 2]
+        f[h, 0] += cr * gx + sr * gy
+        f[h, 1] += cr * gy - sr * gx
+        f[h, 2] += gz
+        f[t, 0] -= gx
+        f[t, 1] -= gy
+        f[t, 2] -= gz
+
+
+@jit
+def _members(x, net, bvec):
+    if net[9].shape[0] == 0:
+        member_vectors(x, net[3], net[4], bvec)
+    else:
+        member_vectors_rot(x, net[3], net[4], net[9], bvec)
+
+
+@jit
+def _assemble(bvec, net, band):
+    if net[9].shape[0] == 0:
+        assemble_band(bvec, net[6], band)
+    else:
+        assemble_band_rot(bvec, net[11], band)
+
+
+@jit
+def _add_forces(lam, bvec, net, f):
+    if net[9].shape[0] == 0:
+        add_constraint_forces(lam, bvec, net[3], net[4], f)
+    else:
+        add_constraint_forces_rot(lam, bvec, net[3], net[4], net[9], f)
+
+
+@jit
+def _rel(u, t, h, rot, c):
+    """``R^r u[h] - u[t]`` with ``r = rot[c]`` (r = 0 when ``rot`` is empty): a 3-tuple."""
+    if rot.shape[0] == 0:
+        return u[h, 0] - u[t, 0], u[h, 1] - u[t, 1], u[h, 2] - u[t, 2]
+    cr = ROT_C[rot[c]]
+    sr = ROT_S[rot[c]]
+    return (cr * u[h, 0] - sr * u[h, 1] - u[t, 0], sr * u[h, 0] + cr * u[h, 1] - u[t, 1],
+            u[h, 2] - u[t, 2])
+
+
+@jit
+def accelerations(x, v, net, act, ws, out):
+    """Accelerations (n_nodes, 3) m/s^2 of the constrained system into ``out``; multipliers
+    (bar force densities, > 0 in compression) are left in ``ws[4]``. Returns a status code."""
+    w_diag, partner, w_off, tail, head = net[0], net[1], net[2], net[3], net[4]
+    coef, cable_a, cable_b = net[6], net[7], net[8]
+    rest, EA, f_ext = act
+    f, wf, bvec, band, lam = ws[0], ws[1], ws[2], ws[3], ws[4]
+    f[:, :] = f_ext
+    if net[10].shape[0] == 0:
+        cable_forces(x, cable_a, cable_b, rest, EA, f)
+    else:
+        cable_forces_rot(x, cable_a, cable_b, net[10], rest, EA, f)
+    apply_w(f, w_diag, partner, w_off, wf)
+    if net[9].shape[0] == 0:
+        member_vectors(x, tail, head, bvec)
+        for c in range(tail.shape[0]):
+            h = head[c]
+            t = tail[c]
+            s = 0.0
+            for i in range(3):
+                db = v[h, i] - v[t, i]
+                s += bvec[c, i] * (wf[h, i] - wf[t, i]) + db * db
+            lam[c] = -s
+        assemble_band(bvec, coef, band)
+    else:
+        rot = net[9]
+        member_vectors_rot(x, tail, head, rot, bvec)
+        for c in range(tail.shape[0]):
+            h = head[c]
+            t = tail[c]
+            cr = ROT_C[rot[c]]
+            sr = ROT_S[rot[c]]
+            ax = cr * wf[h, 0] - sr * wf[h, 1] - wf[t, 0]
+            ay = sr * wf[h, 0] + cr * wf[h, 1] - wf[t, 1]
+            az = wf[h, 2] - wf[t, 2]
+            dx = cr * v[h, 0] - sr * v[h, 1] - v[t, 0]
+            dy = sr * v[h, 0] + cr * v[h, 1] - v[t, 1]
+            dz = v[h, 2] - v[t, 2]
+            lam[c] = -(bvec[c, 0] * ax + bvec[c, 1] * ay + bvec[c, 2] * az
+                       + dx * dx + dy * dy + dz * dz)
+        assemble_band_rot(bvec, net[11], band)
     status = band_ldl_solve(band, lam)
     if status != OK:
         return status
-    add_constraint_forces(lam, bvec, tail, head, f)
+    _add_forces(lam, bvec, net, f)
     apply_w(f, w_diag, partner, w_off, out)
     return OK
 
@@ -218,12 +369,10 @@ def accelerations(x, v, net, act, ws, out):
 @jit
 def constraint_error(x, net):
     """max_c |g_c| / L_c^2 with ``g_c = (|b_c|^2 - L_c^2) / 2`` (dimensionless)."""
-    tail, head, length = net[3], net[4], net[5]
+    tail, head, length, rot = net[3], net[4], net[5], net[9]
     worst = 0.0
     for c in range(tail.shape[0]):
-        dx = x[head[c], 0] - x[tail[c], 0]
-        dy = x[head[c], 1] - x[tail[c], 1]
-        dz = x[head[c], 2] - x[tail[c], 2]
+        dx, dy, dz = _rel(x, tail[c], head[c], rot, c)
         L2 = length[c] * length[c]
         e = abs(0.5 * (dx * dx + dy * dy + dz * dz - L2)) / L2
         if not e <= worst:          # also catches NaN
@@ -235,10 +384,10 @@ def constraint_error(x, net):
 def project_positions(x, net, ws, tol, max_iter):
     """Mass-weighted Gauss-Newton projection of positions onto the rigid-member manifold:
     ``A dmu = -g``, ``x += W sum_c dmu_c G_c`` until ``|g_c| < tol L_c^2``. Returns a status code."""
-    w_diag, partner, w_off, tail, head, length, coef, cable_a, cable_b = net
+    w_diag, partner, w_off, tail, length = net[0], net[1], net[2], net[3], net[5]
     f, wf, bvec, band, lam = ws[0], ws[1], ws[2], ws[3], ws[4]
     for it in range(max_iter + 1):
-        member_vectors(x, tail, head, bvec)
+        _members(x, net, bvec)
         worst = 0.0
         for c in range(tail.shape[0]):
             L2 = length[c] * length[c]
@@ -251,12 +400,12 @@ def project_positions(x, net, ws, tol, max_iter):
             return OK
         if it == max_iter or not math.isfinite(worst):
             break
-        assemble_band(bvec, coef, band)
+        _assemble(bvec, net, band)
         status = band_ldl_solve(band, lam)
         if status != OK:
             return status
         f[:, :] = 0.0
-        add_constraint_forces(lam, bvec, tail, head, f)
+        _add_forces(lam, bvec, net, f)
         apply_w(f, w_diag, partner, w_off, wf)
         for p in range(x.shape[0]):
             for i in range(3):
@@ -269,20 +418,18 @@ def project_velocities(x, v, net, ws):
     """Mass-weighted projection of velocities onto the constraint tangent space:
     ``A mu = -J v``, ``v += W J^T mu`` (the impulse that removes every velocity violating a rigid
     member while changing momentum least in the mass metric). Returns a status code."""
-    w_diag, partner, w_off, tail, head, length, coef, cable_a, cable_b = net
+    w_diag, partner, w_off, tail, head, rot = net[0], net[1], net[2], net[3], net[4], net[9]
     f, wf, bvec, band, lam = ws[0], ws[1], ws[2], ws[3], ws[4]
-    member_vectors(x, tail, head, bvec)
+    _members(x, net, bvec)
     for c in range(tail.shape[0]):
-        h = head[c]
-        t = tail[c]
-        lam[c] = -(bvec[c, 0] * (v[h, 0] - v[t, 0]) + bvec[c, 1] * (v[h, 1] - v[t, 1])
-                   + bvec[c, 2] * (v[h, 2] - v[t, 2]))
-    assemble_band(bvec, coef, band)
+        dx, dy, dz = _rel(v, tail[c], head[c], rot, c)
+        lam[c] = -(bvec[c, 0] * dx + bvec[c, 1] * dy + bvec[c, 2] * dz)
+    _assemble(bvec, net, band)
     status = band_ldl_solve(band, lam)
     if status != OK:
         return status
     f[:, :] = 0.0
-    add_constraint_forces(lam, bvec, tail, head, f)
+    _add_forces(lam, bvec, net, f)
     apply_w(f, w_diag, partner, w_off, wf)
     for p in range(x.shape[0]):
         for i in range(3):
