@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import math
 import socket
+import time
 import urllib.parse
 from collections import deque
 
@@ -82,16 +83,21 @@ def _ns(t):
     return np.rint(np.asarray(t, dtype=np.float64) * 1e9).astype(np.int64)
 
 
-def _segments(x32, a, b):
-    """Line strips of 2 points, node ``a[k]`` to node ``b[k]``, for every frame of ``x32``
-    (n_t, n_nodes, 3) float32 m, as one Arrow ``LineStrip3D`` array of n_t * len(a) strips, built
-    directly (rerun's generic conversion loops over the strips in Python)."""
-    pts = np.empty((x32.shape[0], len(a), 2, 3), dtype=np.float32)
-    pts[:, :, 0] = x32[:, a]
-    pts[:, :, 1] = x32[:, b]
+def _gather_index(a, b):
+    """Flat float indices into one frame's (n_nodes * 3,) positions that give the 2 end points of
+    every member ``a[k]`` -> ``b[k]`` in order: (len(a) * 6,) int64."""
+    ends = np.stack([np.asarray(a, np.int64), np.asarray(b, np.int64)], axis=1).ravel()
+    return (ends[:, None] * 3 + np.arange(3)).ravel()
+
+
+def _segments(x32, index):
+    """Line strips of 2 points for every frame of ``x32`` (n_t, n_nodes, 3) float32 m, end points
+    picked by ``index`` (:func:`_gather_index`), as one Arrow ``LineStrip3D`` array of
+    n_t * len(index) / 6 strips, built directly (rerun's generic conversion loops in Python)."""
+    pts = np.take(x32.reshape(x32.shape[0], -1), index, axis=1)
     inner = pa.FixedSizeListArray.from_arrays(pa.array(pts.reshape(-1)),
                                               type=_STRIP_TYPE.value_type)
-    offsets = pa.array(np.arange(0, 2 * pts.shape[0] * pts.shape[1] + 1, 2, dtype=np.int32))
+    offsets = pa.array(np.arange(0, pts.size // 3 + 1, 2, dtype=np.int32))
     return pa.ListArray.from_arrays(offsets, inner, type=_STRIP_TYPE)
 
 
@@ -109,6 +115,14 @@ def check_viewer(url, timeout_s=1.0):
     except OSError as exc:
         raise ValueError(f'rerun: no viewer listening at {url} ({exc.strerror or exc}); start '
                          f'one with `rerun` or record to a file instead') from None
+
+
+def _column(descriptor, batch, n_rows, per_row):
+    """A column of ``n_rows`` rows of ``per_row`` values each of one component ``batch`` (rerun's
+    ``Archetype.columns().partition()`` first builds and then replaces a unit partition, an
+    O(n_values) cumsum; the offsets here are direct)."""
+    offsets = np.arange(n_rows + 1, dtype=np.int32) * np.int32(per_row)
+    return rr.ComponentColumn(descriptor, batch, offsets=offsets)
 
 
 def blueprint(n_columns=1):
@@ -145,10 +159,12 @@ class RerunRecorder:
     write (headless). ``connect``: gRPC URL of a running viewer (``True`` for :data:`DEFAULT_URL`).
     At least one of the two is required. ``tension_scale`` N: tension shown at the top of the
     colour ramp (default :func:`reference_tension_scale`).
-    ``flush_every`` frames per batch; ``wave_window`` frames kept in the strain-wave image.
+    Frames are sent in batches of ``flush_every`` frames, or sooner when ``max_latency_s`` of wall
+    time passed since the last batch (a live viewer stays current; a paced node's file stays
+    fresh). ``wave_window``: frames kept in the strain-wave image.
     """
 
-    def __init__(self, network, path=None, *, connect=None, tension_scale=None, flush_every=100,
+    def __init__(self, network, path=None, *, connect=None, tension_scale=None, flush_every=256, max_latency_s=0.5,
                  wave_window=1000, application_id='tensegrity_ros', recording_id=None,
                  send_blueprint=True):
         if path is None and not connect:
@@ -166,6 +182,10 @@ class RerunRecorder:
         self.tension_scale = (reference_tension_scale(network) if tension_scale is None
                               else float(tension_scale))
         self.flush_every = int(flush_every)
+        self.max_latency_s = float(max_latency_s)
+        self._bar_index = _gather_index(network.bar_a, network.bar_b)
+        self._cable_index = _gather_index(network.cable_a, network.cable_b)
+        self._last_flush = time.monotonic()
         self.n_frames = 0
         self.n_commands = 0
         self.n_restarts = 0
@@ -262,7 +282,8 @@ class RerunRecorder:
         self._last_t = t
         self._n_buf = i + 1
         self.n_frames += 1
-        if self._n_buf == self.flush_every:
+        if self._n_buf == self.flush_every or \
+                time.monotonic() - self._last_flush > self.max_latency_s:
             self.flush()
 
     def command(self, t, text):
@@ -279,30 +300,38 @@ class RerunRecorder:
     def flush(self):
         """Send the buffered frames as column batches (and the strain-wave image so far)."""
         n_t = self._n_buf
+        self._last_flush = time.monotonic()
         if n_t == 0:
             return
         self._n_buf = 0
         net, s, b = self.net, self.stream, self._b
         index = [rr.TimeColumn(TIMELINE, duration=_ns(b['t'][:n_t]).astype('timedelta64[ns]'))]
         x = b['x'][:n_t].astype(np.float32)                     # (n_t, n_nodes, 3)
-        s.send_columns('world/nodes', index, rr.Points3D.columns(
-            positions=x.reshape(-1, 3)).partition(np.full(n_t, net.n_nodes)))
+        s.send_columns('world/nodes', index, [_column(
+            rr.Points3D.descriptor_positions(),
+            rr.components.Position3DBatch(x.reshape(-1, 3)), n_t, net.n_nodes)])
         if net.n_bars:
-            s.send_columns('world/bars', index, rr.LineStrips3D.columns(
-                strips=_segments(x, net.bar_a, net.bar_b),
-            ).partition(np.full(n_t, net.n_bars)))
+            s.send_columns('world/bars', index, [_column(
+                rr.LineStrips3D.descriptor_strips(),
+                rr.components.LineStrip3DBatch(_segments(x, self._bar_index)), n_t, net.n_bars)])
         if net.n_cables:
-            s.send_columns('world/cables', index, rr.LineStrips3D.columns(
-                strips=_segments(x, net.cable_a, net.cable_b),
-                colors=tension_colors(b['tension'][:n_t], self.tension_scale).ravel(),
-            ).partition(np.full(n_t, net.n_cables)))
+            colors = tension_colors(b['tension'][:n_t], self.tension_scale).reshape(-1)
+            s.send_columns('world/cables', index, [
+                _column(rr.LineStrips3D.descriptor_strips(),
+                        rr.components.LineStrip3DBatch(_segments(x, self._cable_index)), n_t,
+                        net.n_cables),
+                _column(rr.LineStrips3D.descriptor_colors(),
+                        rr.components.ColorBatch(pa.array(colors)), n_t, net.n_cables)])
         strain = b['strain'][:n_t]                              # (n_t, n_columns, n_prisms)
         for c in range(strain.shape[1] if strain.size else 0):
-            s.send_columns(f'strain/column_{c}', index, rr.Scalars.columns(
-                scalars=strain[:, c].reshape(-1).copy()).partition(np.full(n_t, strain.shape[2])))
-        s.send_columns('energy', index, rr.Scalars.columns(scalars=b['energy'][:n_t].copy()))
-        s.send_columns('constraint_error', index,
-                       rr.Scalars.columns(scalars=b['cerr'][:n_t].copy()))
+            s.send_columns(f'strain/column_{c}', index, [_column(
+                rr.Scalars.descriptor_scalars(),
+                rr.components.ScalarBatch(strain[:, c].reshape(-1).copy()), n_t,
+                strain.shape[2])])
+        for name, key in (('energy', 'energy'), ('constraint_error', 'cerr')):
+            s.send_columns(name, index, [_column(
+                rr.Scalars.descriptor_scalars(), rr.components.ScalarBatch(b[key][:n_t].copy()),
+                n_t, 1)])
         if strain.size:
             self._wave_t.extend(b['t'][:n_t])
             self._wave.extend(strain.copy())
