@@ -1,26 +1,27 @@
-"""The FB column as a MuJoCo model (optional dependency ``mujoco``), for ``tensegrity bench --peers``.
+"""The FB column as a MuJoCo model (optional dependency ``mujoco``) for ``bench --peers``.
 
-How the pin-jointed network maps onto MuJoCo (same physics, not an approximation of it):
+How the pin-jointed network maps onto MuJoCo (the same physics, not an approximation of it):
 
-- MuJoCo has no node graph with rigid distance constraints that hold exactly; its equality
-  constraints are soft (``solref``/``solimp``) and solved by the constraint solver. But the bars of a
-  flexible-base column form three serial chains rooted at the clamped level, so the network is a
-  kinematic **tree**: each bar is one body whose **ball joint** sits at its parent node and whose mass
-  is the lumped mass of its child node, placed at that node. Bar lengths then hold exactly (reduced
+- MuJoCo has no node graph with exact distance constraints: its equality constraints are soft
+  (``solref``/``solimp``) and solved by its constraint solver. But the bars of a flexible-base
+  column form three serial chains rooted at the clamped level: the network is a kinematic
+  **tree**. Each bar is one body whose **ball joint** sits at its parent node and whose mass is the
+  lumped mass of its child node, placed at that node. Bar lengths hold exactly (reduced
   coordinates), as in the paper's model.
-- A point mass on a ball joint has no inertia about the bar axis, and MuJoCo needs a positive
-  definite body inertia. Each body gets a tiny isotropic inertia ``spin_inertia * m L^2`` about the
-  node (default 1e-6 of the bar's swinging inertia). The spin of a bar about its own axis is not
-  driven by any force (every force acts on the axis), so the only change is the 1e-6 relative extra
-  rotational inertia.
+- A point mass on a ball joint has no inertia about the bar axis, and MuJoCo needs positive
+  definite body inertias. Each body gets a tiny isotropic inertia ``spin_inertia * m L^2`` about
+  its node (default 1e-6 of the bar's swinging inertia). The spin of a bar about its own axis is
+  an extra degree of freedom that no force drives (every force acts on the axis); the only change
+  to the node dynamics is that 1e-6 relative extra rotational inertia.
 - Cables are spatial tendons between node sites with ``stiffness = EA / L`` and
-  ``springlength = "0 L"``: MuJoCo's dead band makes the spring act only above the rest length L,
-  i.e. tension only, ``T = k (s - L)_+``.
-- No gravity, no damping, no contacts, no constraints (``<flag contact/constraint = disable>``), RK4.
+  ``springlength = "0 L"``: MuJoCo's dead band makes the spring act only above the rest length
+  L, i.e. tension only, ``T = k (s - L)_+``.
+- No gravity, no damping, no contacts, no constraints (``<flag contact/constraint="disable">``),
+  MuJoCo's RK4.
 
-The impact is applied as the same impulse as the solver's (physics.md 3.1): node momenta
-``m (0, 0, -v0)`` on the free-end nodes mapped to generalized velocities ``qvel = M^-1 J^T p``, which is
-the mass-weighted projection onto the constraint tangent space.
+The impact is the same impulse as the solver's (physics.md 3.1): node momenta ``m (0, 0, -v0)``
+on the free-end nodes mapped to generalized velocities ``qvel = M^-1 J^T p``, which is the
+mass-weighted projection onto the constraint tangent space.
 
 Networks with rigid base edges (RB columns), massive bars, or any bar graph that is not a forest
 rooted at clamped nodes are not trees: :func:`build_mjcf` refuses them with a clear error.

@@ -108,10 +108,12 @@ def assemble(*, target, t_end, quick, ref_n, halving, pulse_ref, ours, ours_all,
     res['real_time_factor_fb'] = t_end / w if w else None
     if kernel:
         per = kernel['time_per_step_s']
-        parts = {'accelerations': kernel['evaluations_per_step'] * kernel['accelerations'],
-                 'next_kink': kernel['next_kink'], 'project_positions':
-                 kernel['project_positions'], 'project_velocities': kernel['project_velocities']}
-        parts['rest (integrator arithmetic, Python, checks)'] = per - sum(parts.values())
+        parts = {k: kernel[k] * (kernel['evaluations_per_step'] if k == 'accelerations' else 1)
+                 for k in kernel['parts_in_step']}
+        alone = kernel.get('integrator_only_time_per_step_s', per)
+        parts['integrator arithmetic (stage sums, checks)'] = alone - sum(parts.values())
+        parts['Simulation.advance bookkeeping (Python, guards)'] = per - alone
+        kernel['profile_s_per_step'] = parts
         kernel['profile_fraction_of_step'] = {k: v / per for k, v in parts.items()}
     met = {}
     for key, goal in TARGETS.items():

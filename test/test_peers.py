@@ -1,0 +1,152 @@
+"""The peers of ``tensegrity bench --peers`` compute the same physics as the solver.
+
+- the SciPy baseline's NumPy right-hand side equals the solver's banded kernel at random states;
+- the MuJoCo column (skipped without ``mujoco``) has the network's nodes and masses, is at rest at
+  t = 0, stays at rest, and its impulse equals the solver's projected impact;
+- MuJoCo's tension-only tendon agrees with the analytic two-node oscillator on both sides of the
+  rest length (tension above it, nothing below).
+"""
+import math
+
+import numpy as np
+import pytest
+
+from solver import dynamics as dyn
+from solver import structures
+from solver.scene import Scene
+from solver.simulation import Simulation
+
+from bench.peers_mujoco import MujocoColumn, bar_tree
+from bench.peers_scipy import ScipyColumn
+
+
+def small_column(n_prisms=4):
+    scene = Scene.load('config/scenes/fb_column.yaml').with_overrides(
+        [('structure.n_prisms', n_prisms), ('model', 'full3d')])
+    return Simulation(scene)
+
+
+def random_state(net, rng, scale=2e-4):
+    x = np.array(net.x0) + scale * rng.standard_normal(net.x0.shape)
+    v = 0.05 * rng.standard_normal(x.shape)
+    x[net.clamped] = net.x0[net.clamped]
+    v[net.clamped] = 0.0
+    return x, v
+
+
+def test_scipy_rhs_equals_solver_accelerations():
+    sim = small_column(6)
+    net = sim.network
+    m = sim.model
+    sc = ScipyColumn(net)
+    rng = np.random.default_rng(7)
+    for _ in range(5):
+        x, v = random_state(net, rng)
+        ours = np.zeros_like(x)
+        assert dyn.accelerations(x, v, m.net, m.act, m.ws, ours) == dyn.OK
+        theirs = sc.accelerations(x, v)
+        assert np.max(np.abs(theirs - ours)) <= 1e-9 * np.max(np.abs(ours))
+        # the state-vector form round-trips and its derivative is (v, a) on free nodes
+        y = sc.pack(x, v)
+        xb, vb = sc.full(y)
+        assert np.array_equal(xb, x) and np.array_equal(vb, v)
+        dy = sc.rhs(0.0, y)
+        k = 3 * len(sc.free)
+        assert np.array_equal(dy[:k], v[sc.free].ravel())
+        assert np.allclose(dy[k:], ours[sc.free].ravel(), rtol=0, atol=1e-9 * np.abs(ours).max())
+
+
+def test_scipy_rhs_keeps_bar_lengths_to_second_order():
+    """The multipliers make the bar-length acceleration vanish: d2/dt2 |b|^2 / 2 = 0."""
+    sim = small_column(3)
+    net = sim.network
+    sc = ScipyColumn(net)
+    x, v = random_state(net, np.random.default_rng(3), scale=0.0)
+    a = sc.accelerations(x, v)
+    b = x[net.bar_b] - x[net.bar_a]
+    bd = v[net.bar_b] - v[net.bar_a]
+    bdd = a[net.bar_b] - a[net.bar_a]
+    g2 = np.einsum('ij,ij->i', b, bdd) + np.einsum('ij,ij->i', bd, bd)
+    assert np.max(np.abs(g2)) < 1e-10 * np.max(np.einsum('ij,ij->i', bd, bd))
+
+
+try:
+    import mujoco  # noqa: F401
+    HAVE_MUJOCO = True
+except ImportError:
+    HAVE_MUJOCO = False
+needs_mujoco = pytest.mark.skipif(not HAVE_MUJOCO,
+                                  reason='optional dependency mujoco (pip install .[peers])')
+
+
+@needs_mujoco
+def test_mujoco_column_nodes_masses_and_rest():
+    sim = small_column(5)
+    net = sim.network
+    mc = MujocoColumn(net, 5e-4)
+    free = ~np.asarray(net.clamped)
+    assert mc.model.nbody - 1 == net.n_bars == free.sum()      # one body per bar (tree)
+    assert mc.model.nv == 3 * net.n_bars                          # one ball joint each
+    assert mc.model.ntendon == net.n_cables
+    # each body carries the mass of the node it ends in; the total is the free nodes' mass
+    assert math.isclose(float(np.sum(mc.model.body_mass)), float(np.sum(net.node_mass[free])),
+                        rel_tol=1e-12)
+    _, _, head = bar_tree(net)
+    assert np.allclose(mc.model.body_mass[1:], net.node_mass[head], rtol=1e-12)
+    assert np.max(np.abs(mc.positions() - net.x0)) < 1e-15
+    # tendon lengths are the cable lengths, and the springs sit at the prestress
+    s = np.linalg.norm(net.x0[net.cable_b] - net.x0[net.cable_a], axis=1)
+    assert np.allclose(mc.data.ten_length, s, rtol=1e-14)
+    # at rest: node accelerations below 1e-10 m/s^2 (physics.md check 1), and it stays put
+    assert np.max(np.abs(mc.node_accelerations())) < 1e-10
+    mc.advance(200)
+    assert np.max(np.abs(mc.positions() - net.x0)) < 1e-12
+
+
+@needs_mujoco
+def test_mujoco_impulse_equals_solver_projection():
+    sim = small_column(5)
+    net = sim.network
+    mc = MujocoColumn(net, 5e-4, spin_inertia=1e-9)
+    mc.impact(0.1)
+    ours = sim.impact_velocities(0.1)
+    # equal up to the tiny spin inertia MuJoCo needs (1e-9 of the bar's swinging inertia)
+    assert np.max(np.abs(mc.node_velocities() - ours)) < 1e-6 * np.max(np.abs(ours))
+    # and the bars keep their lengths: J v = 0 on every bar
+    vm = mc.node_velocities()
+    b = net.x0[net.bar_b] - net.x0[net.bar_a]
+    assert np.max(np.abs(np.einsum('ij,ij->i', b, vm[net.bar_b] - vm[net.bar_a]))) < 1e-15
+
+
+@needs_mujoco
+def test_mujoco_tendon_is_tension_only_spring():
+    """A pendulum-free check of springlength="0 L": one bar, one node, one cable along the bar's
+    swing direction. Stretched: the node accelerates back with k (s - L) / m. Slack: no force."""
+    L_bar = 0.01
+    for stretch in (1e-4, -1e-4):
+        rest = 0.02 - stretch           # cable from the node at (L_bar, 0, 0) to (L_bar, 0.02, 0)
+        net = structures.explicit(nodes=[[0, 0, 0], [L_bar, 0, 0], [L_bar, 0.02, 0]],
+                                  bars=[[0, 1]], cables=[[1, 2]], node_mass=[1.0, 0.5, 1.0],
+                                  cable_EA=[2.0], cable_rest_length=[rest], clamped=[0, 2])
+        mc = MujocoColumn(net, 1e-4)
+        acc = mc.node_accelerations()[1]
+        k = 2.0 / rest
+        s = 0.02
+        a_y = k * max(s - rest, 0.0) / 0.5           # towards node 2 (+y), tangent to the swing
+        assert acc[1] == pytest.approx(a_y, rel=1e-6, abs=1e-12)
+        assert abs(acc[0]) < 1e-9 and abs(acc[2]) < 1e-12
+        ours = np.zeros((3, 3))
+        sim_net, act = dyn.pack(net)
+        ws = dyn.workspace(net.n_nodes, net.n_constraints, net.bandwidth)
+        assert dyn.accelerations(np.array(net.x0), np.zeros((3, 3)), sim_net, act, ws,
+                                 ours) == dyn.OK
+        assert np.allclose(acc, ours[1], rtol=1e-6, atol=1e-12)
+
+
+def test_mujoco_builder_refuses_loops():
+    """Rigid bases close loops: no kinematic tree, a clear error (needs no mujoco)."""
+    scene = Scene.load('config/scenes/rb_column.yaml').with_overrides(
+        [('structure.n_prisms', 2), ('model', 'full3d')])
+    net = Simulation(scene).network
+    with pytest.raises(ValueError, match='rigid base edges'):
+        bar_tree(net)
