@@ -28,10 +28,11 @@ def _progress(total, desc):
 def _open_mcap(stack, frame_sinks, scene, sim, path):
     """Record the run to ``path`` (MCAP, the node's topics); closed by ``stack``, also on SIGTERM.
     Logs the impact command applied before the run, then every output frame."""
-    from .mcap_run import FrameLog, marker_every
+    from .mcap_run import FrameLog, marker_every, network_metadata
     from .recording import McapRecorder, signals_as_interrupt
     stack.enter_context(signals_as_interrupt())
-    recorder = stack.enter_context(McapRecorder(path))
+    recorder = stack.enter_context(McapRecorder(
+        path, metadata=network_metadata(sim.network, scene.name)))
     log = FrameLog(recorder, sim.network, marker_every=marker_every(scene['run.output_dt']))
     v0, columns = scene['loading.impact.v0'], scene['loading.impact.columns']
     if v0:
@@ -152,7 +153,8 @@ def cmd_replay(args):
             print(f'{args.log}: {n} messages -> {args.to_rerun}')
             return 0
         ros_args = ['--ros-args', *args.ros_args] if args.ros_args else None
-        replay_main(args.log, rate=args.rate, loop=args.loop, delay_s=args.delay, args=ros_args)
+        replay_main(args.log, rate=args.rate, loop=args.loop, delay_s=args.delay, args=ros_args,
+                    wait_s=args.wait)
     except (LogError, ReplayError) as exc:
         raise UserError(str(exc)) from None
     return 0
@@ -161,7 +163,8 @@ def cmd_replay(args):
 def cmd_node(args):
     """``tensegrity node [--ros-args ...]``: the ROS 2 node, as ``tensegrity_node``."""
     from .node import main as node_main
-    return node_main(['tensegrity_node', *(args.ros_args or [])])
+    ros_args = ['--ros-args', *args.ros_args] if args.ros_args else []
+    return node_main(['tensegrity_node', *ros_args])
 
 
 def cmd_demo(args):
@@ -218,6 +221,8 @@ def build_parser():
     p.add_argument('--loop', action='store_true', help='play again from the start when done')
     p.add_argument('--delay', type=float, default=0.5,
                    help='seconds to wait for subscribers before playing (default 0.5)')
+    p.add_argument('--wait', type=float, default=0.0, metavar='S',
+                   help='first wait up to S s until a subscriber matches (then --delay)')
     p.add_argument('--to-rerun', metavar='OUT.rrd', help='write a Rerun recording instead')
     p.add_argument('--ros-args', nargs=argparse.REMAINDER, help='ROS arguments (remapping)')
     p.set_defaults(func=cmd_replay)
@@ -229,7 +234,7 @@ def build_parser():
                    help='run only this benchmark (repeatable)')
     p.set_defaults(func=cmd_bench)
     p = sub.add_parser('node', help='the ROS 2 node tensegrity_sim (as tensegrity_node)')
-    p.add_argument('ros_args', nargs=argparse.REMAINDER, metavar='--ros-args ...',
+    p.add_argument('--ros-args', dest='ros_args', nargs=argparse.REMAINDER,
                    help='ROS arguments: --ros-args -p NAME:=VALUE --params-file config/node.yaml')
     p.set_defaults(func=cmd_node)
     p = sub.add_parser('demo', help='start the node, command an impact over ROS 2, summarise')

@@ -68,9 +68,10 @@ class Commander(Node):
                                          {kv.key: kv.value for kv in st.values}))
 
     def connected(self):
-        """True once the node subscribes to our commands and we receive its strain."""
+        """True once the node subscribes to our commands and we receive its frames."""
         return self.pub_impact.get_subscription_count() > 0 and \
-            self.pub_prestrain.get_subscription_count() > 0 and bool(self.clouds)
+            self.pub_prestrain.get_subscription_count() > 0 and bool(self.clouds) and \
+            bool(self.strain) and bool(self.tension)
 
     def impact(self, v0, label='all'):
         self.pub_impact.publish(messages.command_array(v0, label))
