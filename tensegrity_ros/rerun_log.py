@@ -164,9 +164,9 @@ class RerunRecorder:
     fresh). ``wave_window``: frames kept in the strain-wave image.
     """
 
-    def __init__(self, network, path=None, *, connect=None, tension_scale=None, flush_every=256, max_latency_s=0.5,
-                 wave_window=1000, application_id='tensegrity_ros', recording_id=None,
-                 send_blueprint=True):
+    def __init__(self, network, path=None, *, connect=None, tension_scale=None, flush_every=256,
+                 max_latency_s=0.5, wave_window=1000, application_id='tensegrity_ros',
+                 recording_id=None, send_blueprint=True):
         if path is None and not connect:
             raise ValueError('rerun: give a file path or a viewer URL (connect) to record to')
         if tension_scale is not None and not (np.isfinite(tension_scale) and tension_scale > 0):
@@ -174,6 +174,8 @@ class RerunRecorder:
                              f'{tension_scale}')
         if int(flush_every) < 1 or int(wave_window) < 1:
             raise ValueError('rerun: flush_every and wave_window must be at least 1')
+        if not max_latency_s > 0:
+            raise ValueError(f'rerun: max_latency_s must be positive, got {max_latency_s}')
         self.net = network
         self.path = None if path is None else str(path)
         self.url = (DEFAULT_URL if connect is True else connect) or None
