@@ -149,9 +149,11 @@ class TensegritySim(Node):
         self.problem = ''
         self.period = 1.0 / self.params['publish_rate_hz']
         self._step_cost = self._measure_step_cost()
-        self._publish_cost = 0.0
+        self._publish_cost = self._marker_cost = 0.0
+        self.tick_max_s = 0.0
+        self.achieved_rate_hz = 0.0
         self._last_marker = self._last_diag = -math.inf
-        self._rtf_window = (time.monotonic(), self.sim.t)
+        self._rtf_window = (time.monotonic(), self.sim.t, 0)
         self.achieved_rtf = 0.0
         self._anchor()
         self._open_recorders()
@@ -224,7 +226,8 @@ class TensegritySim(Node):
 
     def steps_this_tick(self, now):
         """Steps to take now: towards the paced target time, capped by the work budget."""
-        budget = max(WORK_FRACTION * self.period - self._publish_cost, 0.2 * self.period)
+        publish = self._publish_cost + (self._marker_cost if self._markers_due(now) else 0.0)
+        budget = max(WORK_FRACTION * self.period - publish, 0.2 * self.period)
         cap = max(1, int(budget / max(self._step_cost, 1e-9)))
         rtf = self.params['real_time_factor']
         if rtf <= 0:
@@ -237,8 +240,15 @@ class TensegritySim(Node):
             return cap
         return max(want, 0)
 
+    def _markers_due(self, now):
+        return now - self._last_marker >= 1.0 / self.params['marker_rate_hz']
+
     def _tick(self):
         now = time.monotonic()
+        self._tick_work(now)
+        self.tick_max_s = max(self.tick_max_s, time.monotonic() - now)
+
+    def _tick_work(self, now):
         if self.running:
             n = self.steps_this_tick(now)
             if n > 0:
@@ -265,7 +275,7 @@ class TensegritySim(Node):
     def _publish_frame(self, now):
         t0 = time.perf_counter()
         frame = self.sim.frame()
-        markers = now - self._last_marker >= 1.0 / self.params['marker_rate_hz']
+        markers = self._markers_due(now)
         try:
             msgs = messages.frame_messages(frame, self.sim.network, markers=markers,
                                            clock=self.params['use_sim_clock'], t_max=self._t_max)
@@ -280,11 +290,16 @@ class TensegritySim(Node):
             self._emit(self._sinks, self._topics[key], msg, stamp_ns)
         self._emit(self._frame_sinks, frame)
         self.counts['frames'] += 1
-        wall, t_sim = self._rtf_window
+        wall, t_sim, frames = self._rtf_window
         if now - wall >= 1.0:
             self.achieved_rtf = (frame.t - t_sim) / (now - wall)
-            self._rtf_window = (now, frame.t)
-        self._publish_cost = 0.8 * self._publish_cost + 0.2 * (time.perf_counter() - t0)
+            self.achieved_rate_hz = (self.counts['frames'] - frames) / (now - wall)
+            self._rtf_window = (now, frame.t, self.counts['frames'])
+        cost = time.perf_counter() - t0
+        if markers:
+            self._marker_cost = 0.8 * self._marker_cost + 0.2 * max(cost - self._publish_cost, 0)
+        else:
+            self._publish_cost = 0.8 * self._publish_cost + 0.2 * cost
 
     def diagnostics_values(self):
         """The key/value pairs of ``/diagnostics`` (dict name -> float, int or str)."""
@@ -294,6 +309,8 @@ class TensegritySim(Node):
             'running': str(self.running).lower(),
             'real_time_factor_target': float(self.params['real_time_factor']),
             'real_time_factor_achieved': float(self.achieved_rtf),
+            'publish_rate_hz_achieved': float(self.achieved_rate_hz),
+            'tick_max_ms': 1e3 * float(self.tick_max_s),
             'energy_J': float(self.sim.energy()),
             'constraint_error': float(self.sim.constraint_error()),
             'frames_published': self.counts['frames'],
@@ -304,6 +321,7 @@ class TensegritySim(Node):
 
     def _publish_diagnostics(self, now, level=None, message=None):
         self._last_diag = now
+        periodic = level is None
         if level is None:
             level = 2 if self.problem else 0
             message = self.problem or ('running' if self.running else 'paused')
@@ -311,6 +329,8 @@ class TensegritySim(Node):
         msg = messages.diagnostics_message(stamp, self.diagnostics_values(), level, message)
         self._pubs['/diagnostics'].publish(msg)
         self._emit(self._sinks, self._topics['/diagnostics'], msg, messages.stamp_to_ns(stamp))
+        if periodic:
+            self.tick_max_s = 0.0          # tick_max_ms covers one diagnostics period
 
     # -- commands -------------------------------------------------------------------------------
     def _command(self, key, msg, apply):
@@ -358,7 +378,7 @@ class TensegritySim(Node):
         self.sim.reset()
         self.problem = ''
         self._anchor()
-        self._rtf_window = (time.monotonic(), self.sim.t)
+        self._rtf_window = (time.monotonic(), self.sim.t, self.counts['frames'])
         self._emit(self._event_sinks, self.sim.t, 'reset')
         self._publish_frame(time.monotonic())
         self._publish_diagnostics(time.monotonic(), 0, 'reset')
