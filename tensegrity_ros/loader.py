@@ -60,12 +60,14 @@ class McapLog:
         self.channels = {}
         self.schemas = {}
         self.statistics = None
+        self.metadata = {}
         self._decoders = {}
 
     def messages(self, topics=None):
         """Yield :class:`LogMessage` (only ``topics`` if given: an iterable of full names)."""
         from mcap.exceptions import McapError
-        from mcap.records import Channel, Footer, Header, Message, Schema, Statistics
+        from mcap.records import (Channel, Footer, Header, Message, Metadata, Schema,
+                                  Statistics)
         from mcap.stream_reader import StreamReader
         wanted = None if topics is None else set(topics)
         with open(self.path, 'rb') as f:
@@ -95,6 +97,8 @@ class McapLog:
                     self.channels[rec.id] = rec
                 elif isinstance(rec, Statistics):
                     self.statistics = rec
+                elif isinstance(rec, Metadata):
+                    self.metadata[rec.name] = dict(rec.metadata)
                 elif isinstance(rec, Footer):
                     seen_footer = True
                 elif isinstance(rec, Message):
@@ -132,7 +136,8 @@ class RunLog:
     ``tensions`` (n_t, n_cables) N. Commands received: ``command_time`` (n_cmd,) s,
     ``command_topic`` (n_cmd,) str ('impact' or 'prestrain'), ``command_values`` list of (k,)
     arrays. ``topics``: full topic name -> message count read; ``truncated``: the file was cut
-    short and only its complete chunks were read."""
+    short and only its complete chunks were read; ``network``: the topology the log carries
+    (:func:`log_network`), or None."""
     time: np.ndarray
     strain: np.ndarray
     positions: np.ndarray
@@ -142,6 +147,7 @@ class RunLog:
     command_values: list
     topics: dict = field(default_factory=dict)
     truncated: bool = False
+    network: object = None
 
     def commands(self, name):
         """(times (k,) s, list of value arrays) of the command topic ``name`` ('impact', ...)."""
@@ -173,6 +179,36 @@ def cloud_xyz(msg):
                       'itemsize': int(msg.point_step)})
     raw = np.frombuffer(bytes(msg.data), dtype=dtype, count=n)
     return np.stack([raw['x'], raw['y'], raw['z']], axis=1).astype(np.float64)
+
+
+def log_network(metadata):
+    """The network topology of a log's ``tensegrity_network`` metadata record, as an object
+    with the :class:`solver.network.Network` names (``bar_a``, ``bar_b``, ``edge_a``, ``edge_b``,
+    ``cable_a``, ``cable_b`` int64; ``cable_kind`` str; ``levels`` (n_columns, n_levels, 3);
+    ``x0`` (n_nodes, 3) m; ``n_nodes``, ``n_bars``, ``n_edges``, ``n_cables``, ``n_columns``,
+    ``n_prisms``; ``scene``; ``tension_scale`` N), or None when the log has none."""
+    import json
+    from types import SimpleNamespace
+    meta = metadata.get('tensegrity_network')
+    if not meta:
+        return None
+    try:
+        ints = {k: np.array(json.loads(meta[k]), dtype=np.int64)
+                for k in ('bar_a', 'bar_b', 'edge_a', 'edge_b', 'cable_a', 'cable_b')}
+        n_nodes = int(meta['n_nodes'])
+        levels = np.array(json.loads(meta['levels']), dtype=np.int64).reshape(
+            json.loads(meta['levels_shape']))
+        x0 = np.array(json.loads(meta['x0']), dtype=np.float64).reshape(n_nodes, 3)
+        kinds = np.array(json.loads(meta['cable_kind']), dtype=str)
+        scale = float(meta.get('tension_scale') or 0.0)
+    except (KeyError, ValueError, TypeError) as exc:
+        raise LogError(f'tensegrity_network metadata unreadable: {exc}') from None
+    return SimpleNamespace(
+        scene=meta.get('scene', ''), tension_scale=scale, x0=x0, levels=levels,
+        cable_kind=kinds, n_nodes=n_nodes,
+        n_bars=len(ints['bar_a']), n_edges=len(ints['edge_a']), n_cables=len(ints['cable_a']),
+        n_columns=levels.shape[0] if levels.ndim == 3 else 0,
+        n_prisms=max(levels.shape[1] - 1, 0) if levels.ndim == 3 else 0, **ints)
 
 
 def _leaf(topic):
@@ -212,4 +248,4 @@ def load_run(path):
                   positions=stack(NODES, (0, 3)), tensions=stack(TENSION, (0,)),
                   command_time=np.array(cmd_t, dtype=np.float64),
                   command_topic=np.array(cmd_topic, dtype=str), command_values=cmd_values,
-                  topics=counts, truncated=log.truncated)
+                  topics=counts, truncated=log.truncated, network=log_network(log.metadata))

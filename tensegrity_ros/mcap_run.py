@@ -7,9 +7,35 @@ Commands applied by the command line (the impact) are logged as the node would l
 """
 from __future__ import annotations
 
+import json
+
+import numpy as np
+
 from . import messages as M
 
 MARKER_RATE_HZ = 20.0       # the node's default marker_rate_hz (interfaces.md section 4)
+
+
+NETWORK_METADATA = 'tensegrity_network'
+
+
+def network_metadata(network, scene_name=''):
+    """``{name: {key: text}}`` for :class:`~tensegrity_ros.recording.McapRecorder`'s ``metadata``:
+    the topology of ``network`` as JSON texts (member index arrays, cable kinds, levels, reference
+    positions x0 in m, the markers' tension colour scale in N), so that a log can be drawn and
+    analysed without the scene file."""
+    def text(a):
+        return json.dumps(np.asarray(a).tolist())
+    net = network
+    return {NETWORK_METADATA: {
+        'scene': str(scene_name), 'n_nodes': str(net.n_nodes),
+        'bar_a': text(net.bar_a), 'bar_b': text(net.bar_b),
+        'edge_a': text(net.edge_a), 'edge_b': text(net.edge_b),
+        'cable_a': text(net.cable_a), 'cable_b': text(net.cable_b),
+        'cable_kind': json.dumps([str(k) for k in net.cable_kind]),
+        'levels_shape': text(np.shape(net.levels)), 'levels': text(np.ravel(net.levels)),
+        'x0': text(np.ravel(net.x0)),
+        'tension_scale': repr(2.0 * M.reference_tension_scale(net))}}
 
 
 def marker_every(output_dt, marker_rate_hz=MARKER_RATE_HZ):

@@ -176,8 +176,10 @@ class TensegritySim(Node):
 
     def _open_recorders(self):
         if self.params['record_mcap']:
+            from .mcap_run import network_metadata
             from .recording import McapRecorder
-            rec = McapRecorder(self.params['record_mcap'])
+            rec = McapRecorder(self.params['record_mcap'],
+                               metadata=network_metadata(self.sim.network, self.sim.scene.name))
             for key, topic in self._topics.items():
                 if key != '/clock' or self.params['use_sim_clock']:
                     rec.declare(topic, messages.MSG_CLASSES[key], QOS)

@@ -7,9 +7,8 @@
 their last complete chunk.
 
 :func:`to_rerun` writes a ``.rrd`` through an owned :class:`rerun.RecordingStream` (never the
-global one): timeline ``sim_time``; ``nodes`` as points, ``bars`` and ``cables`` as line strips
-(from ``~/markers``, cables in their tension colours), ``strain`` per prism and ``cable_tension``
-as scalar series, energy and constraint error from ``/diagnostics`` as scalar series.
+global one) on timeline ``sim_time``: with the project's Rerun layout when the log carries its
+network, otherwise topic by topic (:func:`to_rerun_generic`).
 """
 from __future__ import annotations
 
@@ -18,7 +17,8 @@ import time
 
 import numpy as np
 
-from .loader import LogError, McapLog, cloud_xyz, multi_array_values
+from .loader import (NODES, STRAIN, TENSION, LogError, McapLog, cloud_xyz, log_network,
+                     multi_array_values)
 
 CLOCK_TOPIC = '/clock'
 
@@ -87,13 +87,17 @@ class Replayer:
     """Publishes a log through an rclpy ``node`` (created by the caller, who owns the context).
 
     ``rate`` > 0 scales the recorded timing (2 = twice as fast). ``clock`` publishes ``/clock``.
-    ``delay_s`` waits after creating the publishers so that subscribers can match them."""
+    ``wait_s`` > 0 first waits (up to that long) until some subscriber matches one of the
+    publishers, then ``delay_s`` more, so that subscribers can match them."""
 
-    def __init__(self, node, path, rate=1.0, clock=True, delay_s=0.0):
+    def __init__(self, node, path, rate=1.0, clock=True, delay_s=0.0, wait_s=0.0):
         if not (np.isfinite(rate) and rate > 0):
             raise ReplayError(f'--rate must be a positive number, not {rate!r}')
         if not (np.isfinite(delay_s) and delay_s >= 0):
             raise ReplayError(f'--delay must be >= 0 s, not {delay_s!r}')
+        if not (np.isfinite(wait_s) and wait_s >= 0):
+            raise ReplayError(f'--wait must be >= 0 s, not {wait_s!r}')
+        self.wait_s = float(wait_s)
         from rosgraph_msgs.msg import Clock
         self.node, self.path, self.rate, self.delay_s = node, path, float(rate), float(delay_s)
         self.channels = log_channels(path)
@@ -119,6 +123,12 @@ class Replayer:
     def play_once(self, should_stop=lambda: False):
         """Publish the whole log once with its timing; returns the number of messages published.
         Stops early (returning what was published) when ``should_stop()`` becomes true."""
+        if self.wait_s:
+            end = time.monotonic() + self.wait_s
+            while time.monotonic() < end and not should_stop() and not any(
+                    p.get_subscription_count() for p in self.publishers.values()):
+                time.sleep(0.02)
+            self.wait_s = 0.0
         if self.delay_s:
             time.sleep(self.delay_s)
             self.delay_s = 0.0
@@ -154,7 +164,7 @@ class Replayer:
         return total
 
 
-def replay_main(path, rate=1.0, loop=False, delay_s=0.5, clock=True, args=None):
+def replay_main(path, rate=1.0, loop=False, delay_s=0.5, clock=True, args=None, wait_s=0.0):
     """``tensegrity replay``: init rclpy, play, shut down. Returns the messages published."""
     import rclpy
     from rclpy.executors import ExternalShutdownException
@@ -163,7 +173,7 @@ def replay_main(path, rate=1.0, loop=False, delay_s=0.5, clock=True, args=None):
     node = None
     try:
         node = rclpy.create_node('tensegrity_replay')
-        player = Replayer(node, path, rate=rate, clock=clock, delay_s=delay_s)
+        player = Replayer(node, path, rate=rate, clock=clock, delay_s=delay_s, wait_s=wait_s)
         n = player.play(loop=loop, should_stop=lambda: not rclpy.ok())
         node.get_logger().info(f'replayed {player.published} messages from {path}'
                                + (' (file truncated: read up to its last complete chunk)'
@@ -194,8 +204,59 @@ def _rgba(colors):
 
 
 def to_rerun(path, out, application_id='tensegrity_ros', recording_id=None):
-    """Convert a log to a Rerun ``.rrd`` file ``out`` through an owned recording stream.
-    Returns the number of messages converted."""
+    """Convert a log to a Rerun ``.rrd`` file ``out``; returns the number of messages converted.
+
+    A log that carries its network (``tensegrity_network`` metadata, written by the node and by
+    ``tensegrity run --mcap``) goes through :class:`~tensegrity_ros.rerun_log.RerunRecorder`, so
+    the result has the layout of a live recording (interfaces.md section 6); energy and constraint
+    error come from ``/diagnostics``, held from the latest one (the first one before it). Other
+    logs get a generic conversion (:func:`to_rerun_generic`)."""
+    first = McapLog(path)
+    diag = [(m.log_time_ns, _diag_values(first.decode(m))) for m in first.messages()
+            if m.type_name == 'diagnostic_msgs/msg/DiagnosticArray']
+    net = log_network(first.metadata)
+    if net is None:
+        return to_rerun_generic(path, out, application_id, recording_id)
+    from types import SimpleNamespace
+
+    from .rerun_log import RerunRecorder
+    diag = [(t, v) for t, v in diag if 'energy_J' in v and 'constraint_error' in v]
+    diag_t = np.array([t for t, _ in diag], dtype=np.int64)
+    log = McapLog(path)
+    n, pending, stamp = 0, {}, None
+    with RerunRecorder(net, str(out), tension_scale=net.tension_scale or None,
+                       application_id=application_id,
+                       recording_id=recording_id or str(path)) as rec:
+        def emit():
+            if {STRAIN, NODES, TENSION} <= pending.keys():
+                i = max(int(np.searchsorted(diag_t, stamp, side='right')) - 1, 0)
+                values = diag[i][1] if diag else {}
+                rec.frame(SimpleNamespace(
+                    t=stamp / 1e9, positions=pending[NODES], strain=pending[STRAIN],
+                    tension=pending[TENSION], energy=values.get('energy_J', 0.0),
+                    constraint_error=values.get('constraint_error', 0.0)))
+        for m in log.messages():
+            leaf = m.topic.rsplit('/', 1)[-1]
+            if m.log_time_ns != stamp:
+                emit()
+                pending, stamp = {}, m.log_time_ns
+            if '/cmd/' in m.topic:
+                values = multi_array_values(log.decode(m))[1].ravel()
+                rec.command(m.log_time_ns / 1e9, f'{leaf}: {np.array2string(values)}')
+            elif leaf in (STRAIN, TENSION) and m.type_name.endswith('Float64MultiArray'):
+                pending[leaf] = multi_array_values(log.decode(m))[1]
+            elif leaf == NODES and m.type_name == 'sensor_msgs/msg/PointCloud2':
+                pending[leaf] = cloud_xyz(log.decode(m))
+            else:
+                continue
+            n += 1
+        emit()
+    return n
+
+
+def to_rerun_generic(path, out, application_id='tensegrity_ros', recording_id=None):
+    """Convert any ROS 2 log to Rerun through an owned recording stream, topic by topic
+    (PointCloud2 points, MarkerArray line lists, Float64MultiArray and diagnostics scalars)."""
     import rerun as rr
     log = McapLog(path)
     rec = rr.RecordingStream(application_id, recording_id=recording_id or str(path))

@@ -51,11 +51,13 @@ class Capture:
         self.rec.write(topic, msg, stamp_ns)
 
 
-def record_frames(path, frames, net, marker_every=2, **kw):
-    """Write ``frames`` and an impact command (t = 0) with FrameLog; returns what was written."""
-    from tensegrity_ros.mcap_run import FrameLog
+def record_frames(path, frames, net, marker_every=2, with_network=True, **kw):
+    """Write ``frames`` and an impact command (t = 0) with FrameLog (and the network metadata
+    unless ``with_network`` is false); returns what was written."""
+    from tensegrity_ros.mcap_run import FrameLog, network_metadata
     from tensegrity_ros.recording import McapRecorder
-    with McapRecorder(path, **kw) as rec:
+    meta = network_metadata(net, 'test') if with_network else None
+    with McapRecorder(path, metadata=meta, **kw) as rec:
         cap = Capture(rec)
         log = FrameLog(cap, net, marker_every=marker_every)
         log.command('~/cmd/impact', [0.1], 'all', frames[0], 'impact v0 = 0.1 m/s')

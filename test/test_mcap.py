@@ -219,10 +219,55 @@ def test_rerun_mcap_loader_reads_points_and_scalars(log, frames):
         np.testing.assert_array_equal(scalars[ns], f.strain.ravel())
 
 
-def test_to_rerun_writes_an_owned_recording(log, frames, tmp_path):
-    chunk = pytest.importorskip('rerun.chunk')
+def test_log_carries_its_network(log, net):
+    got = load_run(log[0]).network
+    for name in ('bar_a', 'bar_b', 'edge_a', 'edge_b', 'cable_a', 'cable_b', 'levels', 'x0'):
+        np.testing.assert_array_equal(getattr(got, name), getattr(net, name), err_msg=name)
+    assert list(got.cable_kind) == [str(k) for k in net.cable_kind]
+    assert (got.n_nodes, got.n_cables, got.n_columns, got.n_prisms) == (
+        net.n_nodes, net.n_cables, net.n_columns, net.n_prisms)
+    assert got.tension_scale == 2.0 * M.reference_tension_scale(net)
+
+
+def _rrd_columns(path, entity, column, index='sim_time'):
+    """{time ns: value} of one component column of an .rrd file (rerun's own reader)."""
+    from rerun.chunk import RrdReader
+    out = {}
+    for ch in RrdReader(path).stream():
+        if ch.entity_path != entity or ch.is_static:
+            continue
+        rb = ch.to_record_batch()
+        if column in rb.schema.names:
+            assert 'log_time' not in rb.schema.names
+            for ti, v in zip(rb.column(index).cast('int64').to_pylist(),
+                             rb.column(column).to_pylist()):
+                out[ti] = np.array(v)
+    return out
+
+
+def test_to_rerun_has_the_live_recording_layout(log, frames, tmp_path):
+    """A log with its network converts through RerunRecorder: nodes, bars, cables, strain."""
+    pytest.importorskip('rerun.chunk')
     from tensegrity_ros.replay import to_rerun
     path, written = log
+    out = tmp_path / 'run.rrd'
+    assert to_rerun(path, out) == 3 * len(frames) + 1
+    stamps = [int(round(f.t * 1e9)) for f in frames]
+    nodes = _rrd_columns(out, '/world/nodes', 'Points3D:positions')
+    strain = _rrd_columns(out, '/strain/column_0', 'Scalars:scalars')
+    assert sorted(nodes) == sorted(strain) == stamps
+    for f, ns in zip(frames, stamps):
+        np.testing.assert_array_equal(nodes[ns], f.positions.astype(np.float32))
+        np.testing.assert_array_equal(strain[ns], f.strain[0])
+    assert sorted(_rrd_columns(out, '/world/cables', 'LineStrips3D:strips')) == stamps
+
+
+def test_to_rerun_without_network_converts_topic_by_topic(net, frames, tmp_path):
+    chunk = pytest.importorskip('rerun.chunk')
+    from tensegrity_ros.replay import to_rerun
+    path = tmp_path / 'bare.mcap'
+    written = record_frames(path, frames, net, marker_every=3, with_network=False)
+    assert load_run(path).network is None
     out = tmp_path / 'run.rrd'
     assert to_rerun(path, out) == len([w for w in written if w[0] != '/clock'])
     nodes = {}

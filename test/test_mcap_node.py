@@ -41,7 +41,8 @@ def test_node_log_holds_what_was_published_and_received(tmp_path):
     rclpy.init(context=ctx, domain_id=domain)
     got = {key: [] for key in TOPICS}
     try:
-        node = TensegritySim(sim=Simulation(scene), context=ctx, parameter_overrides=[
+        sim = Simulation(scene)
+        node = TensegritySim(sim=sim, context=ctx, parameter_overrides=[
             Parameter('record_mcap', value=str(path)),
             Parameter('real_time_factor', value=0.0),
             Parameter('publish_rate_hz', value=100.0)])
@@ -96,6 +97,11 @@ def test_node_log_holds_what_was_published_and_received(tmp_path):
     first = next(i for i in range(len(kept)) if kept[i:i + len(received)] == received)
     for msg, ns in zip(received, stamps[first:]):
         np.testing.assert_array_equal(by_time[ns].ravel(), np.array(msg.data))
+    np.testing.assert_array_equal(run.network.cable_a, sim.network.cable_a)
+    np.testing.assert_array_equal(run.network.x0, sim.network.x0)
+    # converts to the live Rerun layout (energy from the node's /diagnostics)
+    from tensegrity_ros.replay import to_rerun
+    assert to_rerun(path, tmp_path / 'node.rrd') >= 3 * len(run.time)
     # at rest before the command; the impact shows in the strain after it
     before = run.strain[run.time <= run.command_time[0]]
     after = run.strain[run.time > run.command_time[0]]

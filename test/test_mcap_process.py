@@ -143,7 +143,8 @@ def test_replay_reaches_a_subscriber_in_order_with_its_stamps(tmp_path):
         ex = SingleThreadedExecutor(context=ctx)
         ex.add_node(node)
         proc = subprocess.Popen([sys.executable, '-m', 'tensegrity_ros.cli', 'replay', str(path),
-                                 '--rate', '4', '--delay', '2'], env=child_env(domain),
+                                 '--rate', '4', '--wait', '60', '--delay', '1'],
+                                env=child_env(domain),
                                 stderr=subprocess.PIPE, text=True)
         deadline = time.monotonic() + 90
         while proc.poll() is None and time.monotonic() < deadline:
