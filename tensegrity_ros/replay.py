@@ -83,6 +83,25 @@ def log_channels(path):
     return out
 
 
+def check_options(rate, delay_s=0.0, wait_s=0.0):
+    """Raise :class:`ReplayError` naming the first bad option."""
+    if not (np.isfinite(rate) and rate > 0):
+        raise ReplayError(f'--rate must be a positive number, not {rate!r}')
+    if not (np.isfinite(delay_s) and delay_s >= 0):
+        raise ReplayError(f'--delay must be >= 0 s, not {delay_s!r}')
+    if not (np.isfinite(wait_s) and wait_s >= 0):
+        raise ReplayError(f'--wait must be >= 0 s, not {wait_s!r}')
+
+
+def _sleep_until(due, should_stop):
+    """Sleep until ``time.monotonic()`` reaches ``due``, in slices, unless told to stop."""
+    while not should_stop():
+        wait = due - time.monotonic()
+        if wait <= 0:
+            return
+        time.sleep(min(wait, 0.1))
+
+
 class Replayer:
     """Publishes a log through an rclpy ``node`` (created by the caller, who owns the context).
 
@@ -91,12 +110,7 @@ class Replayer:
     publishers, then ``delay_s`` more, so that subscribers can match them."""
 
     def __init__(self, node, path, rate=1.0, clock=True, delay_s=0.0, wait_s=0.0):
-        if not (np.isfinite(rate) and rate > 0):
-            raise ReplayError(f'--rate must be a positive number, not {rate!r}')
-        if not (np.isfinite(delay_s) and delay_s >= 0):
-            raise ReplayError(f'--delay must be >= 0 s, not {delay_s!r}')
-        if not (np.isfinite(wait_s) and wait_s >= 0):
-            raise ReplayError(f'--wait must be >= 0 s, not {wait_s!r}')
+        check_options(rate, delay_s, wait_s)
         self.wait_s = float(wait_s)
         from rosgraph_msgs.msg import Clock
         self.node, self.path, self.rate, self.delay_s = node, path, float(rate), float(delay_s)
@@ -130,7 +144,7 @@ class Replayer:
                 time.sleep(0.02)
             self.wait_s = 0.0
         if self.delay_s:
-            time.sleep(self.delay_s)
+            _sleep_until(time.monotonic() + self.delay_s, should_stop)
             self.delay_s = 0.0
         log = McapLog(self.path)
         wall0 = t0 = None
@@ -143,10 +157,9 @@ class Replayer:
                 continue
             if t0 is None:
                 wall0, t0 = time.monotonic(), m.log_time_ns
-            due = wall0 + (m.log_time_ns - t0) * 1e-9 / self.rate
-            wait = due - time.monotonic()
-            if wait > 0:
-                time.sleep(wait)
+            _sleep_until(wall0 + (m.log_time_ns - t0) * 1e-9 / self.rate, should_stop)
+            if should_stop():
+                break
             if m.log_time_ns != last_clock:
                 self._publish_clock(m.log_time_ns)
                 last_clock = m.log_time_ns
@@ -168,7 +181,8 @@ def replay_main(path, rate=1.0, loop=False, delay_s=0.5, clock=True, args=None, 
     """``tensegrity replay``: init rclpy, play, shut down. Returns the messages published."""
     import rclpy
     from rclpy.executors import ExternalShutdownException
-    McapLog(path)                         # clear error for a missing file before starting ROS
+    McapLog(path)                         # clear errors before starting ROS
+    check_options(rate, delay_s, wait_s)
     rclpy.init(args=args)
     node = None
     try:

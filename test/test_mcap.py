@@ -194,6 +194,16 @@ def test_bad_input_is_one_clear_error(tmp_path):
     assert rec.message_count == 0
 
 
+def test_replay_and_run_options_fail_with_one_line(log, tmp_path, capsys):
+    from tensegrity_ros.cli import main
+    assert main(['replay', str(tmp_path / 'none.mcap')]) == 2
+    assert 'no such MCAP file' in capsys.readouterr().err
+    for opt, value in (('--rate', '0'), ('--rate', 'nan'), ('--delay', '-1'), ('--wait', 'inf')):
+        assert main(['replay', str(log[0]), opt, value]) == 2
+        err = capsys.readouterr().err
+        assert err.count('\n') == 1 and opt in err, err
+
+
 def test_rerun_mcap_loader_reads_points_and_scalars(log, frames):
     """Rerun's own MCAP loader (rerun.chunk.McapReader, what `rerun file.mcap` and `rerun mcap
     convert` use) turns the PointCloud2 topic into Points3D and the arrays into Scalars."""
