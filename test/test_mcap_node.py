@@ -97,6 +97,24 @@ def test_node_log_holds_what_was_published_and_received(tmp_path):
     first = next(i for i in range(len(kept)) if kept[i:i + len(received)] == received)
     for msg, ns in zip(received, stamps[first:]):
         np.testing.assert_array_equal(by_time[ns].ravel(), np.array(msg.data))
+    # every message of the node's log decodes with both decoders, to the same values
+    from mcap_helpers import same
+    reader = McapLog(path)
+    for m in reader.messages():
+        cls = M.MSG_CLASSES[next(k for k in M.TYPES if M.resolve_topic(k) == m.topic)]
+        same(deserialize_message(m.data, cls), reader.decode(m), path=m.topic)
+    # Rerun's own MCAP loader shows the nodes as points, at the logged stamps
+    chunk = pytest.importorskip('rerun.chunk')
+    pts = {}
+    for ch in chunk.McapReader(path, timeline_type='duration_ns').stream():
+        rb = ch.to_record_batch()
+        if ch.entity_path == M.resolve_topic('~/nodes') and 'Points3D:positions' in \
+                rb.schema.names:
+            for ti, p in zip(rb.column('message_log_time').cast('int64').to_pylist(),
+                             rb.column('Points3D:positions').to_pylist()):
+                pts[ti] = np.array(p)
+    assert sorted(pts) == sorted(round(t * 1e9) for t in run.time)
+    np.testing.assert_array_equal(pts[round(run.time[-1] * 1e9)], run.positions[-1])
     np.testing.assert_array_equal(run.network.cable_a, sim.network.cable_a)
     np.testing.assert_array_equal(run.network.x0, sim.network.x0)
     # converts to the live Rerun layout (energy from the node's /diagnostics)
