@@ -86,7 +86,8 @@ def assemble(*, target, t_end, quick, ref_n, halving, pulse_ref, ours, ours_all,
         'ours': None, 'ours_candidates': [], 'mujoco': None, 'scipy': None, 'kernel': kernel,
     }
     if ours is not None:
-        res['ours'] = dict(_peer(ours, **peer), configuration=ours['config'])
+        res['ours'] = dict(_peer(ours, **peer), configuration=ours['config'],
+                           constraint_error_end=ours.get('constraint_error_end'))
         res['ours_candidates'] = [{'configuration': c['config'], 'knob': c['knob'],
                                    'value': c['value'], 'strain_error': c['error'],
                                    'wall_s': c['wall_s'], 'steps': c['steps']}
@@ -106,6 +107,9 @@ def assemble(*, target, t_end, quick, ref_n, halving, pulse_ref, ours, ours_all,
     res['speedup_vs_scipy'] = (res['scipy']['wall_s'] / w) if w and res['scipy'] else None
     res['step_over_kernel_bound'] = kernel['step_over_kernel_bound'] if kernel else None
     res['real_time_factor_fb'] = t_end / w if w else None
+    if w and kernel and res['ours'].get('steps'):
+        res['real_time_factor_fb_integrator_only'] = t_end / (
+            kernel['integrator_only_time_per_step_s'] * res['ours']['steps'])
     if kernel:
         per = kernel['time_per_step_s']
         parts = {k: kernel[k] * (kernel['evaluations_per_step'] if k == 'accelerations' else 1)
@@ -190,6 +194,16 @@ def table(res):
                      f"{_fmt(r['strain_error'], '.2e')} | {_fmt(r['wall_s'], '.3f')} | "
                      f"{_fmt(r['real_time_factor'], '.1f')} |")
     lines.append('')
+    k = res.get('kernel')
+    if k:
+        lines.append(f"- per step ({k['configuration']}): {k['time_per_step_s'] * 1e6:.1f} us "
+                     f"through Simulation.advance, {k['integrator_only_time_per_step_s'] * 1e6:.1f}"
+                     f" us integrator alone, kernel bound {k['kernel_bound_step'] * 1e6:.1f} us "
+                     f"({k['evaluations_per_step']} x {k['accelerations'] * 1e6:.2f} us)")
+        lines.append('- where a step goes: ' + ', '.join(
+            f'{name} {frac:.0%}' for name, frac in k['profile_fraction_of_step'].items()))
+        lines.append(f"- real time factor of the integrator alone: "
+                     f"{_fmt(res.get('real_time_factor_fb_integrator_only'), '.1f')}")
     for key, goal in TARGETS.items():
         lines.append(f"- {key}: {_fmt(res.get(key), '.2f')} (target "
                      f"{'<=' if key == 'step_over_kernel_bound' else '>='} {goal:g}, met: "
