@@ -9,15 +9,16 @@ timeline ``sim_time`` (a duration, from the simulation clock; no wall-clock time
 
 - ``topology`` (static): member index arrays ``bar_a``/``bar_b``/``cable_a``/``cable_b`` (int64),
   ``cable_kind`` (str), ``levels`` (n_columns * n_levels * 3,) and the reference positions ``x0``.
-- ``world/nodes`` Points3D (n_nodes per frame, m), ``world/bars`` LineStrips3D (n_bars strips of 2
-  points), ``world/cables`` LineStrips3D (n_cables strips), coloured by tension
+- ``world/nodes`` Points3D (n_nodes per frame, m), ``world/bars`` LineStrips3D (the bars as
+  :func:`trails`: a column's bars are three helices, three strips), ``world/cables`` LineStrips3D
+  (n_cables strips of 2 points, ``cable_a`` to ``cable_b``), coloured by tension
   ``T / tension_scale`` from blue to red as the ROS markers; slack cables (T = 0) grey and
   translucent. Positions are float32 (as Rerun stores them). Static colours and radii.
 - ``strain/column_0`` Scalars: ``frame.strain[0]`` (n_prisms,), one series per prism (named
   ``prism 0`` ...); one entity per column.
 - ``wave/column_0`` Tensor (n_prisms, n_frames): the strain of column 0 over the frames so far
-  (the last ``wave_window`` frames), logged at each flush at the time of its last frame; one
-  entity per column.
+  (the last ``wave_window`` frames), logged every ``wave_period_s`` wall seconds and at the end, at
+  the time of its last frame; one entity per column.
 - ``energy`` (J) and ``constraint_error`` Scalars; ``commands`` TextLog events.
 
 Frames are buffered and sent in column batches (``send_columns``) every ``flush_every`` frames and
@@ -83,22 +84,55 @@ def _ns(t):
     return np.rint(np.asarray(t, dtype=np.float64) * 1e9).astype(np.int64)
 
 
-def _gather_index(a, b):
-    """Flat float indices into one frame's (n_nodes * 3,) positions that give the 2 end points of
-    every member ``a[k]`` -> ``b[k]`` in order: (len(a) * 6,) int64."""
-    ends = np.stack([np.asarray(a, np.int64), np.asarray(b, np.int64)], axis=1).ravel()
-    return (ends[:, None] * 3 + np.arange(3)).ravel()
+def trails(a, b, n_nodes):
+    """Cover the members ``a[k]`` - ``b[k]`` (node indices) with trails, each member exactly once:
+    a list of node index arrays, consecutive nodes of a trail joined by a member. Walks start at
+    odd-degree nodes first, so a chain of bars (a column's three helices) becomes one trail; drawn
+    as one line strip each, they need about half the points of one strip per member."""
+    adj = [[] for _ in range(n_nodes)]
+    for e, (u, v) in enumerate(zip(np.asarray(a).tolist(), np.asarray(b).tolist())):
+        adj[u].append((v, e))
+        adj[v].append((u, e))
+    used = [False] * len(np.asarray(a))
+    nxt = [0] * n_nodes
+    out = []
+    for start in [n for n in range(n_nodes) if len(adj[n]) % 2] + list(range(n_nodes)):
+        while True:
+            path, u = [start], start
+            while True:
+                while nxt[u] < len(adj[u]) and used[adj[u][nxt[u]][1]]:
+                    nxt[u] += 1
+                if nxt[u] == len(adj[u]):
+                    break
+                v, e = adj[u][nxt[u]]
+                used[e] = True
+                path.append(v)
+                u = v
+            if len(path) == 1:
+                break
+            out.append(np.array(path, dtype=np.int64))
+    return out
 
 
-def _segments(x32, index):
-    """Line strips of 2 points for every frame of ``x32`` (n_t, n_nodes, 3) float32 m, end points
-    picked by ``index`` (:func:`_gather_index`), as one Arrow ``LineStrip3D`` array of
-    n_t * len(index) / 6 strips, built directly (rerun's generic conversion loops in Python)."""
-    pts = np.take(x32.reshape(x32.shape[0], -1), index, axis=1)
-    inner = pa.FixedSizeListArray.from_arrays(pa.array(pts.reshape(-1)),
-                                              type=_STRIP_TYPE.value_type)
-    offsets = pa.array(np.arange(0, pts.size // 3 + 1, 2, dtype=np.int32))
-    return pa.ListArray.from_arrays(offsets, inner, type=_STRIP_TYPE)
+class _Strips:
+    """Line strips through fixed node sequences (one strip per sequence), gathered per frame."""
+
+    def __init__(self, sequences):
+        nodes = np.concatenate(sequences) if sequences else np.zeros(0, np.int64)
+        self.index = (nodes[:, None] * 3 + np.arange(3)).ravel()      # into one frame's x.ravel()
+        self.lengths = np.array([len(s) for s in sequences], dtype=np.int32)
+        self.n = len(sequences)
+
+    def arrow(self, x32):
+        """One Arrow ``LineStrip3D`` array of n_t * n strips for the frames ``x32`` (n_t, n_nodes,
+        3) float32 m, built directly (rerun's generic conversion loops over strips in Python)."""
+        n_t = x32.shape[0]
+        pts = np.take(x32.reshape(n_t, -1), self.index, axis=1)
+        inner = pa.FixedSizeListArray.from_arrays(pa.array(pts.reshape(-1)),
+                                                  type=_STRIP_TYPE.value_type)
+        offsets = np.zeros(n_t * self.n + 1, dtype=np.int32)
+        np.cumsum(np.tile(self.lengths, n_t), out=offsets[1:])
+        return pa.ListArray.from_arrays(pa.array(offsets), inner, type=_STRIP_TYPE)
 
 
 _STRIP_TYPE = rr.components.LineStrip3DBatch._ARROW_DATATYPE
@@ -161,11 +195,14 @@ class RerunRecorder:
     colour ramp (default :func:`reference_tension_scale`).
     Frames are sent in batches of ``flush_every`` frames, or sooner when ``max_latency_s`` of wall
     time passed since the last batch (a live viewer stays current; a paced node's file stays
-    fresh). ``wave_window``: frames kept in the strain-wave image.
+    fresh; small batches also let Rerun's encoder threads work while the simulation runs).
+    The strain-wave image (the last ``wave_window`` frames) is sent at most every
+    ``wave_period_s`` wall seconds, and on :meth:`close`.
     """
 
-    def __init__(self, network, path=None, *, connect=None, tension_scale=None, flush_every=256,
-                 max_latency_s=0.5, wave_window=1000, application_id='tensegrity_ros',
+    def __init__(self, network, path=None, *, connect=None, tension_scale=None, flush_every=50,
+                 max_latency_s=0.5, wave_window=1000, wave_period_s=1.0,
+                 application_id='tensegrity_ros',
                  recording_id=None, send_blueprint=True):
         if path is None and not connect:
             raise ValueError('rerun: give a file path or a viewer URL (connect) to record to')
@@ -185,8 +222,9 @@ class RerunRecorder:
                               else float(tension_scale))
         self.flush_every = int(flush_every)
         self.max_latency_s = float(max_latency_s)
-        self._bar_index = _gather_index(network.bar_a, network.bar_b)
-        self._cable_index = _gather_index(network.cable_a, network.cable_b)
+        self._bars = _Strips(trails(network.bar_a, network.bar_b, network.n_nodes))
+        self._cables = _Strips([np.array(ab, dtype=np.int64) for ab in
+                                zip(network.cable_a, network.cable_b)])      # colour per cable
         self._last_flush = time.monotonic()
         self.n_frames = 0
         self.n_commands = 0
@@ -200,6 +238,9 @@ class RerunRecorder:
         self._n_buf = 0
         self._wave_t = deque(maxlen=int(wave_window))
         self._wave = deque(maxlen=int(wave_window))
+        self.wave_period_s = float(wave_period_s)
+        self._wave_pending = False
+        self._last_wave = time.monotonic()
         self._last_t = None
         self._closed = False
 
@@ -274,7 +315,7 @@ class RerunRecorder:
         if self._last_t is not None and t <= self._last_t:
             # the clock went back (a reset): send what came before, so that every batch has
             # increasing times, and start a new strain wave
-            self.flush()
+            self.flush(wave=True)
             self._wave.clear()
             self._wave_t.clear()
             self.n_restarts += 1
@@ -299,11 +340,14 @@ class RerunRecorder:
         self.n_commands += 1
 
     # -- batches --------------------------------------------------------------------------------
-    def flush(self):
-        """Send the buffered frames as column batches (and the strain-wave image so far)."""
+    def flush(self, wave=False):
+        """Send the buffered frames as column batches; the strain-wave image so far too if
+        ``wave`` or ``wave_period_s`` of wall time passed since it was last sent."""
         n_t = self._n_buf
         self._last_flush = time.monotonic()
         if n_t == 0:
+            if wave and self._wave_pending:
+                self._log_wave()
             return
         self._n_buf = 0
         net, s, b = self.net, self.stream, self._b
@@ -315,12 +359,12 @@ class RerunRecorder:
         if net.n_bars:
             s.send_columns('world/bars', index, [_column(
                 rr.LineStrips3D.descriptor_strips(),
-                rr.components.LineStrip3DBatch(_segments(x, self._bar_index)), n_t, net.n_bars)])
+                rr.components.LineStrip3DBatch(self._bars.arrow(x)), n_t, self._bars.n)])
         if net.n_cables:
             colors = tension_colors(b['tension'][:n_t], self.tension_scale).reshape(-1)
             s.send_columns('world/cables', index, [
                 _column(rr.LineStrips3D.descriptor_strips(),
-                        rr.components.LineStrip3DBatch(_segments(x, self._cable_index)), n_t,
+                        rr.components.LineStrip3DBatch(self._cables.arrow(x)), n_t,
                         net.n_cables),
                 _column(rr.LineStrips3D.descriptor_colors(),
                         rr.components.ColorBatch(pa.array(colors)), n_t, net.n_cables)])
@@ -337,9 +381,14 @@ class RerunRecorder:
         if strain.size:
             self._wave_t.extend(b['t'][:n_t])
             self._wave.extend(strain.copy())
+            self._wave_pending = True
+        if self._wave_pending and (wave or self._last_flush - self._last_wave
+                                   >= self.wave_period_s):
             self._log_wave()
 
     def _log_wave(self):
+        self._wave_pending = False
+        self._last_wave = time.monotonic()
         wave = np.stack(self._wave, axis=2)            # (n_columns, n_prisms, n_frames)
         self.stream.set_time(TIMELINE, duration=np.timedelta64(int(_ns(self._wave_t[-1])), 'ns'))
         for c in range(wave.shape[0]):
@@ -351,7 +400,7 @@ class RerunRecorder:
         """Flush, then finish the file / disconnect. Idempotent."""
         if self._closed:
             return
-        self.flush()
+        self.flush(wave=True)
         self._closed = True
         try:
             self.stream.flush()

@@ -70,6 +70,15 @@ def at(ent, t, comp):
     return flat(rows[0][comp])
 
 
+def strips_at(ent, t):
+    """The line strips of the row at sim_time ``t``: a list of (n_points, 3) float32 arrays."""
+    ns = round(t * 1e9)
+    rows = [r for tt, r in ent['rows'] if tt == ns]
+    assert len(rows) == 1
+    return [np.array(strip, dtype=np.float32)
+            for strip in rows[0]['LineStrips3D:strips'].flatten().to_pylist()]
+
+
 def tensor(ent, row=-1):
     """(shape, float64 values) of the Tensor logged in row ``row``."""
     data = ent['rows'][row][1]['Tensor:data'].flatten().to_pylist()
@@ -117,9 +126,14 @@ def test_values_equal_the_solver_frames_at_chosen_times(recorded):
     for f in (frames[0], frames[7], frames[13], frames[-1]):     # across flush boundaries (7)
         x = at(data['/world/nodes'], f.t, 'Points3D:positions').reshape(-1, 3)
         np.testing.assert_array_equal(x, f.positions.astype(np.float32))
-        bars = at(data['/world/bars'], f.t, 'LineStrips3D:strips').reshape(-1, 2, 3)
-        np.testing.assert_array_equal(bars[:, 0], f.positions[net.bar_a].astype(np.float32))
-        np.testing.assert_array_equal(bars[:, 1], f.positions[net.bar_b].astype(np.float32))
+        # bars as trails: consecutive points of a strip are the two ends of one bar, and every
+        # bar is drawn exactly once
+        drawn = sorted(tuple(sorted((tuple(p), tuple(q)))) for strip in strips_at(
+            data['/world/bars'], f.t) for p, q in zip(strip[:-1], strip[1:]))
+        x32 = f.positions.astype(np.float32)
+        want = sorted(tuple(sorted((tuple(x32[a]), tuple(x32[b]))))
+                      for a, b in zip(net.bar_a, net.bar_b))
+        assert drawn == want
         cables = at(data['/world/cables'], f.t, 'LineStrips3D:strips').reshape(-1, 2, 3)
         np.testing.assert_array_equal(cables[:, 0], f.positions[net.cable_a].astype(np.float32))
         np.testing.assert_array_equal(cables[:, 1], f.positions[net.cable_b].astype(np.float32))
@@ -308,3 +322,14 @@ def test_connect_streams_to_a_running_viewer(tmp_path):
     f = frames[4]
     np.testing.assert_array_equal(at(data['/strain/column_0'], f.t, 'Scalars:scalars'),
                                   f.strain[0])
+
+
+@pytest.mark.parametrize('seed', [0, 1, 2])
+def test_trails_cover_every_member_once(seed):
+    from tensegrity_ros.rerun_log import trails
+    rng = np.random.default_rng(seed)
+    n = 12
+    a = rng.integers(0, n, 30)
+    b = (a + rng.integers(1, n, 30)) % n                     # no self loops; repeats allowed
+    got = sorted(tuple(sorted(pq)) for tr in trails(a, b, n) for pq in zip(tr[:-1], tr[1:]))
+    assert got == sorted(tuple(sorted(pq)) for pq in zip(a.tolist(), b.tolist()))
