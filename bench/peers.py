@@ -317,12 +317,15 @@ def main(out_dir='bench/results', quick=False, log=_stderr):
     log('peers: kernel bound')
     kernel = None
     if ours is not None:
-        from .peers_kernels import profile
+        from .peers_kernels import advance_profile, profile
         sim = ours['sim']
         evals = getattr(sim.integrator, 'evaluations_per_step', 4)
         try:
             prof = profile(sim.model, sim.dt, evals)
             alone, _ = integrator_only(ours['overrides'], t_end)
+            psim = Simulation(fb_scene(ours['overrides']))
+            psim.apply_impact(V0)
+            py_profile = advance_profile(psim, min(t_end, 0.5), OUTPUT_DT)
             per_step = ours['wall_s'] / ours['steps']
             integ = sim.integrator
             parts = ['accelerations']
@@ -332,6 +335,7 @@ def main(out_dir='bench/results', quick=False, log=_stderr):
                 parts += ['project_positions', 'project_velocities']
             kernel = dict(prof, evaluations_per_step=evals, time_per_step_s=per_step,
                           parts_in_step=parts, integrator_only_time_per_step_s=alone,
+                          advance_cprofile=py_profile,
                           integrator_only_over_kernel_bound=alone / prof['kernel_bound_step'],
                           step_over_kernel_bound=per_step / prof['kernel_bound_step'],
                           configuration=ours['config'])

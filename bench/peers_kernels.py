@@ -92,3 +92,26 @@ def profile(model, dt, evaluations_per_step, n=2000, tol=1e-12, max_iter=3):
     return {'accelerations': t_acc, 'next_kink': t_kink, 'project_positions': max(t_pp, 0.0),
             'project_velocities': max(t_pv, 0.0),
             'kernel_bound_step': evaluations_per_step * t_acc}
+
+
+def advance_profile(sim, duration, output_dt, top=8):
+    """cProfile of ``sim.advance(output_dt)`` calls over ``duration`` s: the ``top`` functions by
+    own time, as ``[{'function': 'file:line(name)', 'fraction': own time / total}]``, plus the
+    total seconds. Shows where the Python side of a step goes."""
+    import cProfile
+    import pstats
+    prof = cProfile.Profile()
+    n = int(round(duration / output_dt))
+    prof.enable()
+    for _ in range(n):
+        sim.advance(output_dt)
+    prof.disable()
+    stats = pstats.Stats(prof).stats
+    total = sum(v[2] for v in stats.values())
+    rows = sorted(stats.items(), key=lambda kv: kv[1][2], reverse=True)[:top]
+    out = []
+    for (path, line, name), v in rows:
+        short = '/'.join(str(path).split('/')[-2:])
+        out.append({'function': f'{short}:{line}({name})', 'calls': int(v[1]),
+                    'fraction': v[2] / total if total else 0.0})
+    return {'total_s': total, 'top': out}
