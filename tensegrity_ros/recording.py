@@ -16,6 +16,7 @@ Log times are the messages' simulation-time stamps in nanoseconds, never the wal
 """
 from __future__ import annotations
 
+import atexit
 import contextlib
 import json
 import os
@@ -25,6 +26,8 @@ import threading
 import time
 from functools import lru_cache
 from pathlib import Path
+
+import numpy as np
 
 DELIMITER = '=' * 80 + '\n'
 _FIELD_TYPE = re.compile(r'(?:^|\n)\s*([a-zA-Z0-9_/]+)(?:\[[^\]]*\])?\s+')
@@ -163,6 +166,14 @@ def qos_yaml(qos=None):
     return '\n'.join(lines)
 
 
+def _finite(msg):
+    """False if ``msg`` is a float array message (``*MultiArray``) with a non-finite value."""
+    data = getattr(msg, 'data', None)
+    if getattr(data, 'typecode', '') not in ('d', 'f') or not hasattr(msg, 'layout'):
+        return True
+    return bool(np.all(np.isfinite(np.frombuffer(data, dtype=data.typecode))))
+
+
 class _DirectFile:
     """A write-through file: every ``write`` goes straight to the OS (no user-space buffer), so a
     record the MCAP writer has emitted survives a SIGKILL of this process."""
@@ -226,6 +237,7 @@ class McapRecorder:
         self._closed = False
         self.flush_period_s = float(flush_period_s)
         self.message_count = 0
+        self.dropped = 0
         self._writer.start(profile=PROFILE, library='tensegrity_ros')
         for name, data in (metadata or {}).items():
             self._writer.add_metadata(name, {str(k): str(v) for k, v in data.items()})
@@ -233,6 +245,7 @@ class McapRecorder:
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._flush_loop, name='mcap-flush', daemon=True)
         self._thread.start()
+        atexit.register(self.close)        # a recorder left open is finished at normal exit
 
     def declare(self, topic, msg_class, qos=None):
         """Register ``topic`` with type ``msg_class`` and its offered QoS before its first message
@@ -261,10 +274,17 @@ class McapRecorder:
 
     def write(self, topic, msg, stamp_ns):
         """Append ``msg`` on ``topic`` with log and publish time ``stamp_ns`` (int, simulation
-        nanoseconds). Writing to a closed recorder is an error."""
+        nanoseconds); returns True. A float array message holding NaN or infinity (a malformed
+        command the node received and rejected) is not logged: returns False and counts it in
+        ``dropped`` (nothing NaN is ever logged; the node's ``/diagnostics`` say what it rejected).
+        Writing to a closed recorder is an error."""
         stamp_ns = int(stamp_ns)
         if stamp_ns < 0:
             raise RecordingError(f'{topic}: negative stamp {stamp_ns} ns')
+        if not _finite(msg):
+            with self._lock:
+                self.dropped += 1
+            return False
         data = self._serialize(msg)
         with self._lock:
             if self._closed:
@@ -277,6 +297,7 @@ class McapRecorder:
             self._pending = True
             if time.monotonic() - self._last_flush >= self.flush_period_s:
                 self._flush_locked()
+        return True
 
     __call__ = write
 
@@ -307,6 +328,7 @@ class McapRecorder:
                 return
             self._closed = True
             self._stop.set()
+            atexit.unregister(self.close)
             try:
                 self._writer.finish()
             finally:

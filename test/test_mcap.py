@@ -194,6 +194,19 @@ def test_bad_input_is_one_clear_error(tmp_path):
     assert rec.message_count == 0
 
 
+def test_nothing_nan_is_logged(tmp_path):
+    path = tmp_path / 'nan.mcap'
+    topic = M.resolve_topic('~/cmd/impact')
+    with McapRecorder(path) as rec:
+        assert rec.write(topic, M.command_array([0.1], 'all'), 0)
+        assert not rec.write(topic, M.command_array([float('nan')], 'all'), 1)
+        assert not rec.write(topic, M.command_array([0.1, float('inf')], 'column'), 2)
+        assert rec.write(topic, M.command_array([0.2], 'all'), 3)
+    assert (rec.message_count, rec.dropped) == (2, 2)
+    run = load_run(path)
+    assert [v.tolist() for v in run.command_values] == [[0.1], [0.2]]
+
+
 def test_replay_and_run_options_fail_with_one_line(log, tmp_path, capsys):
     from tensegrity_ros.cli import main
     assert main(['replay', str(tmp_path / 'none.mcap')]) == 2

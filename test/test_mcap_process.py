@@ -112,6 +112,20 @@ def test_sigint_and_sigterm_finish_the_file(tmp_path, sig):
     assert not run.truncated and len(run.time) == 50
 
 
+def test_recorder_left_open_is_finished_at_exit(tmp_path):
+    from mcap.reader import make_reader
+    path = tmp_path / 'open.mcap'
+    script = ('import sys; from tensegrity_ros import messages as M; '
+              'from tensegrity_ros.recording import McapRecorder; '
+              'rec = McapRecorder(sys.argv[1]); '
+              "[rec.write('/x', M.command_array([k], 'all'), k) for k in range(7)]")
+    subprocess.run([sys.executable, '-c', script, str(path)], env=child_env(), check=True,
+                   timeout=60)
+    with open(path, 'rb') as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None and summary.statistics.message_count == 7
+
+
 def test_replay_reaches_a_subscriber_in_order_with_its_stamps(tmp_path):
     import rclpy
     from rclpy.context import Context
