@@ -202,8 +202,7 @@ class RerunRecorder:
 
     def __init__(self, network, path=None, *, connect=None, tension_scale=None, flush_every=50,
                  max_latency_s=0.5, wave_window=1000, wave_period_s=1.0,
-                 application_id='tensegrity_ros',
-                 recording_id=None, send_blueprint=True):
+                 application_id='tensegrity_ros', recording_id=None, send_blueprint=True):
         if path is None and not connect:
             raise ValueError('rerun: give a file path or a viewer URL (connect) to record to')
         if tension_scale is not None and not (np.isfinite(tension_scale) and tension_scale > 0):
@@ -329,14 +328,18 @@ class RerunRecorder:
                 time.monotonic() - self._last_flush > self.max_latency_s:
             self.flush()
 
-    def command(self, t, text):
-        """A command (or any event) as a text entry at simulation time ``t`` s on ``commands``."""
+    def command(self, t, text, level=None):
+        """A command (or any event) as a text entry at simulation time ``t`` s on ``commands``;
+        ``level`` defaults to WARN for texts starting with 'rejected' or 'paused', else INFO."""
         if self._closed:
             raise ValueError('rerun: recorder is closed')
-        if not np.isfinite(t):
+        if not math.isfinite(t):
             raise ValueError(f'rerun: command time {t} is not finite')
+        text = str(text)
+        if level is None:
+            level = 'WARN' if text.startswith(('rejected', 'paused')) else 'INFO'
         self.stream.set_time(TIMELINE, duration=np.timedelta64(int(_ns(t)), 'ns'))
-        self.stream.log('commands', rr.TextLog(str(text), level='INFO'))
+        self.stream.log('commands', rr.TextLog(text, level=level))
         self.n_commands += 1
 
     # -- batches --------------------------------------------------------------------------------

@@ -206,11 +206,16 @@ def test_bad_frames_are_rejected_and_change_nothing(tmp_path):
         with pytest.raises(ValueError, match='does not match the network'):
             rec.frame(bad)
         assert rec.n_frames == 1
+        rec.command(0.005, 'rejected ~/cmd/impact: velocity is not finite')
+        with pytest.raises(ValueError, match='command time'):
+            rec.command(math.nan, 'impact')
         later = sim.frame()
         later.t = 0.02
         rec.frame(later)
     data = read(path)
     assert [t for t, _ in data['/world/nodes']['rows']] == [0, 20_000_000]
+    (t_cmd, cmd), = data['/commands']['rows']
+    assert t_cmd == 5_000_000 and list(flat(cmd['TextLog:level'])) == ['WARN']
     for t in (0.0, 0.02):
         assert np.all(np.isfinite(at(data['/world/nodes'], t, 'Points3D:positions')))
     with pytest.raises(ValueError, match='file path or a viewer URL'):
