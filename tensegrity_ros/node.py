@@ -64,7 +64,7 @@ DESCRIPTIONS = {
 POSITIVE = ('publish_rate_hz', 'marker_rate_hz', 'diagnostics_rate_hz')
 NON_NEGATIVE = ('real_time_factor', 'prestrain_ramp_s', 'dt')
 QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
-WORK_FRACTION = 0.8              # share of a publish period the stepping may use
+WORK_FRACTION = 0.9              # share of a publish period the stepping (and publishing) may use
 
 
 class ParameterError(ValueError):
@@ -243,6 +243,10 @@ class TensegritySim(Node):
         return max(want, 0)
 
     def _markers_due(self, now):
+        """Markers are due at ``marker_rate_hz``, and only built when someone listens (a
+        subscriber or a recorder sink): they cost more than all other topics together."""
+        if not self._sinks and self._pubs['~/markers'].get_subscription_count() == 0:
+            return False
         return now - self._last_marker >= 1.0 / self.params['marker_rate_hz']
 
     def _tick(self):

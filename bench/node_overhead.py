@@ -1,0 +1,173 @@
+"""Cost of the ROS 2 node against the bare solver, measured side by side in one process.
+
+    python -m bench.node_overhead [--scene config/scenes/fb_column.yaml] [--window 3] [--rounds 3]
+                                  [--no-subscriber] [--out bench/results]
+
+Each round measures, one after the other on the same wave (an impact at the start of each window):
+
+- ``bare``: the solver alone, ``Simulation.advance`` in chunks of one publish period of steps;
+- ``node rtf=0``: the node in this process (its own rclpy context and executor) with
+  ``real_time_factor`` 0 and ``publish_rate_hz`` 200, publishing every topic (markers at 20 Hz);
+- ``node rtf=1``: the same node paced to the wall clock.
+
+A subscriber process receives every topic (as RViz or Foxglove would), so DDS really delivers the
+data; ``--no-subscriber`` leaves it out. Reported: simulated seconds per wall second (real-time
+factor) and frames per wall second for each, the ratio node rtf=0 / bare (the publishing overhead
+is ``1 - ratio``), and the longest tick the node reported. Medians over rounds; the machine may be
+busy, so only the ratios, which are measured within seconds of each other, mean anything.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+LISTENER = '''
+import rclpy, sys
+from rclpy.executors import SingleThreadedExecutor
+from tensegrity_ros.commander import Commander
+rclpy.init()
+c = Commander()
+c.create_subscription(__import__('visualization_msgs.msg', fromlist=['MarkerArray']).MarkerArray,
+                      c.base + '/markers', lambda m: None, 10)
+ex = SingleThreadedExecutor(); ex.add_node(c)
+print('ready', flush=True)
+try:
+    while rclpy.ok():
+        ex.spin_once(timeout_sec=0.1)
+        del c.clouds[:], c.strain[:], c.tension[:]
+except Exception:
+    pass
+'''
+
+
+def _bare(sim, window_s, chunk):
+    sim.reset()
+    sim.apply_impact(0.1)
+    t0 = time.perf_counter()
+    frames = 0
+    while time.perf_counter() - t0 < window_s:
+        sim.advance(chunk * sim.dt)
+        frames += 1
+    wall = time.perf_counter() - t0
+    return {'rtf': sim.t / wall, 'rate_hz': frames / wall}
+
+
+def _node(node, ex, rtf, window_s):
+    node.params['real_time_factor'] = rtf
+    node.sim.reset()
+    node.sim.apply_impact(0.1)
+    node._anchor()
+    f0, t_sim0 = node.counts['frames'], node.sim.t
+    node.tick_max_s = 0.0
+    t0 = time.perf_counter()
+    while time.perf_counter() - t0 < window_s:
+        ex.spin_once(timeout_sec=0.01)
+    wall = time.perf_counter() - t0
+    return {'rtf': (node.sim.t - t_sim0) / wall, 'rate_hz': (node.counts['frames'] - f0) / wall,
+            'tick_max_ms': 1e3 * node.tick_max_s}
+
+
+def measure(scene='config/scenes/fb_column.yaml', window_s=3.0, rounds=3, subscriber=True,
+            publish_rate_hz=200.0, domain_id=None, log=print):
+    """Run the rounds; returns a dict of medians and per-round figures."""
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.parameter import Parameter
+
+    from tensegrity_ros.node import TensegritySim, load_simulation
+
+    domain_id = domain_id if domain_id is not None else 10 + os.getpid() % 20
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
+    os.environ.update(ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
+    root = str(Path(__file__).resolve().parent.parent)
+    env['PYTHONPATH'] = root + os.pathsep + env.get('PYTHONPATH', '')
+    listener = None
+    if subscriber:
+        listener = subprocess.Popen([sys.executable, '-c', LISTENER], env=env,
+                                    stdout=subprocess.PIPE, text=True)
+        listener.stdout.readline()
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=domain_id)
+    try:
+        params = dict(scene_file=scene, real_time_factor=0.0, publish_rate_hz=publish_rate_hz)
+        sim = load_simulation(dict(params, model='', integrator='', dt=0.0))
+        bare_sim = load_simulation(dict(params, model='', integrator='', dt=0.0))
+        node = TensegritySim(sim=sim, context=ctx,
+                             parameter_overrides=[Parameter(k, value=v)
+                                                  for k, v in params.items()])
+        ex = SingleThreadedExecutor(context=ctx)
+        ex.add_node(node)
+        chunk = max(1, int(round(1.0 / publish_rate_hz / sim.dt)))
+        if subscriber:
+            end = time.monotonic() + 10
+            while time.monotonic() < end and node._pubs['~/nodes'].get_subscription_count() == 0:
+                ex.spin_once(timeout_sec=0.05)
+        _node(node, ex, 0.0, 0.5)                                   # warm-up
+        rows = []
+        for r in range(rounds):
+            row = {'bare': _bare(bare_sim, window_s, chunk),
+                   'node_rtf0': _node(node, ex, 0.0, window_s),
+                   'node_rtf1': _node(node, ex, 1.0, window_s)}
+            row['ratio_rtf0_bare'] = row['node_rtf0']['rtf'] / row['bare']['rtf']
+            rows.append(row)
+            log(f"round {r + 1}: bare {row['bare']['rtf']:.2f}x, node rtf=0 "
+                f"{row['node_rtf0']['rtf']:.2f}x at {row['node_rtf0']['rate_hz']:.0f} Hz "
+                f"(ratio {row['ratio_rtf0_bare']:.3f}), node rtf=1 "
+                f"{row['node_rtf1']['rtf']:.3f}x at {row['node_rtf1']['rate_hz']:.0f} Hz")
+        node.close()
+        node.destroy_node()
+    finally:
+        rclpy.shutdown(context=ctx)
+        if listener is not None:
+            listener.terminate()
+            listener.wait(10)
+
+    def med(path):
+        vals = [row[path[0]][path[1]] if len(path) == 2 else row[path[0]] for row in rows]
+        return statistics.median(vals)
+
+    return {
+        'scene': scene, 'window_s': window_s, 'rounds': rounds, 'subscriber': subscriber,
+        'publish_rate_hz': publish_rate_hz, 'steps_per_frame': chunk,
+        'bare_rtf': med(('bare', 'rtf')),
+        'node_rtf0_rtf': med(('node_rtf0', 'rtf')), 'node_rtf0_rate_hz': med(('node_rtf0',
+                                                                                'rate_hz')),
+        'node_rtf1_rtf': med(('node_rtf1', 'rtf')), 'node_rtf1_rate_hz': med(('node_rtf1',
+                                                                                'rate_hz')),
+        'ratio_rtf0_bare': med(('ratio_rtf0_bare',)),
+        'overhead': 1.0 - med(('ratio_rtf0_bare',)),
+        'tick_max_ms_rtf0': max(row['node_rtf0']['tick_max_ms'] for row in rows),
+        'tick_max_ms_rtf1': max(row['node_rtf1']['tick_max_ms'] for row in rows),
+        'rows': rows,
+    }
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument('--scene', default='config/scenes/fb_column.yaml')
+    ap.add_argument('--window', type=float, default=3.0, help='wall seconds per measurement')
+    ap.add_argument('--rounds', type=int, default=3)
+    ap.add_argument('--no-subscriber', action='store_true')
+    ap.add_argument('--out', default='bench/results')
+    args = ap.parse_args(argv)
+    res = measure(args.scene, args.window, args.rounds, subscriber=not args.no_subscriber)
+    print(f"bare solver {res['bare_rtf']:.2f}x real time; node rtf=0: {res['node_rtf0_rtf']:.2f}x"
+          f" at {res['node_rtf0_rate_hz']:.0f} Hz = {res['ratio_rtf0_bare']:.3f} of the bare "
+          f"solver (overhead {100 * res['overhead']:.1f} %, longest tick "
+          f"{res['tick_max_ms_rtf0']:.1f} ms); node rtf=1: {res['node_rtf1_rtf']:.3f}x at "
+          f"{res['node_rtf1_rate_hz']:.0f} Hz (longest tick {res['tick_max_ms_rtf1']:.1f} ms)")
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / 'node_overhead.json').write_text(json.dumps(res, indent=2))
+    print(out / 'node_overhead.json')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
