@@ -150,3 +150,62 @@ def test_mujoco_builder_refuses_loops():
     net = Simulation(scene).network
     with pytest.raises(ValueError, match='rigid base edges'):
         bar_tree(net)
+
+
+def test_bar_tree_follows_the_three_chains():
+    """FB column: the body of node n_{j,k} hangs from the body of n_{j-1,k} (the bar below it)."""
+    net = small_column(4).network
+    parent, tail, head = bar_tree(net)
+    levels = net.levels[0]
+    body_of = {int(h): b for b, h in enumerate(head)}
+    for j in range(1, levels.shape[0]):
+        for k in range(3):
+            b = body_of[int(levels[j, k])]
+            assert tail[b] == levels[j - 1, k]
+            assert parent[b] == (-1 if j == 1 else body_of[int(levels[j - 1, k])])
+    assert all(parent[b] < b for b in range(len(parent)))      # parents come first
+
+
+def impact_trajectory_ours(sim, t_end, n_out):
+    sim.apply_impact(0.1)
+    out = [np.array(sim.model.positions())]
+    for _ in range(n_out):
+        sim.advance(t_end / n_out)
+        out.append(np.array(sim.model.positions()))
+    return np.array(out)
+
+
+def test_scipy_trajectory_matches_solver():
+    """Two independent integrations of the same impact agree (DOP853 at rtol 1e-10 against RK4
+    with projection at a small step) to far below the benchmark's strain target."""
+    sim = small_column(3)
+    sim.advance(sim.dt)
+    sim.reset()
+    v_imp = sim.impact_velocities(0.1)
+    x0 = np.array(sim.network.x0)
+    ours = impact_trajectory_ours(sim, 0.05, 5)
+    sc = ScipyColumn(sim.network)
+    times = np.linspace(0.0, 0.05, 6)
+    theirs, _, stats = sc.solve(x0, v_imp, times, rtol=1e-10, atol=1e-13)
+    assert stats['evaluations'] > 0
+    disp = np.max(np.abs(ours[-1] - x0))
+    assert disp > 1e-4                                   # the impact really moved the column
+    assert np.max(np.abs(theirs - ours)) < 1e-6 * disp
+
+
+@needs_mujoco
+def test_mujoco_trajectory_matches_solver():
+    """MuJoCo's RK4 on the tree model follows the solver's trajectory after the impact (the same
+    physics up to the 1e-9 spin inertia and both integrators' errors)."""
+    sim = Simulation(Scene.load('config/scenes/fb_column.yaml').with_overrides(
+        [('structure.n_prisms', 3), ('model', 'full3d'), ('integrator.dt', 1e-4)]))
+    ours = impact_trajectory_ours(sim, 0.05, 5)
+    mc = MujocoColumn(sim.network, 1e-4, spin_inertia=1e-9)
+    mc.impact(0.1)
+    theirs = [mc.positions()]
+    for _ in range(5):
+        mc.advance(100)
+        theirs.append(mc.positions())
+    disp = np.max(np.abs(ours[-1] - sim.network.x0))
+    assert disp > 1e-4
+    assert np.max(np.abs(np.array(theirs) - ours)) < 1e-5 * disp
