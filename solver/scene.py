@@ -52,7 +52,7 @@ DEFAULTS = {
     'loading': {'impact': {'v0': 0.1, 'mode': 'impulse', 'columns': None}, 'gravity': 0.0},
     'model': 'auto',
     'integrator': {'method': 'rk4_projected', 'dt': 5e-4, 'projection_tol': 1e-12,
-                   'projection_max_iter': 3, 'land_on_kinks': True},
+                   'projection_max_iter': 3, 'land_on_kinks': True, 'rtol': 1e-8, 'atol': 1e-10},
     'run': {'t_end': 1.2, 'output_dt': 0.005},
     'divergence': {'energy_growth': 1e-3, 'constraint_error': 1e-6},
     'outputs': {'dir': None},
@@ -86,6 +86,8 @@ RANGES = {
     'integrator.dt': (0.0, 0.1, False),
     'integrator.projection_tol': (0.0, 1e-3, False),
     'integrator.projection_max_iter': (1, 100, True),
+    'integrator.rtol': (0.0, 0.1, False),      # adaptive methods only (dopri54_projected)
+    'integrator.atol': (0.0, 1.0, False),
     'run.t_end': (0.0, 1e6, True),
     'run.output_dt': (0.0, 1e3, False),
     'divergence.energy_growth': (0.0, math.inf, False),

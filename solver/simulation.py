@@ -24,6 +24,25 @@ from .scene import RANGES, Scene
 PRESTRAIN_RANGE = RANGES['prestrain']     # (lower, upper, lower inclusive): 0 < p <= 0.5
 
 
+HINT_STEP = 'try a smaller integrator.dt or another method (e.g. integrator=dopri54_projected)'
+HINT_CONSTRAINT = ('use a projected method (rk4_projected, rattle, dopri54_projected) or a smaller '
+                   'integrator.dt')
+HINT_ENERGY = 'try a smaller integrator.dt or another method (rattle, dopri54_projected)'
+HINT_SLACK = ('cables went slack and the prism collapsed: raise the prestrain or lower the impact '
+              'velocity')
+STATUS_DIAGNOSIS = {
+    dyn.SINGULAR: ('rigid members', 'rigid members became degenerate (e.g. a rigid-base prism '
+                   'driven through its lock by a fast impact): lower the impact velocity or try a '
+                   'smaller integrator.dt'),
+    dyn.NONFINITE: ('state', HINT_STEP),
+    dyn.NOT_CONVERGED: ('constraint projection', 'try a smaller integrator.dt or a larger '
+                        'integrator.projection_max_iter'),
+    integrators.STEP_TOO_SMALL: ('step size', 'the motion is too stiff or singular to resolve '
+                                 '(rigid-base lock, collapsed prism?): lower the impact velocity '
+                                 'or loosen integrator.rtol'),
+}
+
+
 class SimulationDiverged(RuntimeError):
     """The run stopped itself: ``t`` s, ``step``, the ``quantity`` that failed and a ``hint``."""
 
@@ -78,10 +97,11 @@ class Simulation:
             f_ext[:, 2] = -g * self.network.node_mass
             f_ext[self.network.clamped] = 0.0
         self.f_ext = f_ext
-        model_cls = models.choose(scene['model'], self.network, scene.data)
-        self.model = model_cls(self.network, f_ext=f_ext)
+        self._model_cls = models.choose(scene['model'], self.network, scene.data)
+        self.model = self._model_cls(self.network, f_ext=f_ext)
+        self.expanded = None            # why a sym3d run was expanded to full3d, if it was
         it = scene['integrator']
-        self.integrator = integrators.get(it['method'])
+        self.integrator = integrators.get(it['method'], rtol=it['rtol'], atol=it['atol'])
         self.dt = it['dt']
         self.tol = it['projection_tol']
         self.max_iter = it['projection_max_iter']
@@ -93,12 +113,15 @@ class Simulation:
     def reset(self):
         """Back to the reference geometry at rest, t = 0, rest lengths of the scene."""
         net = self.network
+        if not isinstance(self.model, self._model_cls):     # undo an expansion to full3d
+            self.model = self._model_cls(net, f_ext=self.f_ext)
+            self.expanded = None
         self.model.set_state(net.x0, np.zeros((net.n_nodes, 3)))
-        self.model.act[0][:] = net.cable_rest_length
-        self.model.act[1][:] = net.cable_EA
+        self.model.set_cables(net.cable_rest_length, net.cable_EA)
         self.t = 0.0
         self.step = 0
         self.steps_taken = 0
+        self.integrator.reset()
         self._prestrain_map = None
         self._prestrain = None          # (n_columns, n_prisms) current cross prestrain, or None
         self._ramp = None               # (t0, duration, p_start, p_target) of a prestrain ramp
@@ -107,11 +130,53 @@ class Simulation:
         self._energy_ref = self.energy()
 
     def energy(self):
+        if hasattr(self.model, 'energy'):           # chain1d: its own energy
+            return self.model.energy()
         return observables.energy(self.model.positions(), self.model.velocities(), self.network,
-                                  self.model.act[0], self.model.act[1], self.f_ext)
+                                  self.model.cable_rest_length, self.model.cable_EA, self.f_ext)
 
     def constraint_error(self):
+        if hasattr(self.model, 'constraint_error'):     # chain1d: no rigid members
+            return self.model.constraint_error()
         return observables.constraint_error(self.model.positions(), self.network)
+
+    def expand_to_full3d(self, reason):
+        """Continue a ``sym3d`` run with ``full3d`` from the same (expanded) state: no jump."""
+        if isinstance(self.model, models.Sym3D):
+            self.model = models.expand(self.model, f_ext=self.f_ext)
+            if hasattr(self.integrator, 'reset'):      # forget step-size history of sym3d
+                self.integrator.reset()
+            self.expanded = reason
+
+    def _load(self, x, v):
+        """Load a full state; an asymmetric one expands a ``sym3d`` run to ``full3d``."""
+        try:
+            self.model.set_state(x, v)
+        except models.NotSymmetric as exc:
+            self.expand_to_full3d(str(exc))
+            self.model.set_state(x, v)
+
+    def set_cable_rest_lengths(self, rest):
+        """Set the cable rest lengths (n_cables,) m directly (finite, positive). A set that breaks
+        the 3-fold symmetry expands a ``sym3d`` run to ``full3d`` (same state, no jump). The
+        change of stored energy is added to the divergence energy reference."""
+        rest = np.asarray(rest, dtype=np.float64)
+        if rest.shape != (self.network.n_cables,):
+            raise ValueError(f'cable rest lengths: expected {self.network.n_cables} values, got '
+                             f'shape {rest.shape}')
+        if not np.all(np.isfinite(rest)) or np.any(rest <= 0):
+            raise ValueError('cable rest lengths: every value must be finite and positive')
+        e0 = self.energy()
+        self._set_cables(rest, self.model.cable_EA)
+        self._energy_ref += self.energy() - e0
+
+    def _set_cables(self, rest, EA):
+        """Load full (n_cables,) rest lengths and EA; asymmetric ones expand ``sym3d``."""
+        try:
+            self.model.set_cables(rest, EA)
+        except models.NotSymmetric as exc:
+            self.expand_to_full3d(str(exc))
+            self.model.set_cables(rest, EA)
 
     # -- commands -------------------------------------------------------------------------------
     def impact_velocities(self, v0, columns=None, mode=None):
@@ -150,8 +215,16 @@ class Simulation:
         default) or, with ``mode='energy'``, also rescaled to the kinetic energy ``3 m v0^2 / 2`` per
         column. Returns the kinetic energy added, J."""
         before = self.energy()
+        if hasattr(self.model, 'impact'):           # chain1d: axial velocity on the end level
+            if columns not in (None, [0], (0,)):
+                raise ValueError('impact: chain1d has one column (0)')
+            if np.ndim(v0) != 0 or not math.isfinite(float(v0)):
+                raise ValueError('impact: chain1d takes one finite velocity')
+            self.model.impact(float(v0))
+            self._energy_ref = self.energy()
+            return self._energy_ref - before
         v_new = self.impact_velocities(v0, columns, mode)
-        self.model.set_state(self.model.positions(), v_new)
+        self._load(self.model.positions(), v_new)
         self._energy_ref = self.energy()
         return self._energy_ref - before
 
@@ -213,7 +286,8 @@ class Simulation:
 
     def _set_prestrain(self, p):
         e0 = self.energy()
-        self.prestrain_map.rest_lengths(p, self.model.act[1], out=self.model.act[0])
+        EA = self.model.cable_EA
+        self._set_cables(self.prestrain_map.rest_lengths(p, EA), EA)
         self._prestrain = np.array(p, dtype=np.float64)
         self._energy_ref += self.energy() - e0
 
@@ -230,10 +304,15 @@ class Simulation:
         """``n`` steps; while a prestrain ramp runs, one step at a time with rest lengths updated
         at the start of each step. Returns ``(steps, status)`` of the integrator."""
         m = self.model
+        if hasattr(m, 'advance'):                   # chain1d: its own state and kernel
+            if self._ramp is not None:
+                return 0, models.CHAIN_CANNOT_RAMP
+            return m.advance(self.dt, n)
         done = total = 0
         status = dyn.OK
         while done < n and self._ramp is not None:
             self._ramp_to(self.t + done * self.dt)
+            m = self.model
             steps, status = self.integrator.run(m.x, m.v, self.dt, 1, m.net, m.act, m.ws, self.tol,
                                                 self.max_iter, self.kinks)
             total += steps
@@ -255,32 +334,77 @@ class Simulation:
         n = max(int(round(duration / self.dt)), 0)
         if n == 0:
             return 0
-        m = self.model
-        x_keep, v_keep = m.x.copy(), m.v.copy()
-        keep = (m.act[0].copy(), self._prestrain, self._ramp, self._energy_ref)
+        keep = self._keep()
         steps, status = self._integrate(n)
-        problem = None
-        if status != dyn.OK:
-            problem = ('state', dyn.STATUS_TEXT[status])
-        else:
-            err = self.constraint_error()
-            e = self.energy()
-            growth = (e - self._energy_ref) / max(abs(self._energy_ref), 1e-300)
-            if not err <= self.div['constraint_error']:
-                problem = ('constraint error', f'{err:.3g} exceeds {self.div["constraint_error"]:g}')
-            elif not growth <= self.div['energy_growth']:
-                problem = ('energy', f'grew by {growth:.3g} (relative), limit '
-                                     f'{self.div["energy_growth"]:g}')
+        problem = self._check(status)
         if problem is not None:
-            m.x[:], m.v[:] = x_keep, v_keep
-            m.act[0][:] = keep[0]
-            self._prestrain, self._ramp, self._energy_ref = keep[1:]
-            raise SimulationDiverged(self.t + steps * self.dt, self.step + steps, problem[0],
-                                     problem[1], 'try a smaller integrator.dt or another method')
+            self._restore(keep)
+            raise self._locate(n, keep, problem)
         self.t += n * self.dt
         self.step += n
         self.steps_taken += steps
         return steps
+
+    # -- divergence detection -------------------------------------------------------------------
+    def _keep(self):
+        m = self.model
+        return (m.x.copy(), m.v.copy(), m.act[0].copy(), self._prestrain, self._ramp,
+                self._energy_ref, self.integrator.get_state())
+
+    def _restore(self, keep):
+        m = self.model
+        m.x[:], m.v[:], m.act[0][:] = keep[:3]
+        self._prestrain, self._ramp, self._energy_ref = keep[3:6]
+        self.integrator.set_state(keep[6])
+
+    def _check(self, status):
+        """``(quantity, detail, hint)`` of the first failed divergence check of the current state
+        after an integrator ``status``, or None when the state is sound."""
+        if status != dyn.OK:
+            quantity, hint = STATUS_DIAGNOSIS.get(status, ('state', HINT_STEP))
+            return quantity, integrators.status_text(status), hint
+        x, v = self.model.positions(), self.model.velocities()
+        if not (np.all(np.isfinite(x)) and np.all(np.isfinite(v))):
+            return 'state', 'non-finite positions or velocities', HINT_STEP
+        err = self.constraint_error()
+        if not err <= self.div['constraint_error']:
+            return ('constraint error', f'{err:.3g} exceeds {self.div["constraint_error"]:g}',
+                    HINT_CONSTRAINT)
+        e = self.energy()
+        growth = (e - self._energy_ref) / max(abs(self._energy_ref), 1e-300)
+        if not growth <= self.div['energy_growth']:
+            return ('energy', f'grew by {growth:.3g} (relative), limit '
+                              f'{self.div["energy_growth"]:g}', HINT_ENERGY)
+        net = self.network
+        if net.levels.size:
+            h = observables.prism_heights(x, net.levels)
+            if not np.all(h > 0.0):
+                c, i = np.unravel_index(int(np.argmin(np.where(np.isfinite(h), h, -np.inf))),
+                                        h.shape)
+                return ('prism height', f'prism {i} of column {c} collapsed (height '
+                                        f'{h[c, i]:.3g} m)', HINT_SLACK)
+        return None
+
+    def _locate(self, n, keep, problem):
+        """The :class:`SimulationDiverged` of an interval of ``n`` steps that failed with
+        ``problem``: replays it one step at a time from ``keep`` to name the first failing step
+        (the state is restored afterwards)."""
+        t0 = self.t
+        k_fail, found = n - 1, problem
+        try:
+            for k in range(n):
+                self.t = t0 + k * self.dt
+                _, status = self._integrate(1)
+                p = self._check(status)
+                if p is not None:
+                    k_fail, found = k, p
+                    break
+        finally:
+            self.t = t0
+            self._restore(keep)
+        quantity, detail, hint = found
+        return SimulationDiverged(t0 + (k_fail + 1) * self.dt, self.step + k_fail + 1, quantity,
+                                  detail, hint)
 
     def frame(self):
         """A copied :class:`Frame` of the current state."""
@@ -289,6 +413,6 @@ class Simulation:
         strain = (observables.prism_strains(x, net.levels, net.h0) if net.levels.size
                   else np.zeros((0, 0)))
         return Frame(t=self.t, step=self.step, positions=x, strain=strain,
-                     tension=observables.cable_tensions(x, net, self.model.act[0],
-                                                        self.model.act[1]),
+                     tension=observables.cable_tensions(x, net, self.model.cable_rest_length,
+                                                        self.model.cable_EA),
                      energy=self.energy(), constraint_error=self.constraint_error())
