@@ -153,10 +153,31 @@ def cmd_replay(args):
             print(f'{args.log}: {n} messages -> {args.to_rerun}')
             return 0
         ros_args = ['--ros-args', *args.ros_args] if args.ros_args else None
-        replay_main(args.log, rate=args.rate, loop=args.loop, delay_s=args.delay, args=ros_args,
-                    wait_s=args.wait)
+        n, truncated = replay_main(args.log, rate=args.rate, loop=args.loop, delay_s=args.delay,
+                                   args=ros_args, wait_s=args.wait)
+        print(f'{args.log}: replayed {n} messages'
+              + (' (file cut short: read up to its last complete chunk)' if truncated else ''),
+              file=sys.stderr)
     except (LogError, ReplayError) as exc:
         raise UserError(str(exc)) from None
+    return 0
+
+
+def cmd_paper(args):
+    """``tensegrity paper``: the paper's table under every modelling variant (solver.paper)."""
+    from solver import paper
+    models = ('sym3d',) if args.no_chain else ('sym3d', 'chain1d')
+    v0s = paper.V0S[:1] if args.quick else paper.V0S
+    update, close = _progress(paper.n_runs(v0s, models), 'paper')
+    try:
+        result = paper.paper_table(v0s=v0s, t_end=0.6 if args.quick else 1.2, models=models,
+                                   progress=update, quick=args.quick)
+    finally:
+        close()
+    if args.json:
+        print(json.dumps(paper.as_json(result)))
+    else:
+        print(paper.format_table(result, markdown=args.markdown))
     return 0
 
 
@@ -233,6 +254,13 @@ def build_parser():
     p.add_argument('--only', action='append', choices=('work_precision', 'stability', 'peers'),
                    help='run only this benchmark (repeatable)')
     p.set_defaults(func=cmd_bench)
+    p = sub.add_parser('paper', help="the paper's table (FB and RB, v0 = 0.1, 0.125, 0.15) "
+                       'under every modelling variant, next to the paper\'s FB values')
+    p.add_argument('--json', action='store_true', help='print one JSON object')
+    p.add_argument('--markdown', action='store_true', help='print the table as Markdown')
+    p.add_argument('--quick', action='store_true', help='v0 = 0.1 only, 0.6 s (smoke run)')
+    p.add_argument('--no-chain', action='store_true', help='skip the chain1d rows')
+    p.set_defaults(func=cmd_paper)
     p = sub.add_parser('node', help='the ROS 2 node tensegrity_sim (as tensegrity_node)')
     p.add_argument('--ros-args', dest='ros_args', nargs=argparse.REMAINDER,
                    help='ROS arguments: --ros-args -p NAME:=VALUE --params-file config/node.yaml')

@@ -178,28 +178,26 @@ class Replayer:
 
 
 def replay_main(path, rate=1.0, loop=False, delay_s=0.5, clock=True, args=None, wait_s=0.0):
-    """``tensegrity replay``: init rclpy, play, shut down. Returns the messages published."""
+    """``tensegrity replay``: init rclpy, play, shut down. Returns (messages published, whether
+    the file was truncated)."""
     import rclpy
     from rclpy.executors import ExternalShutdownException
     McapLog(path)                         # clear errors before starting ROS
     check_options(rate, delay_s, wait_s)
     rclpy.init(args=args)
-    node = None
+    node = player = None
     try:
         node = rclpy.create_node('tensegrity_replay')
         player = Replayer(node, path, rate=rate, clock=clock, delay_s=delay_s, wait_s=wait_s)
-        n = player.play(loop=loop, should_stop=lambda: not rclpy.ok())
-        node.get_logger().info(f'replayed {player.published} messages from {path}'
-                               + (' (file truncated: read up to its last complete chunk)'
-                                  if player.truncated else ''))
-        return n
+        player.play(loop=loop, should_stop=lambda: not rclpy.ok())
     except (KeyboardInterrupt, ExternalShutdownException):
-        return 0
+        pass
     finally:
         if node is not None:
             node.destroy_node()
         if rclpy.ok():
             rclpy.shutdown()
+    return (player.published, player.truncated) if player is not None else (0, False)
 
 
 def _diag_values(msg):
