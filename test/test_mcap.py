@@ -188,6 +188,9 @@ def test_bad_input_is_one_clear_error(tmp_path):
         load_run(tmp_path / 'junk.mcap')
     with pytest.raises(RecordingError, match='compression'):
         McapRecorder(tmp_path / 'x.mcap', compression='rar')
+    (tmp_path / 'file').write_text('')
+    with pytest.raises(RecordingError, match='cannot write MCAP file'):
+        McapRecorder(tmp_path / 'file' / 'x.mcap')
     with McapRecorder(tmp_path / 'neg.mcap') as rec:
         with pytest.raises(RecordingError, match='negative stamp'):
             rec.write('/x', M.command_array([1.0], 'all'), -5)
