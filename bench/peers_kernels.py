@@ -1,6 +1,6 @@
 """The kernel bound of ``tensegrity bench --peers``: kernels timed in numba loops (no Python).
 
-``profile(model, dt, evaluations_per_step)`` times, at the model's current state, one force-and-
+``profile(model, dt)`` times, at the model's current state, one force-and-
 constraint evaluation (:func:`solver.dynamics.accelerations`) and the other per-step kernels of the
 projected Runge-Kutta methods (kink prediction, position and velocity projection), each as the
 mean over a jitted loop of ``n`` calls, so that no interpreter overhead is included.
@@ -67,11 +67,11 @@ def _timed(fn, *args, n):
     return best
 
 
-def profile(model, dt, evaluations_per_step, n=2000, tol=1e-12, max_iter=3):
+def profile(model, dt, n=2000, tol=1e-12, max_iter=3):
     """Seconds per call of each per-step kernel at the model's state (best of 3 loops of ``n``).
 
     Returns ``{'accelerations': s, 'next_kink': s, 'project_positions': s,
-    'project_velocities': s, 'kernel_bound_step': evaluations_per_step * accelerations}``. The
+    'project_velocities': s}`` (``accelerations`` is one force-and-constraint evaluation). The
     projections are timed from a state pushed off the constraint manifold by one explicit Euler
     step of ``dt`` (what they see after a Runge-Kutta step); the copy that restores it is
     subtracted. Raises ``TypeError`` for a model without the ``(net, act, ws)`` kernel tuples."""
@@ -90,8 +90,7 @@ def profile(model, dt, evaluations_per_step, n=2000, tol=1e-12, max_iter=3):
     t_pp = _timed(_loop_project_positions, x_off, xs, net, ws, tol, max_iter, n=n) - t_copy
     t_pv = _timed(_loop_project_velocities, x, v_off, xs, net, ws, n=n) - t_copy
     return {'accelerations': t_acc, 'next_kink': t_kink, 'project_positions': max(t_pp, 0.0),
-            'project_velocities': max(t_pv, 0.0),
-            'kernel_bound_step': evaluations_per_step * t_acc}
+            'project_velocities': max(t_pv, 0.0)}
 
 
 def advance_profile(sim, duration, output_dt, top=8):

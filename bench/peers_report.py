@@ -64,7 +64,8 @@ def _peer(r, t_end, pulse_fn, times, h0, pulse_ref):
     out = {'knob': r['knob'], 'value': r['value'], 'strain_error': r['error'],
            'met_target': bool(r.get('met', True)), 'wall_s': r['wall_s'],
            'real_time_factor': t_end / r['wall_s'] if r['wall_s'] else None,
-           'steps': r.get('steps'), 'evaluations': r.get('evaluations')}
+           'steps': r.get('steps'), 'evaluations': r.get('evaluations'),
+           'walls_s': r.get('walls_s', [r['wall_s']])}
     if r.get('eps') is not None:
         p = pulse_fn(r['eps'], times[:len(r['eps'])], h0)
         out['pulse'] = p
@@ -196,10 +197,12 @@ def table(res):
     lines.append('')
     k = res.get('kernel')
     if k:
+        alone = k['integrator_only_time_per_step_s'] * 1e6
         lines.append(f"- per step ({k['configuration']}): {k['time_per_step_s'] * 1e6:.1f} us "
-                     f"through Simulation.advance, {k['integrator_only_time_per_step_s'] * 1e6:.1f}"
-                     f" us integrator alone, kernel bound {k['kernel_bound_step'] * 1e6:.1f} us "
-                     f"({k['evaluations_per_step']} x {k['accelerations'] * 1e6:.2f} us)")
+                     f"through Simulation.advance, {alone:.1f} us integrator alone, "
+                     f"kernel bound {k['kernel_bound_step'] * 1e6:.1f} us "
+                     f"({k['evaluations_per_step']} x {k['accelerations'] * 1e6:.2f} us per "
+                     f"evaluation + {', '.join(k['parts_in_step'][1:]) or 'nothing else'})")
         lines.append('- where a step goes: ' + ', '.join(
             f'{name} {frac:.0%}' for name, frac in k['profile_fraction_of_step'].items()))
         lines.append(f"- real time factor of the integrator alone: "
