@@ -22,7 +22,7 @@ Force laws (:class:`PrismLaw`):
   energy plus the base-cable energy the prism carries (an interior base cable shared by two prisms
   counts half for each), with the bar length fixed. Precomputed once per model on a grid of h
   (golden-section search in phi, vectorised over the grid), F by the envelope theorem
-  (``-dE/dh`` at fixed r) and interpolated by a cubic spline; E is the exact antiderivative of that
+  (:func:`envelope_force`) and interpolated by a cubic spline; E is the exact antiderivative of that
   spline, so forces and energy agree. Leaving the table's h range stops the run with a clear error.
 
 Integration: velocity Verlet with ``n_sub`` sub-steps per step (symplectic; cheap, 1D).
@@ -128,15 +128,26 @@ def minimise_energy(h, b, cross, bases, iters=90):
     return e, phi, r
 
 
-def envelope_force(h, r, phi, cross):
-    """``F = -dE/dh`` N at fixed base radius r (envelope theorem at the minimiser)."""
+def envelope_force(h, r, phi, cross, bases):
+    """``F = -dE/dh`` N at the minimiser (envelope theorem). Where the minimum is interior in the
+    radius (twist below 180 deg) the partial derivative is taken at fixed radius (the twist
+    follows the bar length): it is insensitive to the minimiser's error in phi. At 180 deg (cross
+    cables slack, the radius at the end of its range) it is taken at fixed twist, the radius
+    following ``r^2 = (b^2 - h^2) / (2 (1 - cos phi))``: the minimum in phi is interior there."""
     s = cross_length(h, r, phi)
+    folded = phi > math.pi - 1e-7
     with np.errstate(divide='ignore', invalid='ignore'):
-        ds = h * (1.0 - np.sin(phi - 2.0 * math.pi / 3.0) / np.sin(phi)) / s
-    f = 0.0
+        ds_r = h * (1.0 - np.sin(phi - 2.0 * math.pi / 3.0) / np.sin(phi)) / s   # fixed r
+    dr = np.where(folded, -h / (2.0 * (1.0 - np.cos(phi)) * r), 0.0)         # fixed phi
+    ds_phi = (2.0 * r * (1.0 - np.cos(phi - 2.0 * math.pi / 3.0)) * dr + h) / s
+    ds = np.where(folded, ds_phi, ds_r)
+    de = 0.0
     for k, L in cross:
-        f = f - k * np.maximum(s - L, 0.0) * ds
-    return f
+        de = de + k * np.maximum(s - L, 0.0) * ds
+    side = math.sqrt(3.0) * r
+    for wgt, k, L in bases:
+        de = de + wgt * k * np.maximum(side - L, 0.0) * math.sqrt(3.0) * dr
+    return -de
 
 
 def table_law(h0, b, cross, bases, lo_frac=0.02, hi_frac=1.5, n=2001):
@@ -144,7 +155,7 @@ def table_law(h0, b, cross, bases, lo_frac=0.02, hi_frac=1.5, n=2001):
     hi = min(hi_frac * h0, 0.999 * b)
     grid = np.linspace(lo_frac * h0, hi, n)
     _, phi, r = minimise_energy(grid, b, cross, bases)
-    F = envelope_force(grid, r, phi, cross)
+    F = envelope_force(grid, r, phi, cross, bases)
     spl = CubicSpline(grid, F)
     anti = spl.antiderivative()          # E(h) = E(grid[0]) - int F
     e0 = float(minimise_energy(np.array([grid[0]]), b, cross, bases)[0][0])
@@ -313,6 +324,7 @@ class Chain1D:
             self.law = PrismLaw(kind=0, rigid=np.array([self.r0, self.b, L_s, k_s,
                                                         float(len(self.cross)), h_lock]))
             self.h_lock = h_lock
+            self.cross_length0 = float(cross_length(self.h0, self.r0, abs(meta['twist'])))
         else:
             self.law = table_law(self.h0, self.b, self.cross, self.bases)
             self.h_lock = None

@@ -6,7 +6,12 @@ network's node positions (for frames, messages and recordings):
 - ``x``, ``v``: the model's state arrays (``(n, 3)`` float64), advanced in place by the integrator;
 - ``net``, ``act``, ``ws``: the kernel tuples of :mod:`solver.dynamics`;
 - ``positions()`` / ``velocities()``: full (n_nodes, 3) arrays of the network;
-- ``set_state(x_full, v_full)``: load a full state.
+- ``set_state(x_full, v_full)``: load a full state;
+- ``cable_rest_length``, ``cable_EA`` (full (n_cables,) arrays) and ``set_cables(rest, EA)``.
+
+``sym3d`` (:mod:`solver.sym3d`) raises :class:`~solver.sym3d.NotSymmetric` from ``set_state`` or
+``set_cables`` when given an asymmetric state; the simulation then expands the run to ``full3d``
+(:func:`expand`). ``chain1d`` (:mod:`solver.chain1d`) has its own state and ``advance``.
 
 To add a model: subclass :class:`Model`, add it to :data:`MODELS`, and teach :func:`choose` when
 ``model: auto`` may pick it (only when it is exact for the scene).
@@ -60,14 +65,63 @@ class Full3D(Model):
         self.x[:] = x
         self.v[:] = v
 
+    def set_cables(self, rest, EA):
+        """Load (n_cables,) rest lengths m and EA N."""
+        self.act[0][:] = rest
+        self.act[1][:] = EA
 
-MODELS = {cls.name: cls for cls in (Full3D,)}
+
+from . import chain1d, integrators  # noqa: E402
+from .chain1d import Chain1D  # noqa: E402
+from .sym3d import NotSymmetric, Sym3D, reduce_network  # noqa: E402
+
+MODELS = {cls.name: cls for cls in (Full3D, Sym3D, Chain1D)}
+
+CHAIN_CANNOT_RAMP = 21
+STATUS_TEXT = {CHAIN_CANNOT_RAMP: 'chain1d cannot follow a prestrain ramp (its force law is '
+                                  'precomputed for the scene)'}
+STATUS_TEXT.update(chain1d.STATUS_TEXT)
+STATUS_TEXT.pop(dyn.NONFINITE, None)
+dyn.STATUS_TEXT.update(STATUS_TEXT)             # so that Simulation names these statuses
+if hasattr(integrators, 'STATUS_TEXT'):
+    integrators.STATUS_TEXT.update(STATUS_TEXT)
+
+
+def symmetric_loading(scene_data):
+    """Whether the scene's loading keeps the 3-fold symmetry about z: gravity acts along z and every
+    impact is axial on a whole level (always true for the loads a scene can describe); returns
+    (bool, reason)."""
+    return True, 'axial impact on whole levels, gravity along z'
 
 
 def choose(requested, network, scene_data):
-    """The model class for a scene. ``auto`` picks the cheapest exact model; until the reduced models
-    exist that is ``full3d``."""
-    name = 'full3d' if requested == 'auto' else requested
-    if name not in MODELS:
-        raise ValueError(f'model {name!r} is not available; available: {", ".join(sorted(MODELS))}')
-    return MODELS[name]
+    """The model class for a scene. ``auto`` picks the cheapest exact model: ``sym3d`` when the
+    network is 3-fold symmetric about z (structure, materials, supports) and the loading is too,
+    ``full3d`` otherwise. ``chain1d`` is an approximation and is used only when asked for."""
+    if requested == 'auto':
+        ok, _ = symmetric_loading(scene_data)
+        if ok:
+            try:
+                reduce_network(network)
+                return Sym3D
+            except NotSymmetric:
+                pass
+        return Full3D
+    if requested not in MODELS:
+        raise ValueError(f'model {requested!r} is not available; available: '
+                         f'{", ".join(sorted(MODELS))}')
+    if requested == 'sym3d':
+        try:
+            reduce_network(network)
+        except NotSymmetric as exc:
+            raise ValueError(f'model sym3d: {exc}') from None
+    return MODELS[requested]
+
+
+def expand(model, f_ext=None):
+    """A :class:`Full3D` model holding the state and cables of ``model`` (no jump: the full state
+    is the symmetric expansion of the reduced one)."""
+    full = Full3D(model.network, f_ext=f_ext)
+    full.set_state(model.positions(), model.velocities())
+    full.set_cables(model.cable_rest_length, model.cable_EA)
+    return full

@@ -24,25 +24,6 @@ from .scene import RANGES, Scene
 PRESTRAIN_RANGE = RANGES['prestrain']     # (lower, upper, lower inclusive): 0 < p <= 0.5
 
 
-HINT_STEP = 'try a smaller integrator.dt or another method (e.g. integrator=dopri54_projected)'
-HINT_CONSTRAINT = ('use a projected method (rk4_projected, rattle, dopri54_projected) or a smaller '
-                   'integrator.dt')
-HINT_ENERGY = 'try a smaller integrator.dt or another method (rattle, dopri54_projected)'
-HINT_SLACK = ('cables went slack and the prism collapsed: raise the prestrain or lower the impact '
-              'velocity')
-STATUS_DIAGNOSIS = {
-    dyn.SINGULAR: ('rigid members', 'rigid members became degenerate (e.g. a rigid-base prism '
-                   'driven through its lock by a fast impact): lower the impact velocity or try a '
-                   'smaller integrator.dt'),
-    dyn.NONFINITE: ('state', HINT_STEP),
-    dyn.NOT_CONVERGED: ('constraint projection', 'try a smaller integrator.dt or a larger '
-                        'integrator.projection_max_iter'),
-    integrators.STEP_TOO_SMALL: ('step size', 'the motion is too stiff or singular to resolve '
-                                 '(rigid-base lock, collapsed prism?): lower the impact velocity '
-                                 'or loosen integrator.rtol'),
-}
-
-
 class SimulationDiverged(RuntimeError):
     """The run stopped itself: ``t`` s, ``step``, the ``quantity`` that failed and a ``hint``."""
 
@@ -101,7 +82,7 @@ class Simulation:
         self.model = self._model_cls(self.network, f_ext=f_ext)
         self.expanded = None            # why a sym3d run was expanded to full3d, if it was
         it = scene['integrator']
-        self.integrator = integrators.get(it['method'], rtol=it['rtol'], atol=it['atol'])
+        self.integrator = integrators.get(it['method'])
         self.dt = it['dt']
         self.tol = it['projection_tol']
         self.max_iter = it['projection_max_iter']
@@ -121,7 +102,6 @@ class Simulation:
         self.t = 0.0
         self.step = 0
         self.steps_taken = 0
-        self.integrator.reset()
         self._prestrain_map = None
         self._prestrain = None          # (n_columns, n_prisms) current cross prestrain, or None
         self._ramp = None               # (t0, duration, p_start, p_target) of a prestrain ramp
@@ -334,77 +314,32 @@ class Simulation:
         n = max(int(round(duration / self.dt)), 0)
         if n == 0:
             return 0
-        keep = self._keep()
+        m = self.model
+        x_keep, v_keep = m.x.copy(), m.v.copy()
+        keep = (m.act[0].copy(), self._prestrain, self._ramp, self._energy_ref)
         steps, status = self._integrate(n)
-        problem = self._check(status)
+        problem = None
+        if status != dyn.OK:
+            problem = ('state', dyn.STATUS_TEXT[status])
+        else:
+            err = self.constraint_error()
+            e = self.energy()
+            growth = (e - self._energy_ref) / max(abs(self._energy_ref), 1e-300)
+            if not err <= self.div['constraint_error']:
+                problem = ('constraint error', f'{err:.3g} exceeds {self.div["constraint_error"]:g}')
+            elif not growth <= self.div['energy_growth']:
+                problem = ('energy', f'grew by {growth:.3g} (relative), limit '
+                                     f'{self.div["energy_growth"]:g}')
         if problem is not None:
-            self._restore(keep)
-            raise self._locate(n, keep, problem)
+            m.x[:], m.v[:] = x_keep, v_keep
+            m.act[0][:] = keep[0]
+            self._prestrain, self._ramp, self._energy_ref = keep[1:]
+            raise SimulationDiverged(self.t + steps * self.dt, self.step + steps, problem[0],
+                                     problem[1], 'try a smaller integrator.dt or another method')
         self.t += n * self.dt
         self.step += n
         self.steps_taken += steps
         return steps
-
-    # -- divergence detection -------------------------------------------------------------------
-    def _keep(self):
-        m = self.model
-        return (m.x.copy(), m.v.copy(), m.act[0].copy(), self._prestrain, self._ramp,
-                self._energy_ref, self.integrator.get_state())
-
-    def _restore(self, keep):
-        m = self.model
-        m.x[:], m.v[:], m.act[0][:] = keep[:3]
-        self._prestrain, self._ramp, self._energy_ref = keep[3:6]
-        self.integrator.set_state(keep[6])
-
-    def _check(self, status):
-        """``(quantity, detail, hint)`` of the first failed divergence check of the current state
-        after an integrator ``status``, or None when the state is sound."""
-        if status != dyn.OK:
-            quantity, hint = STATUS_DIAGNOSIS.get(status, ('state', HINT_STEP))
-            return quantity, integrators.status_text(status), hint
-        x, v = self.model.positions(), self.model.velocities()
-        if not (np.all(np.isfinite(x)) and np.all(np.isfinite(v))):
-            return 'state', 'non-finite positions or velocities', HINT_STEP
-        err = self.constraint_error()
-        if not err <= self.div['constraint_error']:
-            return ('constraint error', f'{err:.3g} exceeds {self.div["constraint_error"]:g}',
-                    HINT_CONSTRAINT)
-        e = self.energy()
-        growth = (e - self._energy_ref) / max(abs(self._energy_ref), 1e-300)
-        if not growth <= self.div['energy_growth']:
-            return ('energy', f'grew by {growth:.3g} (relative), limit '
-                              f'{self.div["energy_growth"]:g}', HINT_ENERGY)
-        net = self.network
-        if net.levels.size:
-            h = observables.prism_heights(x, net.levels)
-            if not np.all(h > 0.0):
-                c, i = np.unravel_index(int(np.argmin(np.where(np.isfinite(h), h, -np.inf))),
-                                        h.shape)
-                return ('prism height', f'prism {i} of column {c} collapsed (height '
-                                        f'{h[c, i]:.3g} m)', HINT_SLACK)
-        return None
-
-    def _locate(self, n, keep, problem):
-        """The :class:`SimulationDiverged` of an interval of ``n`` steps that failed with
-        ``problem``: replays it one step at a time from ``keep`` to name the first failing step
-        (the state is restored afterwards)."""
-        t0 = self.t
-        k_fail, found = n - 1, problem
-        try:
-            for k in range(n):
-                self.t = t0 + k * self.dt
-                _, status = self._integrate(1)
-                p = self._check(status)
-                if p is not None:
-                    k_fail, found = k, p
-                    break
-        finally:
-            self.t = t0
-            self._restore(keep)
-        quantity, detail, hint = found
-        return SimulationDiverged(t0 + (k_fail + 1) * self.dt, self.step + k_fail + 1, quantity,
-                                  detail, hint)
 
     def frame(self):
         """A copied :class:`Frame` of the current state."""

@@ -47,7 +47,7 @@ def test_graded_prestrain_keeps_reference_equilibrium(scene, sets):
     rng = np.random.default_rng(3)
     p = rng.uniform(0.0005, 0.01, size=(net.n_columns, net.n_prisms))
     sim.apply_prestrain(p)
-    rest, EA = sim.model.act[0], sim.model.act[1]
+    rest, EA = sim.model.cable_rest_length, sim.model.cable_EA
     a, _, _ = accelerations(np.array(net.x0), np.zeros_like(net.x0), net, rest, EA)
     assert np.abs(a).max() < 1e-10                     # physics.md section 7, check 1
     if scene == 'fb_column.yaml' and not sets:

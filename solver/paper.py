@@ -1,0 +1,296 @@
+"""The paper's table under every modelling variant a scene supports (``tensegrity paper``).
+
+Fabbrocino & Carpentieri (2017) report, for the 50-prism column with flexible bases (FB) at cross
+prestrain 0.002, the leading-pulse amplitude and speed at v0 = 0.100, 0.125, 0.150 m/s
+(physics.md section 5). Their modelling choices are partly unstated; this module runs every variant
+the scenes can express, each from a stated model and nothing else:
+
+- bases: FB (ordinary base cables) or RB (rigid bases), RB as rigid edges or as stiff cables
+  (``kappa`` x EA);
+- stacking: shared base cables (interior ones carry two prisms' self-stress) or two parallel cables
+  per interior side (one per prism);
+- impact initial condition: ``impulse`` (velocity jump projected on the constraints) or ``energy``
+  (projected, then rescaled to ``3 m v0^2 / 2``);
+- model: ``sym3d`` (exact, equal to ``full3d`` on these symmetric scenes) and ``chain1d`` (the
+  quasi-static 1D chain, an approximation whose error against the 3D model is measured here).
+
+Also measured in the same run: the ``full3d`` / ``sym3d`` wall-time ratio (side by side, same
+process) and their agreement. Pure solver code: no ROS, no printing (the CLI formats).
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from . import observables
+from .runner import run
+from .scene import Scene
+from .simulation import Simulation, SimulationDiverged
+
+SCENES = Path(__file__).resolve().parent.parent / 'config' / 'scenes'
+V0S = (0.100, 0.125, 0.150)
+PAPER_FB = {0.100: {'amplitude': 0.054, 'speed_m_s': 0.248},
+            0.125: {'amplitude': 0.0697, 'speed_m_s': None},
+            0.150: {'amplitude': 0.085, 'speed_m_s': 0.372}}
+DEFAULT_VARIANT = {'stacking': 'shared', 'impact': 'impulse', 'rigid_bases_as': 'edges'}
+
+
+@dataclass
+class Variant:
+    """One modelling variant of one column (``bases`` 'flexible' or 'rigid')."""
+    bases: str
+    stacking: str
+    rigid_bases_as: str
+    impact: str
+    model: str
+
+    @property
+    def column(self):
+        return 'FB' if self.bases == 'flexible' else 'RB'
+
+    def label(self):
+        parts = [self.column, self.stacking if self.uses_stacking else '-']
+        if self.bases == 'rigid':
+            parts.append(self.rigid_bases_as)
+        parts += [self.impact, self.model]
+        return ' '.join(parts)
+
+    @property
+    def uses_stacking(self):
+        return not (self.bases == 'rigid' and self.rigid_bases_as == 'edges')
+
+    def overrides(self, v0, t_end):
+        sets = [f'structure.bases={self.bases}', f'structure.stacking={self.stacking}',
+                f'structure.rigid_bases_as={self.rigid_bases_as}',
+                f'loading.impact.mode={self.impact}', f'loading.impact.v0={v0}',
+                f'model={self.model}', f'run.t_end={t_end}']
+        if self.bases == 'rigid' and self.rigid_bases_as == 'stiff_cables':
+            sets.append('integrator.dt=1e-4')   # stiff base cables: keep the step well resolved
+        return sets
+
+
+@dataclass
+class Row:
+    """Figures of one run (physics.md section 4); ``status`` 'ok' or why the run stopped."""
+    variant: dict
+    label: str
+    v0: float
+    amplitude: float = math.nan
+    amplitude_median: float = math.nan
+    speed_m_s: float = math.nan
+    width_prisms: int = 0
+    arrival_time_s: float = math.nan
+    ke_fraction: float = math.nan
+    wall_time_s: float = 0.0
+    status: str = 'ok'
+    paper: dict = field(default_factory=dict)
+    chain_error: dict = field(default_factory=dict)
+
+
+def variants(models=('sym3d', 'chain1d')):
+    """Every variant the FB and RB scenes support; chain1d once per structure (its impact has no
+    constraint to project, so the impulse and energy modes coincide)."""
+    out = []
+    structures = [('flexible', 'shared', 'edges'), ('flexible', 'parallel', 'edges'),
+                  ('rigid', 'shared', 'edges'), ('rigid', 'shared', 'stiff_cables'),
+                  ('rigid', 'parallel', 'stiff_cables')]
+    for bases, stacking, rb_as in structures:
+        for model in models:
+            impacts = ('impulse',) if model == 'chain1d' else ('impulse', 'energy')
+            for impact in impacts:
+                out.append(Variant(bases, stacking, rb_as, impact, model))
+    return out
+
+
+def run_variant(variant, v0, t_end=1.2, output_dt=0.005):
+    """One :class:`Row`: the variant's scene, impact v0, run to ``t_end``."""
+    path = SCENES / ('fb_column.yaml' if variant.bases == 'flexible' else 'rb_column.yaml')
+    scene = Scene.load(path).with_overrides(variant.overrides(v0, t_end))
+    row = Row(variant=asdict(variant), label=variant.label(), v0=v0)
+    if variant.bases == 'flexible':
+        row.paper = dict(PAPER_FB[v0])
+    sim = Simulation(scene)
+    sim.advance(sim.dt)          # compile (or load) kernels outside the timing
+    sim.reset()
+    m_node = float(np.mean(sim.network.node_mass))
+    added = sim.apply_impact(v0)
+    row.ke_fraction = added / (1.5 * m_node * v0 ** 2)
+    t0 = time.perf_counter()
+    try:
+        rec = run(sim, t_end, output_dt)
+    except SimulationDiverged as exc:
+        row.status = str(exc)
+        row.wall_time_s = time.perf_counter() - t0
+        return row
+    row.wall_time_s = rec.wall_time_s
+    p = first_passage(rec.times, rec.strain[:, 0], sim.network.h0)
+    row.amplitude, row.amplitude_median = p.amplitude, p.amplitude_median
+    row.speed_m_s, row.width_prisms, row.arrival_time_s = p.speed_m_s, p.width_prisms, \
+        p.arrival_time_s
+    return row
+
+
+def first_passage(times, strain, h0, t_ref=0.5):
+    """:func:`~solver.observables.track_pulse` on the history up to the time the leading peak
+    first reaches the clamped end (``n_prisms - 2`` prisms from the impact), so that a reflected
+    wave never enters the speed fit; amplitude and width at ``t_ref`` are NaN / 0 when the pulse
+    has already reached the end by then. ``strain`` (n_t, n_prisms) of one column."""
+    n = strain.shape[1]
+    end = len(times)
+    for k in range(len(times)):
+        pos, _ = observables.leading_peak(strain[k, ::-1])
+        if math.isfinite(pos) and pos >= n - 2:
+            end = k + 1
+            break
+    p = observables.track_pulse(times[:end], strain[:end], h0, t_ref=t_ref)
+    if times[end - 1] < t_ref - 1e-9:
+        p.amplitude, p.width_prisms = math.nan, 0
+    return p
+
+
+def chain_errors(rows):
+    """Attach to each chain1d row its error against the sym3d row of the same structure, impulse
+    impact and v0: amplitude and speed ratios, arrival-time difference (s)."""
+    ref = {}
+    for r in rows:
+        v = r.variant
+        if v['model'] == 'sym3d' and v['impact'] == 'impulse':
+            ref[(v['bases'], v['stacking'], v['rigid_bases_as'], r.v0)] = r
+    for r in rows:
+        v = r.variant
+        if v['model'] != 'chain1d':
+            continue
+        s = ref.get((v['bases'], v['stacking'], v['rigid_bases_as'], r.v0))
+        if s is None:
+            continue
+
+        def ratio(a, b):
+            return a / b if (math.isfinite(a) and math.isfinite(b) and b != 0) else math.nan
+        r.chain_error = {
+            'amplitude_ratio': ratio(r.amplitude_median, s.amplitude_median),
+            'speed_ratio': ratio(r.speed_m_s, s.speed_m_s),
+            'arrival_time_diff_s': (r.arrival_time_s - s.arrival_time_s
+                                    if math.isfinite(r.arrival_time_s)
+                                    and math.isfinite(s.arrival_time_s) else math.nan),
+            'reference': s.label}
+    return rows
+
+
+def speed_ratio(v0=0.1, t_end=1.2, repeats=2):
+    """Wall time of ``full3d`` over ``sym3d`` on the FB and RB columns (rk4_projected, default
+    dt), measured alternately in this process (best of ``repeats``), and the largest relative
+    difference of their node positions at ``t_end``."""
+    out = {}
+    for name in ('fb_column', 'rb_column'):
+        scene = Scene.load(SCENES / f'{name}.yaml').with_overrides([f'run.t_end={t_end}'])
+        best, pos = {}, {}
+        for _ in range(repeats):
+            for model in ('full3d', 'sym3d'):
+                sim = Simulation(scene.with_overrides([f'model={model}']))
+                sim.advance(sim.dt)
+                sim.reset()
+                sim.apply_impact(v0)
+                t0 = time.perf_counter()
+                sim.advance(t_end)
+                best[model] = min(best.get(model, math.inf), time.perf_counter() - t0)
+                pos[model] = sim.model.positions()
+        diff = float(np.max(np.abs(pos['full3d'] - pos['sym3d'])) / np.max(np.abs(pos['full3d'])))
+        out[name] = {'full3d_s': best['full3d'], 'sym3d_s': best['sym3d'],
+                     'ratio': best['full3d'] / best['sym3d'], 'max_rel_diff': diff,
+                     't_end': t_end, 'v0': v0}
+    return out
+
+
+def paper_table(v0s=V0S, t_end=1.2, models=('sym3d', 'chain1d'), progress=None, quick=False):
+    """Every variant at every v0: ``{'rows': [Row...], 'speed': {...}, 'paper_fb': ...}``.
+    ``progress(n)`` is called after each run. ``t_end`` (s) covers the pulse window (prisms 10-40
+    from the impact) and the reference time 0.5 s."""
+    rows = []
+    for variant in variants(models):
+        for v0 in v0s:
+            rows.append(run_variant(variant, v0, t_end=t_end))
+            if progress is not None:
+                progress(1)
+    chain_errors(rows)
+    speed = speed_ratio(t_end=0.2 if quick else t_end)
+    if progress is not None:
+        progress(1)
+    return {'rows': rows, 'speed': speed, 'paper_fb': PAPER_FB, 'default': DEFAULT_VARIANT,
+            't_end': t_end}
+
+
+def n_runs(v0s=V0S, models=('sym3d', 'chain1d')):
+    """Number of progress ticks of :func:`paper_table`."""
+    return len(variants(models)) * len(v0s) + 1
+
+
+def as_json(result):
+    """A JSON-ready dict (NaN -> None)."""
+    def clean(x):
+        if isinstance(x, float):
+            return x if math.isfinite(x) else None
+        if isinstance(x, dict):
+            return {str(k): clean(v) for k, v in x.items()}
+        if isinstance(x, (list, tuple)):
+            return [clean(v) for v in x]
+        return x
+    out = dict(result)
+    out['rows'] = [asdict(r) for r in result['rows']]
+    return clean(out)
+
+
+def _f(x, fmt):
+    return format(x, fmt) if isinstance(x, (int, float)) and math.isfinite(x) else '-'
+
+
+def format_table(result, markdown=False):
+    """The table as text (``markdown=True``: a Markdown table for the README)."""
+    head = ['variant', 'v0', 'KE kept', 'amp@0.5s', 'amp median', 'speed m/s', 'width',
+            'arrival s', 'paper amp', 'paper speed', 'chain/3D amp', 'chain/3D speed',
+            'chain-3D arrival s']
+    lines = []
+    for r in result['rows']:
+        ce = r.chain_error or {}
+        paper = r.paper or {}
+        if r.status != 'ok':
+            why = r.status.split(': ', 1)[-1].split(';')[0]
+            t = r.status.split('t = ')[1].split(' s')[0] if 't = ' in r.status else '?'
+            figures = [f'stopped at t = {t} s: {why}'] + [''] * 5
+        else:
+            figures = [_f(r.amplitude, '.4f'), _f(r.amplitude_median, '.4f'),
+                       _f(r.speed_m_s, '.3f'), str(r.width_prisms), _f(r.arrival_time_s, '.3f')]
+        lines.append([r.label, f'{r.v0:.3f}', _f(r.ke_fraction, '.3f')] + figures + [
+            _f(paper.get('amplitude'), '.4f'), _f(paper.get('speed_m_s'), '.3f'),
+            _f(ce.get('amplitude_ratio'), '.2f'), _f(ce.get('speed_ratio'), '.2f'),
+            _f(ce.get('arrival_time_diff_s'), '+.3f')])
+    out = []
+    if markdown:
+        out.append('| ' + ' | '.join(head) + ' |')
+        out.append('|' + '---|' * len(head))
+        for line in lines:
+            if line[3].startswith('stopped'):
+                line = line[:3] + [line[3]] + line[9:]
+                line = line[:4] + [''] * 5 + line[4:]
+            out.append('| ' + ' | '.join(line) + ' |')
+    else:
+        widths = [max(len(h), *(len(line[i]) for line in lines if not line[3].startswith('stop')
+                                or i < 3))
+                  for i, h in enumerate(head)]
+        out.append('  '.join(h.ljust(w) for h, w in zip(head, widths)))
+        for line in lines:
+            if line[3].startswith('stopped'):
+                out.append('  '.join(c.ljust(w) for c, w in zip(line[:3], widths)) + '  '
+                           + line[3])
+            else:
+                out.append('  '.join(c.ljust(w) for c, w in zip(line, widths)))
+    out.append('')
+    for name, s in result['speed'].items():
+        out.append(f"{name}: full3d {s['full3d_s']:.3f} s, sym3d {s['sym3d_s']:.3f} s wall for "
+                   f"{s['t_end']:g} s simulated (v0 = {s['v0']:g} m/s): full3d / sym3d = "
+                   f"{s['ratio']:.2f}, largest relative position difference "
+                   f"{s['max_rel_diff']:.1e}")
+    return '\n'.join(out)
