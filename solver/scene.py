@@ -54,7 +54,7 @@ DEFAULTS = {
     'integrator': {'method': 'rk4_projected', 'dt': 5e-4, 'projection_tol': 1e-12,
                    'projection_max_iter': 3, 'land_on_kinks': True, 'rtol': 1e-8, 'atol': 1e-10},
     'run': {'t_end': 1.2, 'output_dt': 0.005},
-    'divergence': {'energy_growth': 1e-3, 'constraint_error': 1e-6},
+    'divergence': {'energy_growth': 1e-3, 'constraint_error': 1e-6, 'bar_crossing': 'rigid'},
     'outputs': {'dir': None},
 }
 
@@ -66,6 +66,9 @@ CHOICES = {
     'structure.handedness': ('right', 'left'),
     'loading.impact.mode': ('impulse', 'energy'),
     'model': ('auto', 'full3d', 'sym3d', 'chain1d'),
+    # stop when a prism twists through 180 deg (its bars cross): in rigid-base columns only (the
+    # lock), in every column, or never
+    'divergence.bar_crossing': ('rigid', 'all', 'off'),
 }
 
 # (lower, upper, lower inclusive) for numbers

@@ -24,6 +24,40 @@ from .scene import RANGES, Scene
 PRESTRAIN_RANGE = RANGES['prestrain']     # (lower, upper, lower inclusive): 0 < p <= 0.5
 
 
+HINT_STEP = 'try a smaller integrator.dt or another method (e.g. integrator=dopri54_projected)'
+HINT_CONSTRAINT = ('use a projected method (rk4_projected, rattle, dopri54_projected) or a smaller '
+                   'integrator.dt')
+HINT_ENERGY = 'try a smaller integrator.dt or another method (rattle, dopri54_projected)'
+HINT_SLACK = ('cables went slack and the prism collapsed: raise the prestrain or lower the impact '
+              'velocity')
+HINT_LOCK = ('the bars of the prism crossed (past the rigid-base lock at 180 deg, or fully '
+             'untwisted): lower the impact velocity (divergence.bar_crossing=off lets bars pass '
+             'through each other)')
+STATUS_DIAGNOSIS = {
+    dyn.SINGULAR: ('rigid members', 'rigid members became degenerate (e.g. a rigid-base prism '
+                   'driven through its lock by a fast impact): lower the impact velocity or try a '
+                   'smaller integrator.dt'),
+    dyn.NONFINITE: ('state', HINT_STEP),
+    dyn.NOT_CONVERGED: ('constraint projection', 'try a smaller integrator.dt or a larger '
+                        'integrator.projection_max_iter'),
+    integrators.STEP_TOO_SMALL: ('step size', 'the motion is too stiff or singular to resolve '
+                                 '(rigid-base lock, collapsed prism?): lower the impact velocity '
+                                 'or loosen integrator.rtol'),
+}
+
+
+def prism_twists(x, levels):
+    """Relative twist (n_columns, n_prisms) rad in (-pi, pi] of the top base of each prism about its
+    bottom base (node 0 of each level about the level's centroid, in the xy plane). Its sign stays
+    that of the reference twist (+-150 deg) unless the bars cross: through 180 deg (past the
+    rigid-base lock) or through 0. ``x`` (n_nodes, 3) m, ``levels`` (n_columns, n_levels, 3)."""
+    centre = x[levels].mean(axis=2)                       # (n_columns, n_levels, 3)
+    r = x[levels[:, :, 0]] - centre
+    a, b = r[:, :-1], r[:, 1:]
+    return np.arctan2(a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0],
+                      a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1])
+
+
 class SimulationDiverged(RuntimeError):
     """The run stopped itself: ``t`` s, ``step``, the ``quantity`` that failed and a ``hint``."""
 
@@ -82,12 +116,16 @@ class Simulation:
         self.model = self._model_cls(self.network, f_ext=f_ext)
         self.expanded = None            # why a sym3d run was expanded to full3d, if it was
         it = scene['integrator']
-        self.integrator = integrators.get(it['method'])
+        self.integrator = integrators.get(it['method'], rtol=it['rtol'], atol=it['atol'])
         self.dt = it['dt']
         self.tol = it['projection_tol']
         self.max_iter = it['projection_max_iter']
         self.kinks = it['land_on_kinks']
         self.div = scene['divergence']
+        self._twist_sign = None
+        rigid = scene.data['structure'].get('bases') == 'rigid'
+        self._check_twist = self.div['bar_crossing'] == 'all' or (
+            self.div['bar_crossing'] == 'rigid' and rigid)
         self.reset()
 
     # -- state ----------------------------------------------------------------------------------
@@ -102,6 +140,7 @@ class Simulation:
         self.t = 0.0
         self.step = 0
         self.steps_taken = 0
+        self.integrator.reset()
         self._prestrain_map = None
         self._prestrain = None          # (n_columns, n_prisms) current cross prestrain, or None
         self._ramp = None               # (t0, duration, p_start, p_target) of a prestrain ramp
@@ -314,32 +353,85 @@ class Simulation:
         n = max(int(round(duration / self.dt)), 0)
         if n == 0:
             return 0
-        m = self.model
-        x_keep, v_keep = m.x.copy(), m.v.copy()
-        keep = (m.act[0].copy(), self._prestrain, self._ramp, self._energy_ref)
+        keep = self._keep()
         steps, status = self._integrate(n)
-        problem = None
-        if status != dyn.OK:
-            problem = ('state', dyn.STATUS_TEXT[status])
-        else:
-            err = self.constraint_error()
-            e = self.energy()
-            growth = (e - self._energy_ref) / max(abs(self._energy_ref), 1e-300)
-            if not err <= self.div['constraint_error']:
-                problem = ('constraint error', f'{err:.3g} exceeds {self.div["constraint_error"]:g}')
-            elif not growth <= self.div['energy_growth']:
-                problem = ('energy', f'grew by {growth:.3g} (relative), limit '
-                                     f'{self.div["energy_growth"]:g}')
+        problem = self._check(status)
         if problem is not None:
-            m.x[:], m.v[:] = x_keep, v_keep
-            m.act[0][:] = keep[0]
-            self._prestrain, self._ramp, self._energy_ref = keep[1:]
-            raise SimulationDiverged(self.t + steps * self.dt, self.step + steps, problem[0],
-                                     problem[1], 'try a smaller integrator.dt or another method')
+            self._restore(keep)
+            raise self._locate(n, keep, problem)
         self.t += n * self.dt
         self.step += n
         self.steps_taken += steps
         return steps
+
+    # -- divergence detection -------------------------------------------------------------------
+    def _keep(self):
+        m = self.model
+        return (m.x.copy(), m.v.copy(), m.act[0].copy(), self._prestrain, self._ramp,
+                self._energy_ref, self.integrator.get_state())
+
+    def _restore(self, keep):
+        m = self.model
+        m.x[:], m.v[:], m.act[0][:] = keep[:3]
+        self._prestrain, self._ramp, self._energy_ref = keep[3:6]
+        self.integrator.set_state(keep[6])
+
+    def _check(self, status):
+        """``(quantity, detail, hint)`` of the first failed divergence check of the current state
+        after an integrator ``status``, or None when the state is sound."""
+        if status != dyn.OK:
+            quantity, hint = STATUS_DIAGNOSIS.get(status, ('state', HINT_STEP))
+            return quantity, integrators.status_text(status), hint
+        x, v = self.model.positions(), self.model.velocities()
+        if not (np.all(np.isfinite(x)) and np.all(np.isfinite(v))):
+            return 'state', 'non-finite positions or velocities', HINT_STEP
+        err = self.constraint_error()
+        if not err <= self.div['constraint_error']:
+            return ('constraint error', f'{err:.3g} exceeds {self.div["constraint_error"]:g}',
+                    HINT_CONSTRAINT)
+        e = self.energy()
+        growth = (e - self._energy_ref) / max(abs(self._energy_ref), 1e-300)
+        if not growth <= self.div['energy_growth']:
+            return ('energy', f'grew by {growth:.3g} (relative), limit '
+                              f'{self.div["energy_growth"]:g}', HINT_ENERGY)
+        net = self.network
+        if net.levels.size:
+            h = observables.prism_heights(x, net.levels)
+            if not np.all(h > 0.0):
+                c, i = np.unravel_index(int(np.argmin(np.where(np.isfinite(h), h, -np.inf))),
+                                        h.shape)
+                return ('prism height', f'prism {i} of column {c} collapsed (height '
+                                        f'{h[c, i]:.3g} m)', HINT_SLACK)
+            if self._check_twist and self._twist_sign is None:
+                self._twist_sign = np.sign(prism_twists(np.asarray(net.x0), net.levels))
+            twist = prism_twists(x, net.levels) if self._check_twist else None
+            bad = None if twist is None else ~(twist * self._twist_sign > 0.0)
+            if bad is not None and np.any(bad):
+                c, i = np.argwhere(bad)[0]
+                return ('prism twist', f'prism {i} of column {c} twisted through 0 or 180 deg '
+                                       f'({math.degrees(twist[c, i]):.1f} deg)', HINT_LOCK)
+        return None
+
+    def _locate(self, n, keep, problem):
+        """The :class:`SimulationDiverged` of an interval of ``n`` steps that failed with
+        ``problem``: replays it one step at a time from ``keep`` to name the first failing step
+        (the state is restored afterwards)."""
+        t0 = self.t
+        k_fail, found = n - 1, problem
+        try:
+            for k in range(n):
+                self.t = t0 + k * self.dt
+                _, status = self._integrate(1)
+                p = self._check(status)
+                if p is not None:
+                    k_fail, found = k, p
+                    break
+        finally:
+            self.t = t0
+            self._restore(keep)
+        quantity, detail, hint = found
+        return SimulationDiverged(t0 + (k_fail + 1) * self.dt, self.step + k_fail + 1, quantity,
+                                  detail, hint)
 
     def frame(self):
         """A copied :class:`Frame` of the current state."""
