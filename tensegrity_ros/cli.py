@@ -153,8 +153,11 @@ def cmd_replay(args):
             print(f'{args.log}: {n} messages -> {args.to_rerun}')
             return 0
         ros_args = ['--ros-args', *args.ros_args] if args.ros_args else None
-        replay_main(args.log, rate=args.rate, loop=args.loop, delay_s=args.delay, args=ros_args,
-                    wait_s=args.wait)
+        n, truncated = replay_main(args.log, rate=args.rate, loop=args.loop, delay_s=args.delay,
+                                   args=ros_args, wait_s=args.wait)
+        print(f'{args.log}: replayed {n} messages'
+              + (' (file cut short: read up to its last complete chunk)' if truncated else ''),
+              file=sys.stderr)
     except (LogError, ReplayError) as exc:
         raise UserError(str(exc)) from None
     return 0
