@@ -30,6 +30,9 @@ HINT_CONSTRAINT = ('use a projected method (rk4_projected, rattle, dopri54_proje
 HINT_ENERGY = 'try a smaller integrator.dt or another method (rattle, dopri54_projected)'
 HINT_SLACK = ('cables went slack and the prism collapsed: raise the prestrain or lower the impact '
               'velocity')
+HINT_LOCK = ('the bars of the prism crossed (past the rigid-base lock at 180 deg, or fully '
+             'untwisted): lower the impact velocity (divergence.bar_crossing=off lets bars pass '
+             'through each other)')
 STATUS_DIAGNOSIS = {
     dyn.SINGULAR: ('rigid members', 'rigid members became degenerate (e.g. a rigid-base prism '
                    'driven through its lock by a fast impact): lower the impact velocity or try a '
@@ -41,6 +44,18 @@ STATUS_DIAGNOSIS = {
                                  '(rigid-base lock, collapsed prism?): lower the impact velocity '
                                  'or loosen integrator.rtol'),
 }
+
+
+def prism_twists(x, levels):
+    """Relative twist (n_columns, n_prisms) rad in (-pi, pi] of the top base of each prism about its
+    bottom base (node 0 of each level about the level's centroid, in the xy plane). Its sign stays
+    that of the reference twist (+-150 deg) unless the bars cross: through 180 deg (past the
+    rigid-base lock) or through 0. ``x`` (n_nodes, 3) m, ``levels`` (n_columns, n_levels, 3)."""
+    centre = x[levels].mean(axis=2)                       # (n_columns, n_levels, 3)
+    r = x[levels[:, :, 0]] - centre
+    a, b = r[:, :-1], r[:, 1:]
+    return np.arctan2(a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0],
+                      a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1])
 
 
 class SimulationDiverged(RuntimeError):
@@ -107,6 +122,10 @@ class Simulation:
         self.max_iter = it['projection_max_iter']
         self.kinks = it['land_on_kinks']
         self.div = scene['divergence']
+        self._twist_sign = None
+        rigid = scene.data['structure'].get('bases') == 'rigid'
+        self._check_twist = self.div['bar_crossing'] == 'all' or (
+            self.div['bar_crossing'] == 'rigid' and rigid)
         self.reset()
 
     # -- state ----------------------------------------------------------------------------------
@@ -383,6 +402,14 @@ class Simulation:
                                         h.shape)
                 return ('prism height', f'prism {i} of column {c} collapsed (height '
                                         f'{h[c, i]:.3g} m)', HINT_SLACK)
+            if self._check_twist and self._twist_sign is None:
+                self._twist_sign = np.sign(prism_twists(np.asarray(net.x0), net.levels))
+            twist = prism_twists(x, net.levels) if self._check_twist else None
+            bad = None if twist is None else ~(twist * self._twist_sign > 0.0)
+            if bad is not None and np.any(bad):
+                c, i = np.argwhere(bad)[0]
+                return ('prism twist', f'prism {i} of column {c} twisted through 0 or 180 deg '
+                                       f'({math.degrees(twist[c, i]):.1f} deg)', HINT_LOCK)
         return None
 
     def _locate(self, n, keep, problem):
