@@ -1,13 +1,15 @@
 """Cost of a Rerun recording: a run with and without :class:`RerunRecorder`, side by side.
 
-    python -m bench.rerun_overhead [--scene config/scenes/fb_column.yaml] [--repeats 3] [--out DIR]
+    python -m bench.rerun_overhead [--scene config/scenes/fb_column.yaml] [--repeats 7] [--out DIR]
 
 The same simulation is run from its impact to ``run.t_end`` at the scene's default output rate
 (``run.output_dt``), alternately plain and recording to a ``.rrd`` file (recorder construction,
 every frame and the final flush included), ``repeats`` pairs after one discarded warm-up pair.
 Reports the overhead ``recorded / plain - 1`` of wall time and of process CPU time (all threads,
 so Rerun's encoder and writer threads count), per pair, as the median of the pairs and as the ratio
-of the best (smallest) times of each kind (the least disturbed by other processes), and writes
+of the best (smallest) times of each kind (the least disturbed by other processes). Each pair is
+followed by a recording of the same frames fed from memory (the recording alone, no simulation):
+its best time over the best plain run is the cost of recording with the least noise. Writes
 ``rerun_overhead.csv``. Only ratios measured in the same process are reported; the machine may be
 busy.
 """
@@ -22,7 +24,9 @@ import time
 from pathlib import Path
 
 
-def _one(sim, scene, path):
+def _one(sim, scene, path, frames=None):
+    """(wall s, process CPU s, main-thread CPU s) of one run, plain (``path`` None) or recorded
+    to ``path``; with ``frames`` (the run's frames), only recording those frames is timed."""
     from solver.runner import run
     from tensegrity_ros.rerun_log import RerunRecorder
 
@@ -30,24 +34,34 @@ def _one(sim, scene, path):
     t_end, output_dt = scene['run.t_end'], scene['run.output_dt']
     sim.reset()
     sim.apply_impact(v0, scene['loading.impact.columns'])
-    w0, c0 = time.perf_counter(), time.process_time()
+    w0, c0, m0 = time.perf_counter(), time.process_time(), time.thread_time()
     if path is None:
         run(sim, t_end, output_dt)
     else:
         with RerunRecorder(sim.network, path) as rec:
             rec.command(sim.t, f'impact v0 = {v0} m/s')
-            run(sim, t_end, output_dt, on_frame=rec.frame)
-    return time.perf_counter() - w0, time.process_time() - c0
+            if frames is None:
+                run(sim, t_end, output_dt, on_frame=rec.frame)
+            else:
+                for f in frames:
+                    rec.frame(f)
+    return time.perf_counter() - w0, time.process_time() - c0, time.thread_time() - m0
 
 
 def measure(scene_path='config/scenes/fb_column.yaml', repeats=3, log=print):
-    """List of dicts, one per measured pair: wall and CPU seconds plain / recorded, and ratios."""
+    """List of dicts, one per measured pair: wall and CPU seconds plain / recorded, and ratios;
+    also the time of the recording alone (the run's frames fed from memory), ``*_rec_only_s``."""
+    from solver.runner import run
     from solver.scene import Scene
     from solver.simulation import Simulation
 
     scene = Scene.load(scene_path)
     sim = Simulation(scene)
     sim.advance(sim.dt)                       # compile (or load cached) kernels first
+    sim.reset()
+    sim.apply_impact(scene['loading.impact.v0'], scene['loading.impact.columns'])
+    frames = []
+    run(sim, scene['run.t_end'], scene['run.output_dt'], on_frame=frames.append)
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for i in range(repeats + 1):
@@ -56,16 +70,21 @@ def measure(scene_path='config/scenes/fb_column.yaml', repeats=3, log=print):
             got = {}
             for path in order:
                 got['rec' if path is not None else 'plain'] = _one(sim, scene, path)
+            got['only'] = _one(sim, scene, Path(tmp) / 'only.rrd', frames)
             if i == 0:
                 continue                       # warm-up pair (thread start-up, page cache)
             row = {'pair': i, 'wall_plain_s': got['plain'][0], 'wall_rec_s': got['rec'][0],
                    'cpu_plain_s': got['plain'][1], 'cpu_rec_s': got['rec'][1],
+                   'wall_rec_only_s': got['only'][0], 'cpu_rec_only_s': got['only'][1],
+                   'main_cpu_rec_only_s': got['only'][2],
                    'rrd_bytes': rrd.stat().st_size}
             row['wall_overhead'] = row['wall_rec_s'] / row['wall_plain_s'] - 1.0
             row['cpu_overhead'] = row['cpu_rec_s'] / row['cpu_plain_s'] - 1.0
             log(f"pair {i}: wall {row['wall_plain_s']:.3f} s plain, {row['wall_rec_s']:.3f} s "
                 f"recorded ({100 * row['wall_overhead']:+.1f} %); cpu {row['cpu_plain_s']:.3f} / "
-                f"{row['cpu_rec_s']:.3f} s ({100 * row['cpu_overhead']:+.1f} %); "
+                f"{row['cpu_rec_s']:.3f} s ({100 * row['cpu_overhead']:+.1f} %); recording alone "
+                f"{row['wall_rec_only_s']:.3f} s wall, {row['cpu_rec_only_s']:.3f} s cpu "
+                f"({row['main_cpu_rec_only_s']:.3f} s in the main thread); "
                 f"{row['rrd_bytes'] / 1e6:.2f} MB")
             rows.append(row)
     return rows
@@ -87,9 +106,14 @@ def main(out='bench/results', quick=False, log=print, scene='config/scenes/fb_co
     cpu = statistics.median(r['cpu_overhead'] for r in rows)
     best_wall = min(r['wall_rec_s'] for r in rows) / min(r['wall_plain_s'] for r in rows) - 1
     best_cpu = min(r['cpu_rec_s'] for r in rows) / min(r['cpu_plain_s'] for r in rows) - 1
+    alone_wall = min(r['wall_rec_only_s'] for r in rows) / min(r['wall_plain_s'] for r in rows)
+    alone_cpu = min(r['cpu_rec_only_s'] for r in rows) / min(r['cpu_plain_s'] for r in rows)
+    alone_main = min(r['main_cpu_rec_only_s'] for r in rows) / min(r['cpu_plain_s'] for r in rows)
     log(f'rerun recording overhead, median of {len(rows)} pairs: wall {100 * wall:+.1f} %, '
         f'cpu {100 * cpu:+.1f} %; best of each: wall {100 * best_wall:+.1f} %, cpu '
-        f'{100 * best_cpu:+.1f} %  -> {path}')
+        f'{100 * best_cpu:+.1f} %; recording alone / plain run (best of each): wall '
+        f'{100 * alone_wall:.1f} %, cpu {100 * alone_cpu:.1f} % (main thread '
+        f'{100 * alone_main:.1f} %)  -> {path}')
     return [str(path)]
 
 
