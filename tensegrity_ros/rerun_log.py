@@ -229,7 +229,7 @@ class RerunRecorder:
         self.n_commands = 0
         self.n_restarts = 0
         n_b = self.flush_every
-        self._b = {'t': np.zeros(n_b), 'x': np.zeros((n_b, network.n_nodes, 3)),
+        self._b = {'t': np.zeros(n_b), 'x': np.zeros((n_b, network.n_nodes, 3), np.float32),
                    'strain': np.zeros((n_b,) + tuple(network.levels.shape[:1])
                                       + (network.n_prisms,)),
                    'tension': np.zeros((n_b, network.n_cables)),
@@ -355,7 +355,7 @@ class RerunRecorder:
         self._n_buf = 0
         net, s, b = self.net, self.stream, self._b
         index = [rr.TimeColumn(TIMELINE, duration=_ns(b['t'][:n_t]).astype('timedelta64[ns]'))]
-        x = b['x'][:n_t].astype(np.float32)                     # (n_t, n_nodes, 3)
+        x = b['x'][:n_t].copy()                                 # (n_t, n_nodes, 3) float32
         s.send_columns('world/nodes', index, [_column(
             rr.Points3D.descriptor_positions(),
             rr.components.Position3DBatch(x.reshape(-1, 3)), n_t, net.n_nodes)])
