@@ -266,6 +266,7 @@ class RerunRecorder:
             levels=np.asarray(net.levels, np.int64).ravel(),
             levels_shape=np.asarray(net.levels.shape, np.int64),
             x0=np.asarray(net.x0, np.float64).ravel()), static=True)
+        s.log('world', rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)   # column axis: z
         s.log('world/nodes', rr.Points3D.from_fields(colors=[_NODE_RGBA],
                                                      radii=rr.Radius.ui_points(3.0)), static=True)
         s.log('world/bars', rr.LineStrips3D.from_fields(colors=[_BAR_RGBA],
