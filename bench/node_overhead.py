@@ -5,7 +5,8 @@
 
 Each round measures, one after the other on the same wave (an impact at the start of each window):
 
-- ``bare``: the solver alone, ``Simulation.advance`` in chunks of one publish period of steps;
+- ``bare``: the solver alone, ``Simulation.advance`` in chunks of 0.05 s of simulation (its best
+  throughput: one divergence check per 100 steps at the default dt);
 - ``node rtf=0``: the node in this process (its own rclpy context and executor) with
   ``real_time_factor`` 0 and ``publish_rate_hz`` 200, publishing every topic (markers at 20 Hz);
 - ``node rtf=1``: the same node paced to the wall clock.
@@ -13,8 +14,10 @@ Each round measures, one after the other on the same wave (an impact at the star
 A subscriber process receives every topic (as RViz or Foxglove would), so DDS really delivers the
 data; ``--no-subscriber`` leaves it out. Reported: simulated seconds per wall second (real-time
 factor) and frames per wall second for each, the ratio node rtf=0 / bare (the publishing overhead
-is ``1 - ratio``), and the longest tick the node reported. Medians over rounds; the machine may be
-busy, so only the ratios, which are measured within seconds of each other, mean anything.
+is ``1 - ratio``), the same ratio per CPU second of this process (all its threads, so DDS is
+counted; robust when other processes compete for the cores), and the longest tick the node
+reported. Medians over rounds; the machine may be busy, so only the ratios, measured within
+seconds of each other, mean anything.
 """
 from __future__ import annotations
 
@@ -49,13 +52,13 @@ except Exception:
 def _bare(sim, window_s, chunk):
     sim.reset()
     sim.apply_impact(0.1)
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     frames = 0
     while time.perf_counter() - t0 < window_s:
         sim.advance(chunk * sim.dt)
         frames += 1
-    wall = time.perf_counter() - t0
-    return {'rtf': sim.t / wall, 'rate_hz': frames / wall}
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    return {'rtf': sim.t / wall, 'rate_hz': frames / wall, 'sim_per_cpu': sim.t / cpu}
 
 
 def _node(node, ex, rtf, window_s):
@@ -65,16 +68,60 @@ def _node(node, ex, rtf, window_s):
     node._anchor()
     f0, t_sim0 = node.counts['frames'], node.sim.t
     node.tick_max_s = 0.0
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     while time.perf_counter() - t0 < window_s:
         ex.spin_once(timeout_sec=0.01)
-    wall = time.perf_counter() - t0
-    return {'rtf': (node.sim.t - t_sim0) / wall, 'rate_hz': (node.counts['frames'] - f0) / wall,
-            'tick_max_ms': 1e3 * node.tick_max_s}
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    sim_s = node.sim.t - t_sim0
+    return {'rtf': sim_s / wall, 'rate_hz': (node.counts['frames'] - f0) / wall,
+            'sim_per_cpu': sim_s / cpu, 'tick_max_ms': 1e3 * node.tick_max_s}
+
+
+def cost_breakdown(node, n=200):
+    """CPU microseconds per call of the pieces of one publish frame (process time, so other
+    processes on the machine do not count): stepping one frame's worth of steps, ``sim.frame()``,
+    building the messages, building the markers, the whole ``_publish_frame`` and one executor
+    ``spin_once`` with a ready timer."""
+    from rclpy.executors import SingleThreadedExecutor
+
+    from tensegrity_ros import messages as M
+    sim = node.sim
+    sim.reset()
+    sim.apply_impact(0.1)
+    sim.advance(0.1)
+    steps = max(1, int(round(node.period / sim.dt)))
+
+    def cpu(f, k=n):
+        f()
+        c0 = time.process_time()
+        for _ in range(k):
+            f()
+        return (time.process_time() - c0) / k * 1e6
+    fr = sim.frame()
+    stamp = M.sim_stamp(fr.t)
+    out = {'steps_per_frame': steps,
+           'advance_one_frame_us': cpu(lambda: sim.advance(steps * sim.dt)),
+           'sim_frame_us': cpu(sim.frame),
+           'frame_messages_us': cpu(lambda: M.frame_messages(fr, sim.network, markers=False,
+                                                              clock=True)),
+           'marker_array_us': cpu(lambda: M.marker_array(fr, sim.network, stamp), 20)}
+    due = node._markers_due
+    node._markers_due = lambda now: False
+    out['publish_frame_us'] = cpu(lambda: node._publish_frame(time.monotonic()))
+    node._markers_due = due
+    ex = SingleThreadedExecutor(context=node.context)
+    ex.add_node(node)
+    node.timer.cancel()
+    ready = node.create_timer(0.0, lambda: None, )
+    out['spin_once_us'] = cpu(lambda: ex.spin_once(timeout_sec=0.0))
+    node.destroy_timer(ready)
+    node.timer.reset()
+    ex.remove_node(node)
+    return out
 
 
 def measure(scene='config/scenes/fb_column.yaml', window_s=3.0, rounds=3, subscriber=True,
-            publish_rate_hz=200.0, domain_id=None, log=print):
+            publish_rate_hz=200.0, domain_id=None, model='', log=print):
     """Run the rounds; returns a dict of medians and per-round figures."""
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
@@ -95,9 +142,10 @@ def measure(scene='config/scenes/fb_column.yaml', window_s=3.0, rounds=3, subscr
     ctx = rclpy.Context()
     rclpy.init(context=ctx, domain_id=domain_id)
     try:
-        params = dict(scene_file=scene, real_time_factor=0.0, publish_rate_hz=publish_rate_hz)
-        sim = load_simulation(dict(params, model='', integrator='', dt=0.0))
-        bare_sim = load_simulation(dict(params, model='', integrator='', dt=0.0))
+        params = dict(scene_file=scene, real_time_factor=0.0, publish_rate_hz=publish_rate_hz,
+                      model=model)
+        sim = load_simulation(dict(params, integrator='', dt=0.0))
+        bare_sim = load_simulation(dict(params, integrator='', dt=0.0))
         node = TensegritySim(sim=sim, context=ctx,
                              parameter_overrides=[Parameter(k, value=v)
                                                   for k, v in params.items()])
@@ -111,15 +159,20 @@ def measure(scene='config/scenes/fb_column.yaml', window_s=3.0, rounds=3, subscr
         _node(node, ex, 0.0, 0.5)                                   # warm-up
         rows = []
         for r in range(rounds):
-            row = {'bare': _bare(bare_sim, window_s, chunk),
+            row = {'bare': _bare(bare_sim, window_s, max(1, int(round(0.05 / sim.dt)))),
                    'node_rtf0': _node(node, ex, 0.0, window_s),
                    'node_rtf1': _node(node, ex, 1.0, window_s)}
             row['ratio_rtf0_bare'] = row['node_rtf0']['rtf'] / row['bare']['rtf']
+            row['cpu_ratio_rtf0_bare'] = (row['node_rtf0']['sim_per_cpu']
+                                          / row['bare']['sim_per_cpu'])
             rows.append(row)
             log(f"round {r + 1}: bare {row['bare']['rtf']:.2f}x, node rtf=0 "
                 f"{row['node_rtf0']['rtf']:.2f}x at {row['node_rtf0']['rate_hz']:.0f} Hz "
-                f"(ratio {row['ratio_rtf0_bare']:.3f}), node rtf=1 "
+                f"(ratio {row['ratio_rtf0_bare']:.3f}, per CPU second "
+                f"{row['cpu_ratio_rtf0_bare']:.3f}), node rtf=1 "
                 f"{row['node_rtf1']['rtf']:.3f}x at {row['node_rtf1']['rate_hz']:.0f} Hz")
+        costs = cost_breakdown(node)
+        log('CPU per call, us: ' + ', '.join(f'{k} {v:.0f}' for k, v in costs.items()))
         node.close()
         node.destroy_node()
     finally:
@@ -133,7 +186,7 @@ def measure(scene='config/scenes/fb_column.yaml', window_s=3.0, rounds=3, subscr
         return statistics.median(vals)
 
     return {
-        'scene': scene, 'window_s': window_s, 'rounds': rounds, 'subscriber': subscriber,
+        'scene': scene, 'model': sim.model.name, 'window_s': window_s, 'rounds': rounds, 'subscriber': subscriber,
         'publish_rate_hz': publish_rate_hz, 'steps_per_frame': chunk,
         'bare_rtf': med(('bare', 'rtf')),
         'node_rtf0_rtf': med(('node_rtf0', 'rtf')), 'node_rtf0_rate_hz': med(('node_rtf0',
@@ -142,8 +195,11 @@ def measure(scene='config/scenes/fb_column.yaml', window_s=3.0, rounds=3, subscr
                                                                                 'rate_hz')),
         'ratio_rtf0_bare': med(('ratio_rtf0_bare',)),
         'overhead': 1.0 - med(('ratio_rtf0_bare',)),
+        'cpu_ratio_rtf0_bare': med(('cpu_ratio_rtf0_bare',)),
+        'cpu_overhead': 1.0 - med(('cpu_ratio_rtf0_bare',)),
         'tick_max_ms_rtf0': max(row['node_rtf0']['tick_max_ms'] for row in rows),
         'tick_max_ms_rtf1': max(row['node_rtf1']['tick_max_ms'] for row in rows),
+        'cpu_costs_us': costs,
         'rows': rows,
     }
 
@@ -153,19 +209,23 @@ def main(argv=None):
     ap.add_argument('--scene', default='config/scenes/fb_column.yaml')
     ap.add_argument('--window', type=float, default=3.0, help='wall seconds per measurement')
     ap.add_argument('--rounds', type=int, default=3)
+    ap.add_argument('--model', default='', help='model override (default: the scene\'s)')
     ap.add_argument('--no-subscriber', action='store_true')
     ap.add_argument('--out', default='bench/results')
     args = ap.parse_args(argv)
-    res = measure(args.scene, args.window, args.rounds, subscriber=not args.no_subscriber)
-    print(f"bare solver {res['bare_rtf']:.2f}x real time; node rtf=0: {res['node_rtf0_rtf']:.2f}x"
+    res = measure(args.scene, args.window, args.rounds, subscriber=not args.no_subscriber,
+                  model=args.model)
+    print(f"{res['model']}: bare solver {res['bare_rtf']:.2f}x real time; node rtf=0: {res['node_rtf0_rtf']:.2f}x"
           f" at {res['node_rtf0_rate_hz']:.0f} Hz = {res['ratio_rtf0_bare']:.3f} of the bare "
-          f"solver (overhead {100 * res['overhead']:.1f} %, longest tick "
+          f"solver (overhead {100 * res['overhead']:.1f} % wall, "
+          f"{100 * res['cpu_overhead']:.1f} % per CPU second; longest tick "
           f"{res['tick_max_ms_rtf0']:.1f} ms); node rtf=1: {res['node_rtf1_rtf']:.3f}x at "
           f"{res['node_rtf1_rate_hz']:.0f} Hz (longest tick {res['tick_max_ms_rtf1']:.1f} ms)")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    (out / 'node_overhead.json').write_text(json.dumps(res, indent=2))
-    print(out / 'node_overhead.json')
+    name = f"node_overhead_{res['model']}.json"
+    (out / name).write_text(json.dumps(res, indent=2))
+    print(out / name)
     return 0
 
 

@@ -172,7 +172,7 @@ def test_malformed_commands_rejected_and_reported(ros):
     node, sim = ros.node, ros.node.sim
     ros.call(ros.cmd.cli_running, SetBool.Request(data=False))
     keep = [np.array(a) for a in (sim.model.positions(), sim.model.velocities(),
-                                  sim.model.act[0], sim.prestrain)] + [sim.t]
+                                  sim.model.cable_rest_length, sim.prestrain)] + [sim.t]
     n_cross = len(sim.prestrain_map.cross)
     rng = np.random.default_rng(2024)
     n_diag = len([s for s in ros.sunk if s[0] == '/diagnostics'])
@@ -190,7 +190,8 @@ def test_malformed_commands_rejected_and_reported(ros):
         assert ros.spin(lambda: node.counts['rejected'] == sent, 10), \
             f'{node.counts} after {sent} commands ({node.last_command})'
     assert node.counts == {'accepted': 0, 'rejected': 1000, 'frames': node.counts['frames']}
-    now = [sim.model.positions(), sim.model.velocities(), sim.model.act[0], sim.prestrain]
+    now = [sim.model.positions(), sim.model.velocities(), sim.model.cable_rest_length,
+           sim.prestrain]
     assert all(np.array_equal(a, b) for a, b in zip(keep[:4], now)) and sim.t == keep[4]
     diags = [m for topic, m, _ in ros.sunk if topic == '/diagnostics'][n_diag:]
     rejected = [d.status[0] for d in diags if d.status[0].message.startswith('rejected')]
