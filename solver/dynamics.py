@@ -421,9 +421,16 @@ def project_velocities(x, v, net, ws):
     w_diag, partner, w_off, tail, head, rot = net[0], net[1], net[2], net[3], net[4], net[9]
     f, wf, bvec, band, lam = ws[0], ws[1], ws[2], ws[3], ws[4]
     _members(x, net, bvec)
-    for c in range(tail.shape[0]):
-        dx, dy, dz = _rel(v, tail[c], head[c], rot, c)
-        lam[c] = -(bvec[c, 0] * dx + bvec[c, 1] * dy + bvec[c, 2] * dz)
+    if rot.shape[0] == 0:
+        for c in range(tail.shape[0]):
+            h = head[c]
+            t = tail[c]
+            lam[c] = -(bvec[c, 0] * (v[h, 0] - v[t, 0]) + bvec[c, 1] * (v[h, 1] - v[t, 1])
+                       + bvec[c, 2] * (v[h, 2] - v[t, 2]))
+    else:
+        for c in range(tail.shape[0]):
+            dx, dy, dz = _rel(v, tail[c], head[c], rot, c)
+            lam[c] = -(bvec[c, 0] * dx + bvec[c, 1] * dy + bvec[c, 2] * dz)
     _assemble(bvec, net, band)
     status = band_ldl_solve(band, lam)
     if status != OK:

@@ -180,7 +180,7 @@ def chain_errors(rows):
     return rows
 
 
-def speed_ratio(v0=0.1, t_end=1.2, repeats=2):
+def speed_ratio(v0=0.1, t_end=1.2, repeats=3):
     """Wall time of ``full3d`` over ``sym3d`` on the FB and RB columns (rk4_projected, default
     dt), measured alternately in this process (best of ``repeats``), and the largest relative
     difference of their node positions at ``t_end``."""

@@ -40,7 +40,8 @@ class NotSymmetric(ValueError):
 class ReducedNetwork:
     """Solver arrays of the reduced network (names as in :class:`solver.network.Network`).
 
-    ``x0`` (n_orbits, 3) m; ``con_rot``/``cable_rot`` rotation index of each member's head image;
+    ``x0`` (n_orbits, 3) m; ``con_rot``/``cable_rot`` rotation index of each member's head image
+    (``con_rot`` empty when no rigid member is rotated: the plain kernels then apply);
     ``con_coef3`` (n_con, bw + 1, 3) coupling coefficients (see :mod:`solver.dynamics`).
     ``node_rep``/``node_rot`` (n_full,): full node p is ``R^node_rot[p] x[node_rep[p]]``;
     ``cable_map`` (n_full_cables,): reduced cable of each full cable."""
@@ -200,13 +201,15 @@ def reduce_network(network, tol=1e-9):
     order, bw = _band_order(members[:, :2], partner)
     members, length = members[order], length[order]
     coef3 = _coupling3(members, w_diag, partner, w_off, bw)
+    # no rotated rigid member (flexible bases: bars only): the plain constraint kernels apply
+    con_rot = members[:, 2] if np.any(members[:, 2]) else np.zeros(0, dtype=np.int64)
     if len(members) and np.any((coef3[:, 0, 0] <= 0) & (coef3[:, 0, 1] <= 0)):
         raise NetworkError('a rigid member has no free mass at either end')
     return ReducedNetwork(
         x0=_ro(x_red, np.float64), node_mass=_ro(node_mass, np.float64),
         clamped=_ro(clamped, bool), w_diag=_ro(w_diag, np.float64), partner=_ro(partner, np.int64),
         w_off=_ro(w_off, np.float64), con_tail=_ro(members[:, 0], np.int64),
-        con_head=_ro(members[:, 1], np.int64), con_rot=_ro(members[:, 2], np.int64),
+        con_head=_ro(members[:, 1], np.int64), con_rot=_ro(con_rot, np.int64),
         con_length=_ro(length, np.float64), con_coef=_ro(coef3[:, :, 1], np.float64),
         con_coef3=_ro(coef3, np.float64), bandwidth=int(bw),
         cable_a=_ro(rcab[:, 0], np.int64), cable_b=_ro(rcab[:, 1], np.int64),
