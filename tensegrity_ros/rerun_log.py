@@ -252,7 +252,10 @@ class RerunRecorder:
             sinks.append(rr.FileSink(self.path))
         if self.url is not None:
             sinks.append(rr.GrpcSink(self.url))
-        stream.set_sinks(*sinks, default_blueprint=bp)
+        try:
+            stream.set_sinks(*sinks, default_blueprint=bp)
+        except RuntimeError as exc:             # e.g. a directory that does not exist
+            raise ValueError(f'rerun: cannot record to {self.path or self.url}: {exc}') from None
         self.stream = stream
         self._log_static()
 

@@ -220,6 +220,8 @@ def test_bad_frames_are_rejected_and_change_nothing(tmp_path):
         assert np.all(np.isfinite(at(data['/world/nodes'], t, 'Points3D:positions')))
     with pytest.raises(ValueError, match='file path or a viewer URL'):
         RerunRecorder(sim.network)
+    with pytest.raises(ValueError, match='cannot record to'):
+        RerunRecorder(sim.network, tmp_path / 'no_such_dir' / 'x.rrd')
     with pytest.raises(ValueError, match='tension_scale'):
         RerunRecorder(sim.network, tmp_path / 'x.rrd', tension_scale=-1.0)
 
