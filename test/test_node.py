@@ -88,7 +88,7 @@ def test_impact_in_strain_and_nodes_out(ros):
     top = [c[1][net.levels[0, -1], 2].mean() for c in ros.cmd.clouds[n_c:]]
     assert min(top) < net.x0[net.levels[0, -1], 2].mean() - 1e-4
     x0_f32 = net.x0.astype(np.float32).astype(np.float64)            # the cloud is float32
-    assert np.array_equal(x[net.levels[0, 0]], x0_f32[net.levels[0, 0]])
+    assert np.allclose(x[net.levels[0, 0]], x0_f32[net.levels[0, 0]], rtol=0, atol=1e-9)
     assert ros.node.counts['accepted'] == 1 and ros.node.counts['rejected'] == 0
     # the command itself was handed to the recorder sinks
     assert any(topic.endswith('/cmd/impact') for topic, _, _ in ros.sunk)
@@ -123,11 +123,12 @@ def test_reset_service(ros):
     n = len(ros.cmd.clouds)
     res = ros.call(ros.cmd.cli_reset, Trigger.Request())
     assert res.success
-    assert sim.t == 0.0 and np.array_equal(sim.model.positions(), net.x0)
+    # (reduced models rebuild positions by rotation: equal up to round-off)
+    assert sim.t == 0.0 and np.allclose(sim.model.positions(), net.x0, rtol=0, atol=1e-15)
     assert np.abs(sim.model.velocities()).max() == 0.0
     assert ros.spin(lambda: len(ros.cmd.clouds) > n)
     t, x = ros.cmd.clouds[-1]
-    assert t == 0.0 and np.array_equal(x, net.x0.astype(np.float32).astype(np.float64))
+    assert t == 0.0 and np.allclose(x, net.x0, rtol=1.2e-7, atol=1e-12)       # float32
     ros.call(ros.cmd.cli_running, SetBool.Request(data=True))
     assert ros.spin(lambda: sim.t > 0.01)
     assert np.abs(sim.model.velocities()).max() < 1e-12     # at rest again: the impact is gone
