@@ -201,7 +201,7 @@ class RerunRecorder:
     """
 
     def __init__(self, network, path=None, *, connect=None, tension_scale=None, flush_every=50,
-                 max_latency_s=0.5, wave_window=1000, wave_period_s=1.0,
+                 max_latency_s=0.5, wave_window=1000, wave_period_s=2.0,
                  application_id='tensegrity_ros', recording_id=None, send_blueprint=True):
         if path is None and not connect:
             raise ValueError('rerun: give a file path or a viewer URL (connect) to record to')
