@@ -18,9 +18,8 @@ import numpy as np
 
 from . import dynamics as dyn
 from ._jit import jit
-from .integrators import Integrator, next_kink
+from .integrators import STEP_TOO_SMALL, next_kink
 
-STEP_TOO_SMALL = 10
 H_MIN_FRACTION = 1e-9      # smallest step, as a fraction of dt, before giving up
 
 # Butcher tableau (Dormand & Prince 1980); E = b5 - b4 for the error estimate
@@ -83,7 +82,7 @@ def _error_norm(x, v, xs, vs, h, E, kx, kv, rtol, atol):
 
 
 @jit
-def _dopri_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, rtol, atol, A, E, kx, kv,
+def dopri_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, rtol, atol, A, E, kx, kv,
                xs, vs, hstate):
     """Advance by ``n_steps * dt`` adaptively. ``hstate``: [proposed step, accepted, rejected, force
     evaluations], carried between calls. Returns (accepted steps, status)."""
@@ -130,43 +129,3 @@ def _dopri_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, rtol, atol
                 return accepted, STEP_TOO_SMALL
     hstate[0] = h_prop
     return accepted, dyn.OK
-
-
-class DOPRI54Projected(Integrator):
-    """Adaptive Dormand-Prince 5(4) (see the module doc): ``dt`` is the initial and largest step,
-    ``rtol``/``atol`` the error tolerances. Seven force evaluations per accepted step (six plus a
-    fresh first stage after the projection); ``stats()`` counts steps and evaluations."""
-    name = 'dopri54_projected'
-    order = 5
-    projected = True
-    adaptive = True
-    evaluations_per_step = 7
-
-    def __init__(self, rtol=1e-8, atol=1e-10):
-        super().__init__(rtol, atol)
-        self.hstate = np.zeros(4)
-
-    def reset(self):
-        self.hstate[:] = 0.0
-
-    def get_state(self):
-        return self.hstate.copy()
-
-    def set_state(self, state):
-        self.hstate[:] = state
-
-    def stats(self):
-        """``{'accepted': int, 'rejected': int, 'evaluations': int}`` since the last reset."""
-        return {'accepted': int(self.hstate[1]), 'rejected': int(self.hstate[2]),
-                'evaluations': int(self.hstate[3])}
-
-    def run(self, x, v, dt, n_steps, net, act, ws, tol=1e-12, max_iter=3, kinks=True):
-        n = x.shape[0]
-        kx = self.scratch('kx', (7, n, 3))
-        kv = self.scratch('kv', (7, n, 3))
-        xs = self.scratch('xs', (n, 3))
-        vs = self.scratch('vs', (n, 3))
-        steps, status = _dopri_run(x, v, float(dt), int(n_steps), net, act, ws, float(tol),
-                                   int(max_iter), bool(kinks), self.rtol, self.atol, A, E, kx, kv,
-                                   xs, vs, self.hstate)
-        return int(steps), int(status)

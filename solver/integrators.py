@@ -214,6 +214,9 @@ def _rattle_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, acc, x_old):
     return n_steps, dyn.OK
 
 
+STEP_TOO_SMALL = 10    # status code beyond those of solver.dynamics (adaptive step underflow)
+
+
 class Integrator:
     """A method behind one interface. ``kernel`` is the ``@jit`` run function described in the module
     doc; ``evaluations_per_step`` counts force evaluations (for work estimates)."""
@@ -288,12 +291,50 @@ class Rattle(Integrator):
         return int(steps), int(status)
 
 
-# adaptive.py needs next_kink and Integrator from above
-from .adaptive import STEP_TOO_SMALL, DOPRI54Projected  # noqa: E402
+class DOPRI54Projected(Integrator):
+    """Adaptive Dormand-Prince 5(4) (see :mod:`solver.adaptive`): ``dt`` is the initial and largest step,
+    ``rtol``/``atol`` the error tolerances. Seven force evaluations per accepted step (six plus a
+    fresh first stage after the projection); ``stats()`` counts steps and evaluations."""
+    name = 'dopri54_projected'
+    order = 5
+    projected = True
+    adaptive = True
+    evaluations_per_step = 7
+
+    def __init__(self, rtol=1e-8, atol=1e-10):
+        super().__init__(rtol, atol)
+        self.hstate = np.zeros(4)
+
+    def reset(self):
+        self.hstate[:] = 0.0
+
+    def get_state(self):
+        return self.hstate.copy()
+
+    def set_state(self, state):
+        self.hstate[:] = state
+
+    def stats(self):
+        """``{'accepted': int, 'rejected': int, 'evaluations': int}`` since the last reset."""
+        return {'accepted': int(self.hstate[1]), 'rejected': int(self.hstate[2]),
+                'evaluations': int(self.hstate[3])}
+
+    def run(self, x, v, dt, n_steps, net, act, ws, tol=1e-12, max_iter=3, kinks=True):
+        n = x.shape[0]
+        from . import adaptive           # the kernel module imports next_kink from here
+        kx = self.scratch('kx', (7, n, 3))
+        kv = self.scratch('kv', (7, n, 3))
+        xs = self.scratch('xs', (n, 3))
+        vs = self.scratch('vs', (n, 3))
+        steps, status = adaptive.dopri_run(x, v, float(dt), int(n_steps), net, act, ws,
+                                           float(tol), int(max_iter), bool(kinks), self.rtol,
+                                           self.atol, adaptive.A, adaptive.E, kx, kv, xs, vs,
+                                           self.hstate)
+        return int(steps), int(status)
+
 
 METHODS = {cls.name: cls for cls in (RK4Projected, RK4, Rattle, DOPRI54Projected)}
 
-# status codes of the integrators beyond those of solver.dynamics
 STATUS_TEXT = dict(dyn.STATUS_TEXT)
 STATUS_TEXT[STEP_TOO_SMALL] = 'adaptive step size fell below 1e-9 dt (stiff or singular motion)'
 

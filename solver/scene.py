@@ -68,7 +68,7 @@ CHOICES = {
     'model': ('auto', 'full3d', 'sym3d', 'chain1d'),
     # stop when a prism twists through 180 deg (its bars cross): in rigid-base columns only (the
     # lock), in every column, or never
-    'divergence.bar_crossing': ('rigid', 'all', 'off'),
+    'divergence.bar_crossing': ('rigid', 'all', 'none'),
 }
 
 # (lower, upper, lower inclusive) for numbers

@@ -31,7 +31,7 @@ HINT_ENERGY = 'try a smaller integrator.dt or another method (rattle, dopri54_pr
 HINT_SLACK = ('cables went slack and the prism collapsed: raise the prestrain or lower the impact '
               'velocity')
 HINT_LOCK = ('the bars of the prism crossed (past the rigid-base lock at 180 deg, or fully '
-             'untwisted): lower the impact velocity (divergence.bar_crossing=off lets bars pass '
+             'untwisted): lower the impact velocity (divergence.bar_crossing=none lets bars pass '
              'through each other)')
 STATUS_DIAGNOSIS = {
     dyn.SINGULAR: ('rigid members', 'rigid members became degenerate (e.g. a rigid-base prism '
@@ -379,12 +379,12 @@ class Simulation:
     def _check(self, status):
         """``(quantity, detail, hint)`` of the first failed divergence check of the current state
         after an integrator ``status``, or None when the state is sound."""
-        if status != dyn.OK:
-            quantity, hint = STATUS_DIAGNOSIS.get(status, ('state', HINT_STEP))
-            return quantity, integrators.status_text(status), hint
         x, v = self.model.positions(), self.model.velocities()
         if not (np.all(np.isfinite(x)) and np.all(np.isfinite(v))):
             return 'state', 'non-finite positions or velocities', HINT_STEP
+        if status != dyn.OK:
+            quantity, hint = STATUS_DIAGNOSIS.get(status, ('state', HINT_STEP))
+            return quantity, integrators.status_text(status), hint
         err = self.constraint_error()
         if not err <= self.div['constraint_error']:
             return ('constraint error', f'{err:.3g} exceeds {self.div["constraint_error"]:g}',

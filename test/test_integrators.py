@@ -1,0 +1,252 @@
+"""Integrators (issue 4): observed order, RATTLE energy, rk4 drift, adaptive error control, and
+divergence detection (every failure mode ends in SimulationDiverged; nothing NaN escapes).
+
+Small structures and short times only: a single prism or a 5-prism column.
+"""
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from solver import integrators
+from solver.scene import Scene, SceneError
+from solver.simulation import Simulation, SimulationDiverged
+
+ROOT = Path(__file__).resolve().parents[1]
+PRISM = Scene.load(ROOT / 'config' / 'scenes' / 'prism.yaml')
+COLUMN = Scene.load(ROOT / 'config' / 'scenes' / 'fb_column.yaml')
+METHODS = ('rk4_projected', 'rk4', 'rattle', 'dopri54_projected')
+
+
+def _sim(scene, overrides, v0):
+    sim = Simulation(scene.with_overrides(['model=full3d'] + list(overrides)))
+    if v0:
+        sim.apply_impact(v0)
+    return sim
+
+
+def _state(sim):
+    return np.concatenate([np.ravel(sim.model.positions()), np.ravel(sim.model.velocities())])
+
+
+def _bar_length_error(sim):
+    """max |(|x_b - x_a| / L) - 1| over the bars, from positions (independent of the kernels)."""
+    net = sim.network
+    x = np.asarray(sim.model.positions())
+    x0 = np.asarray(net.x0)
+    L = np.linalg.norm(x0[net.bar_b] - x0[net.bar_a], axis=1)
+    return float(np.max(np.abs(np.linalg.norm(x[net.bar_b] - x[net.bar_a], axis=1) / L - 1)))
+
+
+# -- interface ------------------------------------------------------------------------------------
+def test_every_method_is_registered_with_its_order():
+    assert set(METHODS) <= set(integrators.METHODS)
+    orders = {name: integrators.get(name).order for name in METHODS}
+    assert orders == {'rk4_projected': 4, 'rk4': 4, 'rattle': 2, 'dopri54_projected': 5}
+
+
+def test_unknown_method_lists_the_valid_ones():
+    with pytest.raises(ValueError) as err:
+        integrators.get('euler')
+    for name in METHODS:
+        assert name in str(err.value)
+    with pytest.raises(ValueError, match='rattle'):
+        Simulation(PRISM.with_overrides(['integrator=leapfrog']))
+
+
+def test_adaptive_tolerances_are_validated():
+    with pytest.raises(SceneError, match='integrator.rtol'):
+        PRISM.with_overrides(['integrator.rtol=0'])
+    with pytest.raises(SceneError, match='integrator.atol'):
+        PRISM.with_overrides(['integrator.atol=-1'])
+
+
+def test_dormand_prince_tableau_is_consistent():
+    """Row sums equal the nodes, both weight rows sum to 1, and the 5th-order weights satisfy the
+    order conditions sum b c^k = 1 / (k + 1) for k < 5 (independent of the step code)."""
+    from solver import adaptive
+    A, b, c, e = adaptive.A, adaptive.B, adaptive.C, adaptive.E
+    assert np.allclose(A[:, :6].sum(axis=1)[1:], c[1:], atol=1e-15)
+    assert math.isclose(b.sum(), 1.0, rel_tol=1e-14)
+    assert abs(e.sum()) < 1e-15
+    b7 = np.append(b, 0.0)
+    for k in range(5):
+        assert math.isclose(float(b7 @ c ** k), 1.0 / (k + 1), rel_tol=1e-12)
+
+
+# -- accuracy -------------------------------------------------------------------------------------
+@pytest.mark.parametrize('method', METHODS)
+def test_observed_order_matches_nominal_order(method):
+    """Self-convergence on a smooth problem (a prism hit softly enough that no cable goes slack):
+    the differences between runs at dt, dt/2, dt/4 shrink by 2^p."""
+    T = 0.064
+    over = ['integrator.projection_tol=1e-14', 'run.output_dt=0.01']
+    counts = (16, 32, 64, 128)
+    if method == 'dopri54_projected':        # loose tolerances: every step accepted at dt
+        over += ['integrator.rtol=0.1', 'integrator.atol=0.1']
+        counts = (32, 64, 128, 256)
+    finals = []
+    for n in counts:
+        sim = _sim(PRISM, over + [f'integrator={method}', f'integrator.dt={T / n}'], 2e-4)
+        sim.advance(T)
+        assert np.all(sim.frame().tension > 0), 'a cable went slack: the problem is not smooth'
+        if method == 'dopri54_projected':
+            assert sim.integrator.stats()['rejected'] == 0
+        finals.append(_state(sim))
+    diffs = [np.max(np.abs(finals[i] - finals[i + 1])) for i in range(3)]
+    observed = math.log2(diffs[1] / diffs[2])
+    nominal = integrators.get(method).order
+    assert abs(observed - nominal) < 0.35, (diffs, observed)
+
+
+def test_dopri_error_follows_the_tolerance():
+    """Tighter rtol gives a smaller error against a fine rk4_projected run; slack/taut kinks
+    included (v0 = 0.05 m/s on a prism)."""
+    T = 0.1
+    ref = _sim(PRISM, ['integrator=rk4_projected', 'integrator.dt=2.5e-5'], 0.05)
+    ref.advance(T)
+    errors = []
+    for rtol in (1e-5, 1e-9):
+        sim = _sim(PRISM, ['integrator=dopri54_projected', 'integrator.dt=1e-2',
+                           'run.output_dt=1e-2', f'integrator.rtol={rtol}',
+                           f'integrator.atol={rtol * 1e-3}'], 0.05)
+        sim.advance(T)
+        errors.append(np.max(np.abs(_state(sim) - _state(ref))))
+        assert sim.integrator.stats()['accepted'] > 10      # the step was controlled, not dt
+    assert errors[1] < errors[0] / 100, errors
+
+
+def test_rattle_keeps_energy_bounded_over_long_runs():
+    """20 s (about 300 periods): RATTLE's energy error oscillates without growing and scales as
+    dt^2; the adaptive non-symplectic method drifts over the same run (contrast)."""
+    def energy_errors(method, dt, extra=()):
+        sim = _sim(PRISM, [f'integrator={method}', f'integrator.dt={dt}', 'run.output_dt=0.01',
+                           'divergence.energy_growth=10', *extra], 2e-4)
+        e0 = sim.energy()
+        errs = []
+        for _ in range(2000):
+            sim.advance(0.01)
+            errs.append(abs(sim.energy() - e0))
+        errs = np.array(errs)
+        return errs[:200].max(), errs[-200:].max()
+
+    first, last = energy_errors('rattle', 2e-3)
+    assert last < 1.1 * first, (first, last)
+    first_half_dt, _ = energy_errors('rattle', 1e-3)
+    assert 3.0 < first / first_half_dt < 5.0
+    d_first, d_last = energy_errors('dopri54_projected', 8e-3, ('integrator.rtol=1e-4',))
+    assert d_last > 5 * d_first
+
+
+def test_rk4_without_projection_drifts_and_projection_removes_it():
+    """Bar lengths measured from positions: rk4 drifts further with time, rk4_projected stays at
+    round-off on the same run (5-prism column, v0 = 0.1 m/s)."""
+    over = ['structure.n_prisms=5', 'divergence.constraint_error=1.0', 'integrator.dt=5e-4']
+    drift = {}
+    for method in ('rk4', 'rk4_projected'):
+        sim = _sim(COLUMN, over + [f'integrator={method}'], 0.1)
+        errs = []
+        for _ in range(3):
+            sim.advance(0.15)
+            errs.append(_bar_length_error(sim))
+        drift[method] = errs
+    assert drift['rk4'][2] > drift['rk4'][0] > 1e-11
+    assert max(drift['rk4_projected']) < 1e-12
+    assert drift['rk4'][2] > 100 * max(drift['rk4_projected'])
+
+
+# -- divergence -----------------------------------------------------------------------------------
+def _expect_divergence(sim, duration, quantities, chunk=None):
+    """Advance until SimulationDiverged; check the state was restored (finite, as before the failed
+    call) and return the exception."""
+    chunk = chunk or duration
+    t = 0.0
+    while t < duration:
+        before = _state(sim)
+        t_before = sim.t
+        try:
+            sim.advance(chunk)
+        except SimulationDiverged as exc:
+            after = _state(sim)
+            assert np.array_equal(after, before)
+            assert sim.t == t_before
+            frame = sim.frame()
+            for a in (frame.positions, frame.strain, frame.tension):
+                assert np.all(np.isfinite(a))
+            assert math.isfinite(frame.energy) and math.isfinite(frame.constraint_error)
+            assert exc.quantity in quantities, str(exc)
+            assert f'step {exc.step}' in str(exc) and exc.hint in str(exc)
+            return exc
+        t += chunk
+    pytest.fail('no SimulationDiverged')
+
+
+def _first_failing_step_is_named(scene_overrides, scene, v0, exc):
+    """Independent check of the reported step: a fresh run reaches step - 1 and fails on the next."""
+    sim = _sim(scene, scene_overrides, v0)
+    if exc.step > 1:
+        sim.advance((exc.step - 1) * sim.dt)
+    with pytest.raises(SimulationDiverged):
+        sim.advance(sim.dt)
+    assert math.isclose(exc.t, exc.step * sim.dt)
+
+
+def test_energy_growth_is_divergence():
+    over = ['structure.n_prisms=5', 'integrator=rattle', 'integrator.dt=0.02',
+            'run.output_dt=0.02']
+    exc = _expect_divergence(_sim(COLUMN, over, 0.1), 1.0, {'energy'})
+    assert 'dt' in exc.hint
+    _first_failing_step_is_named(over, COLUMN, 0.1, exc)
+
+
+def test_constraint_error_is_divergence():
+    over = ['structure.n_prisms=5', 'integrator=rk4', 'integrator.dt=0.02', 'run.output_dt=0.1']
+    exc = _expect_divergence(_sim(COLUMN, over, 0.1), 1.0, {'constraint error'})
+    assert 'projected' in exc.hint
+    _first_failing_step_is_named(over, COLUMN, 0.1, exc)
+
+
+def test_non_finite_state_is_divergence():
+    sim = _sim(PRISM, [], 0.05)
+    sim.advance(0.01)
+    sim.model.velocities()[-1, 0] = np.nan      # a corrupted state must never be advanced
+    with pytest.raises(SimulationDiverged) as err:
+        sim.advance(0.01)
+    assert err.value.quantity == 'state'
+
+
+@pytest.mark.parametrize('method', METHODS)
+def test_slack_cables_collapse_is_divergence(method):
+    """Almost no prestrain: the cables go slack and the impacted prism folds through itself."""
+    over = ['structure.n_prisms=5', 'prestrain=1e-5', f'integrator={method}']
+    _expect_divergence(_sim(COLUMN, over, 0.3), 0.3, {'prism height'}, chunk=0.005)
+
+
+@pytest.mark.parametrize('method', METHODS)
+def test_rigid_base_lock_is_divergence(method):
+    """A fast impact drives a rigid-base prism through its lock (twist 180 deg, bars crossing)."""
+    over = ['structure.bases=rigid', f'integrator={method}']
+    _expect_divergence(_sim(PRISM, over, 1.0), 0.1, {'prism twist'}, chunk=0.005)
+
+
+def test_very_high_impact_speed_is_divergence():
+    over = ['structure.n_prisms=5', 'integrator=rk4_projected']
+    _expect_divergence(_sim(COLUMN, over, 1.0), 0.1, {'prism height', 'prism twist'},
+                       chunk=0.005)
+
+
+def test_divergence_in_the_cli_is_one_line_and_writes_nothing(tmp_path):
+    out = tmp_path / 'run'
+    res = subprocess.run(
+        [sys.executable, '-m', 'tensegrity_ros.cli', 'run', str(ROOT / 'config' / 'scenes' /
+                                                                'rb_column.yaml'),
+         '--set', 'structure.n_prisms=3', '--v0', '1.0', '--t-end', '0.1', '--json',
+         '--out', str(out)], capture_output=True, text=True, cwd=ROOT, timeout=120)
+    assert res.returncode == 1
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and 'diverged at t =' in lines[0] and 'step' in lines[0]
+    assert res.stdout.strip() == ''
+    assert not (out / 'summary.json').exists()
