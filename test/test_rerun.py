@@ -47,8 +47,7 @@ def read(path):
     for chunk in RrdReader(path).stream():
         ent = out.setdefault(chunk.entity_path, {'static': {}, 'rows': []})
         rb = chunk.to_record_batch()
-        comps = [n for n in rb.schema.names if ':' in n or n not in ('sim_time',)
-                 and not n.startswith('rerun.')]
+        comps = [n for n in rb.schema.names if n != 'sim_time' and not n.startswith('rerun.')]
         if chunk.is_static:
             for n in comps:
                 ent['static'][n] = rb.column(n).slice(0, 1)
