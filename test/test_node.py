@@ -100,7 +100,9 @@ def test_prestrain_changes_tensions_and_column_stays_at_rest(ros):
     cross = np.array([k == 'cross' for k in net.cable_kind])
     ros.cmd.prestrain([p_new])
     assert ros.spin(lambda: ros.node.counts['accepted'] == 1)
-    assert ros.spin(lambda: ros.node.sim.t > ros.node.params['prestrain_ramp_s'] + 0.01)
+    t_cmd = ros.node.sim.t                                    # the ramp starts on arrival
+    assert ros.spin(lambda: ros.node.sim.t > t_cmd + ros.node.params['prestrain_ramp_s'] + 0.01)
+    assert np.all(ros.node.sim.prestrain == p_new)
     n = len(ros.cmd.tension)
     assert ros.spin(lambda: len(ros.cmd.tension) > n + 2)
     T = ros.cmd.tension[-1]
