@@ -191,6 +191,9 @@ def plot(rows, res, path):
         names.append('kernel bound')
         walls.append(k['kernel_bound_step'] * res['ours']['steps'])
     a2.barh(names, walls, color=['tab:blue', 'tab:red', 'tab:green', 'tab:gray'][:len(names)])
+    for i, w in enumerate(walls):
+        a2.text(w, i, f' {res["t_end_s"] / w:.3g}x real time', va='center', fontsize=8)
+    a2.set_xlim(min(walls) / 3, max(walls) * 30)
     a2.set_xscale('log')
     a2.axvline(res['t_end_s'], color='k', ls=':', lw=0.8, label='real time')
     a2.set_xlabel('CPU time at the target accuracy (s)')
