@@ -162,6 +162,17 @@ def _line_list(marker_id, ns, stamp, x, a, b, color):
     return m
 
 
+def cable_bins(tension, t_max):
+    """Colour bin per cable (n_cables,) int: 0 slack, k = 1..N_BINS for tensions in
+    ``[(k-1), k) * t_max / N_BINS`` (the last bin also holds everything above ``t_max``), and the
+    RGBA colour of each bin (N_BINS + 1, 4): :func:`tension_colors` at the bin centre."""
+    tension = np.asarray(tension, dtype=np.float64)
+    u = np.clip(tension / t_max, 0.0, 1.0)
+    bins = np.where(tension <= 0.0, 0, 1 + np.minimum((u * N_BINS).astype(np.int64), N_BINS - 1))
+    centres = np.concatenate([[0.0], (np.arange(N_BINS) + 0.5) / N_BINS * t_max])
+    return bins, tension_colors(centres, t_max)
+
+
 def marker_array(frame, network, stamp, t_max=None):
     """``MarkerArray`` of line lists: bars and rigid edges (ns ``bars``, id 0, grey) and cables
     coloured by tension (ns ``cables``): id 0 the slack cables (dimmed), ids 1..:data:`N_BINS` the
@@ -173,11 +184,7 @@ def marker_array(frame, network, stamp, t_max=None):
         t_max = 2.0 * reference_tension_scale(network)
     bar_a = np.concatenate([network.bar_a, network.edge_a])
     bar_b = np.concatenate([network.bar_b, network.edge_b])
-    tension = np.asarray(frame.tension, dtype=np.float64)
-    u = np.clip(tension / t_max, 0.0, 1.0)
-    bins = np.where(tension <= 0.0, 0, 1 + np.minimum((u * N_BINS).astype(np.int64), N_BINS - 1))
-    centres = np.concatenate([[0.0], (np.arange(N_BINS) + 0.5) / N_BINS * t_max])
-    colors = tension_colors(centres, t_max)
+    bins, colors = cable_bins(frame.tension, t_max)
     arr = MarkerArray()
     arr.markers = [_line_list(0, 'bars', stamp, x, bar_a, bar_b, BAR_COLOR)] + [
         _line_list(k, 'cables', stamp, x, network.cable_a[bins == k],

@@ -123,3 +123,18 @@ def test_prestrain_parser_forms():
     for bad, match in (([0.0], 'outside'), ([0.51], 'outside'), ([0.1] * 5, 'expected 1, 2')):
         with pytest.raises(commands.CommandError, match=match):
             commands.parse_prestrain(bad, None, 2, 2, cross_prism)
+
+
+def test_marker_bytes_equal_marker_objects(sim):
+    """The NumPy CDR writer against rclpy's own serializer: same message after deserialization,
+    same length (bytes may differ only in padding)."""
+    from visualization_msgs.msg import MarkerArray
+
+    from tensegrity_ros.cdr import marker_array_cdr
+    f = sim.frame()
+    stamp = messages.sim_stamp(f.t)
+    obj = messages.marker_array(f, sim.network, stamp)
+    raw = marker_array_cdr(f, sim.network, stamp)
+    ref = serialize_message(obj)
+    assert len(raw) == len(ref)
+    assert deserialize_message(raw, MarkerArray) == deserialize_message(ref, MarkerArray)
