@@ -1,174 +1,63 @@
-"""The 1D lumped-mass chain ``chain1d`` with the quasi-static prism force law F(h) (physics.md
-section 6).
+"""The 1D lumped-mass chain ``chain1d`` with the quasi-static prism force law F(h)
+(physics.md section 6).
 
-State: axial displacements ``u_j`` (n_levels,) m and velocities ``w_j`` m/s of the base levels; level
-mass ``M_j`` = the sum of its node masses; prism heights ``h_i = h0 + u_{i+1} - u_i``;
-``M_j u_j'' = F_{j-1}(h_{j-1}) - F_j(h_j)`` (+ external axial force), ``F = -dE/dh`` (> 0 pushes the
-two levels apart), ``E(h)`` the prism energy at height h minimised over everything the chain does not
-carry (twist, base radius). The twist has no inertia here: that is the model's approximation.
+State: axial displacements ``u_j`` (n_levels,) m and velocities ``w_j`` m/s of the base levels;
+level mass ``M_j`` = the sum of its node masses; prism heights ``h_i = h0 + u_{i+1} - u_i``;
+``M_j u_j'' = F(h_{j-1}) - F(h_j)`` (+ external axial force), ``F = -dE/dh`` (> 0 pushes the two
+levels apart), ``E(h)`` the prism energy at height h minimised over what the chain does not carry
+(twist, base radius). Twist and radius have no inertia here: that is the model's approximation.
+Every prism uses the law of an interior prism (the end prisms of a shared-base column carry a
+full end-level base cable instead of half of a shared one; the chain ignores that difference).
 
-Force laws (:class:`PrismLaw`):
+Force laws (:class:`~solver.prism_law.PrismLaw`):
 
 - rigid bases (rigid edges): closed form, base radius r fixed, twist from the bar length,
-  ``cos phi = 1 - (b^2 - h^2) / (2 r^2)``, ``F = -3 k_s (s - L_s)_+ ds/dh``. Singular (infinite,
-  integrably: ``F ~ 1 / sqrt(h - h_lock)``) at the LOCK ``h_lock = sqrt(b^2 - 4 r^2)`` where the twist
-  reaches 180 deg. What the model does there: the prism cannot get shorter (``h >= h_lock`` is a hard
-  contact of the two levels); a prism that reaches it bounces: the relative axial velocity of its two
-  levels is reversed by an elastic impulse (momentum and energy kept).
-  Near the lock, sub-steps shrink so that no prism closes more than half its remaining gap per
-  sub-step; within ``1e-9 h0`` of the lock the contact impulse acts, and the force is evaluated at
-  ``h >= h_lock + 1e-9 h0`` (finite, changes the energy by O(sqrt(1e-9)) of the lock energy). The 3D model instead folds through 180 deg of twist smoothly.
-- flexible bases (and rigid bases as stiff cables): ``E(h) = min over (phi, r)`` of the cross-cable
-  energy plus the base-cable energy the prism carries (an interior base cable shared by two prisms
-  counts half for each), with the bar length fixed. Precomputed once per model on a grid of h
-  (golden-section search in phi, vectorised over the grid), F by the envelope theorem
-  (:func:`envelope_force`) and interpolated by a cubic spline; E is the exact antiderivative of that
-  spline, so forces and energy agree. Leaving the table's h range stops the run with a clear error.
+  ``cos phi = 1 - (b^2 - h^2) / (2 r^2)``, ``F = -3 k_s (s - L_s)_+ ds/dh``. Singular
+  (``F ~ 1 / sqrt(h - h_lock)``, integrable: the energy stays finite) at the LOCK
+  ``h_lock = sqrt(b^2 - 4 r^2)`` where the twist reaches 180 deg. What the model does there: the
+  prism cannot get shorter (``h >= h_lock`` is a hard contact of its two levels); a prism that
+  reaches it bounces: the relative axial velocity of its two levels is reversed by an elastic
+  impulse (momentum and energy kept). Near the lock, sub-steps shrink so that no prism's gap to
+  the lock changes by more than 5 % per sub-step; within ``1e-9 h0`` of it the contact acts, and
+  the force is evaluated at ``h >= h_lock + 1e-9 h0``. (The 3D model has no such wall: its twist
+  can pass 180 deg, which the divergence check reports as bars crossing.)
+- flexible bases (and rigid bases as stiff cables): ``E(h) = min over (phi, r)`` of the
+  cross-cable energy plus the base-cable energy the prism carries (an interior base cable shared
+  by two prisms counts half for each), with the bar length fixed. Precomputed once per model on a
+  grid of h (golden-section search in phi, vectorised over the grid), F by the envelope theorem
+  (:func:`~solver.prism_law.envelope_force`), interpolated by a cubic spline; E is the exact
+  antiderivative of that spline, so forces and energy agree. Under strong compression the
+  minimiser folds to 180 deg of twist with slack cross cables and only the base cables resist
+  (the law softens); a prism pushed below the table (``0.02 h0``, crushed flat) stops the run with a clear error.
 
-Integration: velocity Verlet with ``n_sub`` sub-steps per step (symplectic; cheap, 1D).
-Impact: the end level gets ``w = -v0`` (the twist has no inertia, so the impulse and energy modes of
-3D impacts coincide here).
+Integration: velocity Verlet with sub-steps of at most ``SUBSTEP`` (symplectic; cheap in 1D).
+Impact: the end level gets ``w = -v0`` (no constraint to project: the impulse and energy modes
+of 3D impacts coincide here).
 """
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
-from scipy.interpolate import CubicSpline
 
 from . import dynamics as dyn
 from ._jit import jit
+from .prism_law import (PrismLaw, poly_eval, cross_length, prism_energy, rigid_force,
+                        table_law, twist)
 
 OUT_OF_TABLE = 20
-STATUS_TEXT = {OUT_OF_TABLE: ('a prism height left the range of the force-law table (crushed flat or '
-                              'overstretched: the quasi-static law has no more resistance)'),
+STATUS_TEXT = {OUT_OF_TABLE: ('a prism height left the range of the force-law table (crushed '
+                              'flat or overstretched: the quasi-static law has no more '
+                              'resistance)'),
                dyn.NONFINITE: 'non-finite state'}
 SUBSTEP = 2e-6          # s, largest Verlet sub-step
 LOCK_ETA = 0.05         # near the rigid-base lock: largest relative change of the gap per sub-step
-GOLD = (math.sqrt(5.0) - 1.0) / 2.0
-
-
-@dataclass
-class PrismLaw:
-    """One prism's quasi-static law. ``kind`` 0 = rigid closed form with ``rigid`` = (r, b, L_s,
-    k_s, n_cross, h_lock); 1 = table: grid ``lo``, ``dh``, ``fcoef`` (n - 1, 4) cubic pieces of F (N),
-    ``ecoef`` (n - 1, 5) quartic pieces of E (J), ``phi``/``radius`` (n,) at the grid nodes."""
-    kind: int
-    rigid: np.ndarray
-    lo: float = 0.0
-    dh: float = 1.0
-    fcoef: np.ndarray = None
-    ecoef: np.ndarray = None
-    phi: np.ndarray = None
-    radius: np.ndarray = None
-
-
-def cross_length(h, r, phi):
-    """Cross-cable length m at height h, radius r, twist phi (rad)."""
-    return np.sqrt(2.0 * r * r * (1.0 - np.cos(phi - 2.0 * math.pi / 3.0)) + h * h)
-
-
-def twist(h, r, b):
-    """Twist (rad, in [0, pi]) that keeps the bar length b at height h and radius r."""
-    return np.arccos(np.clip(1.0 - (b * b - h * h) / (2.0 * r * r), -1.0, 1.0))
-
-
-def prism_energy(h, r, phi, cross, bases):
-    """Energy J of one prism: cross cables ``cross`` (k, L) pairs at length
-    :func:`cross_length`, base cables ``bases`` (weight, k, L) at side ``sqrt(3) r``."""
-    s = cross_length(h, r, phi)
-    side = math.sqrt(3.0) * r
-    e = 0.0
-    for k, L in cross:
-        e = e + 0.5 * k * np.maximum(s - L, 0.0) ** 2
-    for wgt, k, L in bases:
-        e = e + wgt * 0.5 * k * np.maximum(side - L, 0.0) ** 2
-    return e
-
-
-def rigid_force(h, r, b, L_s, k_s, n_cross=3):
-    """Closed-form F(h) N of a rigid-base prism (physics.md section 6); inf at and below the lock."""
-    h = np.asarray(h, dtype=np.float64)
-    phi = twist(h, r, b)
-    s = np.sqrt(b * b + 2.0 * math.sqrt(3.0) * r * r * np.cos(phi + math.pi / 6.0))
-    with np.errstate(divide='ignore', invalid='ignore'):
-        ds = math.sqrt(3.0) * h * np.sin(phi + math.pi / 6.0) / (s * np.sin(phi))
-        f = -n_cross * k_s * np.maximum(s - L_s, 0.0) * ds
-    return np.where(h * h <= b * b - 4.0 * r * r, np.inf, f)
-
-
-def minimise_energy(h, b, cross, bases, iters=90):
-    """``(E*, phi*, r*)`` arrays: the prism energy at heights ``h`` (array, m) minimised over the twist
-    phi in [pi/2, pi] (the base radius follows from the bar length b), by vectorised golden section."""
-    h = np.asarray(h, dtype=np.float64)
-    d2 = b * b - h * h
-
-    def energy(phi):
-        r = np.sqrt(d2 / (2.0 * (1.0 - np.cos(phi))))
-        return prism_energy(h, r, phi, cross, bases), r
-
-    lo = np.full(h.shape, math.pi / 2.0)
-    hi = np.full(h.shape, math.pi)
-    x1 = hi - GOLD * (hi - lo)
-    x2 = lo + GOLD * (hi - lo)
-    f1, f2 = energy(x1)[0], energy(x2)[0]
-    for _ in range(iters):
-        left = f1 < f2
-        hi = np.where(left, x2, hi)
-        lo = np.where(left, lo, x1)
-        x2n = np.where(left, x1, lo + GOLD * (hi - lo))
-        x1n = np.where(left, hi - GOLD * (hi - lo), x2)
-        x1, x2 = x1n, x2n
-        fa = energy(x1)[0]
-        fb = energy(x2)[0]
-        f1, f2 = fa, fb
-    phi = 0.5 * (lo + hi)
-    e, r = energy(phi)
-    return e, phi, r
-
-
-def envelope_force(h, r, phi, cross, bases):
-    """``F = -dE/dh`` N at the minimiser (envelope theorem). Where the minimum is interior in the
-    radius (twist below 180 deg) the partial derivative is taken at fixed radius (the twist
-    follows the bar length): it is insensitive to the minimiser's error in phi. At 180 deg (cross
-    cables slack, the radius at the end of its range) it is taken at fixed twist, the radius
-    following ``r^2 = (b^2 - h^2) / (2 (1 - cos phi))``: the minimum in phi is interior there."""
-    s = cross_length(h, r, phi)
-    folded = phi > math.pi - 1e-7
-    with np.errstate(divide='ignore', invalid='ignore'):
-        ds_r = h * (1.0 - np.sin(phi - 2.0 * math.pi / 3.0) / np.sin(phi)) / s   # fixed r
-    dr = np.where(folded, -h / (2.0 * (1.0 - np.cos(phi)) * r), 0.0)         # fixed phi
-    ds_phi = (2.0 * r * (1.0 - np.cos(phi - 2.0 * math.pi / 3.0)) * dr + h) / s
-    ds = np.where(folded, ds_phi, ds_r)
-    de = 0.0
-    for k, L in cross:
-        de = de + k * np.maximum(s - L, 0.0) * ds
-    side = math.sqrt(3.0) * r
-    for wgt, k, L in bases:
-        de = de + wgt * k * np.maximum(side - L, 0.0) * math.sqrt(3.0) * dr
-    return -de
-
-
-def table_law(h0, b, cross, bases, lo_frac=0.02, hi_frac=1.5, n=2001):
-    """A tabulated :class:`PrismLaw` over ``h in [lo_frac h0, min(hi_frac h0, 0.999 b)]``."""
-    hi = min(hi_frac * h0, 0.999 * b)
-    grid = np.linspace(lo_frac * h0, hi, n)
-    _, phi, r = minimise_energy(grid, b, cross, bases)
-    F = envelope_force(grid, r, phi, cross, bases)
-    spl = CubicSpline(grid, F)
-    anti = spl.antiderivative()          # E(h) = E(grid[0]) - int F
-    e0 = float(minimise_energy(np.array([grid[0]]), b, cross, bases)[0][0])
-    ecoef = -anti.c.T.copy()
-    ecoef[:, -1] += e0
-    return PrismLaw(kind=1, rigid=np.zeros(6), lo=float(grid[0]), dh=float(grid[1] - grid[0]),
-                    fcoef=np.ascontiguousarray(spl.c.T), ecoef=np.ascontiguousarray(ecoef),
-                    phi=phi, radius=r)
 
 
 @jit
 def _piece(h, lo, dh, coef):
-    """Evaluate piecewise polynomial rows ``coef`` (n - 1, d) on the uniform grid at h; NaN outside."""
+    """Evaluate piecewise polynomial rows ``coef`` (n - 1, d) on the uniform grid at h; NaN
+    outside."""
     x = (h - lo) / dh
     n = coef.shape[0]
     if not (x >= 0.0 and x <= n):
@@ -281,20 +170,9 @@ def _chain_run(u, w, dt, n_steps, n_sub, h0, inv_m, f_ext, kind, rigid, lo, dh, 
     return n_steps, dyn.OK
 
 
-def _poly_eval(h, lo, dh, coef):
-    """NumPy twin of :func:`_piece` for arrays of h."""
-    h = np.asarray(h, dtype=np.float64)
-    n = coef.shape[0]
-    i = np.clip(((h - lo) / dh).astype(np.int64), 0, n - 1)
-    t = h - (lo + i * dh)
-    y = np.zeros_like(h)
-    for j in range(coef.shape[1]):
-        y = y * t + coef[i, j]
-    return y
-
-
 class Chain1D:
-    """The 1D chain as a model of one column (see the module doc). State ``u``, ``w`` (n_levels,)."""
+    """The 1D chain as a model of one column (see the module doc). State ``u``, ``w``
+    (n_levels,)."""
     name = 'chain1d'
 
     def __init__(self, network, f_ext=None):
@@ -342,8 +220,8 @@ class Chain1D:
         self._theta0 = math.atan2(d[1], d[0])
 
     def _prism_cables(self, i):
-        """Cross cables (k, L) of prism i, and the base cables (weight, k, L) it carries (half of an
-        interior base cable, all of an end-level one)."""
+        """Cross cables (k, L) of prism i, and the base cables (weight, k, L) it carries (half of
+        an interior base cable, all of an end-level one)."""
         net = self.network
         lev = self.levels
         kinds = np.array(net.cable_kind)
@@ -372,7 +250,7 @@ class Chain1D:
         if law.kind == 0:
             k_s, L_s = self.cross[0]
             return rigid_force(h, self.r0, self.b, L_s, k_s, len(self.cross))
-        return _poly_eval(h, law.lo, law.dh, law.fcoef)
+        return poly_eval(h, law.lo, law.dh, law.fcoef)
 
     def prism_energy(self, h):
         """E(h) J of one prism (minimised over twist and radius for flexible bases)."""
@@ -380,7 +258,7 @@ class Chain1D:
         if self.law.kind == 0:
             phi = twist(h, self.r0, self.b)
             return prism_energy(h, self.r0, phi, self.cross, ())
-        return _poly_eval(h, self.law.lo, self.law.dh, self.law.ecoef)
+        return poly_eval(h, self.law.lo, self.law.dh, self.law.ecoef)
 
     def shape(self, h):
         """(twist rad, base radius m) of prisms of height h (quasi-static)."""

@@ -88,9 +88,9 @@ if hasattr(integrators, 'STATUS_TEXT'):
 
 
 def symmetric_loading(scene_data):
-    """Whether the scene's loading keeps the 3-fold symmetry about z: gravity acts along z and every
-    impact is axial on a whole level (always true for the loads a scene can describe); returns
-    (bool, reason)."""
+    """Whether the scene's loading keeps the 3-fold symmetry about z: gravity acts along z and
+    every impact is axial on a whole level (always true for the loads a scene can describe);
+    returns (bool, reason)."""
     return True, 'axial impact on whole levels, gravity along z'
 
 

@@ -1,17 +1,18 @@
 """The exact 3-fold symmetric reduction ``sym3d`` (physics.md section 6).
 
 A network that is mapped onto itself by the rotation ``R`` by 2 pi / 3 about the z axis (nodes,
-members, rest lengths, stiffnesses, masses and supports), loaded symmetrically, keeps that symmetry
-for ever: ``x_{R p} = R x_p``. One node per orbit of three nodes then carries the whole motion. A
-member ``(a, b)`` of the full network becomes a member joining the representative ``A`` of ``a`` to
-the rotated image ``R^r x_B`` of the representative of ``b`` (``r`` in {0, 1, 2}); the three members of
-an orbit become one. A rigid base triangle becomes ONE member from ``x_j`` to ``R x_j`` (length
-``sqrt(3) r``: the radial constraint ``x^2 + y^2 = r^2``), a base cable likewise.
+members, rest lengths, stiffnesses, masses and supports), loaded symmetrically, keeps that
+symmetry for ever: ``x_{R p} = R x_p``. One node per orbit of three nodes then carries the whole
+motion. A member ``(a, b)`` of the full network becomes a member joining the representative ``A``
+of ``a`` to the rotated image ``R^r x_B`` of the representative of ``b`` (``r`` in {0, 1, 2}); the
+three members of an orbit become one. A rigid base triangle becomes ONE member from ``x_j`` to
+``R x_j`` (length ``sqrt(3) r``: the radial constraint ``x^2 + y^2 = r^2``), a base cable
+likewise.
 
-The reduced system is the full one restricted to the symmetric subspace (Lagrangian divided by 3), so
-node masses, multipliers and cable tensions are those of the full model and its trajectories are the
-full model's, to round-off. The kernels of :mod:`solver.dynamics` and :mod:`solver.integrators` run it
-unchanged through the rotation slots of the ``net`` tuple.
+The reduced system is the full one restricted to the symmetric subspace (Lagrangian divided by 3),
+so node masses, multipliers and cable tensions are those of the full model and its trajectories
+are the full model's, to round-off. The kernels of :mod:`solver.dynamics` and
+:mod:`solver.integrators` run it unchanged through the rotation slots of the ``net`` tuple.
 
 :func:`reduce_network` finds the symmetry (or raises :class:`NotSymmetric`);
 :class:`Sym3D` is the model (same interface as :class:`solver.models.Full3D`).
@@ -146,7 +147,8 @@ def _reduce_members(pairs, rep, rot, props, what):
 
 def _coupling3(members, w_diag, partner, w_off, bw):
     """``coef3[c, k] = sum s_e s_f W_pq (1, cos t, sin t)``, t = 2 pi (rho_e - rho_f) / 3, over the
-    ends e = (p, sign, rho) of constraint c and f of d = c - k (head: sign +1, rho = r; tail: -1, 0)."""
+    ends e = (p, sign, rho) of constraint c and f of d = c - k (head: sign +1, rho = r; tail: -1,
+    rho = 0)."""
     m = len(members)
     coef = np.zeros((m, bw + 1, 3))
     for c in range(m):
@@ -180,10 +182,12 @@ def reduce_network(network, tol=1e-9):
     bars = np.stack([network.bar_a, network.bar_b], axis=1)
     edges = np.stack([network.edge_a, network.edge_b], axis=1)
     cables = np.stack([network.cable_a, network.cable_b], axis=1)
-    rbars, bmass, _ = _reduce_members(bars, rep, rot, np.asarray(network.bar_mass)[:, None], 'bars')
+    rbars, bmass, _ = _reduce_members(bars, rep, rot, np.asarray(network.bar_mass)[:, None],
+                                      'bars')
     redges, _, _ = _reduce_members(edges, rep, rot, np.zeros((len(edges), 1)), 'rigid edges')
     rcab, cprop, cable_map = _reduce_members(
-        cables, rep, rot, np.stack([network.cable_rest_length, network.cable_EA], axis=1), 'cables')
+        cables, rep, rot, np.stack([network.cable_rest_length, network.cable_EA], axis=1),
+        'cables')
     bmass = bmass[:, 0]
     if np.any((bmass > 0) & (rbars[:, 2] != 0)):
         raise NotSymmetric('a massive bar joins a node to a rotated image (not supported)')
@@ -222,9 +226,9 @@ class Sym3D:
     """One node per orbit of three (physics.md section 6); state ``x``, ``v`` (n_orbits, 3).
 
     ``positions()``/``velocities()`` expand to the full network; :meth:`set_state` and
-    :meth:`set_cables` take full arrays and raise :class:`NotSymmetric` (changing nothing) when they
-    are not symmetric, which is the cue for :class:`~solver.simulation.Simulation` to expand the run
-    to ``full3d``."""
+    :meth:`set_cables` take full arrays and raise :class:`NotSymmetric` (changing nothing) when
+    they are not symmetric, which is the cue for :class:`~solver.simulation.Simulation` to expand
+    the run to ``full3d``."""
     name = 'sym3d'
 
     def __init__(self, network, f_ext=None, reduced=None):
