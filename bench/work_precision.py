@@ -1,6 +1,190 @@
-"""Placeholder: filled in by the next commit."""
+"""Work-precision chart: error of the strain history against wall time per simulated second.
+
+For each of the paper's columns (FB, RB; v0 = 0.1 m/s, prestrain 0.002), each model (sym3d,
+full3d) and each method over a range of dt (tolerances for ``dopri54_projected``), the run is
+recorded every ``OUTPUT_DT`` s over a window of ``T_END`` s. Its error is the largest difference of
+the strain history (every prism, every output time) from a converged reference, relative to the
+reference's peak strain; its cost is the wall time of the stepping per simulated second.
+
+Reference: ``dopri54_projected`` (sym3d) with rtol 1e-12, atol 1e-15, dt <= 1e-3. It is shown
+converged by two independent runs written next to it: ``rk4_projected`` at dt = 1.5625e-5 s (sym3d)
+and the same ``dopri54_projected`` on ``full3d``; their difference from the reference (the
+"reference spread") must be far below every error plotted. Timings: the fastest of ``repeats`` runs,
+and ``cost_vs_default`` = wall time divided by that of ``rk4_projected`` at dt = 5e-4 s on the same
+column and model, measured in the same process (the machine may be busy: read ratios).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from . import common
+
+OUTPUT_DT = 8e-3
+T_END = 0.4
+QUICK_T_END = 0.1
+LEVELS = (1e-2, 1e-3, 1e-4, 1e-6)         # accuracy levels of the "fastest method" table
+
+
+def _grid(quick):
+    """(label, method, kinks, [(dt, rtol)...]) series."""
+    halvings = [8e-3 / 2 ** k for k in range(9)]              # 8e-3 ... 3.125e-5 (divide 8e-3)
+    rattle = [4e-3 / 2 ** k for k in range(9)]                # 4e-3 ... 1.5625e-5
+    tols = [10.0 ** -k for k in range(3, 12)]                 # 1e-3 ... 1e-11
+    if quick:
+        halvings, rattle, tols = halvings[1:8:3], rattle[1:8:3], tols[0:9:4]
+    return [
+        ('rk4_projected', 'rk4_projected', True, [(dt, None) for dt in halvings]),
+        ('rk4_projected (no kink landing)', 'rk4_projected', False,
+         [(dt, None) for dt in halvings]),
+        ('rk4', 'rk4', True, [(dt, None) for dt in halvings]),
+        ('rattle', 'rattle', True, [(dt, None) for dt in rattle]),
+        ('dopri54_projected', 'dopri54_projected', True, [(OUTPUT_DT, t) for t in tols]),
+    ]
+
+
+def references(column, t_end, log):
+    """The reference history and the spread of two independent runs from it."""
+    ref = common.record(common.scene(column, 'sym3d', 'dopri54_projected', 1e-3, OUTPUT_DT, t_end,
+                                     rtol=1e-12, atol=1e-15))
+    if ref.diverged:
+        raise RuntimeError(f'reference diverged: {ref.diverged}')
+    checks = {
+        'rk4_projected dt=1.5625e-5 sym3d': common.scene(column, 'sym3d', 'rk4_projected',
+                                                         1.5625e-5, OUTPUT_DT, t_end),
+        'dopri54_projected rtol=1e-12 full3d': common.scene(column, 'full3d', 'dopri54_projected',
+                                                            1e-3, OUTPUT_DT, t_end, rtol=1e-12,
+                                                            atol=1e-15),
+    }
+    spread = {}
+    for name, sc in checks.items():
+        spread[name] = common.strain_error(common.record(sc), ref)
+        log(f'  {column} reference vs {name}: relative strain difference {spread[name]:.2e}')
+    return ref, spread
+
+
+def run(out, quick=False, log=print):
+    """Measure every series; returns (rows, spreads)."""
+    t_end = QUICK_T_END if quick else T_END
+    repeats = 1 if quick else 3
+    model_list = common.available_models(('sym3d',) if quick else ('sym3d', 'full3d'))
+    rows, spreads = [], {}
+    for column in common.COLUMNS:
+        log(f'work-precision: {column} column, window {t_end:g} s, models {model_list}')
+        ref, spread = references(column, t_end, log)
+        spreads[column] = spread
+        for model in model_list:
+            base = common.record(common.scene(column, model, *common.DEFAULT, OUTPUT_DT, t_end),
+                                 repeats=repeats)
+            for label, method, kinks, points in _grid(quick):
+                for dt, rtol in points:
+                    sc = common.scene(column, model, method, dt, OUTPUT_DT, t_end, rtol=rtol,
+                                      atol=None if rtol is None else rtol * 1e-3, kinks=kinks)
+                    h = common.record(sc, repeats=repeats)
+                    err = common.strain_error(h, ref) if not h.diverged else float('nan')
+                    rows.append({
+                        'column': column, 'model': model, 'method': label, 'dt': dt,
+                        'rtol': rtol if rtol is not None else '', 't_end': t_end,
+                        'steps': h.steps, 'evaluations': h.evaluations, 'wall_s': h.wall_s,
+                        'wall_per_sim_s': h.wall_s / t_end,
+                        'cost_vs_default': h.wall_s / base.wall_s,
+                        'strain_error_rel': err,
+                        'energy_drift_rel': common.energy_drift(h) if not h.diverged else
+                        float('nan'),
+                        'constraint_error': float(np.max(h.constraint_error)),
+                        'status': 'ok' if not h.diverged else f'diverged: {h.quantity}'})
+                    log(f'  {column} {model:6s} {label:32s} dt={dt:.3g} rtol={rtol or "":<6} '
+                        f'err={err:.2e} wall/sim-s={h.wall_s / t_end:.3g} s '
+                        f'{"" if not h.diverged else "DIVERGED " + h.quantity}')
+    return rows, spreads
+
+
+def fastest(rows, levels=LEVELS):
+    """Per column and model and accuracy level: the cheapest run whose error is at most the level.
+    Returns a list of dicts."""
+    out = []
+    keys = sorted({(r['column'], r['model']) for r in rows})
+    for column, model in keys:
+        sel = [r for r in rows if (r['column'], r['model']) == (column, model)
+               and r['status'] == 'ok' and np.isfinite(r['strain_error_rel'])]
+        for level in levels:
+            ok = [r for r in sel if r['strain_error_rel'] <= level]
+            if not ok:
+                out.append({'column': column, 'model': model, 'level': level, 'method': 'none',
+                            'dt': '', 'rtol': '', 'wall_per_sim_s': float('nan'),
+                            'cost_vs_default': float('nan'), 'runner_up': '',
+                            'runner_up_ratio': float('nan')})
+                continue
+            best_per_method = {}
+            for r in ok:
+                m = r['method']
+                if m not in best_per_method or r['wall_s'] < best_per_method[m]['wall_s']:
+                    best_per_method[m] = r
+            ranked = sorted(best_per_method.values(), key=lambda r: r['wall_s'])
+            b = ranked[0]
+            second = ranked[1] if len(ranked) > 1 else None
+            out.append({'column': column, 'model': model, 'level': level, 'method': b['method'],
+                        'dt': b['dt'], 'rtol': b['rtol'], 'wall_per_sim_s': b['wall_per_sim_s'],
+                        'cost_vs_default': b['cost_vs_default'],
+                        'runner_up': second['method'] if second else '',
+                        'runner_up_ratio': second['wall_s'] / b['wall_s'] if second else
+                        float('nan')})
+    return out
+
+
+def plot(rows, spreads, path):
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+
+    columns = list(common.COLUMNS)
+    fig, axes = plt.subplots(1, len(columns), figsize=(13, 5.2), constrained_layout=True)
+    colours = {'rk4_projected': 'C0', 'rk4_projected (no kink landing)': 'C9', 'rk4': 'C3',
+               'rattle': 'C2', 'dopri54_projected': 'C1'}
+    styles = {'sym3d': '-', 'full3d': '--'}
+    for ax, column in zip(np.atleast_1d(axes), columns):
+        for (label, model) in sorted({(r['method'], r['model']) for r in rows
+                                      if r['column'] == column}):
+            sel = [r for r in rows if (r['column'], r['method'], r['model']) == (column, label,
+                                                                               model)
+                   and r['status'] == 'ok' and np.isfinite(r['strain_error_rel'])]
+            if not sel:
+                continue
+            sel.sort(key=lambda r: r['strain_error_rel'])
+            ax.loglog([max(r['strain_error_rel'], 1e-16) for r in sel],
+                      [r['wall_per_sim_s'] for r in sel], styles.get(model, ':'), marker='o',
+                      ms=3.5, color=colours.get(label, 'k'), label=f'{label}, {model}')
+        floor = max(spreads.get(column, {}).values(), default=np.nan)
+        if np.isfinite(floor):
+            ax.axvspan(1e-16, max(floor, 1e-16), color='0.85', zorder=0,
+                       label='reference spread')
+        ax.set_title(f'{column} column (v0 = 0.1 m/s, p = 0.002)')
+        ax.set_xlabel('strain-history error / peak strain (vs converged reference)')
+        ax.set_ylabel('wall time per simulated second, s')
+        ax.grid(True, which='both', alpha=0.3)
+        ax.legend(fontsize=7)
+    fig.suptitle('Work-precision: error against cost (left is more accurate, down is faster)')
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return str(path)
 
 
 def main(out, quick=False, log=print):
-    log('work_precision: not implemented yet')
-    return []
+    """Run, write ``work_precision.csv``, ``work_precision_fastest.csv``,
+    ``work_precision_reference.csv`` and ``work_precision.png`` into ``out``; returns the paths."""
+    out = Path(out)
+    tag = '_quick' if quick else ''
+    rows, spreads = run(out, quick, log)
+    best = fastest(rows)
+    ref_rows = [{'column': c, 'check': k, 'strain_difference_rel': v}
+                for c, d in spreads.items() for k, v in d.items()]
+    written = [common.write_csv(out / f'work_precision{tag}.csv', rows),
+               common.write_csv(out / f'work_precision_fastest{tag}.csv', best),
+               common.write_csv(out / f'work_precision_reference{tag}.csv', ref_rows),
+               plot(rows, spreads, out / f'work_precision{tag}.png')]
+    for b in best:
+        log(f'  fastest at error <= {b["level"]:g}: {b["column"]} {b["model"]}: {b["method"]} '
+            f'(dt {b["dt"]}, rtol {b["rtol"]}), {b["wall_per_sim_s"]:.3g} s per simulated s, '
+            f'runner-up {b["runner_up"]} x{b["runner_up_ratio"]:.2f}')
+    return written
