@@ -186,7 +186,8 @@ def measure(scene='config/scenes/fb_column.yaml', window_s=3.0, rounds=3, subscr
         return statistics.median(vals)
 
     return {
-        'scene': scene, 'model': sim.model.name, 'window_s': window_s, 'rounds': rounds, 'subscriber': subscriber,
+        'scene': scene, 'model': sim.model.name, 'window_s': window_s, 'rounds': rounds,
+        'subscriber': subscriber,
         'publish_rate_hz': publish_rate_hz, 'steps_per_frame': chunk,
         'bare_rtf': med(('bare', 'rtf')),
         'node_rtf0_rtf': med(('node_rtf0', 'rtf')), 'node_rtf0_rate_hz': med(('node_rtf0',
@@ -215,7 +216,8 @@ def main(argv=None):
     args = ap.parse_args(argv)
     res = measure(args.scene, args.window, args.rounds, subscriber=not args.no_subscriber,
                   model=args.model)
-    print(f"{res['model']}: bare solver {res['bare_rtf']:.2f}x real time; node rtf=0: {res['node_rtf0_rtf']:.2f}x"
+    print(f"{res['model']}: bare solver {res['bare_rtf']:.2f}x real time; node rtf=0: "
+          f"{res['node_rtf0_rtf']:.2f}x"
           f" at {res['node_rtf0_rate_hz']:.0f} Hz = {res['ratio_rtf0_bare']:.3f} of the bare "
           f"solver (overhead {100 * res['overhead']:.1f} % wall, "
           f"{100 * res['cpu_overhead']:.1f} % per CPU second; longest tick "

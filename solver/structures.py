@@ -143,9 +143,9 @@ class PrestrainMap:
     A prism's self-stress is self-equilibrated in the reference geometry and scales with its cross
     prestrain ``p``, so per-prism values superpose: a cross cable of prism i carries prism i's
     self-stress, an interior shared base cable at level j carries ``t_l(p_{j-1}) + t_l(p_j)``
-    (``stacking='parallel'``: the first cable of a side carries prism j-1, the second prism j), with
-    ``t_l(p) = gamma_s(p) r`` and ``gamma_s(p) = EA_s p / s`` (physics.md section 2). Rigid base edges
-    carry any base force as constraint forces. Prism index: ``column * n_prisms + prism``.
+    (``stacking='parallel'``: the first cable of a side carries prism j-1, the second prism j),
+    with ``t_l(p) = gamma_s(p) r`` and ``gamma_s(p) = EA_s p / s`` (physics.md section 2). Rigid
+    base edges carry any base force as constraint forces. Prism index: ``column * n_prisms + prism``.
 
     Arrays: ``cross`` (n_cross,) cable indices in cable order (the per-cable command order),
     ``cross_prism`` (n_cross,), ``base`` (n_base,) cable indices, ``base_prisms`` (n_base, 2) prism
@@ -204,8 +204,8 @@ class PrestrainMap:
         s = self.length[self.cross]
         rest[self.cross] = s / (1.0 + p[self.cross_prism])
         # gamma_s per prism: mean over its cross cables of EA p / s
-        gamma = np.bincount(self.cross_prism, weights=cable_EA[self.cross] * p[self.cross_prism] / s,
-                            minlength=len(p)) / self._count
+        weights = cable_EA[self.cross] * p[self.cross_prism] / s
+        gamma = np.bincount(self.cross_prism, weights=weights, minlength=len(p)) / self._count
         g_ext = np.append(gamma, 0.0)               # index -1 -> no prism
         t = (g_ext[self.base_prisms[:, 0]] + g_ext[self.base_prisms[:, 1]]) * self.radius
         EA_b = cable_EA[self.base]

@@ -3,8 +3,8 @@
 Building a ``visualization_msgs/MarkerArray`` of ~900 ``geometry_msgs/Point`` objects and having
 rclpy convert them back to C costs milliseconds per message; the same bytes written from the
 arrays cost tens of microseconds. :func:`marker_array_cdr` returns the serialized form of exactly
-what :func:`tensegrity_ros.messages.marker_array` builds (a test deserializes one and compares it to
-the other), ready for ``Publisher.publish(bytes)``.
+what :func:`tensegrity_ros.messages.marker_array` builds (a test deserializes one and compares it
+to the other), ready for ``Publisher.publish(bytes)``.
 
 Encoding: XCDR1 (plain CDR) little endian, as ROS 2's Fast DDS writes it: a 4-byte encapsulation
 header ``00 01 00 00``, then every primitive aligned to its size (doubles to 8) relative to the end

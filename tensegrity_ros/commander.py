@@ -2,8 +2,8 @@
 
 :class:`Commander` is an ordinary rclpy node: it publishes ``~/cmd/impact`` and ``~/cmd/prestrain``
 of the simulation node, listens to its ``~/strain`` and ``/diagnostics`` and calls its services.
-:func:`run_demo` starts the node in a second process, commands an impact over the topic, collects the
-strain wave for a while, stops the node with SIGINT and returns a summary dict.
+:func:`run_demo` starts the node in a second process, commands an impact over the topic, collects
+the strain wave for a while, stops the node with SIGINT and returns a summary dict.
 """
 from __future__ import annotations
 

@@ -4,12 +4,12 @@ Each parser takes the data and layout of a ``std_msgs/Float64MultiArray`` and re
 for :class:`solver.simulation.Simulation`, or raises :class:`CommandError` whose message names the
 problem. Nothing is changed by a parser; a rejected command changes nothing.
 
-``~/cmd/impact``: ``v0`` m/s, positive compressive, ``|v0| <= 10``; 1 value (every column) or one per
-column. ``~/cmd/prestrain``: cross prestrain ``0 < p <= 0.5``; 1 value (every column), one per column,
-or one per cross cable in the network's cable order (column, prism, cable k). The per-cross-cable form
-is accepted only when the three cross cables of each prism have equal values: a prism's self-stress
-is one mode, so unequal values cannot keep the reference geometry in equilibrium (it is rejected,
-naming the first prism that differs). Layout label (first dimension), optional: ``all``, ``column``
+``~/cmd/impact``: ``v0`` m/s, positive compressive, ``|v0| <= 10``; 1 value (every column) or one
+per column. ``~/cmd/prestrain``: cross prestrain ``0 < p <= 0.5``; 1 value (every column), one per
+column, or one per cross cable in the network's cable order (column, prism, cable k). The
+per-cross-cable form is accepted only when the three cross cables of each prism have equal values:
+a prism's self-stress is one mode, so unequal values cannot keep the reference geometry in
+equilibrium (such a command is rejected, naming the first prism that differs). Layout label (first dimension), optional: ``all``, ``column``
 or ``cross_cable``; when given it must agree with the number of values.
 """
 from __future__ import annotations
@@ -42,8 +42,8 @@ def _values(topic, data, layout):
             raise CommandError(f'{topic}: layout.data_offset must be 0, got {layout.data_offset}')
         dims = list(layout.dim)
         if len(dims) > 1:
-            raise CommandError(f'{topic}: expected a flat vector (at most 1 layout dimension), got '
-                               f'{len(dims)} dimensions')
+            raise CommandError(f'{topic}: expected a flat vector (at most 1 layout dimension), '
+                               f'got {len(dims)} dimensions')
         if dims and int(dims[0].size) != v.size:
             raise CommandError(f'{topic}: layout says {dims[0].size} values but data has {v.size}')
     bad = ~np.isfinite(v)
@@ -96,7 +96,8 @@ def parse_prestrain(data, layout, n_columns, n_prisms, cross_prism=None):
     sizes = {'all': 1, 'column': n_columns, 'cross_cable': n_cross}
     if label:
         if v.size != sizes[label]:
-            raise CommandError(f'{topic}: label {label!r} needs {sizes[label]} values, got {v.size}')
+            raise CommandError(f'{topic}: label {label!r} needs {sizes[label]} values, got '
+                               f'{v.size}')
     elif v.size == 1:
         label = 'all'
     elif v.size == n_columns:
@@ -125,8 +126,8 @@ def parse_prestrain(data, layout, n_columns, n_prisms, cross_prism=None):
         k = int(np.argmax(differ))
         c, i = divmod(k, n_prisms)
         raise CommandError(f'{topic}: the cross cables of prism {i} of column {c} have different '
-                           f'prestrain ({p_min[k]:g} .. {p_max[k]:g}); only equal values per prism '
-                           'keep the reference geometry in equilibrium')
+                           f'prestrain ({p_min[k]:g} .. {p_max[k]:g}); only equal values per '
+                           'prism keep the reference geometry in equilibrium')
     return p_max.reshape(n_columns, n_prisms)
 
 

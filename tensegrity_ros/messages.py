@@ -1,8 +1,8 @@
 """Frame -> ROS 2 messages: pure functions shared by the node and the MCAP writer.
 
 Nothing here talks to ROS middleware: the functions build message objects from a
-:class:`solver.simulation.Frame` and a :class:`solver.network.Network`, so the node, the MCAP log and
-the tests see exactly the same bytes.
+:class:`solver.simulation.Frame` and a :class:`solver.network.Network`, so the node, the MCAP log
+and the tests see exactly the same bytes.
 
 Stable API (keep it so; the recorder depends on it):
 
@@ -10,8 +10,8 @@ Stable API (keep it so; the recorder depends on it):
   Keys starting with ``~/`` are private to the node, ``/clock`` and ``/diagnostics`` are absolute.
 - :data:`MSG_CLASSES`: topic key -> message class.
 - :func:`resolve_topic`: ``'~/nodes' -> '/tensegrity/tensegrity_sim/nodes'``.
-- :func:`frame_messages` ``(frame, network, stamp=None, markers=True, clock=False)``: dict topic key
-  -> message for one publish frame (stamps from simulation time ``frame.t``).
+- :func:`frame_messages` ``(frame, network, stamp=None, markers=True, clock=False)``: dict topic
+  key -> message for one publish frame (stamps from simulation time ``frame.t``).
 - :func:`diagnostics_message`, :func:`command_array`, :func:`sim_stamp`, :func:`stamp_to_ns`,
   :func:`nodes_cloud` / :func:`cloud_positions`, :func:`multi_array`, :func:`marker_array`.
 """

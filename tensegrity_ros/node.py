@@ -4,12 +4,13 @@
 
 One timer drives everything: each tick advances the simulation towards the paced target time (or as
 far as fits in the tick with ``real_time_factor`` 0), never working longer than one publish period,
-then publishes one frame (messages built once by :mod:`tensegrity_ros.messages`). Commands arrive in
-the same single-threaded executor, so they never race a step. Stamps are simulation time.
+then publishes one frame (messages built once by :mod:`tensegrity_ros.messages`). Commands arrive
+in the same single-threaded executor, so they never race a step. Stamps are simulation time.
 
 Recorders hook in through three lists (see :meth:`TensegritySim.add_sink`): ``_sinks`` get
 ``(topic, msg, stamp_ns)`` for every published message and every received command, ``_frame_sinks``
-get each published :class:`solver.simulation.Frame`, ``_event_sinks`` get ``(t, text)`` per command.
+get each published :class:`solver.simulation.Frame`, ``_event_sinks`` get ``(t, text)`` per
+command.
 """
 from __future__ import annotations
 

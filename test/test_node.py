@@ -1,5 +1,5 @@
-"""The node tensegrity_sim in a real rclpy context (own domain id): commands in over topics, messages
-out, services, malformed commands, divergence, pacing logic and parameters."""
+"""The node tensegrity_sim in a real rclpy context (own domain id): commands in over topics,
+messages out, services, malformed commands, divergence, pacing logic and parameters."""
 import os
 
 import numpy as np

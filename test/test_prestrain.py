@@ -1,6 +1,6 @@
 """Prestrain as an actuator (solver level): the reference geometry stays in equilibrium at any
-per-prism prestrain, tensions follow the analytic self-stress, ramps leave a resting column at rest,
-bad values change nothing."""
+per-prism prestrain, tensions follow the analytic self-stress, ramps leave a resting column at
+rest, bad values change nothing."""
 import math
 
 import numpy as np
