@@ -259,7 +259,7 @@ def format_table(result, markdown=False):
         if r.status != 'ok':
             why = r.status.split(': ', 1)[-1].split(';')[0]
             t = r.status.split('t = ')[1].split(' s')[0] if 't = ' in r.status else '?'
-            figures = [f'stopped at t = {t} s: {why}'] + [''] * 5
+            figures = [f'stopped at t = {t} s: {why}'] + [''] * 4
         else:
             figures = [_f(r.amplitude, '.4f'), _f(r.amplitude_median, '.4f'),
                        _f(r.speed_m_s, '.3f'), str(r.width_prisms), _f(r.arrival_time_s, '.3f')]
@@ -272,9 +272,6 @@ def format_table(result, markdown=False):
         out.append('| ' + ' | '.join(head) + ' |')
         out.append('|' + '---|' * len(head))
         for line in lines:
-            if line[3].startswith('stopped'):
-                line = line[:3] + [line[3]] + line[9:]
-                line = line[:4] + [''] * 5 + line[4:]
             out.append('| ' + ' | '.join(line) + ' |')
     else:
         widths = [max(len(h), *(len(line[i]) for line in lines if not line[3].startswith('stop')
@@ -289,7 +286,7 @@ def format_table(result, markdown=False):
                 out.append('  '.join(c.ljust(w) for c, w in zip(line, widths)))
     out.append('')
     for name, s in result['speed'].items():
-        out.append(f"{name}: full3d {s['full3d_s']:.3f} s, sym3d {s['sym3d_s']:.3f} s wall for "
+        out.append(('- ' if markdown else '') + f"{name}: full3d {s['full3d_s']:.3f} s, sym3d {s['sym3d_s']:.3f} s wall for "
                    f"{s['t_end']:g} s simulated (v0 = {s['v0']:g} m/s): full3d / sym3d = "
                    f"{s['ratio']:.2f}, largest relative position difference "
                    f"{s['max_rel_diff']:.1e}")
