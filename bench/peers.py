@@ -312,7 +312,7 @@ def machine_and_versions():
     return machine, versions
 
 
-def kernel_bound(ours, t_end, log, rounds=3):
+def kernel_bound(ours, t_end, log, rounds=5):
     """CPU time per step of our best configuration against its kernel bound: the numba kernels one
     step calls (``evaluations_per_step`` force-and-constraint evaluations, plus the kink
     prediction and the two projections where the method uses them), each timed in a jitted loop.
