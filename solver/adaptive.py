@@ -2,12 +2,13 @@
 
 ``y = (x, v)``, ``y' = (v, a(x, v))`` with ``a`` from :func:`solver.dynamics.accelerations`. Each
 accepted step is the 5th-order solution, then positions and velocities are projected on the rigid
-members as in ``rk4_projected``. The error estimate (5th minus embedded 4th order) is measured in the
-RMS norm of ``err / (atol + rtol max(|y|, |y+|))`` over every coordinate of x (m) and v (m/s) (the
-scipy ``RK45`` convention; positions are absolute, so ``rtol`` acts on about 0.3 m for the paper's
-column). A step is accepted when that norm is at most 1; the next step is ``h * clip(0.9 err^(-1/5),
-0.2, 5)``, never above ``dt``. A step whose stages fail (singular constraint matrix, non-finite
-values) is rejected and retried 4x shorter. With ``kinks`` a step is shortened to land on the next
+members as in ``rk4_projected``. The error estimate (5th minus embedded 4th order) is measured in
+the RMS norm of ``err / (atol + rtol max(|y|, |y+|))`` over every coordinate of x (m) and v (m/s)
+(the scipy ``RK45`` convention; positions are absolute, so ``rtol`` acts on about 0.3 m for the
+paper's column). A step is accepted when that norm is at most 1; the next step is
+``h * clip(0.9 err^(-1/5), 0.2, 5)``, never above ``dt``. The tolerance is per step: the global
+error accumulates over the steps. A step whose stages fail (singular constraint matrix,
+non-finite values) is rejected and retried 4x shorter. With ``kinks`` a step is shortened to land on the next
 predicted cable slack/taut transition, which keeps the error estimate honest across kinks.
 """
 from __future__ import annotations
@@ -84,8 +85,8 @@ def _error_norm(x, v, xs, vs, h, E, kx, kv, rtol, atol):
 @jit
 def dopri_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, rtol, atol, A, E, kx, kv,
                xs, vs, hstate):
-    """Advance by ``n_steps * dt`` adaptively. ``hstate``: [proposed step, accepted, rejected, force
-    evaluations], carried between calls. Returns (accepted steps, status)."""
+    """Advance by ``n_steps * dt`` adaptively. ``hstate``: [proposed step, accepted, rejected,
+    force evaluations], carried between calls. Returns (accepted steps, status)."""
     total = n_steps * dt
     t = 0.0
     accepted = 0

@@ -5,7 +5,8 @@ An integrator advances positions ``x`` (n_nodes, 3) m and velocities ``v`` (n_no
 returns ``(steps_done, status)``; a non-OK status stops it at the step that failed, leaving the last
 good state in ``x`` and ``v``.
 
-Methods (:data:`METHODS`; the scene key ``integrator.method`` or ``--set integrator=NAME`` selects one):
+Methods (:data:`METHODS`; the scene key ``integrator.method`` or ``--set integrator=NAME`` picks
+one):
 
 - ``rk4_projected`` (default): classical RK4, then mass-weighted projection of positions and
   velocities; steps land on cable slack/taut kinks. Order 4, four force evaluations per step.
@@ -14,15 +15,15 @@ Methods (:data:`METHODS`; the scene key ``integrator.method`` or ``--set integra
 - ``rattle``: velocity Verlet with RATTLE constraints. Order 2, one force evaluation per step,
   symmetric and (to the projection tolerance) symplectic: energy stays bounded over long runs.
 - ``dopri54_projected``: adaptive Dormand-Prince 5(4) with error control (``integrator.rtol``,
-  ``integrator.atol``), ``dt`` is the initial and largest step; projection after every accepted step,
-  steps land on kinks.
+  ``integrator.atol``), ``dt`` is the initial and largest step; projection after every accepted
+  step, steps land on kinks.
 
 To add a method: write an ``@jit`` kernel ``_my_run(x, v, dt, n_steps, net, act, ws, tol, max_iter,
 kinks)`` with that contract (calling only :func:`solver.dynamics.accelerations`,
-``project_positions``, ``project_velocities``, ``all_finite`` and :func:`next_kink`, and passing the
-``net``/``act``/``ws`` tuples through untouched), subclass :class:`Integrator` (``name``, ``order``,
-``projected``, ``kernel``; override :meth:`Integrator.run` when the kernel needs scratch arrays of its
-own, allocated with :meth:`Integrator.scratch`) and add it to :data:`METHODS`.
+``project_positions``, ``project_velocities``, ``all_finite`` and :func:`next_kink`, and passing
+the ``net``/``act``/``ws`` tuples through untouched), subclass :class:`Integrator` (``name``,
+``order``, ``projected``, ``kernel``; override :meth:`Integrator.run` when the kernel needs scratch
+arrays of its own, allocated with :meth:`Integrator.scratch`) and add it to :data:`METHODS`.
 """
 from __future__ import annotations
 
@@ -218,8 +219,8 @@ STEP_TOO_SMALL = 10    # status code beyond those of solver.dynamics (adaptive s
 
 
 class Integrator:
-    """A method behind one interface. ``kernel`` is the ``@jit`` run function described in the module
-    doc; ``evaluations_per_step`` counts force evaluations (for work estimates)."""
+    """A method behind one interface. ``kernel`` is the ``@jit`` run function described in the
+    module doc; ``evaluations_per_step`` counts force evaluations (for work estimates)."""
     name = ''
     order = 0
     projected = False
@@ -266,7 +267,8 @@ class RK4Projected(Integrator):
 
 
 class RK4(Integrator):
-    """Classical RK4 without projection: bar lengths drift (shown, not hidden). Steps land on kinks."""
+    """Classical RK4 without projection: bar lengths drift (shown, not hidden). Steps land on
+    kinks."""
     name = 'rk4'
     order = 4
     evaluations_per_step = 4
@@ -292,9 +294,9 @@ class Rattle(Integrator):
 
 
 class DOPRI54Projected(Integrator):
-    """Adaptive Dormand-Prince 5(4) (see :mod:`solver.adaptive`): ``dt`` is the initial and largest step,
-    ``rtol``/``atol`` the error tolerances. Seven force evaluations per accepted step (six plus a
-    fresh first stage after the projection); ``stats()`` counts steps and evaluations."""
+    """Adaptive Dormand-Prince 5(4) (see :mod:`solver.adaptive`): ``dt`` is the initial and largest
+    step, ``rtol``/``atol`` the error tolerances. Seven force evaluations per accepted step (six
+    plus a fresh first stage after the projection); ``stats()`` counts steps and evaluations."""
     name = 'dopri54_projected'
     order = 5
     projected = True
