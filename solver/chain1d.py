@@ -28,7 +28,8 @@ Force laws (:class:`~solver.prism_law.PrismLaw`):
   (:func:`~solver.prism_law.envelope_force`), interpolated by a cubic spline; E is the exact
   antiderivative of that spline, so forces and energy agree. Under strong compression the
   minimiser folds to 180 deg of twist with slack cross cables and only the base cables resist
-  (the law softens); a prism pushed below the table (``0.02 h0``, crushed flat) stops the run with a clear error.
+  (the law softens); a prism pushed below the table (``0.02 h0``, crushed flat) stops the run
+  with a clear error.
 
 Integration: velocity Verlet with sub-steps of at most ``SUBSTEP`` (symplectic; cheap in 1D).
 Energy drift: 2e-4 to 4e-4 per second for rigid bases (the near-lock stiffness), about 1e-6 for the
