@@ -286,8 +286,9 @@ def format_table(result, markdown=False):
                 out.append('  '.join(c.ljust(w) for c, w in zip(line, widths)))
     out.append('')
     for name, s in result['speed'].items():
-        out.append(('- ' if markdown else '') + f"{name}: full3d {s['full3d_s']:.3f} s, sym3d {s['sym3d_s']:.3f} s wall for "
-                   f"{s['t_end']:g} s simulated (v0 = {s['v0']:g} m/s): full3d / sym3d = "
+        bullet = '- ' if markdown else ''
+        out.append(f"{bullet}{name}: full3d {s['full3d_s']:.3f} s, sym3d {s['sym3d_s']:.3f} s "
+                   f"wall for {s['t_end']:g} s simulated (v0 = {s['v0']:g} m/s): full3d / sym3d = "
                    f"{s['ratio']:.2f}, largest relative position difference "
                    f"{s['max_rel_diff']:.1e}")
     return '\n'.join(out)
