@@ -1,0 +1,67 @@
+"""The bookkeeping of the integrator benchmarks (bench/work_precision.py, bench/stability.py) on
+hand-made data: classification, fastest method per accuracy level, largest stable dt, and one tiny
+real run through the recorder."""
+import numpy as np
+
+from bench import common, stability, work_precision
+
+
+def _hist(strain, energy=None, cerr=None, diverged=None, quantity=None):
+    n = len(strain)
+    return common.History(times=np.arange(n) * 0.01, strain=np.asarray(strain, dtype=float),
+                          energy=np.ones(n) if energy is None else np.asarray(energy, float),
+                          constraint_error=np.zeros(n) if cerr is None else np.asarray(cerr),
+                          wall_s=1.0, steps=n, diverged=diverged, quantity=quantity)
+
+
+def test_strain_error_is_relative_to_the_peak():
+    ref = _hist([[0.0, 0.0], [-0.1, 0.0], [0.0, -0.05]])
+    run = _hist([[0.0, 0.0], [-0.1, 0.002], [0.0, -0.05]])
+    assert np.isclose(common.strain_error(run, ref), 0.02)
+    assert np.isnan(common.strain_error(_hist([[0.0, 0.0]]), ref))     # stopped early
+
+
+def test_classification_of_cells():
+    ref = _hist([[0.0], [-0.1], [-0.05]])
+    close = _hist([[0.0], [-0.10005], [-0.05]])
+    far = _hist([[0.0], [-0.09], [-0.05]])
+    assert stability.classify(close, ref)[0] == 'accurate'
+    assert stability.classify(far, ref)[0] == 'inaccurate'
+    assert stability.classify(_hist([[0.0], [-0.1], [-0.05]], energy=[1.0, 1.0, 1.01]),
+                              ref)[0] == 'drifting'
+    assert stability.classify(_hist([[0.0], [-0.1], [-0.05]], cerr=[0, 0, 1e-5]),
+                              ref)[0] == 'drifting'
+    assert stability.classify(_hist([[0.0]], diverged='x', quantity='energy'),
+                              ref)[0] == 'diverged'
+    failed_ref = _hist([[0.0]], diverged='x', quantity='prism height')
+    assert stability.classify(close, failed_ref)[0] == 'inaccurate'
+
+
+def test_largest_stable_dt_stops_at_the_first_failure():
+    rows = []
+    for dt, cls in ((1e-3, 'accurate'), (2e-3, 'drifting'), (4e-3, 'diverged'),
+                    (8e-3, 'drifting')):           # stable again above a failure: not counted
+        for v0 in (0.1, 0.15):
+            rows.append({'column': 'FB', 'method': 'm', 'prestrain': 0.002, 'v0': v0, 'dt': dt,
+                         'class': cls})
+    assert stability.largest_stable(rows, 'FB') == {'m': (2e-3, 1e-3)}
+
+
+def test_fastest_method_per_accuracy_level():
+    def row(method, err, wall):
+        return {'column': 'FB', 'model': 'sym3d', 'method': method, 'dt': 1e-3, 'rtol': '',
+                'strain_error_rel': err, 'wall_s': wall, 'wall_per_sim_s': wall / 0.4,
+                'cost_vs_default': wall, 'status': 'ok'}
+    rows = [row('a', 1e-3, 1.0), row('a', 1e-7, 4.0), row('b', 1e-5, 2.0), row('b', 1e-9, 3.0),
+            dict(row('c', 1e-12, 0.1), status='diverged: energy')]
+    best = {b['level']: (b['method'], b['runner_up']) for b in
+            work_precision.fastest(rows, levels=(1e-2, 1e-4, 1e-6, 1e-8, 1e-10))}
+    assert best == {1e-2: ('a', 'b'), 1e-4: ('b', 'a'), 1e-6: ('b', 'a'), 1e-8: ('b', ''),
+                    1e-10: ('none', '')}
+
+
+def test_record_of_a_short_run_is_finite_and_timed():
+    sc = common.scene('FB', common.available_models()[0], 'rk4_projected', 1e-3, 4e-3, 0.02)
+    h = common.record(sc)
+    assert h.diverged is None and h.strain.shape == (6, 50) and h.wall_s > 0
+    assert np.all(np.isfinite(h.strain)) and np.min(h.strain) < 0     # the impact compresses
