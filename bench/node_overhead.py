@@ -225,7 +225,7 @@ def main(argv=None):
           f"{res['node_rtf1_rate_hz']:.0f} Hz (longest tick {res['tick_max_ms_rtf1']:.1f} ms)")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    name = f"node_overhead_{res['model']}.json"
+    name = f"node_overhead_{res['model']}{'' if res['subscriber'] else '_nosub'}.json"
     (out / name).write_text(json.dumps(res, indent=2))
     print(out / name)
     return 0
