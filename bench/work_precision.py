@@ -75,15 +75,18 @@ def run(out, quick=False, log=print):
     t_end = QUICK_T_END if quick else T_END
     repeats = 1 if quick else 3
     model_list = common.available_models(('sym3d',) if quick else ('sym3d', 'full3d'))
+    chain = common.available_models(('chain1d',))
     rows, spreads = [], {}
     for column in common.COLUMNS:
-        log(f'work-precision: {column} column, window {t_end:g} s, models {model_list}')
+        log(f'work-precision: {column} column, window {t_end:g} s, models {model_list + chain}')
         ref, spread = references(column, t_end, log)
         spreads[column] = spread
-        for model in model_list:
+        for model in model_list + chain:
             base = common.record(common.scene(column, model, *common.DEFAULT, OUTPUT_DT, t_end),
                                  repeats=repeats)
-            for label, method, kinks, points in _grid(quick):
+            series = _grid(quick) if model != 'chain1d' else [     # its own Verlet integrator
+                ('chain1d (own integrator)', 'rk4_projected', True, [(1e-3, None), (2.5e-4, None)])]
+            for label, method, kinks, points in series:
                 for dt, rtol in points:
                     sc = common.scene(column, model, method, dt, OUTPUT_DT, t_end, rtol=rtol,
                                       atol=None if rtol is None else rtol * 1e-3, kinks=kinks)
@@ -110,7 +113,7 @@ def fastest(rows, levels=LEVELS):
     """Per column and model and accuracy level: the cheapest run whose error is at most the level.
     Returns a list of dicts."""
     out = []
-    keys = sorted({(r['column'], r['model']) for r in rows})
+    keys = sorted({(r['column'], r['model']) for r in rows if r['model'] != 'chain1d'})
     for column, model in keys:
         sel = [r for r in rows if (r['column'], r['model']) == (column, model)
                and r['status'] == 'ok' and np.isfinite(r['strain_error_rel'])]
@@ -147,8 +150,8 @@ def plot(rows, spreads, path):
     columns = list(common.COLUMNS)
     fig, axes = plt.subplots(1, len(columns), figsize=(13, 5.2), constrained_layout=True)
     colours = {'rk4_projected': 'C0', 'rk4_projected (no kink landing)': 'C9', 'rk4': 'C3',
-               'rattle': 'C2', 'dopri54_projected': 'C1'}
-    styles = {'sym3d': '-', 'full3d': '--'}
+               'rattle': 'C2', 'dopri54_projected': 'C1', 'chain1d (own integrator)': 'C7'}
+    styles = {'sym3d': '-', 'full3d': '--', 'chain1d': ':'}
     for ax, column in zip(np.atleast_1d(axes), columns):
         for (label, model) in sorted({(r['method'], r['model']) for r in rows
                                       if r['column'] == column}):
