@@ -376,7 +376,7 @@ class TensegritySim(Node):
     def _on_impact(self, msg):
         def apply():
             v0 = commands.parse_impact(msg.data, msg.layout, self.sim.network.n_columns)
-            added = self.sim.apply_impact(v0)
+            added = self.sim.apply_impact(float(v0[0]) if v0.size == 1 else v0)
             return f'impact v0 = {commands.describe(v0)} m/s, kinetic energy +{added:.3g} J'
         return self._command('~/cmd/impact', msg, apply)
 
@@ -385,6 +385,10 @@ class TensegritySim(Node):
             if self._cross_prism is None:
                 raise commands.CommandError('~/cmd/prestrain: this scene is not a column of '
                                             'prisms; prestrain commands need one')
+            if self.sim.model.name == 'chain1d':
+                raise commands.CommandError('~/cmd/prestrain: the chain1d model cannot change its '
+                                            'prestrain (its force law is precomputed for the '
+                                            'scene); use model full3d or sym3d')
             net = self.sim.network
             p = commands.parse_prestrain(msg.data, msg.layout, net.n_columns, net.n_prisms,
                                          self._cross_prism)

@@ -265,3 +265,19 @@ def test_parameters_file_matches_defaults_and_bad_values_named():
         with pytest.raises(ParameterError, match=name):
             check_parameters(dict(DEFAULTS, **{name: value}))
     assert check_parameters(dict(DEFAULTS, dt=0))['dt'] == 0.0
+
+
+def test_chain1d_model_rejects_prestrain_and_takes_impacts(tmp_path):
+    r = Ros(tmp_path, model='chain1d')
+    try:
+        assert r.node.sim.model.name == 'chain1d'
+        r.cmd.prestrain([0.003])
+        assert r.spin(lambda: r.node.counts['rejected'] == 1)
+        assert 'chain1d' in r.node.last_command[2]
+        r.cmd.impact([0.1])
+        assert r.spin(lambda: r.node.counts['accepted'] == 1)
+        n = len(r.cmd.strain)
+        assert r.spin(lambda: len(r.cmd.strain) > n + 20)
+        assert min(s.min() for s in r.cmd.strain[n:]) < -0.01
+    finally:
+        r.close()
