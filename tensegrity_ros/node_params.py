@@ -1,0 +1,97 @@
+"""Parameters of the node ``tensegrity_sim``: defaults (mirrored by ``config/node.yaml``), checks,
+and the :class:`~solver.simulation.Simulation` they describe. No ROS imports: usable by tests and
+tools without a ROS context."""
+from __future__ import annotations
+
+import math
+import sys
+from pathlib import Path
+
+from solver.scene import Scene
+from solver.simulation import Simulation
+
+# Defaults of every parameter (config/node.yaml repeats them; a test keeps the two equal).
+DEFAULTS = {
+    'scene_file': 'config/scenes/fb_column.yaml',
+    'model': '',                 # '' = the scene's
+    'integrator': '',            # '' = the scene's
+    'dt': 0.0,                   # 0 = the scene's, s
+    'publish_rate_hz': 200.0,
+    'real_time_factor': 1.0,     # 1 = wall clock, 0 = as fast as possible
+    'use_sim_clock': True,
+    'record_mcap': '',
+    'record_rerun': '',
+    'marker_rate_hz': 20.0,
+    'prestrain_ramp_s': 0.05,    # s of simulation time
+    'diagnostics_rate_hz': 2.0,
+}
+DESCRIPTIONS = {
+    'scene_file': 'scene YAML (absolute, relative to the working directory, or to the package)',
+    'model': 'model override (auto, full3d, ...); empty = the scene value',
+    'integrator': 'integrator.method override; empty = the scene value',
+    'dt': 'integrator.dt override, s; 0 = the scene value',
+    'publish_rate_hz': 'frames published per wall-clock second (timer rate)',
+    'real_time_factor': 'simulated seconds per wall second; 0 = as fast as possible',
+    'use_sim_clock': 'publish /clock with the simulation time',
+    'record_mcap': 'MCAP file to record every topic to; empty = none',
+    'record_rerun': 'Rerun .rrd file to record to; empty = none',
+    'marker_rate_hz': 'MarkerArray publications per wall second (<= publish_rate_hz)',
+    'prestrain_ramp_s': 'simulation time over which a prestrain command is ramped, s',
+    'diagnostics_rate_hz': 'periodic /diagnostics per wall second (also sent on every command)',
+}
+POSITIVE = ('publish_rate_hz', 'marker_rate_hz', 'diagnostics_rate_hz')
+NON_NEGATIVE = ('real_time_factor', 'prestrain_ramp_s', 'dt')
+
+
+class ParameterError(ValueError):
+    """A parameter value that cannot be used; the message names it."""
+
+
+def find_config(path):
+    """A config file given absolute, relative to the working directory, to the source checkout or
+    to the installed share directory."""
+    p = Path(path)
+    candidates = [p] if p.is_absolute() else [
+        Path.cwd() / p, Path(__file__).resolve().parent.parent / p,
+        Path(sys.prefix) / 'share' / 'tensegrity_ros' / p]
+    for c in candidates:
+        if c.is_file():
+            return c
+    raise ParameterError(f'scene_file: {path!r} not found')
+
+
+def check_parameters(values):
+    """Validate a dict of parameter values (names as in :data:`DEFAULTS`); integers are accepted
+    for floating-point parameters. Returns the coerced dict."""
+    values = dict(values)
+    for name, default in DEFAULTS.items():
+        v = values[name]
+        if isinstance(default, float) and isinstance(v, int) and not isinstance(v, bool):
+            values[name] = v = float(v)
+        if type(v) is not type(default):
+            raise ParameterError(f'{name}: expected {type(default).__name__}, got {v!r}')
+    for name in POSITIVE:
+        if not (math.isfinite(values[name]) and values[name] > 0):
+            raise ParameterError(f'{name}: must be a positive number, got {values[name]!r}')
+    for name in NON_NEGATIVE:
+        if not (math.isfinite(values[name]) and values[name] >= 0):
+            raise ParameterError(f'{name}: must be >= 0, got {values[name]!r}')
+    return values
+
+
+def load_simulation(values):
+    """The :class:`Simulation` the parameters describe, kernels compiled (one step, then reset)."""
+    scene = Scene.load(find_config(values['scene_file']))
+    sets = []
+    if values['model']:
+        sets.append(('model', values['model']))
+    if values['integrator']:
+        sets.append(('integrator.method', values['integrator']))
+    if values['dt'] > 0:
+        sets.append(('integrator.dt', values['dt']))
+    if sets:
+        scene = scene.with_overrides(sets)
+    sim = Simulation(scene)
+    sim.advance(sim.dt)
+    sim.reset()
+    return sim
