@@ -39,6 +39,25 @@ def test_sym3d_equals_full3d_on_the_paper_columns(name):
     np.testing.assert_allclose(sym.frame().tension, full.frame().tension, rtol=0, atol=1e-12)
 
 
+@pytest.mark.parametrize('name,sets', [
+    ('fb_column', ['structure.handedness=left']),
+    ('fb_column', ['loading.gravity=0.2']),
+    ('fb_column', ['structure.stacking=parallel']),
+    ('prism', ['materials.bar_mass=0.002', 'structure.bases=rigid']),      # massive bars
+    ('rb_column', ['structure.rigid_bases_as=stiff_cables', 'integrator.dt=1e-4']),
+    ('rb_column', ['loading.impact.mode=energy', 'loading.impact.v0=0.02']),
+])
+def test_sym3d_equals_full3d_on_other_symmetric_variants(name, sets):
+    x = {}
+    for model in ('full3d', 'auto'):
+        sim = Simulation(_scene(name, f'model={model}', *sets))
+        sim.apply_impact(sim.scene['loading.impact.v0'])
+        sim.advance(0.05)
+        x[sim.model.name] = sim.frame().positions
+    assert set(x) == {'full3d', 'sym3d'}
+    assert np.max(np.abs(x['sym3d'] - x['full3d'])) <= 1e-9 * np.max(np.abs(x['full3d']))
+
+
 @pytest.mark.parametrize('name', ['fb_column', 'rb_column'])
 def test_auto_selects_sym3d_on_the_paper_columns(name):
     scene = _scene(name)
