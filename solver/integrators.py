@@ -82,29 +82,29 @@ def next_kink(x, v, acc, net, act, h, ignore):
     for c in range(cable_a.shape[0]):
         a = cable_a[c]
         b = cable_b[c]
-        cr = dyn.ROT_C[cable_rot[c]] if rotated else 1.0     # cable to the image R^r x_b
-        sr = dyn.ROT_S[cable_rot[c]] if rotated else 0.0
-        bb = 0.0
-        bbd = 0.0
-        bdbd = 0.0
-        bbdd = 0.0
-        for i in range(3):
-            if i == 0:
-                db = cr * x[b, 0] - sr * x[b, 1] - x[a, 0]
-                dv = cr * v[b, 0] - sr * v[b, 1] - v[a, 0]
-                da = cr * acc[b, 0] - sr * acc[b, 1] - acc[a, 0]
-            elif i == 1:
-                db = sr * x[b, 0] + cr * x[b, 1] - x[a, 1]
-                dv = sr * v[b, 0] + cr * v[b, 1] - v[a, 1]
-                da = sr * acc[b, 0] + cr * acc[b, 1] - acc[a, 1]
-            else:
-                db = x[b, 2] - x[a, 2]
-                dv = v[b, 2] - v[a, 2]
-                da = acc[b, 2] - acc[a, 2]
-            bb += db * db
-            bbd += db * dv
-            bdbd += dv * dv
-            bbdd += db * da
+        if rotated:         # a cable to the image R^r x_b (sym3d)
+            cr = dyn.ROT_C[cable_rot[c]]
+            sr = dyn.ROT_S[cable_rot[c]]
+            dx = cr * x[b, 0] - sr * x[b, 1] - x[a, 0]
+            dy = sr * x[b, 0] + cr * x[b, 1] - x[a, 1]
+            vx = cr * v[b, 0] - sr * v[b, 1] - v[a, 0]
+            vy = sr * v[b, 0] + cr * v[b, 1] - v[a, 1]
+            ax = cr * acc[b, 0] - sr * acc[b, 1] - acc[a, 0]
+            ay = sr * acc[b, 0] + cr * acc[b, 1] - acc[a, 1]
+        else:
+            dx = x[b, 0] - x[a, 0]
+            dy = x[b, 1] - x[a, 1]
+            vx = v[b, 0] - v[a, 0]
+            vy = v[b, 1] - v[a, 1]
+            ax = acc[b, 0] - acc[a, 0]
+            ay = acc[b, 1] - acc[a, 1]
+        dz = x[b, 2] - x[a, 2]
+        vz = v[b, 2] - v[a, 2]
+        az = acc[b, 2] - acc[a, 2]
+        bb = dx * dx + dy * dy + dz * dz
+        bbd = dx * vx + dy * vy + dz * vz
+        bdbd = vx * vx + vy * vy + vz * vz
+        bbdd = dx * ax + dy * ay + dz * az
         s = math.sqrt(bb)
         g = s - rest[c]
         sd = bbd / s
