@@ -242,3 +242,21 @@ def test_chain1d_rejects_cable_changes_and_keeps_energy_on_the_paper_column():
     assert abs(sim.energy() - e0) <= 1e-4 * e0
     strain = sim.frame().strain
     assert strain.min() < -0.03 and np.all(strain > -0.1005 - 1e-6)
+
+
+# -- the paper table -------------------------------------------------------------------------------
+def test_first_passage_measures_the_incoming_pulse_only():
+    from solver.paper import first_passage
+    h0, n, c = 0.0062, 50, 100.0          # a pulse moving 100 prisms/s, reflected at the far end
+    times = np.arange(0.0, 1.0, 0.005)
+    prisms = np.arange(n)[::-1]            # distance from the impacted end (prism n-1)
+    strain = np.zeros((len(times), n))
+    for k, t in enumerate(times):
+        travelled = c * t
+        pos = travelled if travelled <= n - 1 else 2 * (n - 1) - travelled
+        strain[k] = -0.05 * np.exp(-0.5 * ((prisms - pos) / 0.8) ** 2) * (t > 0)
+    p = first_passage(times, strain, h0)
+    assert p.speed_m_s == pytest.approx(c * h0, rel=0.02)
+    assert p.amplitude_median == pytest.approx(0.05, rel=0.05)
+    assert p.arrival_time_s == pytest.approx(10 / c, abs=0.006)
+    assert math.isnan(p.amplitude)          # the pulse reached the end before t = 0.5 s
