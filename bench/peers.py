@@ -19,14 +19,10 @@ run tried) and ``peers.png`` into ``out_dir``.
 """
 from __future__ import annotations
 
-import ctypes
-import glob
 import json
 import math
 import os
-import platform
 import statistics
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -48,20 +44,6 @@ LADDER = (1, 2, 3, 4, 5, 7, 10, 14, 20, 28, 40, 56, 80)   # steps per 10 ms outp
 RTOLS = (1e-3, 3e-4, 1e-4, 3e-5, 1e-5, 3e-6, 1e-6, 3e-7, 1e-7, 1e-8, 1e-9)
 EXCLUDED_MODELS = ('chain1d',)  # not the same physics (no base rotation)
 BAR_TOL = 1e-9                # physics.md check 3: rigid members hold to 1e-9 (relative)
-
-
-def single_thread_blas():
-    """Limit NumPy's OpenBLAS to one thread (every peer runs on one core); True if done."""
-    import numpy
-    libs = glob.glob(os.path.join(os.path.dirname(numpy.__file__) + '.libs', '*openblas*.so*'))
-    for path in libs:
-        lib = ctypes.CDLL(path)
-        for name in ('scipy_openblas_set_num_threads64_', 'openblas_set_num_threads64_',
-                     'openblas_set_num_threads'):
-            if hasattr(lib, name):
-                getattr(lib, name)(1)
-                return True
-    return False
 
 
 # The solver's divergence guard (energy growth 1e-3, constraint error 1e-6 by default) stops runs
@@ -244,34 +226,28 @@ def search_mujoco(network, ref, t_end, ladder, rows, log):
 
 def search_scipy(network, x, v, ref, t_end, rtols, rows, log):
     """Loosest rtol meeting the target (``rtols`` from loose to tight)."""
+    from solver.observables import prism_strains
+
     from .peers_scipy import ScipyColumn
     sc = ScipyColumn(network)
     times = np.arange(int(round(t_end / OUTPUT_DT)) + 1) * OUTPUT_DT
-    cache = {}
-
-    def attempt(rtol):
-        if rtol not in cache:
-            try:
-                pos, wall, stats = sc.solve(x, v, times, rtol)
-                cpu = stats['cpu_s']
-                from solver.observables import prism_strains
-                eps = np.array([prism_strains(p, network.levels, network.h0)[0] for p in pos])
-                r = {'eps': eps, 'cpu_s': cpu, 'wall_s': wall, 'error': strain_error(eps, ref),
-                     'completed': True, 'steps': None, 'evaluations': stats['evaluations']}
-            except (RuntimeError, np.linalg.LinAlgError) as exc:
-                r = {'eps': None, 'cpu_s': math.nan, 'wall_s': math.nan, 'error': math.inf,
-                     'completed': False,
-                     'steps': None, 'evaluations': None, 'reason': str(exc)}
-            rows.append(_row('scipy', 'solve_ivp DOP853', 'rtol', rtol, r, t_end))
-            log(f'  scipy rtol={rtol:.0e}: error {r["error"]:.2e}, {r["cpu_s"]:.1f} s CPU, '
-                f'{r["evaluations"]} evaluations')
-            cache[rtol] = dict(r, knob='rtol', value=rtol, met=r['error'] <= TARGET)
-        return cache[rtol]
-
+    r = None
     for rtol in rtols:                 # loosest first: the cheap runs come first
-        r = attempt(rtol)
+        try:
+            pos, wall, stats = sc.solve(x, v, times, rtol)
+            eps = np.array([prism_strains(p, network.levels, network.h0)[0] for p in pos])
+            r = {'eps': eps, 'cpu_s': stats['cpu_s'], 'wall_s': wall,
+                 'error': strain_error(eps, ref), 'completed': True, 'steps': None,
+                 'evaluations': stats['evaluations']}
+        except (RuntimeError, np.linalg.LinAlgError) as exc:
+            r = {'eps': None, 'cpu_s': math.nan, 'wall_s': math.nan, 'error': math.inf,
+                 'completed': False, 'steps': None, 'evaluations': None, 'reason': str(exc)}
+        rows.append(_row('scipy', 'solve_ivp DOP853', 'rtol', rtol, r, t_end))
+        log(f'  scipy rtol={rtol:.0e}: error {r["error"]:.2e}, {r["cpu_s"]:.1f} s CPU, '
+            f'{r["evaluations"]} evaluations')
+        r = dict(r, knob='rtol', value=rtol, met=r['error'] <= TARGET)
         if r['met']:
-            return r
+            break
     return r
 
 
@@ -279,37 +255,6 @@ def pulse_figures(eps, times, h0):
     p = track_pulse(times, eps, h0)
     return {'amplitude': p.amplitude, 'amplitude_median': p.amplitude_median,
             'speed_m_s': p.speed_m_s}
-
-
-def machine_and_versions():
-    import numba
-    import scipy
-    try:
-        import mujoco
-        mj = mujoco.__version__
-    except ImportError:
-        mj = None
-    cpu = platform.processor()
-    try:
-        for line in Path('/proc/cpuinfo').read_text().splitlines():
-            if line.startswith('model name'):
-                cpu = line.split(':', 1)[1].strip()
-                break
-    except OSError:
-        pass
-    try:
-        rev = subprocess.run(['git', 'rev-parse', '--short', 'HEAD'], cwd=ROOT, text=True,
-                             capture_output=True, timeout=10).stdout.strip() or None
-        dirty = bool(subprocess.run(['git', 'status', '--porcelain', 'solver'], cwd=ROOT,
-                                    text=True, capture_output=True, timeout=10).stdout.strip())
-    except (OSError, subprocess.SubprocessError):
-        rev, dirty = None, None
-    machine = {'cpu': cpu, 'cores': os.cpu_count(), 'platform': platform.platform(),
-               'load_average_start': list(os.getloadavg())}
-    versions = {'python': sys.version.split()[0], 'numpy': np.__version__,
-                'numba': numba.__version__, 'scipy': scipy.__version__, 'mujoco': mj,
-                'tensegrity_ros_git': rev, 'solver_has_uncommitted_changes': dirty}
-    return machine, versions
 
 
 def kernel_bound(ours, t_end, log, rounds=5):
@@ -361,8 +306,8 @@ def main(out_dir='bench/results', quick=False, log=_stderr):
     """Run the comparison; returns the list of files written into ``out_dir``."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    blas1 = single_thread_blas()
-    machine, versions = machine_and_versions()
+    blas1 = peers_report.single_thread_blas()
+    machine, versions = peers_report.machine_and_versions(ROOT)
     t_end = 0.25 if quick else 1.0
     ref_n = 160 if quick else 320
     ladder = LADDER[:8] if quick else LADDER

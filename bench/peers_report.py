@@ -1,13 +1,65 @@
-"""Checks, JSON assembly, CSV, PNG and the text table of ``tensegrity bench --peers``."""
+"""Checks, environment, JSON assembly, CSV, PNG and the text table of ``bench --peers``."""
 from __future__ import annotations
 
 import csv
+import ctypes
+import glob
 import math
+import os
+import platform
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 
 TARGETS = {'speedup_vs_mujoco': 10.0, 'speedup_vs_scipy': 50.0, 'step_over_kernel_bound': 1.5,
            'real_time_factor_fb': 50.0}
+
+
+def single_thread_blas():
+    """Limit NumPy's OpenBLAS to one thread (every peer runs on one core); True if done."""
+    import numpy
+    libs = glob.glob(os.path.join(os.path.dirname(numpy.__file__) + '.libs', '*openblas*.so*'))
+    for path in libs:
+        lib = ctypes.CDLL(path)
+        for name in ('scipy_openblas_set_num_threads64_', 'openblas_set_num_threads64_',
+                     'openblas_set_num_threads'):
+            if hasattr(lib, name):
+                getattr(lib, name)(1)
+                return True
+    return False
+
+
+def machine_and_versions(root):
+    import numba
+    import scipy
+    try:
+        import mujoco
+        mj = mujoco.__version__
+    except ImportError:
+        mj = None
+    cpu = platform.processor()
+    try:
+        for line in Path('/proc/cpuinfo').read_text().splitlines():
+            if line.startswith('model name'):
+                cpu = line.split(':', 1)[1].strip()
+                break
+    except OSError:
+        pass
+    try:
+        rev = subprocess.run(['git', 'rev-parse', '--short', 'HEAD'], cwd=root, text=True,
+                             capture_output=True, timeout=10).stdout.strip() or None
+        dirty = bool(subprocess.run(['git', 'status', '--porcelain', 'solver'], cwd=root,
+                                    text=True, capture_output=True, timeout=10).stdout.strip())
+    except (OSError, subprocess.SubprocessError):
+        rev, dirty = None, None
+    machine = {'cpu': cpu, 'cores': os.cpu_count(), 'platform': platform.platform(),
+               'load_average_start': list(os.getloadavg())}
+    versions = {'python': sys.version.split()[0], 'numpy': np.__version__,
+                'numba': numba.__version__, 'scipy': scipy.__version__, 'mujoco': mj,
+                'tensegrity_ros_git': rev, 'solver_has_uncommitted_changes': dirty}
+    return machine, versions
 
 
 def json_default(o):
