@@ -154,9 +154,9 @@ def assemble(*, target, t_end, quick, ref_n, halving, pulse_ref, ours, ours_all,
         res['mujoco'] = dict(_peer(mj, **peer), model='kinematic tree (ball joints) + '
                              'tendons springlength="0 L", RK4', check=mj.get('check'))
         c = res['mujoco']
-        c['same_physics'] = bool(c['check'] and c['check']['at_rest']
-                                 and (c.get('pulse_amplitude_rel_diff') or 1) < 0.02
-                                 and (c.get('pulse_speed_rel_diff') or 1) < 0.02)
+        amp, speed = c.get('pulse_amplitude_rel_diff'), c.get('pulse_speed_rel_diff')
+        c['same_physics'] = bool(c['check'] and c['check']['at_rest'] and amp is not None
+                                 and speed is not None and amp < 0.02 and speed < 0.02)
     if sp is not None:
         res['scipy'] = dict(_peer(sp, **peer), method='solve_ivp DOP853, atol = 1e-3 rtol, '
                             'dense NumPy KKT per evaluation', blas_single_thread=blas1)

@@ -209,3 +209,57 @@ def test_mujoco_trajectory_matches_solver():
     disp = np.max(np.abs(ours[-1] - sim.network.x0))
     assert disp > 1e-4
     assert np.max(np.abs(np.array(theirs) - ours)) < 1e-5 * disp
+
+
+def test_report_ratios_targets_and_json_on_hand_made_runs(tmp_path):
+    """The figures of peers.json from hand-made runs: ratios of CPU times, the real-time factor,
+    the target flags, the same-physics verdict, and no NaN in the JSON."""
+    import json
+
+    from bench import peers_report
+
+    def run(cpu, wall, error, **extra):
+        return dict(knob='dt', value=1e-3, error=error, cpu_s=cpu, wall_s=wall, steps=100,
+                    eps=np.zeros((3, 2)), **extra)
+
+    ref_pulse = {'amplitude': 0.15, 'speed_m_s': 0.25}
+
+    def pulse_fn(eps, times, h0):   # the reference pulse, except for SciPy's (4-prism) history
+        return dict(ref_pulse) if eps.shape[1] == 2 else {'amplitude': 0.16,
+                                                           'speed_m_s': float('nan')}
+    ours = run(0.02, 0.05, 5e-4, config='sym3d+rk4_projected', model='sym3d',
+               constraint_error_end=1e-15)
+    mj = run(2.0, 3.0, 6e-4, met=True, check={'at_rest': True})
+    sp = dict(run(12.0, 20.0, 2e-4, met=True), eps=np.zeros((3, 4)))
+    kernel = {'evaluations_per_step': 4, 'accelerations': 1e-5, 'project_positions': 2e-5,
+              'project_velocities': 1e-5, 'parts_in_step': ['accelerations', 'project_positions',
+                                                            'project_velocities'],
+              'time_per_step_s': 1.4e-4, 'integrator_only_time_per_step_s': 8e-5,
+              'kernel_bound_step': 7e-5, 'step_over_kernel_bound': 2.0}
+    res = peers_report.assemble(
+        target=1e-3, t_end=1.0, quick=False, ref_n=320, halving=1e-11, pulse_ref=ref_pulse,
+        ours=ours, ours_all=[ours], mj=mj, sp=sp, kernel=kernel, times=np.arange(3) * 0.01,
+        h0=0.0062, machine={}, versions={}, blas1=True, pulse_fn=pulse_fn, output_dt=0.01,
+        v0=0.1, prestrain=0.002, bar_tol=1e-9)
+    assert res['speedup_vs_mujoco'] == pytest.approx(100.0)
+    assert res['speedup_vs_scipy'] == pytest.approx(600.0)
+    assert res['speedup_vs_mujoco_wall'] == pytest.approx(60.0)
+    assert res['real_time_factor_fb'] == pytest.approx(50.0)
+    assert res['real_time_factor_fb_integrator_only'] == pytest.approx(1.0 / (8e-5 * 100))
+    assert res['targets']['met'] == {'speedup_vs_mujoco': True, 'speedup_vs_scipy': True,
+                                     'step_over_kernel_bound': False, 'real_time_factor_fb': True}
+    assert res['mujoco']['same_physics'] is True          # identical pulse: relative diff 0
+    assert res['scipy']['pulse_speed_rel_diff'] is None   # NaN speed -> null, never NaN
+    parts = res['kernel']['profile_s_per_step']
+    assert sum(parts.values()) == pytest.approx(1.4e-4)
+    assert parts['Simulation.advance bookkeeping (Python, guards)'] == pytest.approx(6e-5)
+    assert 'full3d_only' not in res                        # no full3d candidate was given
+    text = json.dumps(res, allow_nan=False, default=peers_report.json_default)
+    assert json.loads(text)['scipy']['pulse_amplitude_rel_diff'] == pytest.approx(0.01 / 0.15)
+    rows = [peers_report.clean(dict(peer='ours', configuration='x', knob='dt', value=1e-3,
+                                    strain_error=5e-4, completed=True, t_end_s=1.0, cpu_s=0.02,
+                                    wall_s=0.05, steps=100, real_time_factor=50.0))]
+    peers_report.write_csv(rows, tmp_path / 'p.csv')
+    lines = (tmp_path / 'p.csv').read_text().splitlines()
+    assert lines[0].startswith('peer,configuration,knob,value,strain_error')
+    assert lines[1].split(',')[:3] == ['ours', 'x', 'dt']
