@@ -21,6 +21,7 @@ import time
 import rclpy
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.event_handler import PublisherEventCallbacks
+from rclpy._rclpy_pybind11 import RCLError
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -351,6 +352,9 @@ def main(args=None):
     except (ParameterError, SceneError, NetworkError, ValueError) as exc:
         print(f'tensegrity_node: {exc}', file=sys.stderr)
         code = 2
+    except RCLError:
+        if rclpy.ok():      # not a shutdown (SIGINT/SIGTERM) caught in the middle of a publish
+            raise
     finally:
         if node is not None:
             node.close()
