@@ -206,28 +206,30 @@ def add_constraint_forces(lam, bvec, tail, head, f):
             f[t, i] -= g
 
 
+# the dispatchers take single arrays, never the whole ``net`` tuple: passing a tuple of arrays to
+# a compiled function costs a reference count per array (about 1 us per projection measured)
 @jit
-def _members(x, net, bvec):
-    if net[9].shape[0] == 0:
-        member_vectors(x, net[3], net[4], bvec)
+def _members(x, tail, head, rot, bvec):
+    if rot.shape[0] == 0:
+        member_vectors(x, tail, head, bvec)
     else:
-        member_vectors_rot(x, net[3], net[4], net[9], bvec)
-
-
-@jit
-def _assemble(bvec, net, band):
-    if net[9].shape[0] == 0:
-        assemble_band(bvec, net[6], band)
-    else:
-        assemble_band_rot(bvec, net[11], band)
+        member_vectors_rot(x, tail, head, rot, bvec)
 
 
 @jit
-def _add_forces(lam, bvec, net, f):
-    if net[9].shape[0] == 0:
-        add_constraint_forces(lam, bvec, net[3], net[4], f)
+def _assemble(bvec, coef, coef3, rot, band):
+    if rot.shape[0] == 0:
+        assemble_band(bvec, coef, band)
     else:
-        add_constraint_forces_rot(lam, bvec, net[3], net[4], net[9], f)
+        assemble_band_rot(bvec, coef3, band)
+
+
+@jit
+def _add_forces(lam, bvec, tail, head, rot, f):
+    if rot.shape[0] == 0:
+        add_constraint_forces(lam, bvec, tail, head, f)
+    else:
+        add_constraint_forces_rot(lam, bvec, tail, head, rot, f)
 
 
 @jit
@@ -246,7 +248,7 @@ def accelerations(x, v, net, act, ws, out):
     """Accelerations (n_nodes, 3) m/s^2 of the constrained system into ``out``; multipliers
     (bar force densities, > 0 in compression) are left in ``ws[4]``. Returns a status code."""
     w_diag, partner, w_off, tail, head = net[0], net[1], net[2], net[3], net[4]
-    coef, cable_a, cable_b = net[6], net[7], net[8]
+    coef, cable_a, cable_b, rot, coef3 = net[6], net[7], net[8], net[9], net[11]
     rest, EA, f_ext = act
     f, wf, bvec, band, lam = ws[0], ws[1], ws[2], ws[3], ws[4]
     f[:, :] = f_ext
@@ -255,7 +257,7 @@ def accelerations(x, v, net, act, ws, out):
     else:
         cable_forces_rot(x, cable_a, cable_b, net[10], rest, EA, f)
     apply_w(f, w_diag, partner, w_off, wf)
-    if net[9].shape[0] == 0:
+    if rot.shape[0] == 0:
         member_vectors(x, tail, head, bvec)
         for c in range(tail.shape[0]):
             h = head[c]
@@ -267,7 +269,6 @@ def accelerations(x, v, net, act, ws, out):
             lam[c] = -s
         assemble_band(bvec, coef, band)
     else:
-        rot = net[9]
         member_vectors_rot(x, tail, head, rot, bvec)
         for c in range(tail.shape[0]):
             h = head[c]
@@ -282,11 +283,11 @@ def accelerations(x, v, net, act, ws, out):
             dz = v[h, 2] - v[t, 2]
             lam[c] = -(bvec[c, 0] * ax + bvec[c, 1] * ay + bvec[c, 2] * az
                        + dx * dx + dy * dy + dz * dz)
-        assemble_band_rot(bvec, net[11], band)
+        assemble_band_rot(bvec, coef3, band)
     status = band_ldl_solve(band, lam)
     if status != OK:
         return status
-    _add_forces(lam, bvec, net, f)
+    _add_forces(lam, bvec, tail, head, rot, f)
     apply_w(f, w_diag, partner, w_off, out)
     return OK
 
@@ -309,10 +310,11 @@ def constraint_error(x, net):
 def project_positions(x, net, ws, tol, max_iter):
     """Mass-weighted Gauss-Newton projection of positions onto the rigid-member manifold:
     ``A dmu = -g``, ``x += W sum_c dmu_c G_c`` until ``|g_c| < tol L_c^2``. Returns a status code."""
-    w_diag, partner, w_off, tail, length = net[0], net[1], net[2], net[3], net[5]
+    w_diag, partner, w_off, tail, head, length = net[0], net[1], net[2], net[3], net[4], net[5]
+    coef, rot, coef3 = net[6], net[9], net[11]
     f, wf, bvec, band, lam = ws[0], ws[1], ws[2], ws[3], ws[4]
     for it in range(max_iter + 1):
-        _members(x, net, bvec)
+        _members(x, tail, head, rot, bvec)
         worst = 0.0
         for c in range(tail.shape[0]):
             L2 = length[c] * length[c]
@@ -325,12 +327,12 @@ def project_positions(x, net, ws, tol, max_iter):
             return OK
         if it == max_iter or not math.isfinite(worst):
             break
-        _assemble(bvec, net, band)
+        _assemble(bvec, coef, coef3, rot, band)
         status = band_ldl_solve(band, lam)
         if status != OK:
             return status
         f[:, :] = 0.0
-        _add_forces(lam, bvec, net, f)
+        _add_forces(lam, bvec, tail, head, rot, f)
         apply_w(f, w_diag, partner, w_off, wf)
         for p in range(x.shape[0]):
             for i in range(3):
@@ -344,8 +346,9 @@ def project_velocities(x, v, net, ws):
     ``A mu = -J v``, ``v += W J^T mu`` (the impulse that removes every velocity violating a rigid
     member while changing momentum least in the mass metric). Returns a status code."""
     w_diag, partner, w_off, tail, head, rot = net[0], net[1], net[2], net[3], net[4], net[9]
+    coef, coef3 = net[6], net[11]
     f, wf, bvec, band, lam = ws[0], ws[1], ws[2], ws[3], ws[4]
-    _members(x, net, bvec)
+    _members(x, tail, head, rot, bvec)
     if rot.shape[0] == 0:
         for c in range(tail.shape[0]):
             h = head[c]
@@ -356,12 +359,12 @@ def project_velocities(x, v, net, ws):
         for c in range(tail.shape[0]):
             dx, dy, dz = _rel(v, tail[c], head[c], rot, c)
             lam[c] = -(bvec[c, 0] * dx + bvec[c, 1] * dy + bvec[c, 2] * dz)
-    _assemble(bvec, net, band)
+    _assemble(bvec, coef, coef3, rot, band)
     status = band_ldl_solve(band, lam)
     if status != OK:
         return status
     f[:, :] = 0.0
-    _add_forces(lam, bvec, net, f)
+    _add_forces(lam, bvec, tail, head, rot, f)
     apply_w(f, w_diag, partner, w_off, wf)
     for p in range(x.shape[0]):
         for i in range(3):
