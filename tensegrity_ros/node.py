@@ -32,13 +32,17 @@ from solver.simulation import SimulationDiverged
 
 from . import cdr, commands, messages
 from .node_params import (DEFAULTS, DESCRIPTIONS, ParameterError, check_parameters,  # noqa: F401
-                          find_config, load_simulation)
+                          find_config, load_simulation, measure_step_cost)
 
 QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
 WORK_FRACTION = 0.9              # share of a publish period the stepping (and publishing) may use
 
 
 class TensegritySim(Node):
+    """The node ``tensegrity_sim``. ``sim``: an existing :class:`~solver.simulation.Simulation`
+    to drive (tests, benchmarks) instead of the one the parameters describe; ``kwargs`` go to
+    :class:`rclpy.node.Node` (``context``, ``parameter_overrides``, ``namespace``)."""
+
     def __init__(self, sim=None, **kwargs):
         kwargs.setdefault('namespace', messages.NAMESPACE)
         super().__init__(messages.NODE_NAME, **kwargs)
@@ -46,14 +50,20 @@ class TensegritySim(Node):
             self.declare_parameter(name, default, ParameterDescriptor(
                 description=DESCRIPTIONS[name], dynamic_typing=True))
         self.params = check_parameters({n: self.get_parameter(n).value for n in DEFAULTS})
-        self.sim = sim if sim is not None else load_simulation(self.params)
+        self.period = 1.0 / self.params['publish_rate_hz']
+        if sim is None:
+            sim = load_simulation(self.params)
+            self._step_cost = measure_step_cost(sim)
+        else:                      # a caller's simulation, in its state: start cautiously
+            self._step_cost = 0.1 * self.period
+        self.sim = sim
         net = self.sim.network
         self._sinks, self._frame_sinks, self._event_sinks, self._closers = [], [], [], []
         self._cross_prism = (self.sim.prestrain_map.cross_prism
                              if self.sim.prestrain is not None else None)
         self._t_max = 2.0 * messages.reference_tension_scale(net)
-        # no QoS-event handlers on the publishers: each one is a waitable the executor polls on
-        # every tick (a third of the node's overhead at 200 Hz when they were there)
+        # no QoS-event handlers on the publishers: each is a waitable the executor polls on every
+        # tick (they were most of the executor's cost per tick)
         quiet = PublisherEventCallbacks(use_default_callbacks=False)
         self._pubs = {key: self.create_publisher(messages.MSG_CLASSES[key], key, QOS,
                                                  event_callbacks=quiet)
@@ -68,8 +78,6 @@ class TensegritySim(Node):
         self.counts = {'accepted': 0, 'rejected': 0, 'frames': 0}
         self.last_command = ('none', 'none', '')      # (topic, accepted/rejected, detail)
         self.problem = ''
-        self.period = 1.0 / self.params['publish_rate_hz']
-        self._step_cost = self._measure_step_cost()
         self._publish_cost = self._marker_cost = 0.0
         self.tick_max_s = 0.0
         self.achieved_rate_hz = 0.0
@@ -129,20 +137,6 @@ class TensegritySim(Node):
                 self.get_logger().error(f'closing a recorder failed: {exc}')
 
     # -- pacing ---------------------------------------------------------------------------------
-    def _measure_step_cost(self, n=20):
-        """Wall seconds per step, measured on ``n`` steps from the current state (then undone)."""
-        m, sim = self.sim.model, self.sim
-        x, v, t, step, taken = m.x.copy(), m.v.copy(), sim.t, sim.step, sim.steps_taken
-        t0 = time.perf_counter()
-        try:
-            self.sim.advance(n * self.sim.dt)
-        except SimulationDiverged:
-            pass
-        cost = (time.perf_counter() - t0) / n
-        m.x[:], m.v[:] = x, v
-        sim.t, sim.step, sim.steps_taken = t, step, taken
-        return cost
-
     def _anchor(self):
         self._anchor_wall = time.monotonic()
         self._anchor_t = self.sim.t

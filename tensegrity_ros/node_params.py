@@ -5,10 +5,11 @@ from __future__ import annotations
 
 import math
 import sys
+import time
 from pathlib import Path
 
 from solver.scene import Scene
-from solver.simulation import Simulation
+from solver.simulation import Simulation, SimulationDiverged
 
 # Defaults of every parameter (config/node.yaml repeats them; a test keeps the two equal).
 DEFAULTS = {
@@ -95,3 +96,16 @@ def load_simulation(values):
     sim.advance(sim.dt)
     sim.reset()
     return sim
+
+
+def measure_step_cost(sim, n=20):
+    """Wall seconds per step of a freshly loaded ``sim``, timed on ``n`` steps; the simulation is
+    reset afterwards (so only for a simulation at its initial state)."""
+    t0 = time.perf_counter()
+    try:
+        sim.advance(n * sim.dt)
+    except SimulationDiverged:
+        pass
+    cost = (time.perf_counter() - t0) / n
+    sim.reset()
+    return cost
