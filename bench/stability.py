@@ -3,17 +3,18 @@
 Each cell is one run of the paper's column (FB or RB, 50 prisms, model ``sym3d``: exact for this
 symmetric impact) over ``T_END`` s, recorded every ``OUTPUT_DT`` s, classified as
 
-- ``diverged``: the run stopped with ``SimulationDiverged`` under LOOSE limits (energy growth 10 %,
-  constraint error 1e-3), i.e. it blew up or met a physical failure: a prism collapsed through itself
-  (slack cables), a prism twisted through 180 deg (the rigid-base lock), non-finite values;
+- ``diverged``: the run stopped with ``SimulationDiverged`` under LOOSE limits (energy growth
+  10 %, constraint error 1e-3), i.e. it blew up or met a physical failure: a prism collapsed
+  through itself (slack cables), a prism twisted through 180 deg (the rigid-base lock),
+  non-finite values;
 - ``drifting``: it finished, but its energy moved by more than 1e-3 (relative) or its constraint
   error exceeded 1e-6, the limits at which a default run stops;
 - ``inaccurate``: conserved, but its strain history differs from the reference by more than
   ``ACCURATE`` (0.1 %) of the peak strain;
 - ``accurate``: otherwise.
 
-The reference of each (column, v0, prestrain) is ``dopri54_projected`` with rtol 1e-10 (dt <= 1e-3).
-Where the reference itself diverges (a physical failure) a run that finishes is ``inaccurate``.
+The reference of each (column, v0, prestrain) is ``dopri54_projected`` with rtol 1e-10
+(dt <= 1e-3). Where the reference itself diverges (a physical failure) a run that finishes is ``inaccurate``.
 ``dopri54_projected`` is placed by its largest step dt (rtol 1e-6).
 """
 from __future__ import annotations

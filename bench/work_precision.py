@@ -1,19 +1,23 @@
-"""Work-precision chart: error of the strain history against wall time per simulated second.
+"""Work-precision chart: error of the strain history against cost per simulated second.
 
 For each of the paper's columns (FB, RB; v0 = 0.1 m/s, prestrain 0.002), each model (sym3d,
-full3d) and each method over a range of dt (tolerances for ``dopri54_projected``), the run is
-recorded every ``OUTPUT_DT`` s over a window of ``T_END`` s. Its error is the largest difference of
-the strain history (every prism, every output time) from a converged reference, relative to the
-reference's peak strain; its cost is the wall time of the stepping per simulated second.
+full3d; chain1d, which has its own integrator, as a model-error point) and each method over a range
+of dt (tolerances for ``dopri54_projected``), the run is recorded every ``OUTPUT_DT`` s over a
+window of ``T_END`` s. Its error is the largest difference of the strain history (every prism,
+every output time) from a converged reference, relative to the reference's peak strain. Its cost
+is the wall time of the stepping per simulated second (top row) and the number of force
+evaluations per simulated second (bottom row: machine-independent, but blind to the cost of
+projections and kink prediction).
 
 Reference: ``rk4_projected`` (sym3d) at dt = 1.5625e-5 s. It is shown converged by runs written
 next to it (``work_precision_reference.csv``): the same method at twice the step (the difference
 is about 15x the reference's own error for a 4th-order method), the same step on ``full3d`` (the
 models agree to round-off), and an independent method, ``dopri54_projected`` at rtol 1e-12 (whose
 per-step tolerance acts on absolute positions, about 0.3 m, so it agrees only to its tolerance).
-The first two bound the "reference spread" shaded on the chart; errors below it are not resolved. Timings: the fastest of 3 to 7 runs,
-and ``cost_vs_default`` = wall time divided by that of ``rk4_projected`` at dt = 5e-4 s on the same
-column and model, measured in the same process (the machine may be busy: read ratios).
+The first two bound the "reference spread" shaded on the chart; errors below it are not resolved.
+Timings: the fastest of 3 to 7 runs; ``cost_vs_default`` = wall time divided by that of
+``rk4_projected`` at dt = 5e-4 s on the same column and model, measured in the same process (the
+machine may be busy: read ratios).
 """
 from __future__ import annotations
 
@@ -85,7 +89,8 @@ def run(out, quick=False, log=print):
             base = common.record(common.scene(column, model, *common.DEFAULT, OUTPUT_DT, t_end),
                                  repeats=repeats)
             series = _grid(quick) if model != 'chain1d' else [     # its own Verlet integrator
-                ('chain1d (own integrator)', 'rk4_projected', True, [(1e-3, None), (2.5e-4, None)])]
+                ('chain1d (own integrator)', 'rk4_projected', True,
+                 [(1e-3, None), (2.5e-4, None)])]
             for label, method, kinks, points in series:
                 for dt, rtol in points:
                     sc = common.scene(column, model, method, dt, OUTPUT_DT, t_end, rtol=rtol,
