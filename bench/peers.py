@@ -204,6 +204,24 @@ def search_ours(ref, t_end, ladder, rtols, rows, log):
     return sorted(found, key=lambda c: c['cpu_s'])
 
 
+def retime(cands, t_end, log, rounds=7):
+    """Re-time close candidates round-robin (``rounds`` runs each, first runs excluded) so that a
+    busy moment of the machine does not pick the winner; fastest median CPU time first."""
+    cpus = {id(c): [] for c in cands}
+    walls = {id(c): [] for c in cands}
+    for _ in range(rounds):
+        for c in cands:
+            r = run_ours(c['overrides'], t_end)
+            cpus[id(c)].append(r['cpu_s'])
+            walls[id(c)].append(r['wall_s'])
+    out = [dict(c, cpu_s=statistics.median(cpus[id(c)]), wall_s=statistics.median(walls[id(c)]),
+                cpus_s=cpus[id(c)]) for c in cands]
+    out.sort(key=lambda c: c['cpu_s'])
+    log('  re-timed (median of %d, CPU): ' % rounds
+        + ', '.join(f'{c["config"]} {c["cpu_s"]:.4f} s' for c in out))
+    return out
+
+
 def search_mujoco(network, ref, t_end, ladder, rows, log):
     best = None
     for n in ladder:
@@ -327,6 +345,8 @@ def main(out_dir='bench/results', quick=False, log=_stderr):
     log('peers: our solver')
     ours_all = search_ours(eps_ref, t_end, ladder, RTOLS[:8], rows, log)
     rigid = [c for c in ours_all if c['constraint_error_end'] <= BAR_TOL]
+    if rigid:
+        rigid[:3] = retime(rigid[:3], t_end, log)
     ours = rigid[0] if rigid else None
     if ours is not None and ours['knob'] == 'dt':      # work-precision points below the target
         for f in (2, 4):
