@@ -232,13 +232,9 @@ def search_mujoco(network, ref, t_end, ladder, rows, log):
         if r['completed'] and r['error'] <= TARGET:
             finer = run_mujoco(network, 2 * n, t_end, ref, abort=False)   # work-precision point
             rows.append(_row('mujoco', 'tree+RK4', 'dt', OUTPUT_DT / (2 * n), finer, t_end))
-            again = [r] + [run_mujoco(network, n, t_end) for _ in range(2)]
-            cpus = [a['cpu_s'] for a in again]
-            log(f'  mujoco re-timed: {", ".join(f"{c:.2f}" for c in cpus)} s CPU (median used)')
-            return dict(r, knob='dt', value=OUTPUT_DT / n, met=True, cpu_s=statistics.median(cpus),
-                        wall_s=statistics.median(a['wall_s'] for a in again), cpus_s=cpus)
+            return dict(r, knob='dt', value=OUTPUT_DT / n, n_sub=n, met=True)
         if r['completed']:
-            best = dict(r, knob='dt', value=OUTPUT_DT / n, met=False)
+            best = dict(r, knob='dt', value=OUTPUT_DT / n, n_sub=n, met=False)
     return best
 
 
@@ -267,6 +263,42 @@ def search_scipy(network, x, v, ref, t_end, rtols, rows, log):
         if r['met']:
             break
     return r
+
+
+def side_by_side(ours, mj, sp, network, x, v, t_end, log, rounds=3):
+    """The final timing, interleaved so that every ratio compares runs made in the same minutes:
+    ours, MuJoCo, ours, MuJoCo, ... ours, SciPy, ours. Replaces the search timings by the medians
+    (SciPy: its one run) and keeps the lists."""
+    o_cpu, o_wall, m_cpu, m_wall = [], [], [], []
+
+    def time_ours():
+        r = run_ours(ours['overrides'], t_end)
+        o_cpu.append(r['cpu_s'])
+        o_wall.append(r['wall_s'])
+
+    for _ in range(rounds):
+        time_ours()
+        if mj is not None:
+            r = run_mujoco(network, mj['n_sub'], t_end)
+            m_cpu.append(r['cpu_s'])
+            m_wall.append(r['wall_s'])
+    time_ours()
+    if sp is not None and sp['completed']:
+        from .peers_scipy import ScipyColumn
+        times = np.arange(int(round(t_end / OUTPUT_DT)) + 1) * OUTPUT_DT
+        _, wall, stats = ScipyColumn(network).solve(x, v, times, sp['value'])
+        sp = dict(sp, cpu_s=stats['cpu_s'], wall_s=wall, search_cpu_s=sp['cpu_s'],
+                  cpus_s=[stats['cpu_s']])
+        time_ours()
+    ours = dict(ours, cpu_s=statistics.median(o_cpu), wall_s=statistics.median(o_wall),
+                cpus_s=o_cpu, search_cpu_s=ours['cpu_s'])
+    if mj is not None:
+        mj = dict(mj, cpu_s=statistics.median(m_cpu), wall_s=statistics.median(m_wall),
+                  cpus_s=m_cpu, search_cpu_s=mj['cpu_s'])
+    log('  ours ' + ', '.join(f'{c:.4f}' for c in o_cpu) + ' s CPU; MuJoCo '
+        + ', '.join(f'{c:.2f}' for c in m_cpu) + ' s'
+        + (f'; SciPy {sp["cpu_s"]:.2f} s' if sp is not None and sp['completed'] else ''))
+    return ours, mj, sp
 
 
 def pulse_figures(eps, times, h0):
@@ -378,6 +410,10 @@ def main(out_dir='bench/results', quick=False, log=_stderr):
 
     log('peers: SciPy solve_ivp DOP853')
     sp = search_scipy(network, x0, v_imp, eps_ref, t_end, RTOLS, rows, log)
+
+    if ours is not None:
+        log('peers: side-by-side timing')
+        ours, mj, sp = side_by_side(ours, mj, sp, network, x0, v_imp, t_end, log)
 
     pulse_ref = pulse_figures(eps_ref, times, network.h0)
     result = peers_report.assemble(

@@ -118,7 +118,7 @@ def _peer(r, t_end, pulse_fn, times, h0, pulse_ref):
            'real_time_factor': t_end / r['cpu_s'] if r['cpu_s'] else None,
            'real_time_factor_wall': t_end / r['wall_s'] if r['wall_s'] else None,
            'steps': r.get('steps'), 'evaluations': r.get('evaluations'),
-           'cpus_s': r.get('cpus_s', [r['cpu_s']])}
+           'cpus_s': r.get('cpus_s', [r['cpu_s']]), 'search_cpu_s': r.get('search_cpu_s')}
     if r.get('eps') is not None:
         p = pulse_fn(r['eps'], times[:len(r['eps'])], h0)
         out['pulse'] = p
@@ -178,9 +178,10 @@ def assemble(*, target, t_end, quick, ref_n, halving, pulse_ref, ours, ours_all,
     res['speedup_vs_scipy_wall'] = (res['scipy']['wall_s'] / ww) if ww and res['scipy'] \
         else None
     res['timing'] = ('CPU time of the timing thread (time.thread_time) for the ratios and '
-                     'real-time factors, wall time alongside; ours: the 3 fastest candidates '
-                     're-timed round-robin, median of 7 runs; MuJoCo: median of 3; SciPy: 1 run; '
-                     'NumPy BLAS limited to one thread')
+                     'real-time factors, wall time alongside. Final timing interleaved: ours, '
+                     'MuJoCo, ours, MuJoCo, ours, MuJoCo, ours, SciPy, ours; medians (SciPy: its '
+                     'one run). The configuration of ours was picked among the 3 fastest '
+                     'candidates re-timed round-robin (median of 7). NumPy BLAS on one thread')
     res['step_over_kernel_bound'] = kernel['step_over_kernel_bound'] if kernel else None
     res['real_time_factor_fb'] = t_end / w if w else None
     res['real_time_factor_fb_wall'] = t_end / ww if ww else None
