@@ -338,7 +338,8 @@ class DOPRI54Projected(Integrator):
 METHODS = {cls.name: cls for cls in (RK4Projected, RK4, Rattle, DOPRI54Projected)}
 
 STATUS_TEXT = dict(dyn.STATUS_TEXT)
-STATUS_TEXT[STEP_TOO_SMALL] = 'adaptive step size fell below 1e-9 dt (stiff or singular motion)'
+STATUS_TEXT[STEP_TOO_SMALL] = ('adaptive step size fell below 1e-9 dt (stiff or singular '
+                               'motion)')
 
 
 def status_text(status):

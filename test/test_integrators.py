@@ -143,8 +143,8 @@ def test_dopri_error_follows_the_tolerance():
 
 
 def test_rattle_keeps_energy_bounded_over_long_runs():
-    """20 s (about 300 periods): RATTLE's energy error oscillates without growing and scales as
-    dt^2; the adaptive non-symplectic method drifts over the same run (contrast)."""
+    """20 s of a prism: RATTLE's energy error oscillates without growing and scales as dt^2; the
+    adaptive non-symplectic method drifts over the same run (contrast)."""
     def energy_errors(method, dt, extra=()):
         sim = _sim(PRISM, [f'integrator={method}', f'integrator.dt={dt}', 'run.output_dt=0.01',
                            'divergence.energy_growth=10', *extra], 2e-4)
@@ -208,7 +208,8 @@ def _expect_divergence(sim, duration, quantities, chunk=None):
 
 
 def _first_failing_step_is_named(scene_overrides, scene, v0, exc):
-    """Independent check of the reported step: a fresh run reaches step - 1 and fails on the next."""
+    """Independent check of the reported step: a fresh run reaches step - 1 and fails on the
+    next."""
     sim = _sim(scene, scene_overrides, v0)
     if exc.step > 1:
         sim.advance((exc.step - 1) * sim.dt)
