@@ -118,37 +118,64 @@ def run(out, quick=False, log=print):
     return rows, spreads
 
 
-def fastest(rows, levels=LEVELS):
-    """Per column and model and accuracy level: the cheapest run whose error is at most the level.
-    Returns a list of dicts."""
+def fastest(rows, levels=LEVELS, cost='wall_s', exclude=()):
+    """Per column and model and accuracy level: the cheapest run (by ``cost``: ``wall_s`` or
+    ``evaluations``) whose error is at most the level, among methods not in ``exclude``; with the
+    runner-up method and its cost ratio. Returns a list of dicts."""
     out = []
     keys = sorted({(r['column'], r['model']) for r in rows if r['model'] != 'chain1d'})
     for column, model in keys:
         sel = [r for r in rows if (r['column'], r['model']) == (column, model)
-               and r['status'] == 'ok' and np.isfinite(r['strain_error_rel'])]
+               and r['status'] == 'ok' and np.isfinite(r['strain_error_rel'])
+               and r['method'] not in exclude]
         for level in levels:
             ok = [r for r in sel if r['strain_error_rel'] <= level]
             if not ok:
                 out.append({'column': column, 'model': model, 'level': level, 'method': 'none',
                             'dt': '', 'rtol': '', 'wall_per_sim_s': float('nan'),
-                            'cost_vs_default': float('nan'), 'runner_up': '',
-                            'runner_up_ratio': float('nan')})
+                            'evals_per_sim_s': float('nan'), 'cost_vs_default': float('nan'),
+                            'runner_up': '', 'runner_up_ratio': float('nan')})
                 continue
             best_per_method = {}
             for r in ok:
                 m = r['method']
-                if m not in best_per_method or r['wall_s'] < best_per_method[m]['wall_s']:
+                if m not in best_per_method or r[cost] < best_per_method[m][cost]:
                     best_per_method[m] = r
-            ranked = sorted(best_per_method.values(), key=lambda r: r['wall_s'])
+            ranked = sorted(best_per_method.values(), key=lambda r: r[cost])
             b = ranked[0]
             second = ranked[1] if len(ranked) > 1 else None
             out.append({'column': column, 'model': model, 'level': level, 'method': b['method'],
                         'dt': b['dt'], 'rtol': b['rtol'], 'wall_per_sim_s': b['wall_per_sim_s'],
+                        'evals_per_sim_s': b.get('evals_per_sim_s', float('nan')),
                         'cost_vs_default': b['cost_vs_default'],
                         'runner_up': second['method'] if second else '',
-                        'runner_up_ratio': second['wall_s'] / b['wall_s'] if second else
-                        float('nan')})
+                        'runner_up_ratio': second[cost] / b[cost] if second else float('nan')})
     return out
+
+
+RANKINGS = (('wall time', 'wall_s', ()),
+            ('wall time, constraint-keeping methods (not rk4)', 'wall_s', ('rk4',)),
+            ('force evaluations', 'evaluations', ()))
+
+
+def fastest_table(rows):
+    """:func:`fastest` under each of :data:`RANKINGS`, one ``ranking`` column added."""
+    return [dict(ranking=name, **b) for name, cost, exclude in RANKINGS
+            for b in fastest(rows, cost=cost, exclude=exclude)]
+
+
+def load_rows(path):
+    """The rows of a ``work_precision.csv`` with numbers parsed (to rebuild tables and charts)."""
+    import csv
+    rows = []
+    with open(path) as fh:
+        for r in csv.DictReader(fh):
+            for key, value in r.items():
+                if key not in ('column', 'model', 'method', 'status', 'rtol') and value != '':
+                    r[key] = float(value)
+            r['rtol'] = float(r['rtol']) if r['rtol'] else ''
+            rows.append(r)
+    return rows
 
 
 def plot(rows, spreads, path):
@@ -201,7 +228,7 @@ def main(out, quick=False, log=print):
     out = Path(out)
     tag = '_quick' if quick else ''
     rows, spreads = run(out, quick, log)
-    best = fastest(rows)
+    best = fastest_table(rows)
     ref_rows = [{'column': c, 'check': k, 'strain_difference_rel': v}
                 for c, d in spreads.items() for k, v in d.items()]
     written = [common.write_csv(out / f'work_precision{tag}.csv', rows),
@@ -209,7 +236,8 @@ def main(out, quick=False, log=print):
                common.write_csv(out / f'work_precision_reference{tag}.csv', ref_rows),
                plot(rows, spreads, out / f'work_precision{tag}.png')]
     for b in best:
-        log(f'  fastest at error <= {b["level"]:g}: {b["column"]} {b["model"]}: {b["method"]} '
+        log(f'  fastest ({b["ranking"]}) at error <= {b["level"]:g}: {b["column"]} {b["model"]}: '
+            f'{b["method"]} '
             f'(dt {b["dt"]}, rtol {b["rtol"]}), {b["wall_per_sim_s"]:.3g} s per simulated s, '
             f'runner-up {b["runner_up"]} x{b["runner_up_ratio"]:.2f}')
     return written
