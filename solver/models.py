@@ -7,7 +7,8 @@ network's node positions (for frames, messages and recordings):
 - ``net``, ``act``, ``ws``: the kernel tuples of :mod:`solver.dynamics`;
 - ``positions()`` / ``velocities()``: full (n_nodes, 3) arrays of the network;
 - ``set_state(x_full, v_full)``: load a full state;
-- ``cable_rest_length``, ``cable_EA`` (full (n_cables,) arrays) and ``set_cables(rest, EA)``.
+- ``cable_rest_length``, ``cable_EA`` (full (n_cables,) arrays) and ``set_cables(rest, EA)``;
+- ``energy()`` J and ``constraint_error()`` (relative) of the current state.
 
 ``sym3d`` (:mod:`solver.sym3d`) raises :class:`~solver.sym3d.NotSymmetric` from ``set_state`` or
 ``set_cables`` when given an asymmetric state; the simulation then expands the run to ``full3d``
@@ -21,6 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import dynamics as dyn
+from . import observables
 
 
 class Model:
@@ -69,6 +71,15 @@ class Full3D(Model):
         """Load (n_cables,) rest lengths m and EA N."""
         self.act[0][:] = rest
         self.act[1][:] = EA
+
+    def energy(self):
+        """Kinetic + cable energy (- work of constant external forces), J (numba kernels)."""
+        f_ext = self.act[2] if np.any(self.act[2]) else None
+        return observables.energy(self.x, self.v, self.network, self.act[0], self.act[1], f_ext)
+
+    def constraint_error(self):
+        """max over rigid members of ``|(|b|^2 - L^2) / 2| / L^2``."""
+        return dyn.constraint_error(self.x, self.net)
 
 
 from . import chain1d, integrators  # noqa: E402

@@ -137,6 +137,7 @@ class Simulation:
             self.expanded = None
         self.model.set_state(net.x0, np.zeros((net.n_nodes, 3)))
         self.model.set_cables(net.cable_rest_length, net.cable_EA)
+        self._cache = {}
         self.t = 0.0
         self.step = 0
         self.steps_taken = 0
@@ -148,16 +149,28 @@ class Simulation:
             self._prestrain = np.full((net.n_columns, net.n_prisms), float(net.meta['prestrain']))
         self._energy_ref = self.energy()
 
+    # Quantities of the current state are computed once and kept until the state changes
+    # (every change goes through _changed): the divergence check, frame() and the node share them.
+    def _changed(self):
+        self._cache = {}
+
+    def _cached(self, key, compute):
+        c = self._cache
+        if key not in c:
+            c[key] = compute()
+        return c[key]
+
     def energy(self):
-        if hasattr(self.model, 'energy'):           # chain1d: its own energy
-            return self.model.energy()
-        return observables.energy(self.model.positions(), self.model.velocities(), self.network,
-                                  self.model.cable_rest_length, self.model.cable_EA, self.f_ext)
+        """Total energy of the current state, J."""
+        return self._cached('energy', self.model.energy)
 
     def constraint_error(self):
-        if hasattr(self.model, 'constraint_error'):     # chain1d: no rigid members
-            return self.model.constraint_error()
-        return observables.constraint_error(self.model.positions(), self.network)
+        """Relative constraint error of the current state."""
+        return self._cached('constraint_error', self.model.constraint_error)
+
+    def _full_state(self):
+        """Full (n_nodes, 3) positions and velocities of the current state (shared, read only)."""
+        return self._cached('full', lambda: (self.model.positions(), self.model.velocities()))
 
     def expand_to_full3d(self, reason):
         """Continue a ``sym3d`` run with ``full3d`` from the same (expanded) state: no jump."""
@@ -166,6 +179,7 @@ class Simulation:
             if hasattr(self.integrator, 'reset'):      # forget step-size history of sym3d
                 self.integrator.reset()
             self.expanded = reason
+            self._changed()
 
     def _load(self, x, v):
         """Load a full state; an asymmetric one expands a ``sym3d`` run to ``full3d``."""
@@ -174,6 +188,7 @@ class Simulation:
         except models.NotSymmetric as exc:
             self.expand_to_full3d(str(exc))
             self.model.set_state(x, v)
+        self._changed()
 
     def set_cable_rest_lengths(self, rest):
         """Set the cable rest lengths (n_cables,) m directly (finite, positive). A set that breaks
@@ -196,6 +211,7 @@ class Simulation:
         except models.NotSymmetric as exc:
             self.expand_to_full3d(str(exc))
             self.model.set_cables(rest, EA)
+        self._changed()
 
     # -- commands -------------------------------------------------------------------------------
     def impact_velocities(self, v0, columns=None, mode=None):
@@ -240,6 +256,7 @@ class Simulation:
             if np.ndim(v0) != 0 or not math.isfinite(float(v0)):
                 raise ValueError('impact: chain1d takes one finite velocity')
             self.model.impact(float(v0))
+            self._changed()
             self._energy_ref = self.energy()
             return self._energy_ref - before
         v_new = self.impact_velocities(v0, columns, mode)
@@ -323,6 +340,7 @@ class Simulation:
         """``n`` steps; while a prestrain ramp runs, one step at a time with rest lengths updated
         at the start of each step. Returns ``(steps, status)`` of the integrator."""
         m = self.model
+        self._changed()
         if hasattr(m, 'advance'):                   # chain1d: its own state and kernel
             if self._ramp is not None:
                 return 0, models.CHAIN_CANNOT_RAMP
@@ -334,6 +352,7 @@ class Simulation:
             m = self.model
             steps, status = self.integrator.run(m.x, m.v, self.dt, 1, m.net, m.act, m.ws, self.tol,
                                                 self.max_iter, self.kinks)
+            self._changed()
             total += steps
             done += 1
             if status != dyn.OK:
@@ -341,6 +360,7 @@ class Simulation:
         if done < n:
             steps, status = self.integrator.run(m.x, m.v, self.dt, n - done, m.net, m.act, m.ws,
                                                 self.tol, self.max_iter, self.kinks)
+            self._changed()
             total += steps
         if self._ramp is not None:
             self._ramp_to(self.t + n * self.dt)
@@ -375,11 +395,12 @@ class Simulation:
         m.x[:], m.v[:], m.act[0][:] = keep[:3]
         self._prestrain, self._ramp, self._energy_ref = keep[3:6]
         self.integrator.set_state(keep[6])
+        self._changed()
 
     def _check(self, status):
         """``(quantity, detail, hint)`` of the first failed divergence check of the current state
         after an integrator ``status``, or None when the state is sound."""
-        x, v = self.model.positions(), self.model.velocities()
+        x, v = self._full_state()
         if not (np.all(np.isfinite(x)) and np.all(np.isfinite(v))):
             return 'state', 'non-finite positions or velocities', HINT_STEP
         if status != dyn.OK:
@@ -435,7 +456,7 @@ class Simulation:
 
     def frame(self):
         """A copied :class:`Frame` of the current state."""
-        x = np.array(self.model.positions())
+        x = np.array(self._full_state()[0])
         net = self.network
         strain = (observables.prism_strains(x, net.levels, net.h0) if net.levels.size
                   else np.zeros((0, 0)))

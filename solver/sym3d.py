@@ -26,6 +26,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from . import dynamics as dyn
+from . import observables
 from .network import NetworkError, _band_order, _inverse_mass, _ro
 
 R3 = np.array([[-0.5, -math.sqrt(3.0) / 2.0, 0.0], [math.sqrt(3.0) / 2.0, -0.5, 0.0],
@@ -237,6 +238,7 @@ class Sym3D:
         self._rot = np.array([ROT[r] for r in red.node_rot])       # (n_full, 3, 3)
         f_full = np.zeros((network.n_nodes, 3)) if f_ext is None else np.asarray(f_ext, float)
         f_red = self._reduce(f_full, 'external forces')
+        self._f_full = f_full if np.any(f_full) else None
         self.net, self.act = dyn.pack(red, f_ext=f_red)
         self.ws = dyn.workspace(red.n_nodes, red.n_constraints, red.bandwidth)
         self.x = np.array(red.x0)
@@ -293,3 +295,13 @@ class Sym3D:
                 raise NotSymmetric(f'{what} are not 3-fold symmetric')
         self.act[0][:] = r_red
         self.act[1][:] = e_red
+
+    def energy(self):
+        """Energy of the full network, J: the expanded state through the full-network kernels."""
+        return observables.energy(self.positions(), self.velocities(), self.network,
+                                  self.cable_rest_length, self.cable_EA, self._f_full)
+
+    def constraint_error(self):
+        """The full network's relative constraint error (each reduced member stands for three
+        equal ones)."""
+        return dyn.constraint_error(self.x, self.net)
