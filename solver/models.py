@@ -45,6 +45,7 @@ class Full3D(Model):
     def __init__(self, network, f_ext=None):
         super().__init__(network)
         self.net, self.act = dyn.pack(network, f_ext=f_ext)
+        self._f_ext = self.act[2] if np.any(self.act[2]) else None
         self.ws = dyn.workspace(network.n_nodes, network.n_constraints, network.bandwidth)
         self.x = np.array(network.x0)
         self.v = np.zeros_like(self.x)
@@ -74,8 +75,8 @@ class Full3D(Model):
 
     def energy(self):
         """Kinetic + cable energy (- work of constant external forces), J (numba kernels)."""
-        f_ext = self.act[2] if np.any(self.act[2]) else None
-        return observables.energy(self.x, self.v, self.network, self.act[0], self.act[1], f_ext)
+        return observables.energy(self.x, self.v, self.network, self.act[0], self.act[1],
+                                  self._f_ext)
 
     def constraint_error(self):
         """max over rigid members of ``|(|b|^2 - L^2) / 2| / L^2``."""

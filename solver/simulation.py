@@ -172,6 +172,11 @@ class Simulation:
         """Full (n_nodes, 3) positions and velocities of the current state (shared, read only)."""
         return self._cached('full', lambda: (self.model.positions(), self.model.velocities()))
 
+    def _heights(self):
+        """Prism heights (n_columns, n_prisms) m of the current state (shared, read only)."""
+        return self._cached('heights', lambda: observables.prism_heights(self._full_state()[0],
+                                                                          self.network.levels))
+
     def expand_to_full3d(self, reason):
         """Continue a ``sym3d`` run with ``full3d`` from the same (expanded) state: no jump."""
         if isinstance(self.model, models.Sym3D):
@@ -401,7 +406,7 @@ class Simulation:
         """``(quantity, detail, hint)`` of the first failed divergence check of the current state
         after an integrator ``status``, or None when the state is sound."""
         x, v = self._full_state()
-        if not (np.all(np.isfinite(x)) and np.all(np.isfinite(v))):
+        if not (dyn.all_finite(x) and dyn.all_finite(v)):
             return 'state', 'non-finite positions or velocities', HINT_STEP
         if status != dyn.OK:
             quantity, hint = STATUS_DIAGNOSIS.get(status, ('state', HINT_STEP))
@@ -417,7 +422,7 @@ class Simulation:
                               f'{self.div["energy_growth"]:g}', HINT_ENERGY)
         net = self.network
         if net.levels.size:
-            h = observables.prism_heights(x, net.levels)
+            h = self._heights()
             if not np.all(h > 0.0):
                 c, i = np.unravel_index(int(np.argmin(np.where(np.isfinite(h), h, -np.inf))),
                                         h.shape)
@@ -458,8 +463,11 @@ class Simulation:
         """A copied :class:`Frame` of the current state."""
         x = np.array(self._full_state()[0])
         net = self.network
-        strain = (observables.prism_strains(x, net.levels, net.h0) if net.levels.size
-                  else np.zeros((0, 0)))
+        if net.levels.size:
+            h = self._heights()
+            strain = (h - net.h0) / h          # observables.prism_strains, from the shared heights
+        else:
+            strain = np.zeros((0, 0))
         return Frame(t=self.t, step=self.step, positions=x, strain=strain,
                      tension=observables.cable_tensions(x, net, self.model.cable_rest_length,
                                                         self.model.cable_EA),

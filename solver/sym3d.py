@@ -27,11 +27,22 @@ from scipy.spatial import cKDTree
 
 from . import dynamics as dyn
 from . import observables
+from ._jit import jit
 from .network import NetworkError, _band_order, _inverse_mass, _ro
 
 R3 = np.array([[-0.5, -math.sqrt(3.0) / 2.0, 0.0], [math.sqrt(3.0) / 2.0, -0.5, 0.0],
                [0.0, 0.0, 1.0]])
 ROT = (np.eye(3), R3, R3 @ R3)       # R^r, r = 0, 1, 2
+
+
+@jit
+def _expand_kernel(a, rep, cos, sin, out):
+    """``out[p] = Rz(angle_p) a[rep[p]]`` with ``cos``/``sin`` of each full node's angle."""
+    for p in range(rep.shape[0]):
+        q = rep[p]
+        out[p, 0] = cos[p] * a[q, 0] - sin[p] * a[q, 1]
+        out[p, 1] = sin[p] * a[q, 0] + cos[p] * a[q, 1]
+        out[p, 2] = a[q, 2]
 
 
 class NotSymmetric(ValueError):
@@ -236,6 +247,9 @@ class Sym3D:
         self.network = network
         self.reduced = red = reduced if reduced is not None else reduce_network(network)
         self._rot = np.array([ROT[r] for r in red.node_rot])       # (n_full, 3, 3)
+        self._cos = np.ascontiguousarray(self._rot[:, 0, 0])
+        self._sin = np.ascontiguousarray(self._rot[:, 1, 0])
+        self._rep = np.ascontiguousarray(red.node_rep, dtype=np.int64)
         f_full = np.zeros((network.n_nodes, 3)) if f_ext is None else np.asarray(f_ext, float)
         f_red = self._reduce(f_full, 'external forces')
         self._f_full = f_full if np.any(f_full) else None
@@ -245,7 +259,11 @@ class Sym3D:
         self.v = np.zeros_like(self.x)
 
     def _expand(self, a):
-        return np.einsum('pij,pj->pi', self._rot, a[self.reduced.node_rep])
+        """Full (n_nodes, 3) array of a reduced one (a new array; rotations about z only)."""
+        out = np.empty((len(self._rep), 3))
+        _expand_kernel(np.ascontiguousarray(a, dtype=np.float64), self._rep, self._cos, self._sin,
+                       out)
+        return out
 
     def _reduce(self, a_full, what, tol=1e-12):
         """Representative rows of a full (n_nodes, 3) array; :class:`NotSymmetric` if the array
