@@ -28,6 +28,10 @@ class RunRecord:
 def run(sim: Simulation, t_end, output_dt, on_frame=None, progress=None):
     """Advance ``sim`` to ``t_end`` in ``output_dt`` intervals, calling ``on_frame(frame)`` at each
     output time (including the first) and ``progress(n)`` with the steps of each interval."""
+    ratio = output_dt / sim.dt
+    if abs(ratio - round(ratio)) > 1e-6 * ratio:       # advance() takes whole steps
+        raise ValueError(f'run.output_dt: {output_dt:g} s is not a whole multiple of '
+                         f'integrator.dt = {sim.dt:g} s')
     n_out = int(round(t_end / output_dt))
     times, strain, energy, cerr = [], [], [], []
 

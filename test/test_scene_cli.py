@@ -46,7 +46,7 @@ def test_overrides_parse_values_and_reject_unknown_keys():
     s2 = scene.with_overrides(['integrator.dt=2.5e-4', 'structure.bases=rigid',
                                'integrator=rk4_projected'])
     assert s2['integrator.dt'] == 2.5e-4 and s2['structure.bases'] == 'rigid'
-    assert scene['integrator.dt'] == 5e-4          # the original is unchanged
+    assert scene['integrator.dt'] == Scene.load(SCENES / 'fb_column.yaml')['integrator.dt']
     with pytest.raises(SceneError, match='integrator.dtt'):
         scene.with_overrides(['integrator.dtt=1'])
     with pytest.raises(SceneError, match='expected KEY=VALUE'):
@@ -85,6 +85,7 @@ def test_run_json_summary_has_the_documented_keys(tmp_path):
     (('run', str(SCENES / 'prism.yaml'), '--set', 'integrator.dt=-1'), 'integrator.dt'),
     (('run', str(SCENES / 'prism.yaml'), '--set', 'integrator=euler'), 'euler'),
     (('run', str(SCENES / 'prism.yaml'), '--prestrain', '2'), 'prestrain'),
+    (('run', str(SCENES / 'prism.yaml'), '--set', 'integrator.dt=3e-4'), 'whole multiple'),
 ])
 def test_user_errors_are_one_line_without_traceback(args, needle):
     res = _cli(*args)
