@@ -295,7 +295,12 @@ def accelerations(x, v, net, act, ws, out):
 @jit
 def constraint_error(x, net):
     """max_c |g_c| / L_c^2 with ``g_c = (|b_c|^2 - L_c^2) / 2`` (dimensionless)."""
-    tail, head, length, rot = net[3], net[4], net[5], net[9]
+    return constraint_error_arrays(x, net[3], net[4], net[5], net[9])
+
+
+@jit
+def constraint_error_arrays(x, tail, head, length, rot):
+    """:func:`constraint_error` from single arrays (cheaper to call from Python than the tuple)."""
     worst = 0.0
     for c in range(tail.shape[0]):
         dx, dy, dz = _rel(x, tail[c], head[c], rot, c)

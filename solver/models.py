@@ -8,7 +8,8 @@ network's node positions (for frames, messages and recordings):
 - ``positions()`` / ``velocities()``: full (n_nodes, 3) arrays of the network;
 - ``set_state(x_full, v_full)``: load a full state;
 - ``cable_rest_length``, ``cable_EA`` (full (n_cables,) arrays) and ``set_cables(rest, EA)``;
-- ``energy()`` J and ``constraint_error()`` (relative) of the current state.
+- ``constraint_error()`` (relative) of the current state (``chain1d`` also has ``energy()``: the
+  others' energy is computed by the simulation from the full state).
 
 ``sym3d`` (:mod:`solver.sym3d`) raises :class:`~solver.sym3d.NotSymmetric` from ``set_state`` or
 ``set_cables`` when given an asymmetric state; the simulation then expands the run to ``full3d``
@@ -22,7 +23,6 @@ from __future__ import annotations
 import numpy as np
 
 from . import dynamics as dyn
-from . import observables
 
 
 class Model:
@@ -45,7 +45,6 @@ class Full3D(Model):
     def __init__(self, network, f_ext=None):
         super().__init__(network)
         self.net, self.act = dyn.pack(network, f_ext=f_ext)
-        self._f_ext = self.act[2] if np.any(self.act[2]) else None
         self.ws = dyn.workspace(network.n_nodes, network.n_constraints, network.bandwidth)
         self.x = np.array(network.x0)
         self.v = np.zeros_like(self.x)
@@ -73,14 +72,10 @@ class Full3D(Model):
         self.act[0][:] = rest
         self.act[1][:] = EA
 
-    def energy(self):
-        """Kinetic + cable energy (- work of constant external forces), J (numba kernels)."""
-        return observables.energy(self.x, self.v, self.network, self.act[0], self.act[1],
-                                  self._f_ext)
-
     def constraint_error(self):
         """max over rigid members of ``|(|b|^2 - L^2) / 2| / L^2``."""
-        return dyn.constraint_error(self.x, self.net)
+        n = self.net
+        return dyn.constraint_error_arrays(self.x, n[3], n[4], n[5], n[9])
 
 
 from . import chain1d, integrators  # noqa: E402

@@ -112,6 +112,7 @@ class Simulation:
             f_ext[:, 2] = -g * self.network.node_mass
             f_ext[self.network.clamped] = 0.0
         self.f_ext = f_ext
+        self._f_ext_or_none = f_ext if np.any(f_ext) else None
         self._model_cls = models.choose(scene['model'], self.network, scene.data)
         self.model = self._model_cls(self.network, f_ext=f_ext)
         self.expanded = None            # why a sym3d run was expanded to full3d, if it was
@@ -160,9 +161,21 @@ class Simulation:
             c[key] = compute()
         return c[key]
 
+    def _summary(self):
+        """``(finite, energy J, prism heights (n_columns, n_prisms) m)`` of the current state."""
+        def compute():
+            x, v = self._full_state()
+            net = self.network
+            if hasattr(self.model, 'advance'):          # chain1d: its own energy
+                return (dyn.all_finite(x) and dyn.all_finite(v), self.model.energy(),
+                        observables.prism_heights(x, net.levels))
+            return observables.state_summary(x, v, net, self.model.cable_rest_length,
+                                             self.model.cable_EA, self._f_ext_or_none)
+        return self._cached('summary', compute)
+
     def energy(self):
         """Total energy of the current state, J."""
-        return self._cached('energy', self.model.energy)
+        return self._summary()[1]
 
     def constraint_error(self):
         """Relative constraint error of the current state."""
@@ -174,8 +187,7 @@ class Simulation:
 
     def _heights(self):
         """Prism heights (n_columns, n_prisms) m of the current state (shared, read only)."""
-        return self._cached('heights', lambda: observables.prism_heights(self._full_state()[0],
-                                                                          self.network.levels))
+        return self._summary()[2]
 
     def expand_to_full3d(self, reason):
         """Continue a ``sym3d`` run with ``full3d`` from the same (expanded) state: no jump."""
@@ -406,7 +418,7 @@ class Simulation:
         """``(quantity, detail, hint)`` of the first failed divergence check of the current state
         after an integrator ``status``, or None when the state is sound."""
         x, v = self._full_state()
-        if not (dyn.all_finite(x) and dyn.all_finite(v)):
+        if not self._summary()[0]:
             return 'state', 'non-finite positions or velocities', HINT_STEP
         if status != dyn.OK:
             quantity, hint = STATUS_DIAGNOSIS.get(status, ('state', HINT_STEP))

@@ -26,7 +26,6 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from . import dynamics as dyn
-from . import observables
 from ._jit import jit
 from .network import NetworkError, _band_order, _inverse_mass, _ro
 
@@ -252,7 +251,6 @@ class Sym3D:
         self._rep = np.ascontiguousarray(red.node_rep, dtype=np.int64)
         f_full = np.zeros((network.n_nodes, 3)) if f_ext is None else np.asarray(f_ext, float)
         f_red = self._reduce(f_full, 'external forces')
-        self._f_full = f_full if np.any(f_full) else None
         self.net, self.act = dyn.pack(red, f_ext=f_red)
         self.ws = dyn.workspace(red.n_nodes, red.n_constraints, red.bandwidth)
         self.x = np.array(red.x0)
@@ -314,12 +312,8 @@ class Sym3D:
         self.act[0][:] = r_red
         self.act[1][:] = e_red
 
-    def energy(self):
-        """Energy of the full network, J: the expanded state through the full-network kernels."""
-        return observables.energy(self.positions(), self.velocities(), self.network,
-                                  self.cable_rest_length, self.cable_EA, self._f_full)
-
     def constraint_error(self):
         """The full network's relative constraint error (each reduced member stands for three
         equal ones)."""
-        return dyn.constraint_error(self.x, self.net)
+        n = self.net
+        return dyn.constraint_error_arrays(self.x, n[3], n[4], n[5], n[9])
