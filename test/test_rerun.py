@@ -7,6 +7,7 @@ an independent colour computation (the ROS marker colours of messages.py).
 """
 import math
 import os
+import signal
 import socket
 import subprocess
 import sys
@@ -292,9 +293,11 @@ def test_connect_streams_to_a_running_viewer(tmp_path):
         s.bind(('127.0.0.1', 0))
         port = s.getsockname()[1]
     saved = tmp_path / 'viewer.rrd'
+    # own process group: the `rerun` script starts the viewer binary as a child, which a plain
+    # terminate() would leave running after the test
     server = subprocess.Popen([str(exe), '--bind', '127.0.0.1', '--port', str(port),
                                '--save', str(saved)], env=env, stdout=subprocess.DEVNULL,
-                              stderr=subprocess.DEVNULL)
+                              stderr=subprocess.DEVNULL, start_new_session=True)
     try:
         deadline = time.monotonic() + 30
         while True:
@@ -321,7 +324,7 @@ def test_connect_streams_to_a_running_viewer(tmp_path):
                 break
             time.sleep(0.3)
     finally:
-        server.terminate()
+        os.killpg(server.pid, signal.SIGTERM)
         server.wait(timeout=30)
     data = read(saved)
     assert [t for t, _ in data['/energy']['rows']] == [round(f.t * 1e9) for f in frames]
