@@ -124,9 +124,10 @@ def next_kink(x, v, acc, net, act, h, ignore):
 
 
 @jit
-def _rk4_projected_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks):
-    """Advance by ``n_steps * dt``; with ``kinks`` a step is shortened to land on the next cable
-    slack/taut transition. Returns (RK4 steps taken, status)."""
+def _rk4_advance(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, project):
+    """Advance by ``n_steps * dt`` with classical RK4; with ``kinks`` a step is shortened to land
+    on the next cable slack/taut transition, with ``project`` positions and velocities are
+    projected on the rigid members after every step. Returns (RK4 steps taken, status)."""
     a1 = ws[10]
     total = n_steps * dt
     t = 0.0
@@ -138,9 +139,9 @@ def _rk4_projected_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks):
             h = next_kink(x, v, a1, net, act, h, 1e-3 * dt)
         if status == dyn.OK:
             status = _rk4_step(x, v, h, a1, net, act, ws)
-        if status == dyn.OK:
+        if project and status == dyn.OK:
             status = dyn.project_positions(x, net, ws, tol, max_iter)
-        if status == dyn.OK:
+        if project and status == dyn.OK:
             status = dyn.project_velocities(x, v, net, ws)
         if status == dyn.OK and not (dyn.all_finite(x) and dyn.all_finite(v)):
             status = dyn.NONFINITE
@@ -152,27 +153,16 @@ def _rk4_projected_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks):
 
 
 @jit
+def _rk4_projected_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks):
+    """RK4 with projection after every step (see :func:`_rk4_advance`)."""
+    return _rk4_advance(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, True)
+
+
+@jit
 def _rk4_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks):
     """:func:`_rk4_projected_run` without the projections (``tol``, ``max_iter`` unused): the
     constraints hold only at the acceleration level, so bar lengths drift."""
-    a1 = ws[10]
-    total = n_steps * dt
-    t = 0.0
-    steps = 0
-    while total - t > 1e-9 * dt:
-        h = min(dt, total - t)
-        status = dyn.accelerations(x, v, net, act, ws, a1)
-        if status == dyn.OK and kinks:
-            h = next_kink(x, v, a1, net, act, h, 1e-3 * dt)
-        if status == dyn.OK:
-            status = _rk4_step(x, v, h, a1, net, act, ws)
-        if status == dyn.OK and not (dyn.all_finite(x) and dyn.all_finite(v)):
-            status = dyn.NONFINITE
-        if status != dyn.OK:
-            return steps, status
-        t += h
-        steps += 1
-    return steps, dyn.OK
+    return _rk4_advance(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, False)
 
 
 @jit
