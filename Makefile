@@ -15,7 +15,7 @@ $(PY):
 
 $(STAMP): $(PY) setup.py
 	$(PY) -m pip install --quiet --upgrade pip setuptools wheel
-	$(PY) -m pip install --quiet -e '.[ros,test]'
+	$(PY) -m pip install --quiet -e '.[ros,test,peers]'
 	touch $(STAMP)
 
 install: $(STAMP)
