@@ -164,6 +164,10 @@ class Simulation:
     def _summary(self):
         """``(finite, energy J, prism heights (n_columns, n_prisms) m)`` of the current state."""
         def compute():
+            quick = getattr(self.model, 'summary', None)    # sym3d: on the reduced state
+            result = quick() if quick is not None else None
+            if result is not None:
+                return result
             x, v = self._full_state()
             net = self.network
             if hasattr(self.model, 'advance'):          # chain1d: its own energy
@@ -417,7 +421,6 @@ class Simulation:
     def _check(self, status):
         """``(quantity, detail, hint)`` of the first failed divergence check of the current state
         after an integrator ``status``, or None when the state is sound."""
-        x, v = self._full_state()
         if not self._summary()[0]:
             return 'state', 'non-finite positions or velocities', HINT_STEP
         if status != dyn.OK:
@@ -442,7 +445,8 @@ class Simulation:
                                         f'{h[c, i]:.3g} m)', HINT_SLACK)
             if self._check_twist and self._twist_sign is None:
                 self._twist_sign = np.sign(prism_twists(np.asarray(net.x0), net.levels))
-            twist = prism_twists(x, net.levels) if self._check_twist else None
+            twist = (prism_twists(self._full_state()[0], net.levels) if self._check_twist
+                     else None)
             bad = None if twist is None else ~(twist * self._twist_sign > 0.0)
             if bad is not None and np.any(bad):
                 c, i = np.argwhere(bad)[0]
