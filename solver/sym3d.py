@@ -27,7 +27,6 @@ from scipy.spatial import cKDTree
 
 from . import dynamics as dyn
 from ._jit import jit
-from .rotated import ROT_C, ROT_S
 from .network import NetworkError, _band_order, _inverse_mass, _ro
 
 R3 = np.array([[-0.5, -math.sqrt(3.0) / 2.0, 0.0], [math.sqrt(3.0) / 2.0, -0.5, 0.0],
@@ -60,13 +59,7 @@ def _reduced_summary(x, v, x0, f_ext, node_mass, clamped, node_mult, cable_a, ca
                                  - f_ext[p, 1] * (x[p, 1] - x0[p, 1])
                                  - f_ext[p, 2] * (x[p, 2] - x0[p, 2]))
     for c in range(cable_a.shape[0]):
-        a = cable_a[c]
-        b = cable_b[c]
-        cr = ROT_C[cable_rot[c]]
-        sr = ROT_S[cable_rot[c]]
-        dx = cr * x[b, 0] - sr * x[b, 1] - x[a, 0]
-        dy = sr * x[b, 0] + cr * x[b, 1] - x[a, 1]
-        dz = x[b, 2] - x[a, 2]
+        dx, dy, dz = dyn._rel(x, cable_a[c], cable_b[c], cable_rot, c)
         s = math.sqrt(dx * dx + dy * dy + dz * dz)
         if s > rest[c]:
             e += cable_mult[c] * 0.5 * EA[c] / rest[c] * (s - rest[c]) ** 2
