@@ -4,6 +4,7 @@ All functions take plain arrays; shapes and units are in each docstring.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -183,3 +184,21 @@ def track_pulse(times, strains, h0, window=(10, 40), t_ref=0.5):
             hi_i += 1
         width = hi_i - lo_i + 1 if abs(eps[i]) >= half else 0
     return Pulse(amplitude, med, lo, hi, speed, int(width), float(times[k_ref]), arrival)
+
+
+def first_passage(times, strain, h0, t_ref=0.5):
+    """:func:`~solver.track_pulse` on the history up to the time the leading peak
+    first reaches the clamped end (``n_prisms - 2`` prisms from the impact), so that a reflected
+    wave never enters the speed fit; amplitude and width at ``t_ref`` are NaN / 0 when the pulse
+    has already reached the end by then. ``strain`` (n_t, n_prisms) of one column."""
+    n = strain.shape[1]
+    end = len(times)
+    for k in range(len(times)):
+        pos, _ = leading_peak(strain[k, ::-1])
+        if math.isfinite(pos) and pos >= n - 2:
+            end = k + 1
+            break
+    p = track_pulse(times[:end], strain[:end], h0, t_ref=t_ref)
+    if times[end - 1] < t_ref - 1e-9:
+        p.amplitude, p.width_prisms = math.nan, 0
+    return p

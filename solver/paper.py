@@ -127,29 +127,11 @@ def run_variant(variant, v0, t_end=1.2, output_dt=0.005):
         row.wall_time_s = time.perf_counter() - t0
         return row
     row.wall_time_s = rec.wall_time_s
-    p = first_passage(rec.times, rec.strain[:, 0], sim.network.h0)
+    p = observables.first_passage(rec.times, rec.strain[:, 0], sim.network.h0)
     row.amplitude, row.amplitude_median = p.amplitude, p.amplitude_median
     row.speed_m_s, row.width_prisms, row.arrival_time_s = p.speed_m_s, p.width_prisms, \
         p.arrival_time_s
     return row
-
-
-def first_passage(times, strain, h0, t_ref=0.5):
-    """:func:`~solver.observables.track_pulse` on the history up to the time the leading peak
-    first reaches the clamped end (``n_prisms - 2`` prisms from the impact), so that a reflected
-    wave never enters the speed fit; amplitude and width at ``t_ref`` are NaN / 0 when the pulse
-    has already reached the end by then. ``strain`` (n_t, n_prisms) of one column."""
-    n = strain.shape[1]
-    end = len(times)
-    for k in range(len(times)):
-        pos, _ = observables.leading_peak(strain[k, ::-1])
-        if math.isfinite(pos) and pos >= n - 2:
-            end = k + 1
-            break
-    p = observables.track_pulse(times[:end], strain[:end], h0, t_ref=t_ref)
-    if times[end - 1] < t_ref - 1e-9:
-        p.amplitude, p.width_prisms = math.nan, 0
-    return p
 
 
 def chain_errors(rows):

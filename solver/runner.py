@@ -55,7 +55,7 @@ def run(sim: Simulation, t_end, output_dt, on_frame=None, progress=None):
     rec = RunRecord(np.array(times), np.array(strain), np.array(energy), np.array(cerr), wall,
                     sim.step, sim.steps_taken)
     if sim.network.levels.size:
-        rec.pulses = [observables.track_pulse(rec.times, rec.strain[:, c], sim.network.h0)
+        rec.pulses = [observables.first_passage(rec.times, rec.strain[:, c], sim.network.h0)
                       for c in range(sim.network.n_columns)]
     return rec
 

@@ -246,7 +246,7 @@ def test_chain1d_rejects_cable_changes_and_keeps_energy_on_the_paper_column():
 
 # -- the paper table -------------------------------------------------------------------------------
 def test_first_passage_measures_the_incoming_pulse_only():
-    from solver.paper import first_passage
+    from solver.observables import first_passage
     h0, n, c = 0.0062, 50, 100.0          # a pulse moving 100 prisms/s, reflected at the far end
     times = np.arange(0.0, 1.0, 0.005)
     prisms = np.arange(n)[::-1]            # distance from the impacted end (prism n-1)
