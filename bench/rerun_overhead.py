@@ -1,8 +1,10 @@
 """Cost of a Rerun recording: a run with and without :class:`RerunRecorder`, side by side.
 
     python -m bench.rerun_overhead [--scene config/scenes/fb_column.yaml] [--repeats 7] [--out DIR]
+                                   [--t-end S]
 
-The same simulation is run from its impact to ``run.t_end`` at the scene's default output rate
+The same simulation is run from its impact to ``run.t_end`` (or ``--t-end``: the opening and
+closing of a recording are a fixed cost that weighs less in longer runs) at the scene's output rate
 (``run.output_dt``), alternately plain and recording to a ``.rrd`` file (recorder construction,
 every frame and the final flush included), ``repeats`` pairs after one discarded warm-up pair.
 Reports the overhead ``recorded / plain - 1`` of wall time and of process CPU time (all threads,
@@ -48,7 +50,7 @@ def _one(sim, scene, path, frames=None):
     return time.perf_counter() - w0, time.process_time() - c0, time.thread_time() - m0
 
 
-def measure(scene_path='config/scenes/fb_column.yaml', repeats=3, log=print):
+def measure(scene_path='config/scenes/fb_column.yaml', repeats=3, log=print, t_end=None):
     """List of dicts, one per measured pair: wall and CPU seconds plain / recorded, and ratios;
     also the time of the recording alone (the run's frames fed from memory), ``*_rec_only_s``."""
     from solver.runner import run
@@ -56,6 +58,8 @@ def measure(scene_path='config/scenes/fb_column.yaml', repeats=3, log=print):
     from solver.simulation import Simulation
 
     scene = Scene.load(scene_path)
+    if t_end is not None:
+        scene = scene.with_overrides([('run.t_end', float(t_end))])
     sim = Simulation(scene)
     sim.advance(sim.dt)                       # compile (or load cached) kernels first
     sim.reset()
@@ -91,13 +95,13 @@ def measure(scene_path='config/scenes/fb_column.yaml', repeats=3, log=print):
 
 
 def main(out='bench/results', quick=False, log=print, scene='config/scenes/fb_column.yaml',
-         repeats=None):
+         repeats=None, t_end=None):
     """Run :func:`measure`, write ``rerun_overhead.csv`` into ``out``; returns the files
     written."""
-    rows = measure(scene, repeats or (3 if quick else 7), log=log)
+    rows = measure(scene, repeats or (3 if quick else 7), log=log, t_end=t_end)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    path = out / 'rerun_overhead.csv'
+    path = out / ('rerun_overhead.csv' if t_end is None else f'rerun_overhead_t{t_end:g}.csv')
     with path.open('w', newline='') as f:
         w = csv.DictWriter(f, fieldnames=list(rows[0]))
         w.writeheader()
@@ -122,6 +126,7 @@ if __name__ == '__main__':
     ap.add_argument('--scene', default='config/scenes/fb_column.yaml')
     ap.add_argument('--repeats', type=int, default=7)
     ap.add_argument('--out', default='bench/results')
+    ap.add_argument('--t-end', type=float, help='simulated seconds per run (default: the scene)')
     a = ap.parse_args()
-    main(a.out, scene=a.scene, repeats=a.repeats)
+    main(a.out, scene=a.scene, repeats=a.repeats, t_end=a.t_end)
     sys.exit(0)
