@@ -43,7 +43,7 @@ setup(
     install_requires=CORE,
     extras_require={
         'ros': ROS_WHEELS,
-        'test': ['pytest==9.2.0'],
+        'test': ['pytest==9.2.0', 'ruff==0.17.6'],
         'peers': ['mujoco==4.0.0'],
     },
     python_requires='>=3.11',

@@ -8,7 +8,8 @@ the RMS norm of ``err / (atol + rtol max(|y|, |y+|))`` over every coordinate of 
 paper's column). A step is accepted when that norm is at most 1; the next step is
 ``h * clip(0.9 err^(-1/5), 0.2, 5)``, never above ``dt``. The tolerance is per step: the global
 error accumulates over the steps. A step whose stages fail (singular constraint matrix,
-non-finite values) is rejected and retried 4x shorter. With ``kinks`` a step is shortened to land on the next
+non-finite values) is rejected and retried 4x shorter. With ``kinks`` a step is shortened to land
+on the next
 predicted cable slack/taut transition, which keeps the error estimate honest across kinks.
 """
 from __future__ import annotations

@@ -1,6 +1,7 @@
 """Numba kernels of the constrained dynamics (physics.md section 1.1).
 
-Two levels, as everywhere in the solver: :func:`pack` (Python) validates and allocates, the ``@jit``
+Two levels, as everywhere in the solver: :func:`pack` (Python) validates and allocates, the
+``@jit``
 kernels take arrays and tuples of arrays only and write into ``out`` arrays.
 
 ``net`` tuple (read-only model arrays, see :class:`solver.network.Network`)::
@@ -8,9 +9,11 @@ kernels take arrays and tuples of arrays only and write into ``out`` arrays.
     (w_diag, partner, w_off, con_tail, con_head, con_length, con_coef, cable_a, cable_b,
      con_rot, cable_rot, con_coef3)
 
-The last three serve the symmetric reduction (:mod:`solver.sym3d`) and are empty for a plain network:
+The last three serve the symmetric reduction (:mod:`solver.sym3d`) and are empty for a plain
+network:
 a member then joins its tail node to the ROTATED IMAGE ``R^r x_head`` of its head node, ``R`` the
-rotation by 2 pi / 3 about z and ``r = con_rot[c]`` (``cable_rot`` for cables) in {0, 1, 2}; the force
+rotation by 2 pi / 3 about z and ``r = con_rot[c]`` (``cable_rot`` for cables) in {0, 1, 2}; the
+force
 on the image is rotated back onto the node. ``con_coef3`` (n_con, bw + 1, 3) replaces ``con_coef``:
 ``A[c, c-k] = coef3[c, k] . (b_c^z b_d^z, b_c^x b_d^x + b_c^y b_d^y, b_c^y b_d^x - b_c^x b_d^y)``.
 With empty arrays every kernel takes the plain path (r = 0), so ``full3d`` pays nothing for them.
@@ -47,7 +50,8 @@ NO_COEF3.setflags(write=False)
 
 def pack(network, cable_rest_length=None, cable_EA=None, f_ext=None):
     """The ``(net, act)`` tuples of a network; ``act`` arrays are fresh writable copies. A network
-    with rotated members (:class:`solver.sym3d.ReducedNetwork`) fills the last three ``net`` slots."""
+    with rotated members (:class:`solver.sym3d.ReducedNetwork`) fills the last three ``net``
+    slots."""
     net = (network.w_diag, network.partner, network.w_off, network.con_tail, network.con_head,
            network.con_length, network.con_coef, network.cable_a, network.cable_b,
            getattr(network, 'con_rot', NO_ROT), getattr(network, 'cable_rot', NO_ROT),
@@ -64,12 +68,14 @@ def workspace(n_nodes, n_con, bandwidth):
     def z(*shape):
         return np.zeros(shape)
     return (z(n_nodes, 3), z(n_nodes, 3), z(n_con, 3), z(n_con, bandwidth + 1), z(n_con),
-            z(n_nodes, 3), z(n_nodes, 3), z(n_nodes, 3), z(n_nodes, 3), z(n_nodes, 3), z(n_nodes, 3))
+            z(n_nodes, 3), z(n_nodes, 3), z(n_nodes, 3), z(n_nodes, 3), z(n_nodes, 3),
+            z(n_nodes, 3))
 
 
 @jit
 def cable_forces(x, cable_a, cable_b, rest, EA, f):
-    """Add tension-only cable forces to ``f`` (n_nodes, 3) N. ``T = EA (s - L) / L`` when ``s > L``."""
+    """Add tension-only cable forces to ``f`` (n_nodes, 3) N: ``T = EA (s - L) / L`` when
+    ``s > L``."""
     for c in range(cable_a.shape[0]):
         a = cable_a[c]
         b = cable_b[c]
@@ -157,7 +163,8 @@ def _tridiag_ldl_solve(band, rhs):
 def band_ldl_solve(band, rhs):
     """Solve ``A y = rhs`` in place (``rhs`` becomes y) for SPD banded A given by its lower band.
 
-    Square-root-free LDL^T: ``band`` is overwritten with the unit lower factor L off the diagonal and
+    Square-root-free LDL^T: ``band`` is overwritten with the unit lower factor L off the diagonal
+    and
     ``1 / d_i`` on it (one division per row keeps the sequential dependency chain short).
     Returns ``OK`` or ``SINGULAR`` (a pivot that is not positive).
     """
@@ -314,7 +321,8 @@ def constraint_error_arrays(x, tail, head, length, rot):
 @jit
 def project_positions(x, net, ws, tol, max_iter):
     """Mass-weighted Gauss-Newton projection of positions onto the rigid-member manifold:
-    ``A dmu = -g``, ``x += W sum_c dmu_c G_c`` until ``|g_c| < tol L_c^2``. Returns a status code."""
+    ``A dmu = -g``, ``x += W sum_c dmu_c G_c`` until ``|g_c| < tol L_c^2``. Returns a status
+    code."""
     w_diag, partner, w_off, tail, head, length = net[0], net[1], net[2], net[3], net[4], net[5]
     coef, rot, coef3 = net[6], net[9], net[11]
     f, wf, bvec, band, lam = ws[0], ws[1], ws[2], ws[3], ws[4]

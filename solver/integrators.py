@@ -1,8 +1,11 @@
 """Time integrators behind one interface.
 
-An integrator advances positions ``x`` (n_nodes, 3) m and velocities ``v`` (n_nodes, 3) m/s in place by
-``n_steps`` fixed steps of ``dt`` s, with the ``(net, act, ws)`` tuples of :mod:`solver.dynamics`, and
-returns ``(steps_done, status)``; a non-OK status stops it at the step that failed, leaving the last
+An integrator advances positions ``x`` (n_nodes, 3) m and velocities ``v`` (n_nodes, 3) m/s in
+place by
+``n_steps`` fixed steps of ``dt`` s, with the ``(net, act, ws)`` tuples of :mod:`solver.dynamics`,
+and
+returns ``(steps_done, status)``; a non-OK status stops it at the step that failed, leaving the
+last
 good state in ``x`` and ``v``.
 
 Methods (:data:`METHODS`; the scene key ``integrator.method`` or ``--set integrator=NAME`` picks
@@ -343,5 +346,6 @@ def get(name, **options):
     try:
         cls = METHODS[name]
     except KeyError:
-        raise ValueError(f'unknown integrator {name!r}; valid: {", ".join(sorted(METHODS))}') from None
+        valid = ', '.join(sorted(METHODS))
+        raise ValueError(f'unknown integrator {name!r}; valid: {valid}') from None
     return cls(**options)

@@ -1,8 +1,11 @@
 """Network: the fixed, read-only description of a tensegrity network.
 
-A network is a set of pin-jointed nodes joined by rigid members (bars and rigid base edges: holonomic
-length constraints) and tension-only elastic cables. Everything in a :class:`Network` is fixed for a run;
-the only things a command may change (cable rest lengths and stiffnesses) are copied into the simulation
+A network is a set of pin-jointed nodes joined by rigid members (bars and rigid base edges:
+holonomic
+length constraints) and tension-only elastic cables. Everything in a :class:`Network` is fixed for
+a run;
+the only things a command may change (cable rest lengths and stiffnesses) are copied into the
+simulation
 state. All arrays are read-only (``writeable=False``) so no kernel can corrupt the model.
 
 Shapes and units (SI):
@@ -14,12 +17,15 @@ Shapes and units (SI):
 - ``cable_a``/``cable_b`` (n_cables,) int64, ``cable_rest_length`` (n_cables,) m,
   ``cable_EA`` (n_cables,) N; stiffness ``k = EA / L``.
 - Constraints (bars then rigid edges, minus those whose two nodes are clamped), in banded order:
-  ``con_tail``/``con_head`` (n_con,) int64, ``con_length`` (n_con,) m, ``con_coef`` (n_con, bw + 1):
+  ``con_tail``/``con_head`` (n_con,) int64, ``con_length`` (n_con,) m, ``con_coef`` (n_con, bw +
+  1):
   ``A[c, c - k] = con_coef[c, k] * (b_c . b_{c-k})`` is the constraint matrix ``J W J^T``.
 - Inverse mass operator ``W`` (node-wise, the same for x, y and z): ``w_diag`` (n_nodes,) 1/kg,
   ``partner`` (n_nodes,) int64 (-1 if none) and ``w_off`` (n_nodes,): ``(W f)_p = w_diag[p] f_p +
-  w_off[p] f_partner[p]``. Partners come from massive bars (2x2 rod block); clamped nodes have ``w = 0``.
-- ``levels`` (n_columns, n_levels, 3) int64: node indices of each base level of each column (empty for
+  w_off[p] f_partner[p]``. Partners come from massive bars (2x2 rod block); clamped nodes have ``w
+  = 0``.
+- ``levels`` (n_columns, n_levels, 3) int64: node indices of each base level of each column (empty
+for
   networks that are not columns); ``h0`` m: reference prism height.
 """
 from __future__ import annotations
@@ -166,7 +172,8 @@ class Network:
 def _inverse_mass(node_mass, clamped, bars, bar_mass):
     """Inverse of the mass matrix ``diag(m) + sum_bars rod blocks``, restricted to free nodes.
 
-    A massive bar adds the rod block ``[[m/3, m/6], [m/6, m/3]]`` on its two nodes, so a node may belong
+    A massive bar adds the rod block ``[[m/3, m/6], [m/6, m/3]]`` on its two nodes, so a node may
+    belong
     to at most one massive bar (class-1 for the massive bars) for the inverse to stay node-local.
     """
     n = len(node_mass)
@@ -203,9 +210,11 @@ def _inverse_mass(node_mass, clamped, bars, bar_mass):
 
 
 def _adjacency(members, partner):
-    """Constraint-constraint adjacency: two constraints couple when they share a node or touch the two
+    """Constraint-constraint adjacency: two constraints couple when they share a node or touch the
+    two
     nodes of one massive bar (one mass block)."""
-    group = np.where(partner >= 0, np.minimum(np.arange(len(partner)), partner), np.arange(len(partner)))
+    index = np.arange(len(partner))
+    group = np.where(partner >= 0, np.minimum(index, partner), index)
     by_node = [[] for _ in range(len(partner))]
     for c, (t, h) in enumerate(members):
         by_node[group[t]].append(c)
@@ -246,7 +255,8 @@ def _band_order(members, partner):
 
 
 def _coupling(members, w_diag, partner, w_off, bw):
-    """``coef[c, k] = sum_{p in c, q in d} s_c(p) s_d(q) W_pq`` for d = c - k (head +1, tail -1)."""
+    """``coef[c, k] = sum_{p in c, q in d} s_c(p) s_d(q) W_pq`` for d = c - k (s: head +1,
+    tail -1)."""
     m = len(members)
     coef = np.zeros((m, bw + 1))
     for c in range(m):

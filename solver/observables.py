@@ -1,4 +1,5 @@
-"""Observables: strains, tensions, energy, constraint error, and the pulse tracker (physics.md section 4).
+"""Observables: strains, tensions, energy, constraint error, and the pulse tracker (physics.md
+section 4).
 
 All functions take plain arrays; shapes and units are in each docstring.
 """
@@ -38,7 +39,8 @@ def _summary(x, v, node_mass, clamped, bar_a, bar_b, bar_mass, cable_a, cable_b,
 
 
 def state_summary(x, v, network, rest, EA, f_ext=None):
-    """``(finite, energy J, prism heights (n_columns, n_prisms) m)`` of a full state in one compiled
+    """``(finite, energy J, prism heights (n_columns, n_prisms) m)`` of a full state in one
+    compiled
     call: what the divergence check and a frame need (``f_ext`` as in :func:`energy`)."""
     levels = network.levels
     heights = np.empty((levels.shape[0], max(levels.shape[1] - 1, 0)))
@@ -89,7 +91,8 @@ def energy(x, v, network, rest, EA, f_ext=None):
 
 
 def constraint_error(x, network):
-    """max over rigid members of ``|(|b|^2 - L^2) / 2| / L^2`` (about the relative length error)."""
+    """max over rigid members of ``|(|b|^2 - L^2) / 2| / L^2`` (about the relative length
+    error)."""
     if network.n_constraints == 0:
         return 0.0
     b = x[network.con_head] - x[network.con_tail]
@@ -102,9 +105,11 @@ class Pulse:
     """Leading-pulse figures of one column (physics.md section 4).
 
     ``amplitude`` is the |strain| of the leading pulse at ``t_ref`` (or the nearest tracked time);
-    ``amplitude_median/min/max`` over the window where the peak is in prisms ``window``; ``speed_m_s``
+    ``amplitude_median/min/max`` over the window where the peak is in prisms ``window``;
+    ``speed_m_s``
     the slope of peak position against time there; ``width_prisms`` the number of contiguous prisms
-    around the peak with ``|eps| >= 0.5 |eps_peak|`` at ``t_ref``. NaN where the pulse never reached
+    around the peak with ``|eps| >= 0.5 |eps_peak|`` at ``t_ref``. NaN where the pulse never
+    reached
     the window."""
     amplitude: float
     amplitude_median: float
@@ -123,8 +128,10 @@ class Pulse:
 
 
 def leading_peak(eps, threshold=0.25, floor=1e-6):
-    """Index (from the impacted end, 0 = prism next to it) and strain of the leading compressive peak
-    of one strain profile ``eps`` (n_prisms,), ordered from the impacted end. The front is the farthest
+    """Index (from the impacted end, 0 = prism next to it) and strain of the leading compressive
+    peak
+    of one strain profile ``eps`` (n_prisms,), ordered from the impacted end. The front is the
+    farthest
     prism whose compression exceeds ``threshold`` times the largest compression of the profile; the
     peak is the local minimum reached walking back from the front. ``(nan, nan)`` when at rest (no
     compression above ``floor``, which keeps round-off noise from being tracked as a pulse)."""
@@ -148,7 +155,8 @@ def leading_peak(eps, threshold=0.25, floor=1e-6):
 def track_pulse(times, strains, h0, window=(10, 40), t_ref=0.5):
     """Pulse figures from a strain history of one column.
 
-    ``times`` (n_t,) s, ``strains`` (n_t, n_prisms) with prism 0 at the clamped end and the impact at
+    ``times`` (n_t,) s, ``strains`` (n_t, n_prisms) with prism 0 at the clamped end and the impact
+    at
     the last prism, ``h0`` m. Returns a :class:`Pulse`."""
     times = np.asarray(times)
     strains = np.asarray(strains)

@@ -1,6 +1,7 @@
 """Kernels for members joined to a ROTATED IMAGE of their head node (the ``sym3d`` model).
 
-A member ``c`` with rotation index ``r = rot[c]`` in {0, 1, 2} joins ``x[tail]`` to ``R^r x[head]``,
+A member ``c`` with rotation index ``r = rot[c]`` in {0, 1, 2} joins ``x[tail]`` to ``R^r
+x[head]``,
 ``R`` the rotation by 2 pi / 3 about z; its force on the image is rotated back onto the head node
 (``R^-r``). :mod:`solver.dynamics` dispatches to these kernels when the rotation slots of its
 ``net`` tuple are not empty (see :mod:`solver.sym3d`). Shapes as in :mod:`solver.dynamics`.
@@ -18,7 +19,8 @@ ROT_S = np.array([0.0, math.sqrt(3.0) / 2.0, -math.sqrt(3.0) / 2.0])
 
 @jit
 def cable_forces_rot(x, cable_a, cable_b, cable_rot, rest, EA, f):
-    """:func:`cable_forces` for cables from ``x_a`` to the image ``R^r x_b``: the force on the image
+    """:func:`cable_forces` for cables from ``x_a`` to the image ``R^r x_b``: the force on the
+    image
     is rotated back onto node b."""
     for c in range(cable_a.shape[0]):
         a = cable_a[c]

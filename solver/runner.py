@@ -1,4 +1,4 @@
-"""Headless runs: a scene from its impact to ``t_end``, recorded at ``output_dt``, and its summary."""
+"""Headless runs: a scene from its impact to ``t_end``, recorded at ``output_dt``; the summary."""
 from __future__ import annotations
 
 import time

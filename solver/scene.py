@@ -1,7 +1,9 @@
 """Scene files: YAML -> validated, frozen :class:`Scene` (SI units; unknown keys are errors).
 
-Every default lives in :data:`DEFAULTS`; the type of a default is the type a value must have. A scene
-file gives only what differs. ``--set KEY=VALUE`` overrides use dotted keys (``integrator.dt=2e-4``);
+Every default lives in :data:`DEFAULTS`; the type of a default is the type a value must have. A
+scene
+file gives only what differs. ``--set KEY=VALUE`` overrides use dotted keys
+(``integrator.dt=2e-4``);
 ``integrator=NAME`` is short for ``integrator.method=NAME``.
 """
 from __future__ import annotations
@@ -247,7 +249,8 @@ class Scene:
         return self._data['name']
 
     def with_overrides(self, assignments):
-        """A new scene with ``KEY=VALUE`` strings (or (key, value) pairs) applied; values are parsed
+        """A new scene with ``KEY=VALUE`` strings (or (key, value) pairs) applied; values are
+        parsed
         as YAML scalars."""
         data = self.data
         for item in assignments:

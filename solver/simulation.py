@@ -6,8 +6,10 @@
         sim.advance(0.005)
         frame = sim.frame()
 
-Commands (:meth:`apply_impact`) and :meth:`advance` either succeed or change nothing: bad values raise
-``ValueError`` naming the problem; a diverging step raises :class:`SimulationDiverged` and restores the
+Commands (:meth:`apply_impact`) and :meth:`advance` either succeed or change nothing: bad values
+raise
+``ValueError`` naming the problem; a diverging step raises :class:`SimulationDiverged` and restores
+the
 last good state.
 """
 from __future__ import annotations
@@ -25,8 +27,8 @@ PRESTRAIN_RANGE = RANGES['prestrain']     # (lower, upper, lower inclusive): 0 <
 
 
 HINT_STEP = 'try a smaller integrator.dt or another method (e.g. integrator=dopri54_projected)'
-HINT_CONSTRAINT = ('use a projected method (rk4_projected, rattle, dopri54_projected) or a smaller '
-                   'integrator.dt')
+HINT_CONSTRAINT = ('use a projected method (rk4_projected, rattle, dopri54_projected) or a '
+                   'smaller integrator.dt')
 HINT_ENERGY = 'try a smaller integrator.dt or another method (rattle, dopri54_projected)'
 HINT_SLACK = ('cables went slack and the prism collapsed: raise the prestrain or lower the impact '
               'velocity')
@@ -47,7 +49,8 @@ STATUS_DIAGNOSIS = {
 
 
 def prism_twists(x, levels):
-    """Relative twist (n_columns, n_prisms) rad in (-pi, pi] of the top base of each prism about its
+    """Relative twist (n_columns, n_prisms) rad in (-pi, pi] of the top base of each prism about
+    its
     bottom base (node 0 of each level about the level's centroid, in the xy plane). Its sign stays
     that of the reference twist (+-150 deg) unless the bars cross: through 180 deg (past the
     rigid-base lock) or through 0. ``x`` (n_nodes, 3) m, ``levels`` (n_columns, n_levels, 3)."""
@@ -63,7 +66,8 @@ class SimulationDiverged(RuntimeError):
 
     def __init__(self, t, step, quantity, detail, hint):
         self.t, self.step, self.quantity, self.hint = t, step, quantity, hint
-        super().__init__(f'simulation diverged at t = {t:.6g} s (step {step}): {quantity} {detail}; '
+        super().__init__(f'simulation diverged at t = {t:.6g} s (step {step}): {quantity} '
+                         f'{detail}; '
                          f'{hint}')
 
 
@@ -268,7 +272,8 @@ class Simulation:
 
     def apply_impact(self, v0, columns=None, mode=None):
         """Impact the free end(s): the velocity jump is projected on the constraints (impulse, the
-        default) or, with ``mode='energy'``, also rescaled to the kinetic energy ``3 m v0^2 / 2`` per
+        default) or, with ``mode='energy'``, also rescaled to the kinetic energy ``3 m v0^2 / 2``
+        per
         column. Returns the kinetic energy added, J."""
         before = self.energy()
         if hasattr(self.model, 'impact'):           # chain1d: axial velocity on the end level
@@ -287,7 +292,8 @@ class Simulation:
 
     @property
     def prestrain(self):
-        """Current cross prestrain per prism (n_columns, n_prisms) (a copy), None if not a column."""
+        """Current cross prestrain per prism (n_columns, n_prisms) (a copy), None if not a
+        column."""
         return None if self._prestrain is None else self._prestrain.copy()
 
     @property

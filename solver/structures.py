@@ -1,6 +1,7 @@
 """Builders: networks from a few parameters (physics.md sections 2 and 3).
 
-- :func:`column`: ``n_columns`` columns of ``n_prisms`` right-handed minimal triangular prisms stacked on
+- :func:`column`: ``n_columns`` columns of ``n_prisms`` right-handed minimal triangular prisms
+stacked on
   shared bases, flexible (FB) or rigid (RB) bases; a single prism is ``n_prisms=1``.
 - :func:`explicit`: any network given as nodes, bars, cables (and optional rigid edges).
 
@@ -36,9 +37,12 @@ def column(n_prisms=50, radius=0.005, h0=0.0062, cable_E=5.48e6, cable_radius=1.
     """Columns of tensegrity prisms along z (physics.md section 3).
 
     Level j of column c (j = 0..n_prisms) holds nodes ``3 j + k`` (+ ``c * 3 (n_prisms + 1)``) at
-    ``(r cos(j phi0 + 2 pi k / 3) + c * spacing, r sin(...), j h0)``. Bars ``(j, k) -> (j+1, k)``, cross
-    cables ``(j, k) -> (j+1, (k-1) mod 3)`` (``k+1`` when left-handed), base cables ``(j, k) -> (j, k+1)``. Cross cables get
-    prestrain ``p``; base cables get the tension of the prism self-stress ``t_l = gamma_s r`` (twice at
+    ``(r cos(j phi0 + 2 pi k / 3) + c * spacing, r sin(...), j h0)``. Bars ``(j, k) -> (j+1, k)``,
+    cross
+    cables ``(j, k) -> (j+1, (k-1) mod 3)`` (``k+1`` when left-handed), base cables ``(j, k) -> (j,
+    k+1)``. Cross cables get
+    prestrain ``p``; base cables get the tension of the prism self-stress ``t_l = gamma_s r``
+    (twice at
     interior levels with ``stacking='shared'``; one cable per prism with ``stacking='parallel'``).
     Rigid bases are rigid edges (``rigid_bases_as='edges'``) or base cables with EA x ``kappa``.
     ``unit_mass`` (kg per prism) is lumped on the base nodes, a third per node.
@@ -105,13 +109,15 @@ def column(n_prisms=50, radius=0.005, h0=0.0062, cable_E=5.48e6, cable_radius=1.
 
     node_mass = np.full(len(x), unit_mass / 3.0)
     clamped = [node(c, j, k) for c in range(n_columns) for j in clamped_levels for k in range(3)]
-    meta = dict(builder='column', n_prisms=n_prisms, radius=radius, h0=h0, EA=EA, prestrain=prestrain,
+    meta = dict(builder='column', n_prisms=n_prisms, radius=radius, h0=h0, EA=EA,
+                prestrain=prestrain,
                 bases=bases, stacking=stacking, rigid_bases_as=rigid_bases_as, kappa=kappa,
                 cross_length=s_len, cross_rest_length=L_s, gamma_s=gamma_s, base_tension=t_l,
                 bar_length=float(np.linalg.norm(x[node(0, 1, 0)] - x[node(0, 0, 0)])),
                 unit_mass=unit_mass, twist=phi0)
     return Network.build(x, node_mass, bars, cables, cable_rest, cable_EA, rigid_edges=edges,
-                         clamped=clamped, bar_mass=bar_mass, cable_kind=kinds, levels=levels, h0=h0,
+                         clamped=clamped, bar_mass=bar_mass, cable_kind=kinds, levels=levels,
+                         h0=h0,
                          meta=meta)
 
 
@@ -145,7 +151,8 @@ class PrestrainMap:
     self-stress, an interior shared base cable at level j carries ``t_l(p_{j-1}) + t_l(p_j)``
     (``stacking='parallel'``: the first cable of a side carries prism j-1, the second prism j),
     with ``t_l(p) = gamma_s(p) r`` and ``gamma_s(p) = EA_s p / s`` (physics.md section 2). Rigid
-    base edges carry any base force as constraint forces. Prism index: ``column * n_prisms + prism``.
+    base edges carry any base force as constraint forces. Prism index: ``column * n_prisms +
+    prism``.
 
     Arrays: ``cross`` (n_cross,) cable indices in cable order (the per-cable command order),
     ``cross_prism`` (n_cross,), ``base`` (n_base,) cable indices, ``base_prisms`` (n_base, 2) prism

@@ -1,6 +1,7 @@
 """The ``tensegrity`` command (interfaces.md section 2).
 
-User errors (bad scene, bad option, diverged simulation) print one line on stderr and exit 2 (1 for a
+User errors (bad scene, bad option, diverged simulation) print one line on stderr and exit 2 (1 for
+a
 diverged run), never a traceback.
 """
 from __future__ import annotations
@@ -113,7 +114,8 @@ def cmd_run(args):
         print(json.dumps(result))
     else:
         p = result['pulse'] or {}
-        print(f"{result['scene']}: {result['model']} + {result['integrator']}, dt = {result['dt']:g} s,"
+        print(f"{result['scene']}: {result['model']} + {result['integrator']}, "
+              f"dt = {result['dt']:g} s,"
               f" t_end = {result['t_end']:g} s, {result['steps_taken']} steps in "
               f"{result['wall_time_s']:.2f} s ({result['real_time_factor']:.1f}x real time)")
         print(f"  energy drift {result['energy_drift_rel']:.2e} /s, constraint error "
@@ -248,7 +250,8 @@ def build_parser():
     p.add_argument('--ros-args', nargs=argparse.REMAINDER, help='ROS arguments (remapping)')
     p.set_defaults(func=cmd_replay)
     p = sub.add_parser('bench', help='work-precision chart, stability map, peer comparison')
-    p.add_argument('--quick', action='store_true', help='small grids and short windows (smoke run)')
+    p.add_argument('--quick', action='store_true',
+                   help='small grids and short windows (smoke run)')
     p.add_argument('--out', default='bench/results', help='output directory (CSV and PNG)')
     p.add_argument('--peers', action='store_true', help='also run the peer comparison')
     p.add_argument('--only', action='append', choices=('work_precision', 'stability', 'peers'),
@@ -271,7 +274,8 @@ def build_parser():
     p.add_argument('--prestrain', help='prestrain before the impact, or one per column')
     p.add_argument('--duration', type=float, default=1.2,
                    help='simulated seconds collected after the impact (default 1.2)')
-    p.add_argument('--rtf', type=float, default=1.0, help='real-time factor (0 = fast as possible)')
+    p.add_argument('--rtf', type=float, default=1.0,
+                   help='real-time factor (0 = fast as possible)')
     p.add_argument('--out', default='runs/demo', help='output directory (default runs/demo)')
     p.add_argument('--domain-id', type=int, help='ROS_DOMAIN_ID (default: env or 42)')
     p.add_argument('--no-record', action='store_true', help='no MCAP / Rerun recording')

@@ -9,7 +9,8 @@ per column. ``~/cmd/prestrain``: cross prestrain ``0 < p <= 0.5``; 1 value (ever
 column, or one per cross cable in the network's cable order (column, prism, cable k). The
 per-cross-cable form is accepted only when the three cross cables of each prism have equal values:
 a prism's self-stress is one mode, so unequal values cannot keep the reference geometry in
-equilibrium (such a command is rejected, naming the first prism that differs). Layout label (first dimension), optional: ``all``, ``column``
+equilibrium (such a command is rejected, naming the first prism that differs). Layout label (first
+dimension), optional: ``all``, ``column``
 or ``cross_cable``; when given it must agree with the number of values.
 """
 from __future__ import annotations

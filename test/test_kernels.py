@@ -1,4 +1,5 @@
-"""Each numba kernel against its slow dense NumPy twin (test/twins.py) on perturbed, moving states."""
+"""Each numba kernel against its slow dense NumPy twin (test/twins.py) on perturbed, moving
+states."""
 import numpy as np
 import pytest
 
@@ -128,4 +129,5 @@ def test_energies_match_twin(name):
     rest, EA = np.array(net.cable_rest_length), np.array(net.cable_EA)
     d = np.linalg.norm(x[net.cable_b] - x[net.cable_a], axis=1)
     pe_ref = np.sum(0.5 * EA / rest * np.clip(d - rest, 0, None) ** 2)
-    assert dyn.cable_energy(x, net.cable_a, net.cable_b, rest, EA) == pytest.approx(pe_ref, rel=1e-12)
+    pe = dyn.cable_energy(x, net.cable_a, net.cable_b, rest, EA)
+    assert pe == pytest.approx(pe_ref, rel=1e-12)

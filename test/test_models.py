@@ -244,7 +244,8 @@ def test_chain1d_rejects_cable_changes_and_keeps_energy_on_the_paper_column():
     assert strain.min() < -0.03 and np.all(strain > -0.1005 - 1e-6)
 
 
-# -- the paper table -------------------------------------------------------------------------------
+# -- the paper table
+# -------------------------------------------------------------------------------
 def test_first_passage_measures_the_incoming_pulse_only():
     from solver.observables import first_passage
     h0, n, c = 0.0062, 50, 100.0          # a pulse moving 100 prisms/s, reflected at the far end

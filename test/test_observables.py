@@ -25,7 +25,8 @@ def test_tracker_recovers_speed_amplitude_and_width_of_a_known_pulse():
     p = track_pulse(times, strain, h0)
     assert p.speed_m_s == pytest.approx(40.0 * h0, rel=0.01)
     assert p.amplitude == pytest.approx(0.054, rel=0.01)
-    # strain is sampled per prism: between prisms the sampled peak is at worst half a prism off-centre
+    # strain is sampled per prism: between prisms the sampled peak is at worst half a prism
+    # off-centre
     sampled_low = 0.054 * np.exp(-0.5 * (0.5 / 1.2) ** 2)
     assert sampled_low - 1e-12 <= p.amplitude_min <= p.amplitude_max <= 0.054 + 1e-12
     # |eps| >= amp / 2 within +/- sigma sqrt(2 ln 2) = +/- 1.41 prisms of the centre at t = 0.5

@@ -1,5 +1,6 @@
 """The checks of physics.md section 7 (1, 2, 3, 5, 6), each against an independent reference:
-analytic values of section 2-3, invariants (energy, bar lengths, the lock), and convergence studies."""
+analytic values of section 2-3, invariants (energy, bar lengths, the lock), and convergence
+studies."""
 import math
 
 import numpy as np
@@ -40,7 +41,8 @@ def test_column_is_at_rest_before_the_impact(kw):
 def test_prism_geometry_and_self_stress_match_the_analytic_values():
     net = structures.column(n_prisms=1)
     m = net.meta
-    # physics.md section 2: b^2 = 2 r^2 (1 - cos phi) + h^2, s^2 = 2 r^2 (1 - cos(phi - 2 pi/3)) + h^2
+    # physics.md section 2: b^2 = 2 r^2 (1 - cos phi) + h^2, s^2 = 2 r^2 (1 - cos(phi - 2 pi/3)) +
+    # h^2
     phi = 5 * math.pi / 6
     b = math.sqrt(2 * R ** 2 * (1 - math.cos(phi)) + H0 ** 2)
     s = math.sqrt(2 * R ** 2 * (1 - math.cos(phi - 2 * math.pi / 3)) + H0 ** 2)
@@ -132,7 +134,8 @@ def test_fb_pulse_is_a_compression_travelling_from_the_impacted_end(fb_run):
     assert i2 < i1                      # moved towards the clamped end (prism 0)
 
 
-# -- check 5: rigid bases never pass the lock ------------------------------------------------------
+# -- check 5: rigid bases never pass the lock
+# ------------------------------------------------------
 
 def test_rigid_bases_never_exceed_the_lock_strain():
     # twist reaches 180 deg: h_lock^2 = b^2 - 4 r^2 (section 3: lock strain -0.1005)

@@ -1,4 +1,5 @@
-"""Scene validation, the `tensegrity run` command line, and the one-way layering of the packages."""
+"""Scene validation, the `tensegrity run` command line, and the one-way layering of the
+packages."""
 import json
 import os
 import subprocess

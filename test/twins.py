@@ -89,7 +89,8 @@ def project_velocities(x, v, net):
 
 
 def project_positions(x, net, iterations):
-    """``iterations`` mass-weighted Gauss-Newton steps ``x += M^-1 J^T dmu``, ``J M^-1 J^T dmu = -g``."""
+    """``iterations`` mass-weighted Gauss-Newton steps ``x += M^-1 J^T dmu`` with
+    ``J M^-1 J^T dmu = -g``."""
     free = free_index(net)
     Minv = np.linalg.inv(np.kron(dense_mass(net)[np.ix_(free, free)], np.eye(3)))
     members = rigid_members(net)
