@@ -444,7 +444,7 @@ class Simulation:
         net = self.network
         if net.levels.size:
             h = self._heights()
-            if not np.all(h > 0.0):
+            if h.size and not h.min() > 0.0:
                 c, i = np.unravel_index(int(np.argmin(np.where(np.isfinite(h), h, -np.inf))),
                                         h.shape)
                 return ('prism height', f'prism {i} of column {c} collapsed (height '
