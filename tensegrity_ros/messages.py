@@ -54,7 +54,7 @@ COMMANDS = ('~/cmd/prestrain', '~/cmd/impact')
 BAR_COLOR = (0.55, 0.55, 0.6, 1.0)
 LINE_WIDTH_M = 3.0e-4
 N_BINS = 10                   # tension colour bins of the cable markers
-_XYZ_FIELDS = [PointField(name=n, offset=4 * i, datatype=PointField.FLOAT32, count=1)
+XYZ_FIELDS = [PointField(name=n, offset=4 * i, datatype=PointField.FLOAT32, count=1)
                for i, n in enumerate('xyz')]
 
 
@@ -116,7 +116,7 @@ def nodes_cloud(positions, stamp):
     msg = _header(PointCloud2(), stamp)
     msg.height = 1
     msg.width = int(p.shape[0])
-    msg.fields = _XYZ_FIELDS
+    msg.fields = XYZ_FIELDS
     msg.is_bigendian = False
     msg.point_step = 12
     msg.row_step = 12 * msg.width
@@ -200,6 +200,13 @@ def reference_tension_scale(network):
     return float(t.max()) if t.size and t.max() > 0 else 1.0
 
 
+def check_finite(frame):
+    """``ValueError`` if a frame holds a non-finite value (nothing NaN is ever published)."""
+    for name in ('positions', 'strain', 'tension'):
+        if not np.all(np.isfinite(getattr(frame, name))):
+            raise ValueError(f'frame at t = {frame.t:.6g} s: {name} is not finite')
+
+
 def frame_messages(frame, network, stamp=None, markers=True, clock=False, t_max=None):
     """Messages of one publish frame: dict topic key -> message.
 
@@ -207,9 +214,7 @@ def frame_messages(frame, network, stamp=None, markers=True, clock=False, t_max=
     ``'~/cable_tension'`` (dim ``cable``, N); ``'~/markers'`` when ``markers``; ``'/clock'`` when
     ``clock``. ``stamp`` defaults to :func:`sim_stamp` of ``frame.t``. Raises ``ValueError`` if the
     frame holds a non-finite value (nothing NaN is ever published)."""
-    for name in ('positions', 'strain', 'tension'):
-        if not np.all(np.isfinite(getattr(frame, name))):
-            raise ValueError(f'frame at t = {frame.t:.6g} s: {name} is not finite')
+    check_finite(frame)
     if stamp is None:
         stamp = sim_stamp(frame.t)
     out = {

@@ -138,3 +138,28 @@ def test_marker_bytes_equal_marker_objects(sim):
     ref = serialize_message(obj)
     assert len(raw) == len(ref)
     assert deserialize_message(raw, MarkerArray) == deserialize_message(ref, MarkerArray)
+
+
+@pytest.mark.parametrize('markers,clock', [(False, False), (True, True)])
+def test_frame_bytes_equal_frame_objects(sim, markers, clock):
+    """Every serialized frame message against rclpy's serializer of the message objects: the same
+    keys, the same length, the same message after deserialization."""
+    from tensegrity_ros.cdr import frame_messages_cdr
+    sim.apply_impact(0.1)
+    sim.advance(0.02)
+    f = sim.frame()
+    objs = messages.frame_messages(f, sim.network, markers=markers, clock=clock)
+    raw = frame_messages_cdr(f, sim.network, markers=markers, clock=clock)
+    assert sorted(raw) == sorted(objs)
+    for key, obj in objs.items():
+        ref = serialize_message(obj)
+        assert len(raw[key]) == len(ref), key
+        assert deserialize_message(raw[key], type(obj)) == deserialize_message(ref, type(obj))
+
+
+def test_frame_bytes_refuse_a_non_finite_frame(sim):
+    from tensegrity_ros.cdr import frame_messages_cdr
+    f = sim.frame()
+    f.strain[0, 3] = float('nan')
+    with pytest.raises(ValueError, match='strain is not finite'):
+        frame_messages_cdr(f, sim.network)
