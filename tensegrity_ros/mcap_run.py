@@ -11,6 +11,7 @@ import json
 
 import numpy as np
 
+from . import cdr
 from . import messages as M
 
 MARKER_RATE_HZ = 20.0       # the node's default marker_rate_hz (interfaces.md section 4)
@@ -81,9 +82,10 @@ class FrameLog:
         stamp = M.sim_stamp(frame.t)
         ns = M.stamp_to_ns(stamp)
         extra = self.n_frames % self.marker_every == 0
-        msgs = M.frame_messages(frame, self.net, stamp=stamp, markers=extra, clock=self.clock)
-        for key, msg in msgs.items():
-            self.rec.write(self.topic(key), msg, ns)
+        msgs = cdr.frame_messages_cdr(frame, self.net, stamp=stamp, markers=extra,
+                                      clock=self.clock)
+        for key, data in msgs.items():          # the node's bytes (cdr.py), checked finite
+            self.rec.write_serialized(self.topic(key), data, ns)
         self.n_frames += 1
         if extra:
             self._diagnostics(frame, 'running')

@@ -278,14 +278,26 @@ class McapRecorder:
         command the node received and rejected) is not logged: returns False and counts it in
         ``dropped`` (nothing NaN is ever logged; the node's ``/diagnostics`` say what it rejected).
         Writing to a closed recorder is an error."""
-        stamp_ns = int(stamp_ns)
-        if stamp_ns < 0:
-            raise RecordingError(f'{topic}: negative stamp {stamp_ns} ns')
         if not _finite(msg):
             with self._lock:
                 self.dropped += 1
             return False
-        data = self._serialize(msg)
+        return self._add(topic, msg, self._serialize(msg), stamp_ns)
+
+    __call__ = write
+
+    def write_serialized(self, topic, data, stamp_ns):
+        """Append an already serialized message (CDR ``bytes``, e.g. from
+        :mod:`tensegrity_ros.cdr`) on a topic registered with :meth:`declare`; returns True.
+        The caller vouches that it holds no NaN (:func:`cdr.frame_messages_cdr` checks)."""
+        if topic not in self._channels:
+            raise RecordingError(f'{topic}: declare the topic before writing serialized data')
+        return self._add(topic, None, data, stamp_ns)
+
+    def _add(self, topic, msg, data, stamp_ns):
+        stamp_ns = int(stamp_ns)
+        if stamp_ns < 0:
+            raise RecordingError(f'{topic}: negative stamp {stamp_ns} ns')
         with self._lock:
             if self._closed:
                 raise RecordingError(f'{self.path} is closed')
@@ -298,8 +310,6 @@ class McapRecorder:
             if time.monotonic() - self._last_flush >= self.flush_period_s:
                 self._flush_locked()
         return True
-
-    __call__ = write
 
     def _flush_locked(self):
         if self._pending:

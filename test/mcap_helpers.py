@@ -42,13 +42,22 @@ class Capture:
     def __init__(self, recorder):
         self.rec = recorder
         self.written = []
+        self.classes = {}
 
     def declare(self, topic, cls, qos=None):
+        self.classes[topic] = cls
         self.rec.declare(topic, cls, qos)
 
     def write(self, topic, msg, stamp_ns):
         self.written.append((topic, msg, int(stamp_ns)))
         self.rec.write(topic, msg, stamp_ns)
+
+    def write_serialized(self, topic, data, stamp_ns):
+        """Kept as the message rclpy deserializes from the bytes (what a reader must get)."""
+        from rclpy.serialization import deserialize_message
+        self.written.append((topic, deserialize_message(data, self.classes[topic]),
+                             int(stamp_ns)))
+        self.rec.write_serialized(topic, data, stamp_ns)
 
 
 def record_frames(path, frames, net, marker_every=2, with_network=True, **kw):

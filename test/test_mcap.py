@@ -194,6 +194,8 @@ def test_bad_input_is_one_clear_error(tmp_path):
     with McapRecorder(tmp_path / 'neg.mcap') as rec:
         with pytest.raises(RecordingError, match='negative stamp'):
             rec.write('/x', M.command_array([1.0], 'all'), -5)
+        with pytest.raises(RecordingError, match='declare the topic'):
+            rec.write_serialized('/y', b'\x00\x01\x00\x00', 0)
     assert rec.message_count == 0
 
 
