@@ -175,20 +175,6 @@ def clock_cdr(stamp):
 
 
 def frame_messages_cdr(frame, network, stamp=None, markers=True, clock=False, t_max=None):
-    """:func:`messages.frame_messages` as serialized messages: dict topic key -> bytes (the same
-    keys, the same checks: ``ValueError`` for a non-finite frame)."""
-    M.check_finite(frame)
-    if stamp is None:
-        stamp = M.sim_stamp(frame.t)
-    out = {
-        '~/nodes': nodes_cloud_cdr(frame.positions, stamp),
-        '~/strain': multi_array_cdr(np.asarray(frame.strain).reshape(network.n_columns,
-                                                                     network.n_prisms),
-                                    ('column', 'prism')),
-        '~/cable_tension': multi_array_cdr(frame.tension, ('cable',)),
-    }
-    if markers:
-        out['~/markers'] = marker_array_cdr(frame, network, stamp, t_max)
-    if clock:
-        out['/clock'] = clock_cdr(stamp)
-    return out
+    """:func:`messages.frame_messages` as serialized messages: dict topic key -> bytes."""
+    return M.frame_messages(frame, network, stamp=stamp, markers=markers, clock=clock,
+                            t_max=t_max, serialized=True)

@@ -207,27 +207,38 @@ def check_finite(frame):
             raise ValueError(f'frame at t = {frame.t:.6g} s: {name} is not finite')
 
 
-def frame_messages(frame, network, stamp=None, markers=True, clock=False, t_max=None):
+def frame_messages(frame, network, stamp=None, markers=True, clock=False, t_max=None,
+                   serialized=False):
     """Messages of one publish frame: dict topic key -> message.
 
     Always ``'~/nodes'`` (PointCloud2), ``'~/strain'`` (dims ``column``, ``prism``) and
     ``'~/cable_tension'`` (dim ``cable``, N); ``'~/markers'`` when ``markers``; ``'/clock'`` when
-    ``clock``. ``stamp`` defaults to :func:`sim_stamp` of ``frame.t``. Raises ``ValueError`` if the
+    ``clock``. ``stamp`` defaults to :func:`sim_stamp` of ``frame.t``. With ``serialized`` the
+    values are the CDR bytes of the same messages written from the arrays
+    (:mod:`tensegrity_ros.cdr`, for ``Publisher.publish(bytes)``). Raises ``ValueError`` if the
     frame holds a non-finite value (nothing NaN is ever published)."""
     check_finite(frame)
     if stamp is None:
         stamp = sim_stamp(frame.t)
+    if serialized:
+        from . import cdr
+        cloud, multi, marker, clock_msg = (cdr.nodes_cloud_cdr, cdr.multi_array_cdr,
+                                           cdr.marker_array_cdr, cdr.clock_cdr)
+    else:
+        cloud, multi, marker = nodes_cloud, multi_array, marker_array
+
+        def clock_msg(s):
+            return Clock(clock=s)
     out = {
-        '~/nodes': nodes_cloud(frame.positions, stamp),
-        '~/strain': multi_array(np.asarray(frame.strain).reshape(network.n_columns,
-                                                                 network.n_prisms),
-                                ('column', 'prism')),
-        '~/cable_tension': multi_array(frame.tension, ('cable',)),
+        '~/nodes': cloud(frame.positions, stamp),
+        '~/strain': multi(np.asarray(frame.strain).reshape(network.n_columns, network.n_prisms),
+                          ('column', 'prism')),
+        '~/cable_tension': multi(frame.tension, ('cable',)),
     }
     if markers:
-        out['~/markers'] = marker_array(frame, network, stamp, t_max)
+        out['~/markers'] = marker(frame, network, stamp, t_max)
     if clock:
-        out['/clock'] = Clock(clock=stamp)
+        out['/clock'] = clock_msg(stamp)
     return out
 
 
