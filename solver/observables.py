@@ -30,26 +30,28 @@ def _prism_heights(x, levels, out):
 
 @jit
 def _summary(x, v, node_mass, clamped, bar_a, bar_b, bar_mass, cable_a, cable_b, rest, EA, levels,
-             heights):
+             con_tail, con_head, con_length, heights):
     finite = dyn.all_finite(x) and dyn.all_finite(v)
     e = (dyn.kinetic_energy(v, node_mass, clamped, bar_a, bar_b, bar_mass)
          + dyn.cable_energy(x, cable_a, cable_b, rest, EA))
     _prism_heights(x, levels, heights)
-    return finite, e
+    cerr = dyn.constraint_error_arrays(x, con_tail, con_head, con_length, dyn.NO_ROT)
+    return finite, e, cerr
 
 
 def state_summary(x, v, network, rest, EA, f_ext=None):
-    """``(finite, energy J, prism heights (n_columns, n_prisms) m)`` of a full state in one
-    compiled
-    call: what the divergence check and a frame need (``f_ext`` as in :func:`energy`)."""
+    """``(finite, energy J, prism heights (n_columns, n_prisms) m, relative constraint error)`` of
+    a full state in one compiled call: what the divergence check and a frame need (``f_ext`` as in
+    :func:`energy`)."""
     levels = network.levels
     heights = np.empty((levels.shape[0], max(levels.shape[1] - 1, 0)))
-    finite, e = _summary(x, v, network.node_mass, network.clamped, network.bar_a, network.bar_b,
-                         network.bar_mass, network.cable_a, network.cable_b, rest, EA, levels,
-                         heights)
+    finite, e, cerr = _summary(x, v, network.node_mass, network.clamped, network.bar_a,
+                               network.bar_b, network.bar_mass, network.cable_a, network.cable_b,
+                               rest, EA, levels, network.con_tail, network.con_head,
+                               network.con_length, heights)
     if f_ext is not None:
         e -= float(np.sum(f_ext * (x - network.x0)))
-    return finite, e, heights
+    return finite, e, heights, cerr
 
 
 def prism_heights(x, levels):

@@ -166,7 +166,8 @@ class Simulation:
         return c[key]
 
     def _summary(self):
-        """``(finite, energy J, prism heights (n_columns, n_prisms) m)`` of the current state."""
+        """``(finite, energy J, prism heights (n_columns, n_prisms) m, relative constraint
+        error)`` of the current state, from one compiled call."""
         def compute():
             quick = getattr(self.model, 'summary', None)    # sym3d: on the reduced state
             result = quick() if quick is not None else None
@@ -176,7 +177,7 @@ class Simulation:
             net = self.network
             if hasattr(self.model, 'advance'):          # chain1d: its own energy
                 return (dyn.all_finite(x) and dyn.all_finite(v), self.model.energy(),
-                        observables.prism_heights(x, net.levels))
+                        observables.prism_heights(x, net.levels), self.model.constraint_error())
             return observables.state_summary(x, v, net, self.model.cable_rest_length,
                                              self.model.cable_EA, self._f_ext_or_none)
         return self._cached('summary', compute)
@@ -187,7 +188,7 @@ class Simulation:
 
     def constraint_error(self):
         """Relative constraint error of the current state."""
-        return self._cached('constraint_error', self.model.constraint_error)
+        return self._summary()[3]
 
     def _full_state(self):
         """Full (n_nodes, 3) positions and velocities of the current state (shared, read only)."""

@@ -46,8 +46,10 @@ def _expand_kernel(a, rep, cos, sin, out):
 
 @jit
 def _reduced_summary(x, v, x0, f_ext, node_mass, clamped, node_mult, cable_a, cable_b, cable_rot,
-                     rest, EA, cable_mult, level_rep, heights):
-    """``(finite, energy J)`` of the full network from the reduced state, and the prism heights
+                     rest, EA, cable_mult, level_rep, con_tail, con_head, con_length, con_rot,
+                     heights):
+    """``(finite, energy J, relative constraint error)`` of the full network from the reduced
+    state (each reduced member stands for three equal ones), and the prism heights
     (n_columns, n_prisms) m into ``heights``: kinetic, cable and external-force energies are sums
     of rotation-invariant terms, each reduced node or cable standing for ``mult`` full ones."""
     finite = dyn.all_finite(x) and dyn.all_finite(v)
@@ -66,7 +68,7 @@ def _reduced_summary(x, v, x0, f_ext, node_mass, clamped, node_mult, cable_a, ca
     for c in range(level_rep.shape[0]):
         for j in range(level_rep.shape[1] - 1):
             heights[c, j] = x[level_rep[c, j + 1], 2] - x[level_rep[c, j], 2]
-    return finite, e
+    return finite, e, dyn.constraint_error_arrays(x, con_tail, con_head, con_length, con_rot)
 
 
 class NotSymmetric(ValueError):
@@ -355,15 +357,17 @@ class Sym3D:
         return dyn.constraint_error_arrays(self.x, n[3], n[4], n[5], n[9])
 
     def summary(self):
-        """``(finite, energy J, prism heights (n_columns, n_prisms) m)`` computed on the reduced
-        state (no expansion), or None where that is not exact (massive bars, levels that are not
-        orbits): the caller then uses the full state."""
+        """``(finite, energy J, prism heights (n_columns, n_prisms) m, relative constraint
+        error)`` computed on the reduced state (no expansion), or None where that is not exact
+        (massive bars, levels that are not orbits): the caller then uses the full state."""
         if not self._summary_ok:
             return None
         lv = self._level_rep
         heights = np.empty((lv.shape[0], max(lv.shape[1] - 1, 0)))
-        finite, e = _reduced_summary(self.x, self.v, self.reduced.x0, self.act[2],
-                                     self.reduced.node_mass, self.reduced.clamped,
-                                     self._node_mult, self.net[7], self.net[8], self._cable_rot,
-                                     self.act[0], self.act[1], self._cable_mult, lv, heights)
-        return finite, e, heights
+        n = self.net
+        finite, e, cerr = _reduced_summary(self.x, self.v, self.reduced.x0, self.act[2],
+                                           self.reduced.node_mass, self.reduced.clamped,
+                                           self._node_mult, n[7], n[8], self._cable_rot,
+                                           self.act[0], self.act[1], self._cable_mult, lv,
+                                           n[3], n[4], n[5], n[9], heights)
+        return finite, e, heights, cerr

@@ -266,19 +266,22 @@ def test_first_passage_measures_the_incoming_pulse_only():
 @pytest.mark.parametrize('sets', [[], ['structure.bases=rigid'], ['loading.gravity=0.5'],
                                   ['structure.stacking=parallel']])
 def test_sym3d_reduced_summary_equals_the_expanded_state(sets):
-    """Energy, finiteness and prism heights computed on the reduced state (no expansion) equal the
-    full-network computation on the expanded state."""
-    from solver.observables import state_summary
+    """Energy, finiteness, prism heights and constraint error computed on the reduced state (no
+    expansion) equal the full-network computation on the expanded state (and the NumPy
+    constraint error)."""
+    from solver.observables import constraint_error, state_summary
     sim = Simulation(Scene.load(f'{SCENES}/fb_column.yaml').with_overrides(
         ['structure.n_prisms=8', 'model=sym3d'] + sets))
     sim.apply_impact(0.1)
     sim.advance(0.05)
     m = sim.model
-    finite, e, h = m.summary()
+    finite, e, h, cerr = m.summary()
     f_ext = sim.f_ext if np.any(sim.f_ext) else None
-    finite_ref, e_ref, h_ref = state_summary(m.positions(), m.velocities(), sim.network,
-                                             m.cable_rest_length, m.cable_EA, f_ext)
+    finite_ref, e_ref, h_ref, cerr_ref = state_summary(m.positions(), m.velocities(), sim.network,
+                                                       m.cable_rest_length, m.cable_EA, f_ext)
     assert finite and finite_ref
     assert e == pytest.approx(e_ref, rel=1e-12)
+    assert cerr_ref == pytest.approx(constraint_error(m.positions(), sim.network), abs=1e-15)
+    assert cerr == pytest.approx(cerr_ref, abs=1e-14) and cerr < 1e-11
     np.testing.assert_allclose(h, h_ref, rtol=0, atol=1e-15)
     assert np.ptp(h) > 1e-6                     # the wave has changed the heights
