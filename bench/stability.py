@@ -15,8 +15,7 @@ symmetric impact) over ``T_END`` s, recorded every ``OUTPUT_DT`` s, classified a
 
 The reference of each (column, v0, prestrain) is ``dopri54_projected`` with rtol 1e-10
 (dt <= 1e-3). Where the reference itself diverges (a physical failure) a run that finishes is
-``inaccurate``.
-``dopri54_projected`` is placed by its largest step dt (rtol 1e-6).
+``inaccurate``. ``dopri54_projected`` is placed by its largest step dt (rtol 1e-6).
 """
 from __future__ import annotations
 

@@ -1,8 +1,7 @@
 """Numba kernels of the constrained dynamics (physics.md section 1.1).
 
 Two levels, as everywhere in the solver: :func:`pack` (Python) validates and allocates, the
-``@jit``
-kernels take arrays and tuples of arrays only and write into ``out`` arrays.
+``@jit`` kernels take arrays and tuples of arrays only and write into ``out`` arrays.
 
 ``net`` tuple (read-only model arrays, see :class:`solver.network.Network`)::
 
@@ -164,8 +163,7 @@ def band_ldl_solve(band, rhs):
     """Solve ``A y = rhs`` in place (``rhs`` becomes y) for SPD banded A given by its lower band.
 
     Square-root-free LDL^T: ``band`` is overwritten with the unit lower factor L off the diagonal
-    and
-    ``1 / d_i`` on it (one division per row keeps the sequential dependency chain short).
+    and ``1 / d_i`` on it (one division per row keeps the sequential dependency chain short).
     Returns ``OK`` or ``SINGULAR`` (a pivot that is not positive).
     """
     m, width = band.shape

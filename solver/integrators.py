@@ -3,10 +3,8 @@
 An integrator advances positions ``x`` (n_nodes, 3) m and velocities ``v`` (n_nodes, 3) m/s in
 place by
 ``n_steps`` fixed steps of ``dt`` s, with the ``(net, act, ws)`` tuples of :mod:`solver.dynamics`,
-and
-returns ``(steps_done, status)``; a non-OK status stops it at the step that failed, leaving the
-last
-good state in ``x`` and ``v``.
+and returns ``(steps_done, status)``; a non-OK status stops it at the step that failed, leaving the
+last good state in ``x`` and ``v``.
 
 Methods (:data:`METHODS`; the scene key ``integrator.method`` or ``--set integrator=NAME`` picks
 one):

@@ -211,8 +211,7 @@ def _inverse_mass(node_mass, clamped, bars, bar_mass):
 
 def _adjacency(members, partner):
     """Constraint-constraint adjacency: two constraints couple when they share a node or touch the
-    two
-    nodes of one massive bar (one mass block)."""
+    two nodes of one massive bar (one mass block)."""
     index = np.arange(len(partner))
     group = np.where(partner >= 0, np.minimum(index, partner), index)
     by_node = [[] for _ in range(len(partner))]

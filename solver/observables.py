@@ -111,8 +111,7 @@ class Pulse:
     ``speed_m_s``
     the slope of peak position against time there; ``width_prisms`` the number of contiguous prisms
     around the peak with ``|eps| >= 0.5 |eps_peak|`` at ``t_ref``. NaN where the pulse never
-    reached
-    the window."""
+    reached the window."""
     amplitude: float
     amplitude_median: float
     amplitude_min: float
@@ -131,8 +130,7 @@ class Pulse:
 
 def leading_peak(eps, threshold=0.25, floor=1e-6):
     """Index (from the impacted end, 0 = prism next to it) and strain of the leading compressive
-    peak
-    of one strain profile ``eps`` (n_prisms,), ordered from the impacted end. The front is the
+    peak of one strain profile ``eps`` (n_prisms,), ordered from the impacted end. The front is the
     farthest
     prism whose compression exceeds ``threshold`` times the largest compression of the profile; the
     peak is the local minimum reached walking back from the front. ``(nan, nan)`` when at rest (no
@@ -158,8 +156,7 @@ def track_pulse(times, strains, h0, window=(10, 40), t_ref=0.5):
     """Pulse figures from a strain history of one column.
 
     ``times`` (n_t,) s, ``strains`` (n_t, n_prisms) with prism 0 at the clamped end and the impact
-    at
-    the last prism, ``h0`` m. Returns a :class:`Pulse`."""
+    at the last prism, ``h0`` m. Returns a :class:`Pulse`."""
     times = np.asarray(times)
     strains = np.asarray(strains)
     from_impact = strains[:, ::-1]

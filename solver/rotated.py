@@ -20,8 +20,7 @@ ROT_S = np.array([0.0, math.sqrt(3.0) / 2.0, -math.sqrt(3.0) / 2.0])
 @jit
 def cable_forces_rot(x, cable_a, cable_b, cable_rot, rest, EA, f):
     """:func:`cable_forces` for cables from ``x_a`` to the image ``R^r x_b``: the force on the
-    image
-    is rotated back onto node b."""
+    image is rotated back onto node b."""
     for c in range(cable_a.shape[0]):
         a = cable_a[c]
         b = cable_b[c]

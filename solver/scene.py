@@ -1,10 +1,8 @@
 """Scene files: YAML -> validated, frozen :class:`Scene` (SI units; unknown keys are errors).
 
 Every default lives in :data:`DEFAULTS`; the type of a default is the type a value must have. A
-scene
-file gives only what differs. ``--set KEY=VALUE`` overrides use dotted keys
-(``integrator.dt=2e-4``);
-``integrator=NAME`` is short for ``integrator.method=NAME``.
+scene file gives only what differs. ``--set KEY=VALUE`` overrides use dotted keys
+(``integrator.dt=2e-4``); ``integrator=NAME`` is short for ``integrator.method=NAME``.
 """
 from __future__ import annotations
 
@@ -250,8 +248,7 @@ class Scene:
 
     def with_overrides(self, assignments):
         """A new scene with ``KEY=VALUE`` strings (or (key, value) pairs) applied; values are
-        parsed
-        as YAML scalars."""
+        parsed as YAML scalars."""
         data = self.data
         for item in assignments:
             if isinstance(item, str):

@@ -9,8 +9,7 @@
 Commands (:meth:`apply_impact`) and :meth:`advance` either succeed or change nothing: bad values
 raise
 ``ValueError`` naming the problem; a diverging step raises :class:`SimulationDiverged` and restores
-the
-last good state.
+the last good state.
 """
 from __future__ import annotations
 
@@ -67,8 +66,7 @@ class SimulationDiverged(RuntimeError):
     def __init__(self, t, step, quantity, detail, hint):
         self.t, self.step, self.quantity, self.hint = t, step, quantity, hint
         super().__init__(f'simulation diverged at t = {t:.6g} s (step {step}): {quantity} '
-                         f'{detail}; '
-                         f'{hint}')
+                         f'{detail}; {hint}')
 
 
 @dataclass
@@ -274,8 +272,7 @@ class Simulation:
     def apply_impact(self, v0, columns=None, mode=None):
         """Impact the free end(s): the velocity jump is projected on the constraints (impulse, the
         default) or, with ``mode='energy'``, also rescaled to the kinetic energy ``3 m v0^2 / 2``
-        per
-        column. Returns the kinetic energy added, J."""
+        per column. Returns the kinetic energy added, J."""
         before = self.energy()
         if hasattr(self.model, 'impact'):           # chain1d: axial velocity on the end level
             if columns not in (None, [0], (0,)):

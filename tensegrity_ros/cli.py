@@ -1,8 +1,7 @@
 """The ``tensegrity`` command (interfaces.md section 2).
 
 User errors (bad scene, bad option, diverged simulation) print one line on stderr and exit 2 (1 for
-a
-diverged run), never a traceback.
+a diverged run), never a traceback.
 """
 from __future__ import annotations
 
