@@ -276,16 +276,8 @@ def accelerations(x, v, net, act, ws, out):
     else:
         member_vectors_rot(x, tail, head, rot, bvec)
         for c in range(tail.shape[0]):
-            h = head[c]
-            t = tail[c]
-            cr = ROT_C[rot[c]]
-            sr = ROT_S[rot[c]]
-            ax = cr * wf[h, 0] - sr * wf[h, 1] - wf[t, 0]
-            ay = sr * wf[h, 0] + cr * wf[h, 1] - wf[t, 1]
-            az = wf[h, 2] - wf[t, 2]
-            dx = cr * v[h, 0] - sr * v[h, 1] - v[t, 0]
-            dy = sr * v[h, 0] + cr * v[h, 1] - v[t, 1]
-            dz = v[h, 2] - v[t, 2]
+            ax, ay, az = _rel(wf, tail[c], head[c], rot, c)
+            dx, dy, dz = _rel(v, tail[c], head[c], rot, c)
             lam[c] = -(bvec[c, 0] * ax + bvec[c, 1] * ay + bvec[c, 2] * az
                        + dx * dx + dy * dy + dz * dz)
         assemble_band_rot(bvec, coef3, band)
@@ -298,14 +290,9 @@ def accelerations(x, v, net, act, ws, out):
 
 
 @jit
-def constraint_error(x, net):
-    """max_c |g_c| / L_c^2 with ``g_c = (|b_c|^2 - L_c^2) / 2`` (dimensionless)."""
-    return constraint_error_arrays(x, net[3], net[4], net[5], net[9])
-
-
-@jit
 def constraint_error_arrays(x, tail, head, length, rot):
-    """:func:`constraint_error` from single arrays (cheaper to call from Python than the tuple)."""
+    """max_c |g_c| / L_c^2 with ``g_c = (|b_c|^2 - L_c^2) / 2`` (dimensionless), members as in the
+    ``net`` tuple (``rot`` empty for ``full3d``)."""
     worst = 0.0
     for c in range(tail.shape[0]):
         dx, dy, dz = _rel(x, tail[c], head[c], rot, c)

@@ -8,8 +8,10 @@ network's node positions (for frames, messages and recordings):
 - ``positions()`` / ``velocities()``: full (n_nodes, 3) arrays of the network;
 - ``set_state(x_full, v_full)``: load a full state;
 - ``cable_rest_length``, ``cable_EA`` (full (n_cables,) arrays) and ``set_cables(rest, EA)``;
-- ``constraint_error()`` (relative) of the current state (``chain1d`` also has ``energy()``: the
-  others' energy is computed by the simulation from the full state).
+- optionally ``summary()`` -> ``(finite, energy, prism heights, constraint error)`` computed on
+  the model's own state (``sym3d``); otherwise the simulation computes them from the full state,
+  or, for a model with its own ``advance`` (``chain1d``), asks its ``energy()`` and
+  ``constraint_error()``.
 
 ``sym3d`` (:mod:`solver.sym3d`) raises :class:`~solver.sym3d.NotSymmetric` from ``set_state`` or
 ``set_cables`` when given an asymmetric state; the simulation then expands the run to ``full3d``
@@ -71,11 +73,6 @@ class Full3D(Model):
         """Load (n_cables,) rest lengths m and EA N."""
         self.act[0][:] = rest
         self.act[1][:] = EA
-
-    def constraint_error(self):
-        """max over rigid members of ``|(|b|^2 - L^2) / 2| / L^2``."""
-        n = self.net
-        return dyn.constraint_error_arrays(self.x, n[3], n[4], n[5], n[9])
 
 
 from . import chain1d, integrators  # noqa: E402

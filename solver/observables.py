@@ -41,8 +41,9 @@ def _summary(x, v, node_mass, clamped, bar_a, bar_b, bar_mass, cable_a, cable_b,
 
 def state_summary(x, v, network, rest, EA, f_ext=None):
     """``(finite, energy J, prism heights (n_columns, n_prisms) m, relative constraint error)`` of
-    a full state in one compiled call: what the divergence check and a frame need (``f_ext`` as in
-    :func:`energy`)."""
+    a full state in one compiled call: what the divergence check and a frame need. The energy is
+    kinetic + cable strain energy, minus the work potential of constant external forces ``f_ext``
+    (n_nodes, 3) N when given (None when there are none)."""
     levels = network.levels
     heights = np.empty((levels.shape[0], max(levels.shape[1] - 1, 0)))
     finite, e, cerr = _summary(x, v, network.node_mass, network.clamped, network.bar_a,
@@ -80,16 +81,6 @@ def kinetic_energy(v, network):
     """Kinetic energy J of node velocities ``v`` (n_nodes, 3) m/s (lumped and bar masses)."""
     return dyn.kinetic_energy(v, network.node_mass, network.clamped, network.bar_a, network.bar_b,
                               network.bar_mass)
-
-
-def energy(x, v, network, rest, EA, f_ext=None):
-    """Total mechanical energy J: kinetic + cable strain energy (- work potential of constant
-    external forces ``f_ext`` (n_nodes, 3) N, if any)."""
-    e = (kinetic_energy(v, network)
-         + dyn.cable_energy(x, network.cable_a, network.cable_b, rest, EA))
-    if f_ext is not None and np.any(f_ext):
-        e -= float(np.sum(f_ext * (x - network.x0)))
-    return e
 
 
 def constraint_error(x, network):

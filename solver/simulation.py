@@ -205,14 +205,19 @@ class Simulation:
             self.expanded = reason
             self._changed()
 
-    def _load(self, x, v):
-        """Load a full state; an asymmetric one expands a ``sym3d`` run to ``full3d``."""
+    def _into_model(self, setter, *args):
+        """Call the model's ``setter`` (``'set_state'`` or ``'set_cables'``) with full arrays; an
+        asymmetric value expands a ``sym3d`` run to ``full3d`` first (same state, no jump)."""
         try:
-            self.model.set_state(x, v)
+            getattr(self.model, setter)(*args)
         except models.NotSymmetric as exc:
             self.expand_to_full3d(str(exc))
-            self.model.set_state(x, v)
+            getattr(self.model, setter)(*args)
         self._changed()
+
+    def _load(self, x, v):
+        """Load a full state; an asymmetric one expands a ``sym3d`` run to ``full3d``."""
+        self._into_model('set_state', x, v)
 
     def set_cable_rest_lengths(self, rest):
         """Set the cable rest lengths (n_cables,) m directly (finite, positive). A set that breaks
@@ -230,12 +235,7 @@ class Simulation:
 
     def _set_cables(self, rest, EA):
         """Load full (n_cables,) rest lengths and EA; asymmetric ones expand ``sym3d``."""
-        try:
-            self.model.set_cables(rest, EA)
-        except models.NotSymmetric as exc:
-            self.expand_to_full3d(str(exc))
-            self.model.set_cables(rest, EA)
-        self._changed()
+        self._into_model('set_cables', rest, EA)
 
     # -- commands -------------------------------------------------------------------------------
     def impact_velocities(self, v0, columns=None, mode=None):

@@ -27,6 +27,7 @@ from scipy.spatial import cKDTree
 
 from . import dynamics as dyn
 from ._jit import jit
+from .rotated import ROT_C, ROT_S
 from .network import NetworkError, _band_order, _inverse_mass, _ro
 
 R3 = np.array([[-0.5, -math.sqrt(3.0) / 2.0, 0.0], [math.sqrt(3.0) / 2.0, -0.5, 0.0],
@@ -272,9 +273,8 @@ class Sym3D:
     def __init__(self, network, f_ext=None, reduced=None):
         self.network = network
         self.reduced = red = reduced if reduced is not None else reduce_network(network)
-        self._rot = np.array([ROT[r] for r in red.node_rot])       # (n_full, 3, 3)
-        self._cos = np.ascontiguousarray(self._rot[:, 0, 0])
-        self._sin = np.ascontiguousarray(self._rot[:, 1, 0])
+        self._cos = ROT_C[red.node_rot]            # full node p is R(angle_p) x[node_rep[p]]
+        self._sin = ROT_S[red.node_rot]
         self._rep = np.ascontiguousarray(red.node_rep, dtype=np.int64)
         f_full = np.zeros((network.n_nodes, 3)) if f_ext is None else np.asarray(f_ext, float)
         f_red = self._reduce(f_full, 'external forces')
@@ -349,12 +349,6 @@ class Sym3D:
                 raise NotSymmetric(f'{what} are not 3-fold symmetric')
         self.act[0][:] = r_red
         self.act[1][:] = e_red
-
-    def constraint_error(self):
-        """The full network's relative constraint error (each reduced member stands for three
-        equal ones)."""
-        n = self.net
-        return dyn.constraint_error_arrays(self.x, n[3], n[4], n[5], n[9])
 
     def summary(self):
         """``(finite, energy J, prism heights (n_columns, n_prisms) m, relative constraint
