@@ -53,3 +53,9 @@ CACHE_DIR = _cache_dir()
 numba.config.CACHE_DIR = str(CACHE_DIR)
 
 jit = numba.njit(cache=True, nogil=True)
+
+# Small helpers called inside member loops (``dynamics._rel``): inlined by numba itself. LLVM
+# declines to inline a helper that reads module-level arrays (``ROT_C``/``ROT_S``), and the call
+# then costs ten times the loop body (constraint_error_arrays: 2.4 us instead of 0.27 us for 50
+# members).
+jit_inline = numba.njit(cache=True, nogil=True, inline='always')

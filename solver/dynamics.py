@@ -31,7 +31,7 @@ import math
 
 import numpy as np
 
-from ._jit import jit
+from ._jit import jit, jit_inline
 from .rotated import (ROT_C, ROT_S, add_constraint_forces_rot, assemble_band_rot,  # noqa: F401
                       cable_forces_rot, member_vectors_rot)
 
@@ -237,7 +237,7 @@ def _add_forces(lam, bvec, tail, head, rot, f):
         add_constraint_forces_rot(lam, bvec, tail, head, rot, f)
 
 
-@jit
+@jit_inline
 def _rel(u, t, h, rot, c):
     """``R^r u[h] - u[t]`` with ``r = rot[c]`` (r = 0 when ``rot`` is empty): a 3-tuple."""
     if rot.shape[0] == 0:
