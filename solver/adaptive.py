@@ -20,7 +20,7 @@ import numpy as np
 
 from . import dynamics as dyn
 from ._jit import jit
-from .integrators import STEP_TOO_SMALL, next_kink
+from .integrators import STEP_TOO_SMALL, keep_state, next_kink
 
 H_MIN_FRACTION = 1e-9      # smallest step, as a fraction of dt, before giving up
 
@@ -131,3 +131,14 @@ def dopri_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, rtol, atol,
                 return accepted, STEP_TOO_SMALL
     hstate[0] = h_prop
     return accepted, dyn.OK
+
+
+@jit
+def dopri_checked(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, rtol, atol, A, E, kx, kv,
+                  xs, vs, hstate, keep, summ, heights):
+    """:func:`dopri_run` between ``keep_state`` and ``dynamics.state_summary`` (see
+    ``Integrator.run_checked``)."""
+    keep_state(x, v, keep)
+    out = dopri_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, rtol, atol, A, E, kx,
+                    kv, xs, vs, hstate)
+    return out + dyn.state_summary(x, v, net, act, summ, heights)

@@ -397,18 +397,68 @@ def kinetic_energy(v, node_mass, clamped, bar_a, bar_b, bar_mass):
     return e
 
 
+def summary_arrays(x0, node_mass, clamped, bar_a, bar_b, bar_mass, levels, n_cables,
+                   node_mult=None, cable_mult=None):
+    """The ``summ`` tuple of :func:`state_summary`: the arrays it needs that ``net``/``act`` do
+    not hold. ``levels`` (n_columns, n_levels, k) node indices (a level's height is the mean z of
+    its k nodes); ``node_mult``/``cable_mult``: how many nodes or cables of the full network each
+    one stands for (default 1)."""
+    return (x0, node_mass, clamped,
+            np.ones(len(node_mass)) if node_mult is None else node_mult,
+            bar_a, bar_b, bar_mass, np.ones(n_cables) if cable_mult is None else cable_mult,
+            levels)
+
+
 @jit
-def cable_energy(x, cable_a, cable_b, rest, EA):
-    """``sum 1/2 k (s - L)_+^2`` J with ``k = EA / L``."""
+def state_summary(x, v, net, act, summ, heights):
+    """``(finite, energy J, relative constraint error, smallest prism height m)`` of a state, and
+    the prism heights (n_columns, n_prisms) m into ``heights``, in one pass: what the divergence
+    check and a frame need. ``net``, ``act``: the kernel tuples; ``summ``: the tuple of
+    :func:`summary_arrays`. The energy is kinetic (lumped node masses, bar masses ``m_b / 6
+    (|v_a|^2 + v_a.v_b + |v_b|^2)``) plus cable strain energy ``1/2 EA / L (s - L)_+^2``, minus
+    the work ``f_ext . (x - x0)`` of constant external forces; each node and cable term counts
+    ``node_mult``/``cable_mult`` times (a reduced network). The smallest height is NaN when a
+    height is."""
+    x0, node_mass, clamped, node_mult, bar_a, bar_b, bar_mass, cable_mult, levels = summ
+    cable_a, cable_b, cable_rot = net[7], net[8], net[10]
+    rest, EA, f_ext = act
+    finite = all_finite(x) and all_finite(v)
     e = 0.0
+    for p in range(x.shape[0]):
+        if not clamped[p]:
+            e += node_mult[p] * (0.5 * node_mass[p] * (v[p, 0] ** 2 + v[p, 1] ** 2 + v[p, 2] ** 2)
+                                 - f_ext[p, 0] * (x[p, 0] - x0[p, 0])
+                                 - f_ext[p, 1] * (x[p, 1] - x0[p, 1])
+                                 - f_ext[p, 2] * (x[p, 2] - x0[p, 2]))
+    for j in range(bar_a.shape[0]):
+        mb = bar_mass[j]
+        if mb != 0.0:
+            a = bar_a[j]
+            b = bar_b[j]
+            e += mb / 6.0 * (v[a, 0] ** 2 + v[a, 1] ** 2 + v[a, 2] ** 2
+                             + v[a, 0] * v[b, 0] + v[a, 1] * v[b, 1] + v[a, 2] * v[b, 2]
+                             + v[b, 0] ** 2 + v[b, 1] ** 2 + v[b, 2] ** 2)
     for c in range(cable_a.shape[0]):
-        a = cable_a[c]
-        b = cable_b[c]
-        s = math.sqrt((x[b, 0] - x[a, 0]) ** 2 + (x[b, 1] - x[a, 1]) ** 2
-                      + (x[b, 2] - x[a, 2]) ** 2)
+        dx, dy, dz = _rel(x, cable_a[c], cable_b[c], cable_rot, c)
+        s = math.sqrt(dx * dx + dy * dy + dz * dz)
         if s > rest[c]:
-            e += 0.5 * EA[c] / rest[c] * (s - rest[c]) ** 2
-    return e
+            e += cable_mult[c] * 0.5 * EA[c] / rest[c] * (s - rest[c]) ** 2
+    h_min = math.inf
+    k = levels.shape[2]
+    for c in range(levels.shape[0]):
+        z_prev = 0.0
+        for j in range(levels.shape[1]):
+            z = 0.0
+            for i in range(k):
+                z += x[levels[c, j, i], 2]
+            z /= k
+            if j > 0:
+                h = z - z_prev
+                heights[c, j - 1] = h
+                if h < h_min or h != h:     # a NaN height stays the minimum
+                    h_min = h
+            z_prev = z
+    return finite, e, constraint_error_arrays(x, net[3], net[4], net[5], net[9]), h_min
 
 
 @jit

@@ -22,9 +22,12 @@ one):
 To add a method: write an ``@jit`` kernel ``_my_run(x, v, dt, n_steps, net, act, ws, tol, max_iter,
 kinks)`` with that contract (calling only :func:`solver.dynamics.accelerations`,
 ``project_positions``, ``project_velocities``, ``all_finite`` and :func:`next_kink`, and passing
-the ``net``/``act``/``ws`` tuples through untouched), subclass :class:`Integrator` (``name``,
-``order``, ``projected``, ``kernel``; override :meth:`Integrator.run` when the kernel needs scratch
-arrays of its own, allocated with :meth:`Integrator.scratch`) and add it to :data:`METHODS`.
+the ``net``/``act``/``ws`` tuples through untouched) and its checked twin (three lines, as
+:func:`_rk4_checked`: ``keep_state``, the run kernel, then ``dynamics.state_summary``: a
+``Simulation.advance`` is then one compiled call), subclass :class:`Integrator` (``name``,
+``order``, ``projected``, ``kernel``, ``checked``; override :meth:`Integrator.extra_args` when the
+kernel takes other arguments after ``max_iter``, e.g. scratch arrays from
+:meth:`Integrator.scratch`) and add it to :data:`METHODS`.
 """
 from __future__ import annotations
 
@@ -206,18 +209,53 @@ def _rattle_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, acc, x_old):
     return n_steps, dyn.OK
 
 
+@jit
+def keep_state(x, v, keep):
+    """Copy ``x``, ``v`` into ``keep = (x_keep, v_keep)`` (the state to restore on failure)."""
+    keep[0][:, :] = x
+    keep[1][:, :] = v
+
+
+# The checked kernels of Integrator.run_checked: the run kernel between keep_state and
+# dynamics.state_summary, in one compiled call (a Simulation.advance makes no other).
+@jit
+def _rk4_projected_checked(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, keep, summ,
+                           heights):
+    keep_state(x, v, keep)
+    out = _rk4_advance(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, True)
+    return out + dyn.state_summary(x, v, net, act, summ, heights)
+
+
+@jit
+def _rk4_checked(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, keep, summ, heights):
+    keep_state(x, v, keep)
+    out = _rk4_advance(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, False)
+    return out + dyn.state_summary(x, v, net, act, summ, heights)
+
+
+@jit
+def _rattle_checked(x, v, dt, n_steps, net, act, ws, tol, max_iter, acc, x_old, keep, summ,
+                    heights):
+    keep_state(x, v, keep)
+    out = _rattle_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, acc, x_old)
+    return out + dyn.state_summary(x, v, net, act, summ, heights)
+
+
 STEP_TOO_SMALL = 10    # status code beyond those of solver.dynamics (adaptive step underflow)
 
 
 class Integrator:
     """A method behind one interface. ``kernel`` is the ``@jit`` run function described in the
-    module doc; ``evaluations_per_step`` counts force evaluations (for work estimates)."""
+    module doc, ``checked`` its twin for :meth:`run_checked`; ``extra_args`` gives the kernel
+    arguments after ``max_iter``; ``evaluations_per_step`` counts force evaluations (for work
+    estimates)."""
     name = ''
     order = 0
     projected = False
     adaptive = False
     evaluations_per_step = 0
     kernel = None
+    checked = None
 
     def __init__(self, rtol=1e-8, atol=1e-10):
         self.rtol, self.atol = float(rtol), float(atol)
@@ -229,6 +267,10 @@ class Integrator:
         if a is None or a.shape != tuple(shape):
             a = self._scratch[key] = np.zeros(shape)
         return a
+
+    def extra_args(self, x, kinks):
+        """The kernel arguments after ``max_iter`` for a state shaped like ``x``."""
+        return (bool(kinks),)
 
     def reset(self):
         """Forget any step-size history (adaptive methods)."""
@@ -242,9 +284,18 @@ class Integrator:
 
     def run(self, x, v, dt, n_steps, net, act, ws, tol=1e-12, max_iter=3, kinks=True):
         """Advance ``x``, ``v`` (n, 3) in place by ``n_steps * dt`` s; returns (steps, status)."""
-        steps, status = type(self).kernel(x, v, float(dt), int(n_steps), net, act, ws,
-                                          float(tol), int(max_iter), bool(kinks))
+        steps, status = self.kernel(x, v, float(dt), int(n_steps), net, act, ws, float(tol),
+                                     int(max_iter), *self.extra_args(x, kinks))
         return int(steps), int(status)
+
+    def run_checked(self, x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, keep, summ,
+                    heights):
+        """:meth:`run` in one compiled call that first copies ``x``, ``v`` into ``keep = (x_keep,
+        v_keep)`` and then summarises the end state (:func:`solver.dynamics.state_summary` with
+        the arrays ``summ``, prism heights into ``heights``). Returns ``(steps, status, finite,
+        energy J, relative constraint error, smallest prism height m)``."""
+        return self.checked(x, v, float(dt), int(n_steps), net, act, ws, float(tol), int(max_iter),
+                            *self.extra_args(x, kinks), keep, summ, heights)
 
 
 class RK4Projected(Integrator):
@@ -255,6 +306,7 @@ class RK4Projected(Integrator):
     projected = True
     evaluations_per_step = 4
     kernel = staticmethod(_rk4_projected_run)
+    checked = staticmethod(_rk4_projected_checked)
 
 
 class RK4(Integrator):
@@ -264,6 +316,7 @@ class RK4(Integrator):
     order = 4
     evaluations_per_step = 4
     kernel = staticmethod(_rk4_run)
+    checked = staticmethod(_rk4_checked)
 
 
 class Rattle(Integrator):
@@ -275,13 +328,10 @@ class Rattle(Integrator):
     projected = True
     evaluations_per_step = 1
     kernel = staticmethod(_rattle_run)
+    checked = staticmethod(_rattle_checked)
 
-    def run(self, x, v, dt, n_steps, net, act, ws, tol=1e-12, max_iter=3, kinks=True):
-        acc = self.scratch('acc', x.shape)
-        x_old = self.scratch('x_old', x.shape)
-        steps, status = _rattle_run(x, v, float(dt), int(n_steps), net, act, ws, float(tol),
-                                    int(max_iter), acc, x_old)
-        return int(steps), int(status)
+    def extra_args(self, x, kinks):
+        return self.scratch('acc', x.shape), self.scratch('x_old', x.shape)
 
 
 class DOPRI54Projected(Integrator):
@@ -297,6 +347,16 @@ class DOPRI54Projected(Integrator):
     def __init__(self, rtol=1e-8, atol=1e-10):
         super().__init__(rtol, atol)
         self.hstate = np.zeros(4)
+        from . import adaptive           # the kernel module imports next_kink from here
+        self._adaptive = adaptive
+
+    @property
+    def kernel(self):
+        return self._adaptive.dopri_run
+
+    @property
+    def checked(self):
+        return self._adaptive.dopri_checked
 
     def reset(self):
         self.hstate[:] = 0.0
@@ -312,18 +372,11 @@ class DOPRI54Projected(Integrator):
         return {'accepted': int(self.hstate[1]), 'rejected': int(self.hstate[2]),
                 'evaluations': int(self.hstate[3])}
 
-    def run(self, x, v, dt, n_steps, net, act, ws, tol=1e-12, max_iter=3, kinks=True):
+    def extra_args(self, x, kinks):
         n = x.shape[0]
-        from . import adaptive           # the kernel module imports next_kink from here
-        kx = self.scratch('kx', (7, n, 3))
-        kv = self.scratch('kv', (7, n, 3))
-        xs = self.scratch('xs', (n, 3))
-        vs = self.scratch('vs', (n, 3))
-        steps, status = adaptive.dopri_run(x, v, float(dt), int(n_steps), net, act, ws,
-                                           float(tol), int(max_iter), bool(kinks), self.rtol,
-                                           self.atol, adaptive.A, adaptive.E, kx, kv, xs, vs,
-                                           self.hstate)
-        return int(steps), int(status)
+        return (bool(kinks), self.rtol, self.atol, self._adaptive.A, self._adaptive.E,
+                self.scratch('kx', (7, n, 3)), self.scratch('kv', (7, n, 3)),
+                self.scratch('xs', (n, 3)), self.scratch('vs', (n, 3)), self.hstate)
 
 
 METHODS = {cls.name: cls for cls in (RK4Projected, RK4, Rattle, DOPRI54Projected)}

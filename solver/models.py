@@ -8,10 +8,11 @@ network's node positions (for frames, messages and recordings):
 - ``positions()`` / ``velocities()``: full (n_nodes, 3) arrays of the network;
 - ``set_state(x_full, v_full)``: load a full state;
 - ``cable_rest_length``, ``cable_EA`` (full (n_cables,) arrays) and ``set_cables(rest, EA)``;
-- optionally ``summary()`` -> ``(finite, energy, prism heights, constraint error)`` computed on
-  the model's own state (``sym3d``); otherwise the simulation computes them from the full state,
-  or, for a model with its own ``advance`` (``chain1d``), asks its ``energy()`` and
-  ``constraint_error()``.
+- ``summ``: the arrays of :func:`solver.dynamics.state_summary` for the model's own state (energy,
+  prism heights, constraint error in one compiled pass, also run inside the integrator call of
+  each ``Simulation.advance``), or None: the simulation then computes them from the full state
+  (``sym3d`` where its reduction of them is not exact), or, for a model with its own ``advance``
+  (``chain1d``), asks its ``energy()`` and ``constraint_error()``.
 
 ``sym3d`` (:mod:`solver.sym3d`) raises :class:`~solver.sym3d.NotSymmetric` from ``set_state`` or
 ``set_cables`` when given an asymmetric state; the simulation then expands the run to ``full3d``
@@ -29,6 +30,7 @@ from . import dynamics as dyn
 
 class Model:
     name = ''
+    summ = None
 
     def __init__(self, network):
         self.network = network
@@ -50,6 +52,7 @@ class Full3D(Model):
         self.ws = dyn.workspace(network.n_nodes, network.n_constraints, network.bandwidth)
         self.x = np.array(network.x0)
         self.v = np.zeros_like(self.x)
+        self.summ = full_summary_arrays(network)
 
     @property
     def cable_rest_length(self):
@@ -73,6 +76,14 @@ class Full3D(Model):
         """Load (n_cables,) rest lengths m and EA N."""
         self.act[0][:] = rest
         self.act[1][:] = EA
+
+
+def full_summary_arrays(network):
+    """The :func:`solver.dynamics.state_summary` arrays of a full network."""
+    levels = network.levels if network.levels.size else np.zeros((0, 0, 1), dtype=np.int64)
+    return dyn.summary_arrays(network.x0, network.node_mass, network.clamped, network.bar_a,
+                              network.bar_b, network.bar_mass,
+                              np.ascontiguousarray(levels, dtype=np.int64), network.n_cables)
 
 
 from . import chain1d, integrators  # noqa: E402

@@ -28,30 +28,18 @@ def _prism_heights(x, levels, out):
             z_prev = z
 
 
-@jit
-def _summary(x, v, node_mass, clamped, bar_a, bar_b, bar_mass, cable_a, cable_b, rest, EA, levels,
-             con_tail, con_head, con_length, heights):
-    finite = dyn.all_finite(x) and dyn.all_finite(v)
-    e = (dyn.kinetic_energy(v, node_mass, clamped, bar_a, bar_b, bar_mass)
-         + dyn.cable_energy(x, cable_a, cable_b, rest, EA))
-    _prism_heights(x, levels, heights)
-    cerr = dyn.constraint_error_arrays(x, con_tail, con_head, con_length, dyn.NO_ROT)
-    return finite, e, cerr
-
-
 def state_summary(x, v, network, rest, EA, f_ext=None):
     """``(finite, energy J, prism heights (n_columns, n_prisms) m, relative constraint error)`` of
-    a full state in one compiled call: what the divergence check and a frame need. The energy is
-    kinetic + cable strain energy, minus the work potential of constant external forces ``f_ext``
-    (n_nodes, 3) N when given (None when there are none)."""
+    a full state in one compiled call (:func:`solver.dynamics.state_summary`): what the
+    divergence check and a frame need. The energy is kinetic + cable strain energy, minus the
+    work potential of constant external forces ``f_ext`` (n_nodes, 3) N when given."""
+    from .models import full_summary_arrays
     levels = network.levels
     heights = np.empty((levels.shape[0], max(levels.shape[1] - 1, 0)))
-    finite, e, cerr = _summary(x, v, network.node_mass, network.clamped, network.bar_a,
-                               network.bar_b, network.bar_mass, network.cable_a, network.cable_b,
-                               rest, EA, levels, network.con_tail, network.con_head,
-                               network.con_length, heights)
-    if f_ext is not None:
-        e -= float(np.sum(f_ext * (x - network.x0)))
+    net, act = dyn.pack(network, rest, EA, f_ext)
+    finite, e, cerr, _ = dyn.state_summary(
+        np.ascontiguousarray(x, dtype=np.float64), np.ascontiguousarray(v, dtype=np.float64),
+        net, act, full_summary_arrays(network), heights)
     return finite, e, heights, cerr
 
 

@@ -141,6 +141,7 @@ class Simulation:
         self.model.set_state(net.x0, np.zeros((net.n_nodes, 3)))
         self.model.set_cables(net.cable_rest_length, net.cable_EA)
         self._cache = {}
+        self._keep_buffers = (None, None)
         self.t = 0.0
         self.step = 0
         self.steps_taken = 0
@@ -164,21 +165,33 @@ class Simulation:
         return c[key]
 
     def _summary(self):
-        """``(finite, energy J, prism heights (n_columns, n_prisms) m, relative constraint
-        error)`` of the current state, from one compiled call."""
-        def compute():
-            quick = getattr(self.model, 'summary', None)    # sym3d: on the reduced state
-            result = quick() if quick is not None else None
-            if result is not None:
-                return result
-            x, v = self._full_state()
-            net = self.network
-            if hasattr(self.model, 'advance'):          # chain1d: its own energy
-                return (dyn.all_finite(x) and dyn.all_finite(v), self.model.energy(),
-                        observables.prism_heights(x, net.levels), self.model.constraint_error())
-            return observables.state_summary(x, v, net, self.model.cable_rest_length,
-                                             self.model.cable_EA, self._f_ext_or_none)
-        return self._cached('summary', compute)
+        """``(finite, energy J, prism heights (n_columns, n_prisms) m, relative constraint error,
+        smallest prism height m)`` of the current state, from one compiled call (made by
+        :meth:`advance` itself, inside the integrator call, when the model has ``summ``)."""
+        c = self._cache.get('summary')
+        if c is None:
+            c = self._cache['summary'] = self._compute_summary()
+        return c
+
+    def _heights_buffer(self):
+        levels = self.network.levels
+        return np.empty((levels.shape[0], max(levels.shape[1] - 1, 0)))
+
+    def _compute_summary(self):
+        m, net = self.model, self.network
+        summ = getattr(m, 'summ', None)
+        if summ is not None:                    # on the model's own (maybe reduced) state
+            h = self._heights_buffer()
+            finite, e, cerr, h_min = dyn.state_summary(m.x, m.v, m.net, m.act, summ, h)
+            return finite, e, h, cerr, h_min
+        x, v = self._full_state()
+        if hasattr(m, 'advance'):               # chain1d: its own energy
+            finite, e, h, cerr = (dyn.all_finite(x) and dyn.all_finite(v), m.energy(),
+                                  observables.prism_heights(x, net.levels), m.constraint_error())
+        else:
+            finite, e, h, cerr = observables.state_summary(x, v, net, m.cable_rest_length,
+                                                           m.cable_EA, self._f_ext_or_none)
+        return finite, e, h, cerr, (float(h.min()) if h.size else math.inf)
 
     def energy(self):
         """Total energy of the current state, J."""
@@ -394,12 +407,29 @@ class Simulation:
     # -- time -----------------------------------------------------------------------------------
     def advance(self, duration):
         """Advance by ``duration`` s in whole steps of ``dt`` (the last one shortened to land on
-        ``t + duration``). Raises :class:`SimulationDiverged` and restores the state on failure."""
+        ``t + duration``). Raises :class:`SimulationDiverged` and restores the state on failure.
+
+        Without a prestrain ramp, on a model with ``summ``, this is one compiled call: the
+        integrator keeps the start state, runs, and summarises the end state for the check."""
         n = max(int(round(duration / self.dt)), 0)
         if n == 0:
             return 0
-        keep = self._keep()
-        steps, status = self._integrate(n)
+        m = self.model
+        summ = getattr(m, 'summ', None)
+        if summ is None or self._ramp is not None:
+            keep = self._keep()
+            steps, status = self._integrate(n)
+        else:
+            kb = self._keep_buffers
+            if kb[0] is not m:
+                kb = self._keep_buffers = (m, (np.empty_like(m.x), np.empty_like(m.v)))
+            h = self._heights_buffer()
+            steps, status, finite, e, cerr, h_min = self.integrator.run_checked(
+                m.x, m.v, self.dt, n, m.net, m.act, m.ws, self.tol, self.max_iter, self.kinks,
+                kb[1], summ, h)
+            self._cache = {'summary': (finite, e, h, cerr, h_min)}
+            keep = (kb[1][0], kb[1][1], m.act[0], self._prestrain, self._ramp,
+                    self._energy_ref, self.integrator.get_state())
         problem = self._check(status)
         if problem is not None:
             self._restore(keep)
@@ -425,24 +455,22 @@ class Simulation:
     def _check(self, status):
         """``(quantity, detail, hint)`` of the first failed divergence check of the current state
         after an integrator ``status``, or None when the state is sound."""
-        if not self._summary()[0]:
+        finite, e, h, err, h_min = self._summary()
+        if not finite:
             return 'state', 'non-finite positions or velocities', HINT_STEP
         if status != dyn.OK:
             quantity, hint = STATUS_DIAGNOSIS.get(status, ('state', HINT_STEP))
             return quantity, integrators.status_text(status), hint
-        err = self.constraint_error()
         if not err <= self.div['constraint_error']:
             return ('constraint error', f'{err:.3g} exceeds {self.div["constraint_error"]:g}',
                     HINT_CONSTRAINT)
-        e = self.energy()
         growth = (e - self._energy_ref) / max(abs(self._energy_ref), 1e-300)
         if not growth <= self.div['energy_growth']:
             return ('energy', f'grew by {growth:.3g} (relative), limit '
                               f'{self.div["energy_growth"]:g}', HINT_ENERGY)
         net = self.network
         if net.levels.size:
-            h = self._heights()
-            if h.size and not h.min() > 0.0:
+            if h.size and not h_min > 0.0:
                 c, i = np.unravel_index(int(np.argmin(np.where(np.isfinite(h), h, -np.inf))),
                                         h.shape)
                 return ('prism height', f'prism {i} of column {c} collapsed (height '

@@ -45,33 +45,6 @@ def _expand_kernel(a, rep, cos, sin, out):
         out[p, 2] = a[q, 2]
 
 
-@jit
-def _reduced_summary(x, v, x0, f_ext, node_mass, clamped, node_mult, cable_a, cable_b, cable_rot,
-                     rest, EA, cable_mult, level_rep, con_tail, con_head, con_length, con_rot,
-                     heights):
-    """``(finite, energy J, relative constraint error)`` of the full network from the reduced
-    state (each reduced member stands for three equal ones), and the prism heights
-    (n_columns, n_prisms) m into ``heights``: kinetic, cable and external-force energies are sums
-    of rotation-invariant terms, each reduced node or cable standing for ``mult`` full ones."""
-    finite = dyn.all_finite(x) and dyn.all_finite(v)
-    e = 0.0
-    for p in range(x.shape[0]):
-        if not clamped[p]:
-            e += node_mult[p] * (0.5 * node_mass[p] * (v[p, 0] ** 2 + v[p, 1] ** 2 + v[p, 2] ** 2)
-                                 - f_ext[p, 0] * (x[p, 0] - x0[p, 0])
-                                 - f_ext[p, 1] * (x[p, 1] - x0[p, 1])
-                                 - f_ext[p, 2] * (x[p, 2] - x0[p, 2]))
-    for c in range(cable_a.shape[0]):
-        dx, dy, dz = dyn._rel(x, cable_a[c], cable_b[c], cable_rot, c)
-        s = math.sqrt(dx * dx + dy * dy + dz * dz)
-        if s > rest[c]:
-            e += cable_mult[c] * 0.5 * EA[c] / rest[c] * (s - rest[c]) ** 2
-    for c in range(level_rep.shape[0]):
-        for j in range(level_rep.shape[1] - 1):
-            heights[c, j] = x[level_rep[c, j + 1], 2] - x[level_rep[c, j], 2]
-    return finite, e, dyn.constraint_error_arrays(x, con_tail, con_head, con_length, con_rot)
-
-
 class NotSymmetric(ValueError):
     """The network or a state is not 3-fold symmetric about the z axis; the message says why."""
 
@@ -282,17 +255,21 @@ class Sym3D:
         self.ws = dyn.workspace(red.n_nodes, red.n_constraints, red.bandwidth)
         self.x = np.array(red.x0)
         self.v = np.zeros_like(self.x)
-        # for summary(): multiplicities of reduced nodes and cables, the node of each base level
-        self._node_mult = np.bincount(red.node_rep, minlength=red.n_nodes).astype(np.float64)
-        self._cable_mult = np.bincount(red.cable_map,
-                                       minlength=len(red.cable_a)).astype(np.float64)
+        # state summary on the reduced state: each reduced node and cable stands for as many
+        # full ones as map to it, a level's height is that of one of its nodes (rotations about
+        # z keep z). Exact only without bar masses (the kinetic energy of a bar couples nodes of
+        # different orbits) and with every level one orbit; otherwise summ is None.
         levels = network.levels
-        self._level_rep = np.ascontiguousarray(red.node_rep[levels[:, :, 0]]) if levels.size \
-            else np.zeros((0, 0), dtype=np.int64)
-        self._cable_rot = (self.net[10] if len(self.net[10])
-                           else np.zeros(len(red.cable_a), dtype=np.int64))
-        self._summary_ok = not np.any(network.bar_mass) and (not levels.size or np.all(
-            red.node_rep[levels] == red.node_rep[levels[:, :, :1]]))
+        self.summ = None
+        if not np.any(network.bar_mass) and (not levels.size or np.all(
+                red.node_rep[levels] == red.node_rep[levels[:, :, :1]])):
+            self.summ = dyn.summary_arrays(
+                red.x0, red.node_mass, red.clamped, dyn.NO_ROT, dyn.NO_ROT, np.zeros(0),
+                np.ascontiguousarray(red.node_rep[levels[:, :, :1]], dtype=np.int64)
+                if levels.size else np.zeros((0, 0, 1), dtype=np.int64), len(red.cable_a),
+                node_mult=np.bincount(red.node_rep, minlength=red.n_nodes).astype(np.float64),
+                cable_mult=np.bincount(red.cable_map,
+                                       minlength=len(red.cable_a)).astype(np.float64))
 
     def _expand(self, a):
         """Full (n_nodes, 3) array of a reduced one (a new array; rotations about z only)."""
@@ -349,19 +326,3 @@ class Sym3D:
                 raise NotSymmetric(f'{what} are not 3-fold symmetric')
         self.act[0][:] = r_red
         self.act[1][:] = e_red
-
-    def summary(self):
-        """``(finite, energy J, prism heights (n_columns, n_prisms) m, relative constraint
-        error)`` computed on the reduced state (no expansion), or None where that is not exact
-        (massive bars, levels that are not orbits): the caller then uses the full state."""
-        if not self._summary_ok:
-            return None
-        lv = self._level_rep
-        heights = np.empty((lv.shape[0], max(lv.shape[1] - 1, 0)))
-        n = self.net
-        finite, e, cerr = _reduced_summary(self.x, self.v, self.reduced.x0, self.act[2],
-                                           self.reduced.node_mass, self.reduced.clamped,
-                                           self._node_mult, n[7], n[8], self._cable_rot,
-                                           self.act[0], self.act[1], self._cable_mult, lv,
-                                           n[3], n[4], n[5], n[9], heights)
-        return finite, e, heights, cerr

@@ -121,13 +121,31 @@ def test_position_projection_matches_twin(name):
 
 
 @pytest.mark.parametrize('name', sorted(NETWORKS))
-def test_energies_match_twin(name):
+def test_state_summary_matches_twin(name):
+    """dynamics.state_summary (one pass: energy, constraint error, prism heights) against NumPy:
+    kinetic energy with the dense mass matrix, cable strain energy, the work of external forces,
+    mean level heights and the constraint error of each rigid member."""
+    from solver.models import full_summary_arrays
     net = NETWORKS[name]
     x, v = _state(net, 11, amp=5e-4)
-    ke = dyn.kinetic_energy(v, net.node_mass, net.clamped, net.bar_a, net.bar_b, net.bar_mass)
-    assert ke == pytest.approx(twins.kinetic_energy(v, net), rel=1e-12)
-    rest, EA = np.array(net.cable_rest_length), np.array(net.cable_EA)
+    rest, EA = np.array(net.cable_rest_length), 1.3 * np.array(net.cable_EA)
+    f_ext = np.random.default_rng(3).standard_normal(x.shape)
+    f_ext[net.clamped] = 0.0
+    h = np.empty((net.levels.shape[0], net.levels.shape[1] - 1))
+    net_t, act = dyn.pack(net, rest, EA, f_ext)
+    summ = full_summary_arrays(net)
+    finite, e, cerr, h_min = dyn.state_summary(x, v, net_t, act, summ, h)
     d = np.linalg.norm(x[net.cable_b] - x[net.cable_a], axis=1)
     pe_ref = np.sum(0.5 * EA / rest * np.clip(d - rest, 0, None) ** 2)
-    pe = dyn.cable_energy(x, net.cable_a, net.cable_b, rest, EA)
-    assert pe == pytest.approx(pe_ref, rel=1e-12)
+    e_ref = twins.kinetic_energy(v, net) + pe_ref - np.sum(f_ext * (x - net.x0))
+    assert finite and e == pytest.approx(e_ref, rel=1e-12)
+    z = x[net.levels, 2].mean(axis=2)                     # (n_columns, n_levels)
+    np.testing.assert_allclose(h, np.diff(z, axis=1), rtol=0, atol=1e-15)
+    assert h_min == h.min()
+    g = [abs(np.sum((x[b] - x[a]) ** 2) / np.sum((net.x0[b] - net.x0[a]) ** 2) - 1) / 2
+         for a, b in twins.rigid_members(net)]
+    assert cerr == pytest.approx(max(g), rel=1e-9)
+    x[5, 1] = np.nan
+    assert not dyn.state_summary(x, v, net_t, act, summ, h)[0]
+    x[net.levels[0, 1, 0], 2] = np.nan
+    assert np.isnan(dyn.state_summary(x, v, net_t, act, summ, h)[3])

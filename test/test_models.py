@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize_scalar
 
+from solver import dynamics as dyn
 from solver import models
 from solver.chain1d import Chain1D
 from solver.scene import Scene
@@ -275,7 +276,9 @@ def test_sym3d_reduced_summary_equals_the_expanded_state(sets):
     sim.apply_impact(0.1)
     sim.advance(0.05)
     m = sim.model
-    finite, e, h, cerr = m.summary()
+    h = np.empty((sim.network.levels.shape[0], sim.network.levels.shape[1] - 1))
+    finite, e, cerr, h_min = dyn.state_summary(m.x, m.v, m.net, m.act, m.summ, h)
+    assert h_min == h.min()
     f_ext = sim.f_ext if np.any(sim.f_ext) else None
     finite_ref, e_ref, h_ref, cerr_ref = state_summary(m.positions(), m.velocities(), sim.network,
                                                        m.cable_rest_length, m.cable_EA, f_ext)
