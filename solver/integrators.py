@@ -288,14 +288,20 @@ class Integrator:
                                      int(max_iter), *self.extra_args(x, kinks))
         return int(steps), int(status)
 
+    def checked_args(self, x, net, act, ws, tol, max_iter, kinks, keep, summ):
+        """The arguments of ``checked`` between ``n_steps`` and ``heights``, for a caller that
+        makes many calls with the same arrays (``Simulation.advance``)."""
+        return (net, act, ws, float(tol), int(max_iter)) + tuple(self.extra_args(x, kinks)) + (
+            keep, summ)
+
     def run_checked(self, x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, keep, summ,
                     heights):
         """:meth:`run` in one compiled call that first copies ``x``, ``v`` into ``keep = (x_keep,
         v_keep)`` and then summarises the end state (:func:`solver.dynamics.state_summary` with
         the arrays ``summ``, prism heights into ``heights``). Returns ``(steps, status, finite,
         energy J, relative constraint error, smallest prism height m)``."""
-        return self.checked(x, v, float(dt), int(n_steps), net, act, ws, float(tol), int(max_iter),
-                            *self.extra_args(x, kinks), keep, summ, heights)
+        return self.checked(x, v, float(dt), int(n_steps), *self.checked_args(
+            x, net, act, ws, tol, max_iter, kinks, keep, summ), heights)
 
 
 class RK4Projected(Integrator):

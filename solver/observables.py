@@ -11,21 +11,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import dynamics as dyn
-from ._jit import jit
-
-
-@jit
-def _prism_heights(x, levels, out):
-    for c in range(levels.shape[0]):
-        z_prev = 0.0
-        for j in range(levels.shape[1]):
-            z = 0.0
-            for k in range(levels.shape[2]):
-                z += x[levels[c, j, k], 2]
-            z /= levels.shape[2]
-            if j > 0:
-                out[c, j - 1] = z - z_prev
-            z_prev = z
 
 
 def state_summary(x, v, network, rest, EA, f_ext=None):
@@ -48,7 +33,7 @@ def prism_heights(x, levels):
 
     ``x`` (n_nodes, 3) m, ``levels`` (n_columns, n_levels, 3) node indices."""
     out = np.empty((levels.shape[0], max(levels.shape[1] - 1, 0)))
-    _prism_heights(np.ascontiguousarray(x, dtype=np.float64), levels, out)
+    dyn.level_heights(np.ascontiguousarray(x, dtype=np.float64), levels, out)
     return out
 
 

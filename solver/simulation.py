@@ -108,6 +108,8 @@ class Simulation:
     def __init__(self, scene: Scene, network=None):
         self.scene = scene
         self.network = network if network is not None else build_network(scene)
+        levels = self.network.levels
+        self._heights_shape = (levels.shape[0], max(levels.shape[1] - 1, 0))
         g = scene['loading.gravity']
         f_ext = np.zeros((self.network.n_nodes, 3))
         if g:
@@ -141,7 +143,7 @@ class Simulation:
         self.model.set_state(net.x0, np.zeros((net.n_nodes, 3)))
         self.model.set_cables(net.cable_rest_length, net.cable_EA)
         self._cache = {}
-        self._keep_buffers = (None, None)
+        self._plan = (None, None)
         self.t = 0.0
         self.step = 0
         self.steps_taken = 0
@@ -173,15 +175,11 @@ class Simulation:
             c = self._cache['summary'] = self._compute_summary()
         return c
 
-    def _heights_buffer(self):
-        levels = self.network.levels
-        return np.empty((levels.shape[0], max(levels.shape[1] - 1, 0)))
-
     def _compute_summary(self):
         m, net = self.model, self.network
         summ = getattr(m, 'summ', None)
         if summ is not None:                    # on the model's own (maybe reduced) state
-            h = self._heights_buffer()
+            h = np.empty(self._heights_shape)
             finite, e, cerr, h_min = dyn.state_summary(m.x, m.v, m.net, m.act, summ, h)
             return finite, e, h, cerr, h_min
         x, v = self._full_state()
@@ -420,16 +418,18 @@ class Simulation:
             keep = self._keep()
             steps, status = self._integrate(n)
         else:
-            kb = self._keep_buffers
-            if kb[0] is not m:
-                kb = self._keep_buffers = (m, (np.empty_like(m.x), np.empty_like(m.v)))
-            h = self._heights_buffer()
-            steps, status, finite, e, cerr, h_min = self.integrator.run_checked(
-                m.x, m.v, self.dt, n, m.net, m.act, m.ws, self.tol, self.max_iter, self.kinks,
-                kb[1], summ, h)
+            integ, plan = self.integrator, self._plan
+            if plan[0] is not m or plan[1] is not integ:      # arrays of the checked call
+                kb = (np.empty_like(m.x), np.empty_like(m.v))
+                plan = self._plan = (m, integ, kb, integ.checked_args(
+                    m.x, m.net, m.act, m.ws, self.tol, self.max_iter, self.kinks, kb, summ))
+            kb = plan[2]
+            keep = (kb[0], kb[1], m.act[0], self._prestrain, self._ramp, self._energy_ref,
+                    integ.get_state())
+            h = np.empty(self._heights_shape)
+            steps, status, finite, e, cerr, h_min = integ.checked(m.x, m.v, float(self.dt), n,
+                                                                  *plan[3], h)
             self._cache = {'summary': (finite, e, h, cerr, h_min)}
-            keep = (kb[1][0], kb[1][1], m.act[0], self._prestrain, self._ramp,
-                    self._energy_ref, self.integrator.get_state())
         problem = self._check(status)
         if problem is not None:
             self._restore(keep)
