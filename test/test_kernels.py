@@ -149,3 +149,16 @@ def test_state_summary_matches_twin(name):
     assert not dyn.state_summary(x, v, net_t, act, summ, h)[0]
     x[net.levels[0, 1, 0], 2] = np.nan
     assert np.isnan(dyn.state_summary(x, v, net_t, act, summ, h)[3])
+
+
+@pytest.mark.parametrize('shape', [(7, 3), (8, 3), (5, 1), (4, 2), (0, 3)])
+def test_all_finite_matches_numpy(shape):
+    """The branch-free finiteness test equals np.isfinite(a).all() with a NaN or an infinity at
+    every position, and is not fooled by finite values whose sum overflows."""
+    a = np.random.default_rng(1).standard_normal(shape) * 1e308
+    assert dyn.all_finite(a) and np.isfinite(a).all()
+    for bad in (np.nan, np.inf, -np.inf):
+        for idx in np.ndindex(*shape):
+            b = a.copy()
+            b[idx] = bad
+            assert dyn.all_finite(b) == bool(np.isfinite(b).all()) is False
