@@ -8,7 +8,8 @@ then publishes one frame (messages built once by :mod:`tensegrity_ros.messages`)
 in the same single-threaded executor, so they never race a step. Stamps are simulation time.
 
 Recorders hook in through three lists (see :meth:`TensegritySim.add_sink`): ``_sinks`` get
-``(topic, msg, stamp_ns)`` for every published message and every received command, ``_frame_sinks``
+``(topic, msg, stamp_ns)`` for every published message and every received command (the frame's
+messages as CDR ``bytes`` when every sink takes bytes, as the MCAP recorder does), ``_frame_sinks``
 get each published :class:`solver.simulation.Frame`, ``_event_sinks`` get ``(t, text)`` per
 command.
 """
@@ -59,6 +60,7 @@ class TensegritySim(Node):
         self.sim = sim
         net = self.sim.network
         self._sinks, self._frame_sinks, self._event_sinks, self._closers = [], [], [], []
+        self._bytes_sinks = []
         self._cross_prism = (self.sim.prestrain_map.cross_prism
                              if self.sim.prestrain is not None else None)
         self._t_max = 2.0 * messages.reference_tension_scale(net)
@@ -95,13 +97,17 @@ class TensegritySim(Node):
             f'{self.params["real_time_factor"]:g}')
 
     # -- hooks for recorders --------------------------------------------------------------------
-    def add_sink(self, sink=None, frame_sink=None, event_sink=None, close=None):
+    def add_sink(self, sink=None, frame_sink=None, event_sink=None, close=None, takes_bytes=False):
         """Register recorder callbacks: ``sink(topic, msg, stamp_ns)`` (full topic names),
-        ``frame_sink(frame)``, ``event_sink(t, text)``, ``close()`` at shutdown."""
+        ``frame_sink(frame)``, ``event_sink(t, text)``, ``close()`` at shutdown. With
+        ``takes_bytes``, ``sink`` accepts the frame's messages as the CDR ``bytes`` that are
+        published (rclpy message objects are then built only if another sink needs them)."""
         for lst, fn in ((self._sinks, sink), (self._frame_sinks, frame_sink),
                         (self._event_sinks, event_sink), (self._closers, close)):
             if fn is not None:
                 lst.append(fn)
+        if sink is not None and takes_bytes:
+            self._bytes_sinks.append(sink)
 
     def _open_recorders(self):
         if self.params['record_mcap']:
@@ -112,7 +118,7 @@ class TensegritySim(Node):
             for key, topic in self._topics.items():
                 if key != '/clock' or self.params['use_sim_clock']:
                     rec.declare(topic, messages.MSG_CLASSES[key], QOS)
-            self.add_sink(sink=rec.write, close=rec.close)
+            self.add_sink(sink=rec.write, close=rec.close, takes_bytes=True)
         if self.params['record_rerun']:
             from .rerun_log import RerunRecorder
             rr = RerunRecorder(self.sim.network, self.params['record_rerun'],
@@ -197,10 +203,11 @@ class TensegritySim(Node):
         t0 = time.perf_counter()
         frame = self.sim.frame()
         markers = self._markers_due(now)
-        # without recorders the frame goes out as bytes written from the arrays (cdr.py): rclpy's
-        # conversion of message objects is the largest cost of publishing (markers 50x); the
-        # recorders get the objects
-        build = messages.frame_messages if self._sinks else cdr.frame_messages_cdr
+        # the frame goes out as bytes written from the arrays (cdr.py): rclpy's conversion of
+        # message objects is the largest cost of publishing (markers 50x); objects are built only
+        # for a sink that cannot take the bytes
+        objects = any(fn not in self._bytes_sinks for fn in self._sinks)
+        build = messages.frame_messages if objects else cdr.frame_messages_cdr
         stamp = messages.sim_stamp(frame.t)
         try:
             msgs = build(frame, self.sim.network, stamp=stamp, markers=markers,

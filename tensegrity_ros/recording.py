@@ -277,7 +277,10 @@ class McapRecorder:
         nanoseconds); returns True. A float array message holding NaN or infinity (a malformed
         command the node received and rejected) is not logged: returns False and counts it in
         ``dropped`` (nothing NaN is ever logged; the node's ``/diagnostics`` say what it rejected).
-        Writing to a closed recorder is an error."""
+        ``msg`` may also be serialized CDR ``bytes`` (see :meth:`write_serialized`). Writing to a
+        closed recorder is an error."""
+        if isinstance(msg, (bytes, bytearray)):
+            return self.write_serialized(topic, msg, stamp_ns)
         if not _finite(msg):
             with self._lock:
                 self.dropped += 1
