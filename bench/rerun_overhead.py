@@ -6,24 +6,56 @@
 The same simulation is run from its impact to ``run.t_end`` (or ``--t-end``: the opening and
 closing of a recording are a fixed cost that weighs less in longer runs) at the scene's output rate
 (``run.output_dt``), alternately plain and recording to a ``.rrd`` file (recorder construction,
-every frame and the final flush included), ``repeats`` pairs after one discarded warm-up pair.
-Reports the overhead ``recorded / plain - 1`` of wall time and of process CPU time (all threads,
-so Rerun's encoder and writer threads count), per pair, as the median of the pairs and as the ratio
-of the best (smallest) times of each kind (the least disturbed by other processes). Each pair is
-followed by a recording of the same frames fed from memory (the recording alone, no simulation):
-its best time over the best plain run is the cost of recording with the least noise. Writes
-``rerun_overhead.csv``. Only ratios measured in the same process are reported; the machine may be
-busy.
+every frame and ``close()`` included), ``repeats`` pairs after one discarded warm-up pair. Reports
+the overhead ``recorded / plain - 1`` of wall time and of process CPU time (all threads, so the
+recorder's worker and Rerun's encoder and writer threads count), per pair, as the median of the
+pairs and as the ratio of the best (smallest) times of each kind (the least disturbed by other
+processes). Each pair is followed by a recording of the same frames fed from memory (the recording
+alone, no simulation): its best time over the best plain run is the cost of recording with the
+least noise. Writes ``rerun_overhead.csv``. Only ratios measured in the same process are reported;
+the machine may be busy.
+
+The recorder hands the frames to a worker thread (Rerun's own threads encode and write): the timing
+ends when ``close()`` returns, which is after the file was written to its end (footer included).
+Every recorded file is checked after its timing: it must hold every frame and read without the
+"no footer" warning. ``others_cores`` is the CPU time other processes used during a pair per
+second of it (from ``/proc/stat``; 1.0 = one of the two cores busy all along): with a busy second
+core the recording's threads compete with the simulation, so the summary also gives the median of
+the quiet pairs (others below 0.2 core), besides the median of all pairs.
 """
 from __future__ import annotations
 
 import argparse
 import csv
+import os
 import statistics
 import sys
 import tempfile
 import time
+import warnings
 from pathlib import Path
+
+
+def _busy_s():
+    """CPU seconds the whole machine spent busy so far (``/proc/stat``), or None."""
+    try:
+        with open('/proc/stat') as f:
+            v = [int(x) for x in f.readline().split()[1:9]]
+    except (OSError, ValueError):
+        return None
+    return (sum(v) - v[3] - v[4]) / os.sysconf('SC_CLK_TCK')        # without idle and iowait
+
+
+def check_complete(path, n_frames):
+    """Raise unless the .rrd at ``path`` holds ``n_frames`` rows of ``/energy`` and its footer."""
+    from rerun.chunk import RrdReader
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter('always')
+        rows = sum(chunk.to_record_batch().num_rows for chunk in RrdReader(str(path)).stream()
+                   if chunk.entity_path == '/energy' and not chunk.is_static)
+    if rows != n_frames or any('footer' in str(w.message) for w in caught):
+        raise RuntimeError(f'{path}: {rows} of {n_frames} frames, '
+                           f'{[str(w.message) for w in caught]}')
 
 
 def _one(sim, scene, path, frames=None):
@@ -72,16 +104,22 @@ def measure(scene_path='config/scenes/fb_column.yaml', repeats=3, log=print, t_e
             rrd = Path(tmp) / f'run{i}.rrd'
             order = (None, rrd) if i % 2 == 0 else (rrd, None)
             got = {}
+            b0, c0, w0 = _busy_s(), time.process_time(), time.perf_counter()
             for path in order:
                 got['rec' if path is not None else 'plain'] = _one(sim, scene, path)
+            b1, c1, w1 = _busy_s(), time.process_time(), time.perf_counter()
             got['only'] = _one(sim, scene, Path(tmp) / 'only.rrd', frames)
+            check_complete(rrd, len(frames))                  # after the timings
+            check_complete(Path(tmp) / 'only.rrd', len(frames))
             if i == 0:
                 continue                       # warm-up pair (thread start-up, page cache)
             row = {'pair': i, 'wall_plain_s': got['plain'][0], 'wall_rec_s': got['rec'][0],
                    'cpu_plain_s': got['plain'][1], 'cpu_rec_s': got['rec'][1],
                    'wall_rec_only_s': got['only'][0], 'cpu_rec_only_s': got['only'][1],
                    'main_cpu_rec_only_s': got['only'][2],
-                   'rrd_bytes': rrd.stat().st_size}
+                   'rrd_bytes': rrd.stat().st_size,
+                   'others_cores': (None if b0 is None else
+                                    max(0.0, (b1 - b0) - (c1 - c0)) / (w1 - w0))}
             row['wall_overhead'] = row['wall_rec_s'] / row['wall_plain_s'] - 1.0
             row['cpu_overhead'] = row['cpu_rec_s'] / row['cpu_plain_s'] - 1.0
             log(f"pair {i}: wall {row['wall_plain_s']:.3f} s plain, {row['wall_rec_s']:.3f} s "
@@ -89,7 +127,9 @@ def measure(scene_path='config/scenes/fb_column.yaml', repeats=3, log=print, t_e
                 f"{row['cpu_rec_s']:.3f} s ({100 * row['cpu_overhead']:+.1f} %); recording alone "
                 f"{row['wall_rec_only_s']:.3f} s wall, {row['cpu_rec_only_s']:.3f} s cpu "
                 f"({row['main_cpu_rec_only_s']:.3f} s in the main thread); "
-                f"{row['rrd_bytes'] / 1e6:.2f} MB")
+                f"{row['rrd_bytes'] / 1e6:.2f} MB; others "
+                + ('?' if row['others_cores'] is None else f"{row['others_cores']:.2f}")
+                + ' cores')
             rows.append(row)
     return rows
 
@@ -113,11 +153,17 @@ def main(out='bench/results', quick=False, log=print, scene='config/scenes/fb_co
     alone_wall = min(r['wall_rec_only_s'] for r in rows) / min(r['wall_plain_s'] for r in rows)
     alone_cpu = min(r['cpu_rec_only_s'] for r in rows) / min(r['cpu_plain_s'] for r in rows)
     alone_main = min(r['main_cpu_rec_only_s'] for r in rows) / min(r['cpu_plain_s'] for r in rows)
+    quiet = [r for r in rows if r['others_cores'] is not None and r['others_cores'] < 0.2]
+    quiet_txt = f'; quiet pairs (others < 0.2 core): {len(quiet)}'
+    if quiet:
+        quiet_txt += (f', median wall '
+                      f'{100 * statistics.median(r["wall_overhead"] for r in quiet):+.1f} %, cpu '
+                      f'{100 * statistics.median(r["cpu_overhead"] for r in quiet):+.1f} %')
     log(f'rerun recording overhead, median of {len(rows)} pairs: wall {100 * wall:+.1f} %, '
         f'cpu {100 * cpu:+.1f} %; best of each: wall {100 * best_wall:+.1f} %, cpu '
         f'{100 * best_cpu:+.1f} %; recording alone / plain run (best of each): wall '
         f'{100 * alone_wall:.1f} %, cpu {100 * alone_cpu:.1f} % (main thread '
-        f'{100 * alone_main:.1f} %)  -> {path}')
+        f'{100 * alone_main:.1f} %){quiet_txt}; load average {os.getloadavg()[0]:.2f}  -> {path}')
     return [str(path)]
 
 

@@ -21,23 +21,30 @@ timeline ``sim_time`` (a duration, from the simulation clock; no wall-clock time
   the time of its last frame; one entity per column.
 - ``energy`` (J) and ``constraint_error`` Scalars; ``commands`` TextLog events.
 
-Frames are buffered and sent in column batches (``send_columns``) every ``flush_every`` frames and
-on :meth:`close`, which keeps the per-frame cost to a few array copies. Every array handed to
-Rerun is a fresh copy (Arrow may keep referencing it after the call; the buffers are reused).
+Frames are buffered and sent in column batches (one chunk per entity, ``Chunk.from_columns`` and
+one ``send_chunks`` call per batch) every ``flush_every`` frames and on :meth:`close`. The caller's
+thread only checks each frame and copies it into a batch buffer (a few microseconds); a worker
+thread of the recorder opens the stream, sends the blueprint and the static entities, converts and
+sends the batches, the commands and the wave images, and finishes the file, while the simulation
+goes on (its kernels release the GIL); Rerun's own threads encode and write. Every array handed to
+Rerun is a fresh one (Arrow may keep referencing it after the call); the batch buffers are reused.
 """
 from __future__ import annotations
 
 import math
+import os
+import queue
 import socket
+import threading
 import time
 import urllib.parse
-from collections import deque
 
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute  # noqa: F401  (imported by rerun on first use; load it with the module)
 import rerun as rr
 import rerun.blueprint as rrb
+from rerun.chunk import Chunk
 
 DEFAULT_URL = 'rerun+http://127.0.0.1:9876/proxy'
 TIMELINE = 'sim_time'
@@ -56,6 +63,10 @@ _U = np.linspace(0.0, 1.0, 256)
 _LUT = _rgba32(np.rint(255 * _U).astype(np.uint32), np.rint(51 * (1 - _U)).astype(np.uint32),
                np.rint(255 * (1 - _U)).astype(np.uint32), np.uint32(255))
 SLACK_COLOR = _rgba32(128, 128, 128, 64)
+_LUT_SLACK = np.concatenate(([SLACK_COLOR], _LUT))        # index 0: slack, 1 + level
+# a frame is refused unless the sum of squares of its values is below this: then every value is
+# finite (NaN and inf propagate) and fits float32 (as positions are stored)
+_SQ_LIMIT = float(np.finfo(np.float32).max) ** 2
 
 
 def tension_colors(tension, scale):
@@ -63,10 +74,11 @@ def tension_colors(tension, scale):
     ``u = T / scale`` (clipped to [0, 1], 256 levels) to ``(u, 0.2 (1 - u), 1 - u)``; slack cables
     (T <= 0) get :data:`SLACK_COLOR`."""
     tension = np.asarray(tension, dtype=np.float64)
-    idx = np.clip(np.rint(tension * (255.0 / scale)), 0, 255).astype(np.intp)
-    out = _LUT[idx]
-    out[tension <= 0.0] = SLACK_COLOR
-    return out
+    idx = np.multiply(tension, 255.0 / scale)
+    np.rint(idx, out=idx)
+    np.minimum(np.maximum(idx, 0.0, out=idx), 255.0, out=idx)
+    idx += tension > 0.0                        # 0: slack, else 1 + the level
+    return _LUT_SLACK.take(idx.astype(np.intp))
 
 
 def reference_tension_scale(network):
@@ -117,25 +129,102 @@ def trails(a, b, n_nodes):
 class _Strips:
     """Line strips through fixed node sequences (one strip per sequence), gathered per frame."""
 
-    def __init__(self, sequences):
-        nodes = np.concatenate(sequences) if sequences else np.zeros(0, np.int64)
+    def __init__(self, sequences, n_frames):
+        if isinstance(sequences, np.ndarray):         # (n, k): n strips of k nodes each
+            nodes = sequences.reshape(-1).astype(np.int64)
+            self.lengths = np.full(len(sequences), sequences.shape[1], dtype=np.int32)
+        else:
+            nodes = np.concatenate(sequences) if sequences else np.zeros(0, np.int64)
+            self.lengths = np.array([len(s) for s in sequences], dtype=np.int32)
         self.index = (nodes[:, None] * 3 + np.arange(3)).ravel()      # into one frame's x.ravel()
-        self.lengths = np.array([len(s) for s in sequences], dtype=np.int32)
-        self.n = len(sequences)
+        self.n = len(self.lengths)
+        # strip offsets of up to n_frames frames of strips (sliced per batch)
+        self.offsets = np.zeros(n_frames * self.n + 1, dtype=np.int32)
+        np.cumsum(np.tile(self.lengths, n_frames), out=self.offsets[1:])
 
-    def arrow(self, x32):
-        """One Arrow ``LineStrip3D`` array of n_t * n strips for the frames ``x32`` (n_t, n_nodes,
-        3) float32 m, built directly (rerun's generic conversion loops over strips in Python)."""
-        n_t = x32.shape[0]
-        pts = np.take(x32.reshape(n_t, -1), self.index, axis=1)
+    def arrow(self, x):
+        """One Arrow ``LineStrip3D`` array of n_t * n strips for the frames ``x`` (n_t,
+        n_nodes * 3) float32 m, built directly (rerun's generic conversion loops over strips in
+        Python)."""
+        n_t = x.shape[0]
+        pts = x[:, self.index]
         inner = pa.FixedSizeListArray.from_arrays(pa.array(pts.reshape(-1)),
                                                   type=_STRIP_TYPE.value_type)
-        offsets = np.zeros(n_t * self.n + 1, dtype=np.int32)
-        np.cumsum(np.tile(self.lengths, n_t), out=offsets[1:])
-        return pa.ListArray.from_arrays(pa.array(offsets), inner, type=_STRIP_TYPE)
+        return pa.ListArray.from_arrays(pa.array(self.offsets[:n_t * self.n + 1]), inner,
+                                        type=_STRIP_TYPE)
 
 
 _STRIP_TYPE = rr.components.LineStrip3DBatch._ARROW_DATATYPE
+_POINT_TYPE = rr.components.Position3DBatch._ARROW_DATATYPE
+
+
+class _Column:
+    """A component column for ``Chunk.from_columns`` / ``send_columns`` built directly as Arrow:
+    ``array`` holds one list of components per row (what :class:`rerun.ComponentColumn` hands
+    over, without its generic conversions); likewise :class:`_Times` for the ``sim_time``
+    index."""
+
+    __slots__ = ('descriptor', 'array')
+
+    def __init__(self, descriptor, array):
+        self.descriptor, self.array = descriptor, array
+
+    def component_descriptor(self):
+        return self.descriptor
+
+    def as_arrow_array(self):
+        return self.array
+
+
+class _Times:
+    __slots__ = ('array',)
+
+    def __init__(self, ns):
+        self.array = pa.array(ns.view('timedelta64[ns]'))       # duration[ns], no copy
+
+    def timeline_name(self):
+        return TIMELINE
+
+    def as_arrow_array(self):
+        return self.array
+
+
+def _row_chunk(entity_path, archetype, t=None):
+    """A chunk of one row of an archetype's components, static (``t`` None) or at ``sim_time``
+    ``t`` s: what ``log(entity_path, archetype, static=...)`` records (after ``set_time``),
+    without the row batcher."""
+    return Chunk.from_columns(entity_path, [] if t is None else [_Times(_ns([t]))], [
+        _Column(batch.component_descriptor(),
+                pa.ListArray.from_arrays(pa.array([0, len(batch.as_arrow_array())], pa.int32()),
+                                         batch.as_arrow_array()))
+        for batch in archetype.as_component_batches()])
+
+
+_POSITIONS = rr.Points3D.descriptor_positions()
+_STRIPS = rr.LineStrips3D.descriptor_strips()
+_COLORS = rr.LineStrips3D.descriptor_colors()
+_SCALARS = rr.Scalars.descriptor_scalars()
+
+
+def _threads():
+    """Native ids of this process's threads (Linux), else an empty set."""
+    try:
+        return {int(t) for t in os.listdir('/proc/self/task')}
+    except OSError:
+        return set()
+
+
+def other_cpus():
+    """The CPUs this process may run on, except the one the calling thread runs on now; None
+    with fewer than two (or where Linux's ``/proc/thread-self/stat`` is missing)."""
+    try:
+        cpus = os.sched_getaffinity(0)
+        with open('/proc/thread-self/stat') as f:
+            cpu = int(f.read().rsplit(')', 1)[1].split()[36])      # field 39: processor
+    except (OSError, ValueError, IndexError, AttributeError):
+        return None
+    rest = cpus - {cpu}
+    return rest if len(cpus) > 1 and rest else None
 
 
 def check_viewer(url, timeout_s=1.0):
@@ -149,14 +238,6 @@ def check_viewer(url, timeout_s=1.0):
     except OSError as exc:
         raise ValueError(f'rerun: no viewer listening at {url} ({exc.strerror or exc}); start '
                          f'one with `rerun` or record to a file instead') from None
-
-
-def _column(descriptor, batch, n_rows, per_row):
-    """A column of ``n_rows`` rows of ``per_row`` values each of one component ``batch`` (rerun's
-    ``Archetype.columns().partition()`` first builds and then replaces a unit partition, an
-    O(n_values) cumsum; the offsets here are direct)."""
-    offsets = np.arange(n_rows + 1, dtype=np.int32) * np.int32(per_row)
-    return rr.ComponentColumn(descriptor, batch, offsets=offsets)
 
 
 def blueprint(n_columns=1):
@@ -198,11 +279,22 @@ class RerunRecorder:
     fresh; small batches also let Rerun's encoder threads work while the simulation runs).
     The strain-wave image (the last ``wave_window`` frames) is sent at most every
     ``wave_period_s`` wall seconds, and on :meth:`close`.
+
+    The caller's thread only checks and copies each frame into a batch buffer; one worker thread
+    of the recorder sends the blueprint, the static entities, the batches, the commands and the
+    wave images through the stream, in the order they were handed over (the solver's kernels
+    release the GIL, so this overlaps with the simulation). An error in the worker is raised as
+    ValueError by the next :meth:`frame`, :meth:`command`, :meth:`flush` or :meth:`close`.
+    :attr:`stream` waits until the worker has sent everything handed to it. With
+    ``spare_caller_cpu`` (and more than one CPU) the worker and the threads Rerun starts from it
+    (encoder, file writer) run on the other CPUs than the one the constructing thread ran on, so
+    that they do not preempt the simulation.
     """
 
     def __init__(self, network, path=None, *, connect=None, tension_scale=None, flush_every=50,
                  max_latency_s=0.5, wave_window=1000, wave_period_s=2.0,
-                 application_id='tensegrity_ros', recording_id=None, send_blueprint=True):
+                 application_id='tensegrity_ros', recording_id=None, send_blueprint=True,
+                 spare_caller_cpu=True):
         if path is None and not connect:
             raise ValueError('rerun: give a file path or a viewer URL (connect) to record to')
         if tension_scale is not None and not (np.isfinite(tension_scale) and tension_scale > 0):
@@ -221,69 +313,144 @@ class RerunRecorder:
                               else float(tension_scale))
         self.flush_every = int(flush_every)
         self.max_latency_s = float(max_latency_s)
-        self._bars = _Strips(trails(network.bar_a, network.bar_b, network.n_nodes))
-        self._cables = _Strips([np.array(ab, dtype=np.int64) for ab in
-                                zip(network.cable_a, network.cable_b)])      # colour per cable
         self._last_flush = time.monotonic()
         self.n_frames = 0
         self.n_commands = 0
         self.n_restarts = 0
-        n_b = self.flush_every
-        self._b = {'t': np.zeros(n_b), 'x': np.zeros((n_b, network.n_nodes, 3), np.float32),
-                   'strain': np.zeros((n_b,) + tuple(network.levels.shape[:1])
-                                      + (network.n_prisms,)),
-                   'tension': np.zeros((n_b, network.n_cables)),
-                   'energy': np.zeros(n_b), 'cerr': np.zeros(n_b)}
+        # A batch buffer holds one float64 row per frame: positions (n_nodes * 3), strain
+        # (n_columns * n_prisms), tension (n_cables), then t, energy and constraint error. A full
+        # buffer is handed to the worker and another one taken; the worker gives it back (in
+        # _free) once sent (nothing handed to Rerun is a view of it).
+        self._shapes = ((network.n_nodes, 3), tuple(network.levels.shape[:1])
+                        + (network.n_prisms,), (network.n_cables,))
+        n_x, n_s = 3 * network.n_nodes, math.prod(self._shapes[1])
+        self._cols = (slice(0, n_x), slice(n_x, n_x + n_s),
+                      slice(n_x + n_s, n_x + n_s + network.n_cables))
+        self._width = n_x + n_s + network.n_cables + 3
+        self._free = queue.SimpleQueue()
+        self._new_buffer()
         self._n_buf = 0
-        self._wave_t = deque(maxlen=int(wave_window))
-        self._wave = deque(maxlen=int(wave_window))
+        self.wave_window = int(wave_window)
         self.wave_period_s = float(wave_period_s)
-        self._wave_pending = False
-        self._last_wave = time.monotonic()
         self._last_t = None
         self._closed = False
+        self._error = None
+        if self.path is not None:               # create the file now: errors come at once
+            try:
+                open(self.path, 'wb').close()
+            except OSError as exc:              # e.g. a directory that does not exist
+                raise ValueError(f'rerun: cannot record to {self.path}: '
+                                 f'{exc.strerror or exc}') from None
+        self._stream = None
+        self._jobs = queue.Queue(maxsize=16)   # backpressure if the worker falls behind
+        self._jobs.put((self._open, application_id, recording_id, send_blueprint))
+        self._cpus = other_cpus() if spare_caller_cpu else None
+        self._worker = threading.Thread(target=self._work, name='rerun-recorder', daemon=True)
+        self._worker.start()
 
+    @property
+    def stream(self):
+        """The :class:`rerun.RecordingStream`, once the worker has sent everything handed to it
+        so far (frames still in the batch buffer are not: see :meth:`flush`)."""
+        self._jobs.join()
+        return self._stream
+
+    # -- worker ---------------------------------------------------------------------------------
+    def _work(self):
+        if self._cpus:                          # inherited by the threads Rerun starts here
+            try:
+                os.sched_setaffinity(0, self._cpus)
+            except OSError:
+                self._cpus = None
+        while True:
+            job = self._jobs.get()
+            try:
+                if job is None:
+                    return
+                if self._error is None or job[0] == self._finish:   # after an error, drain
+                    job[0](*job[1:])                                 # without sending
+            except Exception as exc:            # raised in the caller's thread by _check
+                if self._error is None:
+                    self._error = exc
+            finally:
+                self._jobs.task_done()
+
+    def _check(self):
+        """Raise the worker's first error (as ValueError) in the caller's thread."""
+        err = self._error
+        if err is not None:
+            raise ValueError(str(err) if isinstance(err, ValueError)
+                             else f'rerun: recording failed: {err!r}') from err
+
+    def _open(self, application_id, recording_id, send_blueprint):
+        """(worker) The stream, its sinks, the blueprint and the static entities; what the
+        batches need."""
+        net = self.net
+        before = _threads()
         stream = rr.RecordingStream(application_id, recording_id=recording_id)
         stream.set_log_time_enabled(False)            # sim_time only: no wall-clock timelines
         stream.set_log_tick_enabled(False)
-        bp = blueprint(max(network.n_columns, 1)) if send_blueprint else None
         sinks = []
         if self.path is not None:
             sinks.append(rr.FileSink(self.path))
         if self.url is not None:
             sinks.append(rr.GrpcSink(self.url))
-        try:
-            stream.set_sinks(*sinks, default_blueprint=bp)
-        except RuntimeError as exc:             # e.g. a directory that does not exist
-            raise ValueError(f'rerun: cannot record to {self.path or self.url}: {exc}') from None
-        self.stream = stream
+        stream.set_sinks(*sinks)
+        self._stream = stream
+        self._tids = (_threads() - before) | {threading.get_native_id()}   # Rerun's and ours
+        if send_blueprint:                      # what set_sinks(default_blueprint=...) sends
+            stream.send_blueprint(blueprint(max(net.n_columns, 1)), make_active=False,
+                                  make_default=True)
         self._log_static()
+        self._bars = _Strips(trails(net.bar_a, net.bar_b, net.n_nodes), self.flush_every)
+        self._cables = _Strips(np.stack([np.asarray(net.cable_a), np.asarray(net.cable_b)],
+                                        axis=1).reshape(-1, 2), self.flush_every)
+        self._row_offsets = np.arange(self.flush_every + 1, dtype=np.int32)
+        self._wave = None                       # (n_columns, n_prisms, wave_window) ring
+        self._wave_n = 0                        # frames in the wave (since the last restart)
+        self._wave_t = 0.0                      # time of its last frame
+        self._wave_pending = False
+        self._last_wave = time.monotonic()
 
     # -- static ---------------------------------------------------------------------------------
     def _log_static(self):
-        net, s = self.net, self.stream
-        s.log('topology', rr.AnyValues(
-            bar_a=np.asarray(net.bar_a, np.int64), bar_b=np.asarray(net.bar_b, np.int64),
-            cable_a=np.asarray(net.cable_a, np.int64), cable_b=np.asarray(net.cable_b, np.int64),
-            cable_kind=[str(k) for k in net.cable_kind],
-            levels=np.asarray(net.levels, np.int64).ravel(),
-            levels_shape=np.asarray(net.levels.shape, np.int64),
-            x0=np.asarray(net.x0, np.float64).ravel()), static=True)
-        s.log('world', rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)   # column axis: z
-        s.log('world/nodes', rr.Points3D.from_fields(colors=[_NODE_RGBA],
-                                                     radii=rr.Radius.ui_points(3.0)), static=True)
-        s.log('world/bars', rr.LineStrips3D.from_fields(colors=[_BAR_RGBA],
-                                                        radii=rr.Radius.ui_points(2.5)),
-              static=True)
-        s.log('world/cables', rr.LineStrips3D.from_fields(radii=rr.Radius.ui_points(1.2)),
-              static=True)
+        """(worker) The static entities, as one static chunk each, sent in one call."""
+        net = self.net
+        static = [
+            ('topology', rr.AnyValues(
+                bar_a=np.asarray(net.bar_a, np.int64), bar_b=np.asarray(net.bar_b, np.int64),
+                cable_a=np.asarray(net.cable_a, np.int64),
+                cable_b=np.asarray(net.cable_b, np.int64),
+                cable_kind=[str(k) for k in net.cable_kind],
+                levels=np.asarray(net.levels, np.int64).ravel(),
+                levels_shape=np.asarray(net.levels.shape, np.int64),
+                x0=np.asarray(net.x0, np.float64).ravel())),
+            ('world', rr.ViewCoordinates.RIGHT_HAND_Z_UP),                  # column axis: z
+            ('world/nodes', rr.Points3D.from_fields(colors=[_NODE_RGBA],
+                                                    radii=rr.Radius.ui_points(3.0))),
+            ('world/bars', rr.LineStrips3D.from_fields(colors=[_BAR_RGBA],
+                                                       radii=rr.Radius.ui_points(2.5))),
+            ('world/cables', rr.LineStrips3D.from_fields(radii=rr.Radius.ui_points(1.2)))]
         names = [f'prism {p}' for p in range(net.n_prisms)]
-        for c in range(net.n_columns if net.n_prisms else 0):
-            s.log(f'strain/column_{c}', rr.SeriesLines(names=names), static=True)
-        s.log('energy', rr.SeriesLines(names=['energy']), static=True)
-        s.log('constraint_error', rr.SeriesLines(names=['constraint error']), static=True)
+        static += [(f'strain/column_{c}', rr.SeriesLines(names=names))
+                   for c in range(net.n_columns if net.n_prisms else 0)]
+        static += [('energy', rr.SeriesLines(names=['energy'])),
+                   ('constraint_error', rr.SeriesLines(names=['constraint error']))]
+        rr.send_chunks([_row_chunk(path, archetype) for path, archetype in static],
+                       recording=self._stream)
 
     # -- per frame ------------------------------------------------------------------------------
+    def _new_buffer(self):
+        try:
+            rows = self._free.get_nowait()      # a buffer the worker has finished with
+        except queue.Empty:
+            rows = np.empty((self.flush_every, self._width))
+        self._rows = rows
+        n_b, (cx, cs, ct) = self.flush_every, self._cols
+        self._bx = rows[:, cx].reshape((n_b,) + self._shapes[0])        # views into rows
+        self._bs = rows[:, cs].reshape((n_b,) + self._shapes[1])
+        self._bt = rows[:, ct]
+
     def frame(self, frame):
         """Buffer one :class:`solver.simulation.Frame`; sends a batch every ``flush_every`` frames.
         A frame that does not match the network or has non-finite values raises ValueError and
@@ -291,130 +458,196 @@ class RerunRecorder:
         the frames before it and restarts the strain wave; ``sim_time`` then holds both."""
         if self._closed:
             raise ValueError('rerun: recorder is closed')
+        if self._error is not None:
+            self._check()
         t = float(frame.t)
         x, strain, tension = frame.positions, frame.strain, frame.tension
-        energy, cerr = float(frame.energy), float(frame.constraint_error)
-        i, b = self._n_buf, self._b
+        i = self._n_buf
+        row = self._rows[i]
         try:
-            b['x'][i] = x
-            b['strain'][i] = strain
-            b['tension'][i] = tension
-            ok = (np.shape(x) == b['x'].shape[1:] and np.shape(strain) == b['strain'].shape[1:]
-                  and np.shape(tension) == b['tension'].shape[1:])
+            self._bx[i] = x
+            self._bs[i] = strain
+            self._bt[i] = tension
         except ValueError:
             ok = False
+        else:
+            try:
+                ok = (x.shape, strain.shape, tension.shape) == self._shapes
+            except AttributeError:              # not arrays
+                ok = (np.shape(x), np.shape(strain), np.shape(tension)) == self._shapes
         if not ok:
             raise ValueError(f'rerun: frame at t = {t:g} s does not match the network '
                              f'(positions {np.shape(x)}, strain {np.shape(strain)}, '
                              f'tension {np.shape(tension)}); not recorded')
-        # one sum is finite only if every term is (NaN and inf propagate): the cheap common case
-        if not math.isfinite(t + energy + cerr + b['x'][i].sum() + b['strain'][i].sum()
-                             + b['tension'][i].sum()):
-            bad = [name for name, v in (('time', t), ('energy', energy),
-                                        ('constraint error', cerr), ('positions', b['x'][i]),
-                                        ('strain', b['strain'][i]), ('tension', b['tension'][i]))
-                   if not np.isfinite(v).all()] or ['values (overflow)']
+        row[-3] = t
+        row[-2] = float(frame.energy)
+        row[-1] = float(frame.constraint_error)
+        if not row @ row < _SQ_LIMIT:                # one dot product: the cheap common case
+            bad = [name for name, v in (('time', row[-3]), ('energy', row[-2]),
+                                        ('constraint error', row[-1]), ('positions', x),
+                                        ('strain', strain), ('tension', tension))
+                   if not np.isfinite(v).all()] or ['values (beyond float32)']
             raise ValueError(f'rerun: frame at t = {t:g} s has non-finite {bad[0]}; not recorded')
         if self._last_t is not None and t <= self._last_t:
             # the clock went back (a reset): send what came before, so that every batch has
             # increasing times, and start a new strain wave
-            self.flush(wave=True)
-            self._wave.clear()
-            self._wave_t.clear()
+            self._submit(i, wave=True, restart=True)
+            self._rows[0] = row
             self.n_restarts += 1
-            b['x'][0], b['strain'][0], b['tension'][0] = b['x'][i], b['strain'][i], b['tension'][i]
             i = 0
-        b['t'][i], b['energy'][i], b['cerr'][i] = t, energy, cerr
         self._last_t = t
         self._n_buf = i + 1
         self.n_frames += 1
         if self._n_buf == self.flush_every or \
                 time.monotonic() - self._last_flush > self.max_latency_s:
-            self.flush()
+            self._submit(self._n_buf)
 
     def command(self, t, text, level=None):
         """A command (or any event) as a text entry at simulation time ``t`` s on ``commands``;
         ``level`` defaults to WARN for texts starting with 'rejected' or 'paused', else INFO."""
         if self._closed:
             raise ValueError('rerun: recorder is closed')
+        self._check()
         if not math.isfinite(t):
             raise ValueError(f'rerun: command time {t} is not finite')
         text = str(text)
         if level is None:
             level = 'WARN' if text.startswith(('rejected', 'paused')) else 'INFO'
-        self.stream.set_time(TIMELINE, duration=np.timedelta64(int(_ns(t)), 'ns'))
-        self.stream.log('commands', rr.TextLog(text, level=level))
+        self._jobs.put((self._log_command, float(t), text, level))
         self.n_commands += 1
+
+    def _log_command(self, t, text, level):
+        rr.send_chunks(_row_chunk('commands', rr.TextLog(text, level=level), t),
+                       recording=self._stream)
 
     # -- batches --------------------------------------------------------------------------------
     def flush(self, wave=False):
-        """Send the buffered frames as column batches; the strain-wave image so far too if
-        ``wave`` or ``wave_period_s`` of wall time passed since it was last sent."""
-        n_t = self._n_buf
+        """Hand the buffered frames to the worker, which sends them as column batches; the
+        strain-wave image so far too if ``wave`` or ``wave_period_s`` of wall time passed since
+        it was last sent."""
+        if self._closed:
+            raise ValueError('rerun: recorder is closed')
+        self._check()
+        self._submit(self._n_buf, wave)
+
+    def _submit(self, n_t, wave=False, restart=False):
         self._last_flush = time.monotonic()
-        if n_t == 0:
-            if wave and self._wave_pending:
-                self._log_wave()
-            return
+        rows = None
+        if n_t:
+            rows = self._rows
+            self._new_buffer()
         self._n_buf = 0
-        net, s, b = self.net, self.stream, self._b
-        index = [rr.TimeColumn(TIMELINE, duration=_ns(b['t'][:n_t]).astype('timedelta64[ns]'))]
-        x = b['x'][:n_t].copy()                                 # (n_t, n_nodes, 3) float32
-        s.send_columns('world/nodes', index, [_column(
-            rr.Points3D.descriptor_positions(),
-            rr.components.Position3DBatch(x.reshape(-1, 3)), n_t, net.n_nodes)])
-        if net.n_bars:
-            s.send_columns('world/bars', index, [_column(
-                rr.LineStrips3D.descriptor_strips(),
-                rr.components.LineStrip3DBatch(self._bars.arrow(x)), n_t, self._bars.n)])
-        if net.n_cables:
-            colors = tension_colors(b['tension'][:n_t], self.tension_scale).reshape(-1)
-            s.send_columns('world/cables', index, [
-                _column(rr.LineStrips3D.descriptor_strips(),
-                        rr.components.LineStrip3DBatch(self._cables.arrow(x)), n_t,
-                        net.n_cables),
-                _column(rr.LineStrips3D.descriptor_colors(),
-                        rr.components.ColorBatch(pa.array(colors)), n_t, net.n_cables)])
-        strain = b['strain'][:n_t]                              # (n_t, n_columns, n_prisms)
-        for c in range(strain.shape[1] if strain.size else 0):
-            s.send_columns(f'strain/column_{c}', index, [_column(
-                rr.Scalars.descriptor_scalars(),
-                rr.components.ScalarBatch(strain[:, c].reshape(-1).copy()), n_t,
-                strain.shape[2])])
-        for name, key in (('energy', 'energy'), ('constraint_error', 'cerr')):
-            s.send_columns(name, index, [_column(
-                rr.Scalars.descriptor_scalars(), rr.components.ScalarBatch(b[key][:n_t].copy()),
-                n_t, 1)])
-        if strain.size:
-            self._wave_t.extend(b['t'][:n_t])
-            self._wave.extend(strain.copy())
-            self._wave_pending = True
-        if self._wave_pending and (wave or self._last_flush - self._last_wave
+        if n_t or wave or restart:
+            self._jobs.put((self._send, rows, n_t, wave, restart))
+
+    def _send(self, rows, n_t, wave, restart):
+        """(worker) Send the first ``n_t`` rows of a batch buffer; then the wave if due."""
+        net, s, buffer = self.net, self._stream, rows
+        if n_t:
+            # every array handed to Rerun is a new one (Arrow may reference it after the call):
+            # the buffer goes back to the caller's thread for later batches
+            rows = rows[:n_t]
+            cx, cs, ct = self._cols
+            index = [_Times(_ns(rows[:, -3]))]
+            offsets = self._row_offsets[:n_t + 1]
+
+            def per_row(descriptor, values, k):          # k values per row
+                return [_Column(descriptor, pa.ListArray.from_arrays(pa.array(offsets * k),
+                                                                     values))]
+            x = rows[:, cx].astype(np.float32)                  # (n_t, n_nodes * 3)
+            chunks = [Chunk.from_columns('world/nodes', index, per_row(
+                _POSITIONS, pa.FixedSizeListArray.from_arrays(pa.array(x.reshape(-1)),
+                                                              type=_POINT_TYPE), net.n_nodes))]
+            if net.n_bars:
+                chunks.append(Chunk.from_columns('world/bars', index, per_row(
+                    _STRIPS, self._bars.arrow(x), self._bars.n)))
+            if net.n_cables:
+                colors = tension_colors(rows[:, ct], self.tension_scale).reshape(-1)
+                chunks.append(Chunk.from_columns('world/cables', index, per_row(
+                    _STRIPS, self._cables.arrow(x), net.n_cables) + per_row(
+                    _COLORS, pa.array(colors), net.n_cables)))
+            strain = rows[:, cs].reshape((n_t,) + self._shapes[1])  # (n_t, n_columns, n_prisms)
+            for c in range(strain.shape[1] if strain.size else 0):
+                chunks.append(Chunk.from_columns(f'strain/column_{c}', index, per_row(
+                    _SCALARS, pa.array(strain[:, c].copy().reshape(-1)), strain.shape[2])))
+            for name, col in (('energy', -2), ('constraint_error', -1)):
+                chunks.append(Chunk.from_columns(name, index, per_row(
+                    _SCALARS, pa.array(rows[:, col].copy()), 1)))
+            rr.send_chunks(chunks, recording=s)                 # one call for the batch
+            if strain.size:
+                self._wave_add(strain, rows[-1, -3])
+            self._free.put(buffer)
+        if self._wave_pending and (wave or restart or time.monotonic() - self._last_wave
                                    >= self.wave_period_s):
             self._log_wave()
+        if restart:
+            self._wave_n = 0
+
+    def _wave_add(self, strain, t_last):
+        """(worker) Append the strain of a batch (n_t, n_columns, n_prisms) to the wave ring."""
+        w = self.wave_window
+        if self._wave is None:
+            self._wave = np.empty(strain.shape[1:] + (w,))
+        keep = strain[-w:]                      # more frames than the window: the last ones
+        at = (self._wave_n + len(strain) - len(keep) + np.arange(len(keep))) % w
+        self._wave[:, :, at] = keep.transpose(1, 2, 0)
+        self._wave_n += len(strain)
+        self._wave_t = float(t_last)
+        self._wave_pending = True
 
     def _log_wave(self):
         self._wave_pending = False
         self._last_wave = time.monotonic()
-        wave = np.stack(self._wave, axis=2)            # (n_columns, n_prisms, n_frames)
-        self.stream.set_time(TIMELINE, duration=np.timedelta64(int(_ns(self._wave_t[-1])), 'ns'))
+        n, w = self._wave_n, self.wave_window
+        if n <= w:
+            wave = self._wave[:, :, :n]                 # (n_columns, n_prisms, n_frames)
+        else:                                           # oldest first
+            wave = np.concatenate((self._wave[:, :, n % w:], self._wave[:, :, :n % w]), axis=2)
+        chunks = []
         for c in range(wave.shape[0]):
-            lim = float(np.max(np.abs(wave[c]))) or 1.0
-            self.stream.log(f'wave/column_{c}', rr.Tensor(wave[c], dim_names=('prism', 'frame'),
-                                                          value_range=(-lim, lim)))
+            image = np.ascontiguousarray(wave[c])
+            lim = float(np.max(np.abs(image))) or 1.0
+            chunks.append(_row_chunk(f'wave/column_{c}', rr.Tensor(
+                image, dim_names=('prism', 'frame'), value_range=(-lim, lim)), self._wave_t))
+        rr.send_chunks(chunks, recording=self._stream)
 
     def close(self):
-        """Flush, then finish the file / disconnect. Idempotent."""
+        """Send what is buffered, then finish the file / disconnect (in the worker, after
+        everything it sent) and wait for it: the file is complete when this returns.
+        Idempotent."""
         if self._closed:
             return
-        self.flush(wave=True)
         self._closed = True
+        self._submit(self._n_buf, wave=True)
+        self._spread()                          # the caller waits now: use its CPU too
+        self._jobs.put((self._finish,))
+        self._jobs.put(None)
+        self._worker.join()
+        self._check()
+
+    def _spread(self):
+        """Let the recorder's threads (the worker and Rerun's) run on every CPU again."""
+        if not self._cpus:
+            return
+        cpus = os.sched_getaffinity(0)
+        for tid in getattr(self, '_tids', ()):
+            try:
+                os.sched_setaffinity(tid, cpus)
+            except OSError:                     # a thread that has ended
+                pass
+
+    def _finish(self):
+        """(worker) Flush to a viewer; disconnect, which writes the rest of the file and its
+        footer (for a file alone no separate flush is needed)."""
+        if self._stream is None:                # opening failed: that error is raised
+            return
         try:
-            self.stream.flush()
+            if self.url is not None:
+                self._stream.flush()
         except RuntimeError as exc:             # the viewer went away: the file is still written
             raise ValueError(f'rerun: {exc}') from None
         finally:
-            self.stream.disconnect()
+            self._stream.disconnect()
 
     def __enter__(self):
         return self

@@ -372,3 +372,71 @@ time.sleep(120)
         proc.wait(timeout=30)
     rows = read(path)['/energy']['rows']
     assert [t for t, _ in rows] == [k * 5_000_000 for k in range(100)]
+
+
+# -- the worker thread -------------------------------------------------------------------------
+def _read_checked(path):
+    """read(path), failing on any warning of rerun's reader (e.g. a missing footer)."""
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter('error')
+        return read(path)
+
+
+def test_close_returns_with_the_file_complete(tmp_path):
+    """The batches are sent by the recorder's worker thread: when close() returns, the file holds
+    every frame, the static entities and the blueprint, and ends with its footer."""
+    scene = Scene.load(FB).with_overrides(['structure.n_prisms=3'])
+    sim = Simulation(scene)
+    path = tmp_path / 'complete.rrd'
+    rec = RerunRecorder(sim.network, path, flush_every=4)
+    for k in range(11):                               # two batches and three frames buffered
+        rec.frame(sim.frame())
+        sim.advance(0.005)
+    rec.close()
+    data = _read_checked(path)
+    assert [t for t, _ in data['/energy']['rows']] == [k * 5_000_000 for k in range(11)]
+    assert data['/topology']['static'] and len(RrdReader(path).blueprints()) == 1
+    rec.close()                                       # idempotent
+    with pytest.raises(ValueError, match='closed'):
+        rec.frame(sim.frame())
+
+
+def test_worker_errors_are_raised_in_the_callers_thread(tmp_path, monkeypatch):
+    """An error while sending a batch (in the worker) is raised as ValueError by the next call,
+    and by close(), which still finishes the file."""
+    scene = Scene.load(FB).with_overrides(['structure.n_prisms=3'])
+    sim = Simulation(scene)
+    path = tmp_path / 'broken.rrd'
+
+    def broken(self, *args):
+        raise RuntimeError('disk on fire')
+    monkeypatch.setattr(RerunRecorder, '_send', broken)
+    rec = RerunRecorder(sim.network, path, flush_every=2)
+    rec.frame(sim.frame())
+    sim.advance(0.005)
+    rec.frame(sim.frame())                            # the batch goes to the worker, which fails
+    rec.stream                                        # waits for the worker
+    with pytest.raises(ValueError, match='disk on fire'):
+        rec.frame(sim.frame())
+    with pytest.raises(ValueError, match='disk on fire'):
+        rec.command(0.0, 'impact')
+    with pytest.raises(ValueError, match='disk on fire'):
+        rec.close()
+    data = _read_checked(path)                        # finished: static entities and footer
+    assert data['/topology']['static'] and '/energy' not in {
+        e for e, v in data.items() if v['rows']}
+
+
+def test_values_beyond_float32_are_refused(tmp_path):
+    scene = Scene.load(FB).with_overrides(['structure.n_prisms=3'])
+    sim = Simulation(scene)
+    path = tmp_path / 'huge.rrd'
+    with RerunRecorder(sim.network, path) as rec:
+        bad = sim.frame()
+        bad.positions[2, 0] = 1e39                    # finite, but not as float32
+        with pytest.raises(ValueError, match='beyond float32'):
+            rec.frame(bad)
+        assert rec.n_frames == 0
+        rec.frame(sim.frame())
+    assert [t for t, _ in read(path)['/world/nodes']['rows']] == [0]
