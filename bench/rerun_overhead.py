@@ -72,7 +72,8 @@ def _one(sim, scene, path, frames=None):
     if path is None:
         run(sim, t_end, output_dt)
     else:
-        with RerunRecorder(sim.network, path) as rec:
+        n_frames = int(round(t_end / output_dt)) + 1 if frames is None else len(frames)
+        with RerunRecorder(sim.network, path, expected_frames=n_frames) as rec:   # as the CLI
             rec.command(sim.t, f'impact v0 = {v0} m/s')
             if frames is None:
                 run(sim, t_end, output_dt, on_frame=rec.frame)

@@ -50,7 +50,9 @@ def _open_rerun(stack, frame_sinks, scene, sim, path=None, url=None):
     """Record the run to a Rerun ``.rrd`` at ``path`` and/or stream it to the viewer at ``url``;
     closed by ``stack``. Logs the impact applied before the run as a command event."""
     from .rerun_log import RerunRecorder
-    recorder = stack.enter_context(RerunRecorder(sim.network, path, connect=url))
+    n_frames = int(round(scene['run.t_end'] / scene['run.output_dt'])) + 1    # runner.run's
+    recorder = stack.enter_context(RerunRecorder(sim.network, path, connect=url,
+                                                 expected_frames=n_frames))
     v0 = scene['loading.impact.v0']
     if v0:
         columns = scene['loading.impact.columns']

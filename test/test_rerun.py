@@ -440,3 +440,25 @@ def test_values_beyond_float32_are_refused(tmp_path):
         assert rec.n_frames == 0
         rec.frame(sim.frame())
     assert [t for t, _ in read(path)['/world/nodes']['rows']] == [0]
+
+
+def test_expected_frames_leaves_a_short_last_batch(tmp_path):
+    """With the run's length known, the first batch is cut so that the batch close() sends is
+    short; every frame is still recorded once, in order, with its values."""
+    sim, frames, path = small_run(tmp_path, t_end=0.11, flush_every=10, expected_frames=23,
+                                  max_latency_s=1e9)
+    assert len(frames) == 23
+    sizes, times = [], []
+    for chunk in RrdReader(path).stream():
+        if chunk.entity_path == '/world/nodes' and not chunk.is_static:
+            t = chunk.to_record_batch().column('sim_time').cast(pa.int64()).to_numpy()
+            sizes.append((int(t[0]), len(t)))
+            times.extend(t.tolist())
+    assert [n for _, n in sorted(sizes)] == [2, 10, 10, 1]     # (23 - 1) % 10, ..., the tail
+    assert sorted(times) == [round(f.t * 1e9) for f in frames]
+    last = read(path)['/world/nodes']
+    np.testing.assert_array_equal(at(last, frames[-1].t, 'Points3D:positions'),
+                                  frames[-1].positions.astype(np.float32).ravel())
+    for bad in (0, -3, 2.5, 'ten'):
+        with pytest.raises(ValueError, match='expected_frames'):
+            RerunRecorder(sim.network, tmp_path / 'bad.rrd', expected_frames=bad)
