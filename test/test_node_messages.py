@@ -131,13 +131,17 @@ def test_marker_bytes_equal_marker_objects(sim):
     from visualization_msgs.msg import MarkerArray
 
     from tensegrity_ros.cdr import marker_array_cdr
-    f = sim.frame()
-    stamp = messages.sim_stamp(f.t)
-    obj = messages.marker_array(f, sim.network, stamp)
-    raw = marker_array_cdr(f, sim.network, stamp)
-    ref = serialize_message(obj)
-    assert len(raw) == len(ref)
-    assert deserialize_message(raw, MarkerArray) == deserialize_message(ref, MarkerArray)
+    sim.reset()
+    sim.apply_impact(0.15)
+    for _ in range(6):                  # at rest, then cables moving between colour bins
+        f = sim.frame()
+        stamp = messages.sim_stamp(f.t)
+        obj = messages.marker_array(f, sim.network, stamp)
+        raw = marker_array_cdr(f, sim.network, stamp)
+        ref = serialize_message(obj)
+        assert len(raw) == len(ref)
+        assert deserialize_message(raw, MarkerArray) == deserialize_message(ref, MarkerArray)
+        sim.advance(0.01)
 
 
 @pytest.mark.parametrize('markers,clock', [(False, False), (True, True)])
