@@ -137,7 +137,7 @@ def dopri_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, rtol, atol,
 def dopri_checked(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, rtol, atol, A, E, kx, kv,
                   xs, vs, hstate, keep, summ, heights):
     """:func:`dopri_run` between ``keep_state`` and ``dynamics.state_summary`` (see
-    ``Integrator.run_checked``)."""
+    ``Integrator.checked_args``)."""
     keep_state(x, v, keep)
     out = dopri_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, rtol, atol, A, E, kx,
                     kv, xs, vs, hstate)

@@ -216,7 +216,7 @@ def keep_state(x, v, keep):
     keep[1][:, :] = v
 
 
-# The checked kernels of Integrator.run_checked: the run kernel between keep_state and
+# The checked kernels (Integrator.checked_args): the run kernel between keep_state and
 # dynamics.state_summary, in one compiled call (a Simulation.advance makes no other).
 @jit
 def _rk4_projected_checked(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, keep, summ,
@@ -246,7 +246,7 @@ STEP_TOO_SMALL = 10    # status code beyond those of solver.dynamics (adaptive s
 
 class Integrator:
     """A method behind one interface. ``kernel`` is the ``@jit`` run function described in the
-    module doc, ``checked`` its twin for :meth:`run_checked`; ``extra_args`` gives the kernel
+    module doc, ``checked`` its twin (see :meth:`checked_args`); ``extra_args`` gives the kernel
     arguments after ``max_iter``; ``evaluations_per_step`` counts force evaluations (for work
     estimates)."""
     name = ''
@@ -289,19 +289,14 @@ class Integrator:
         return int(steps), int(status)
 
     def checked_args(self, x, net, act, ws, tol, max_iter, kinks, keep, summ):
-        """The arguments of ``checked`` between ``n_steps`` and ``heights``, for a caller that
-        makes many calls with the same arrays (``Simulation.advance``)."""
+        """The arguments of ``checked`` between ``n_steps`` and ``heights``: ``checked(x, v, dt,
+        n_steps, *checked_args(...), heights)`` is :meth:`run` in one compiled call that first
+        copies ``x``, ``v`` into ``keep = (x_keep, v_keep)`` and then summarises the end state
+        (:func:`solver.dynamics.state_summary` with the arrays ``summ``, prism heights into
+        ``heights``), returning ``(steps, status, finite, energy J, relative constraint error,
+        smallest prism height m)``. ``Simulation.advance`` builds them once per model."""
         return (net, act, ws, float(tol), int(max_iter)) + tuple(self.extra_args(x, kinks)) + (
             keep, summ)
-
-    def run_checked(self, x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, keep, summ,
-                    heights):
-        """:meth:`run` in one compiled call that first copies ``x``, ``v`` into ``keep = (x_keep,
-        v_keep)`` and then summarises the end state (:func:`solver.dynamics.state_summary` with
-        the arrays ``summ``, prism heights into ``heights``). Returns ``(steps, status, finite,
-        energy J, relative constraint error, smallest prism height m)``."""
-        return self.checked(x, v, float(dt), int(n_steps), *self.checked_args(
-            x, net, act, ws, tol, max_iter, kinks, keep, summ), heights)
 
 
 class RK4Projected(Integrator):
