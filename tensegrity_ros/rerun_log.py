@@ -46,6 +46,8 @@ import rerun as rr
 import rerun.blueprint as rrb
 from rerun.chunk import Chunk
 
+from solver._jit import jit
+
 DEFAULT_URL = 'rerun+http://127.0.0.1:9876/proxy'
 TIMELINE = 'sim_time'
 
@@ -127,7 +129,10 @@ def trails(a, b, n_nodes):
 
 
 class _Strips:
-    """Line strips through fixed node sequences (one strip per sequence), gathered per frame."""
+    """Line strips through fixed node sequences (one strip per sequence): ``index`` picks a strip
+    point's coordinates out of one frame's ``x.ravel()``; ``offsets`` are the strip offsets of up to
+    ``n_frames`` frames of strips (sliced per batch; never written after construction, so Arrow
+    arrays may view them)."""
 
     def __init__(self, sequences, n_frames):
         if isinstance(sequences, np.ndarray):         # (n, k): n strips of k nodes each
@@ -138,20 +143,65 @@ class _Strips:
             self.lengths = np.array([len(s) for s in sequences], dtype=np.int32)
         self.index = (nodes[:, None] * 3 + np.arange(3)).ravel()      # into one frame's x.ravel()
         self.n = len(self.lengths)
-        # strip offsets of up to n_frames frames of strips (sliced per batch)
         self.offsets = np.zeros(n_frames * self.n + 1, dtype=np.int32)
         np.cumsum(np.tile(self.lengths, n_frames), out=self.offsets[1:])
 
-    def arrow(self, x):
-        """One Arrow ``LineStrip3D`` array of n_t * n strips for the frames ``x`` (n_t,
-        n_nodes * 3) float32 m, built directly (rerun's generic conversion loops over strips in
-        Python)."""
-        n_t = x.shape[0]
-        pts = x[:, self.index]
-        inner = pa.FixedSizeListArray.from_arrays(pa.array(pts.reshape(-1)),
-                                                  type=_STRIP_TYPE.value_type)
-        return pa.ListArray.from_arrays(pa.array(self.offsets[:n_t * self.n + 1]), inner,
+    def arrow(self, points, n_t):
+        """One Arrow ``LineStrip3D`` array of ``n_t * n`` strips from their points, float32 m
+        (``n_t * len(index)`` values, frame after frame), built directly (rerun's generic
+        conversion loops over strips in Python)."""
+        inner = pa.FixedSizeListArray.from_arrays(_f32(points), type=_STRIP_TYPE.value_type)
+        return pa.ListArray.from_arrays(_i32(self.offsets[:n_t * self.n + 1]), inner,
                                         type=_STRIP_TYPE)
+
+
+def _f32(a):
+    """A 1-D contiguous numpy array as an Arrow array, zero-copy."""
+    return pa.Array.from_buffers(pa.float32(), len(a), [None, pa.py_buffer(a)])
+
+
+def _i32(a):
+    return pa.Array.from_buffers(pa.int32(), len(a), [None, pa.py_buffer(a)])
+
+
+@jit
+def _pack(rows, n_t, n_x, n_p, n_s, n_c, bar_index, cable_index, lut, k):
+    """(worker, GIL released) The Rerun arrays of the first ``n_t`` rows of a batch buffer, in one
+    pass: node positions, bar-trail points and cable end points as float32 (frame after frame),
+    packed cable colours (``lut[0]`` for slack cables, else ``lut[1 + level]`` with
+    ``level = clip(rint(T * k), 0, 255)``, ``k = 255 / tension_scale``: as
+    :func:`tension_colors` with ``lut = _LUT_SLACK``), the strain per column (column, frame, prism:
+    ``n_s / n_p`` columns of ``n_p`` prisms), energy, constraint error and the times in int64 ns.
+    Every array is new."""
+    n_b, n_cp = len(bar_index), len(cable_index)
+    nodes = np.empty(n_t * n_x, np.float32)
+    bars = np.empty(n_t * n_b, np.float32)
+    cables = np.empty(n_t * n_cp, np.float32)
+    colors = np.empty(n_t * n_c, np.uint32)
+    strain = np.empty(n_t * n_s)
+    energy = np.empty(n_t)
+    cerr = np.empty(n_t)
+    times = np.empty(n_t, np.int64)
+    w = rows.shape[1]
+    for i in range(n_t):
+        r = rows[i]
+        for j in range(n_x):
+            nodes[i * n_x + j] = r[j]
+        for j in range(n_b):
+            bars[i * n_b + j] = r[bar_index[j]]
+        for j in range(n_cp):
+            cables[i * n_cp + j] = r[cable_index[j]]
+        for j in range(n_s):
+            strain[(j // n_p) * n_t * n_p + i * n_p + j % n_p] = r[n_x + j]
+        for j in range(n_c):
+            tension = r[n_x + n_s + j]
+            level = np.rint(tension * k)
+            level = min(max(level, 0.0), 255.0)
+            colors[i * n_c + j] = lut[int(level) + 1] if tension > 0.0 else lut[0]
+        times[i] = np.int64(np.rint(r[w - 3] * 1e9))
+        energy[i] = r[w - 2]
+        cerr[i] = r[w - 1]
+    return nodes, bars, cables, colors, strain, energy, cerr, times
 
 
 _STRIP_TYPE = rr.components.LineStrip3DBatch._ARROW_DATATYPE
@@ -180,7 +230,8 @@ class _Times:
     __slots__ = ('array',)
 
     def __init__(self, ns):
-        self.array = pa.array(ns.view('timedelta64[ns]'))       # duration[ns], no copy
+        """``ns``: 1-D contiguous int64 nanoseconds (viewed, not copied)."""
+        self.array = pa.Array.from_buffers(pa.duration('ns'), len(ns), [None, pa.py_buffer(ns)])
 
     def timeline_name(self):
         return TIMELINE
@@ -200,6 +251,36 @@ def _row_chunk(entity_path, archetype, t=None):
         for batch in archetype.as_component_batches()])
 
 
+def _one_row(values):
+    """A column of one row holding every element of ``values``."""
+    return pa.ListArray.from_arrays(pa.array([0, len(values)], pa.int32()), values)
+
+
+_TENSOR_TYPE = rr.components.TensorDataBatch._ARROW_DATATYPE
+_RANGE_TYPE = rr.components.ValueRangeBatch._ARROW_DATATYPE
+
+
+def tensor_data(image, dim_names):
+    """One ``TensorData`` (what ``rr.Tensor(image, dim_names=...)`` logs as ``Tensor:data``) of a
+    float64 array, built directly as Arrow: shape, dimension names and the values as the ``F64``
+    member of the buffer union (``rr.Tensor`` converts in Python, 1.3 ms for a 50 x 241 image)."""
+    image = np.ascontiguousarray(image, dtype=np.float64)
+    union = _TENSOR_TYPE.field('buffer').type
+    children = [pa.ListArray.from_arrays(pa.array([0, image.size], pa.int32()),
+                                         pa.array(image.reshape(-1)), type=f.type)
+                if f.name == 'F64' else pa.nulls(0, f.type) if pa.types.is_null(f.type)
+                else pa.array([], type=f.type) for f in union]
+    f64 = [f.name for f in union].index('F64')
+    buffer = pa.UnionArray.from_buffers(      # keeps the union's exact type (field nullability)
+        union, 1, [None, pa.py_buffer(np.array([union.type_codes[f64]], np.int8)),
+                   pa.py_buffer(np.zeros(1, np.int32))], children=children)
+    shape = pa.array([list(image.shape)], _TENSOR_TYPE.field('shape').type)
+    names = pa.array([list(dim_names)], _TENSOR_TYPE.field('names').type)
+    return pa.StructArray.from_arrays([shape, names, buffer], fields=list(_TENSOR_TYPE))
+
+
+_TENSOR_DATA = rr.Tensor.descriptor_data()
+_TENSOR_RANGE = rr.Tensor.descriptor_value_range()
 _POSITIONS = rr.Points3D.descriptor_positions()
 _STRIPS = rr.LineStrips3D.descriptor_strips()
 _COLORS = rr.LineStrips3D.descriptor_colors()
@@ -356,10 +437,12 @@ class RerunRecorder:
                                  f'{exc.strerror or exc}') from None
         self._stream = None
         self._jobs = queue.Queue(maxsize=16)   # backpressure if the worker falls behind
-        self._jobs.put((self._open, application_id, recording_id, send_blueprint))
         self._cpus = other_cpus() if spare_caller_cpu else None
         self._worker = threading.Thread(target=self._work, name='rerun-recorder', daemon=True)
+        # started before its first job: it waits for it (without the GIL), so that this thread
+        # goes on at once instead of waiting for the worker's first GIL release (about 1 ms)
         self._worker.start()
+        self._jobs.put((self._open, application_id, recording_id, send_blueprint))
 
     @property
     def stream(self):
@@ -418,7 +501,10 @@ class RerunRecorder:
         self._bars = _Strips(trails(net.bar_a, net.bar_b, net.n_nodes), self.flush_every)
         self._cables = _Strips(np.stack([np.asarray(net.cable_a), np.asarray(net.cable_b)],
                                         axis=1).reshape(-1, 2), self.flush_every)
-        self._row_offsets = np.arange(self.flush_every + 1, dtype=np.int32)
+        n_p = net.n_prisms
+        self._pack_args = (n_p, math.prod(self._shapes[1]), net.n_cables, self._bars.index,
+                           self._cables.index, _LUT_SLACK, 255.0 / self.tension_scale)
+        self._offsets = {}                      # (n_t, k) -> row offsets, as Arrow
         self._wave = None                       # (n_columns, n_prisms, wave_window) ring
         self._wave_n = 0                        # frames in the wave (since the last restart)
         self._wave_t = 0.0                      # time of its last frame
@@ -560,42 +646,43 @@ class RerunRecorder:
         if n_t:
             # every array handed to Rerun is a new one (Arrow may reference it after the call):
             # the buffer goes back to the caller's thread for later batches
-            rows = rows[:n_t]
-            cx, cs, ct = self._cols
-            index = [_Times(_ns(rows[:, -3]))]
-            offsets = self._row_offsets[:n_t + 1]
-
-            def per_row(descriptor, values, k):          # k values per row
-                return [_Column(descriptor, pa.ListArray.from_arrays(pa.array(offsets * k),
-                                                                     values))]
-            x = rows[:, cx].astype(np.float32)                  # (n_t, n_nodes * 3)
-            chunks = [Chunk.from_columns('world/nodes', index, per_row(
-                _POSITIONS, pa.FixedSizeListArray.from_arrays(pa.array(x.reshape(-1)),
-                                                              type=_POINT_TYPE), net.n_nodes))]
+            nodes, bars, cables, colors, strain, energy, cerr, times = _pack(
+                rows, n_t, 3 * net.n_nodes, *self._pack_args)
+            index = [_Times(times)]
+            chunks = [Chunk.from_columns('world/nodes', index, self._per_row(
+                _POSITIONS, pa.FixedSizeListArray.from_arrays(_f32(nodes), type=_POINT_TYPE),
+                n_t, net.n_nodes))]
             if net.n_bars:
-                chunks.append(Chunk.from_columns('world/bars', index, per_row(
-                    _STRIPS, self._bars.arrow(x), self._bars.n)))
+                chunks.append(Chunk.from_columns('world/bars', index, self._per_row(
+                    _STRIPS, self._bars.arrow(bars, n_t), n_t, self._bars.n)))
             if net.n_cables:
-                colors = tension_colors(rows[:, ct], self.tension_scale).reshape(-1)
-                chunks.append(Chunk.from_columns('world/cables', index, per_row(
-                    _STRIPS, self._cables.arrow(x), net.n_cables) + per_row(
-                    _COLORS, pa.array(colors), net.n_cables)))
-            strain = rows[:, cs].reshape((n_t,) + self._shapes[1])  # (n_t, n_columns, n_prisms)
-            for c in range(strain.shape[1] if strain.size else 0):
-                chunks.append(Chunk.from_columns(f'strain/column_{c}', index, per_row(
-                    _SCALARS, pa.array(strain[:, c].copy().reshape(-1)), strain.shape[2])))
-            for name, col in (('energy', -2), ('constraint_error', -1)):
-                chunks.append(Chunk.from_columns(name, index, per_row(
-                    _SCALARS, pa.array(rows[:, col].copy()), 1)))
+                chunks.append(Chunk.from_columns('world/cables', index, self._per_row(
+                    _STRIPS, self._cables.arrow(cables, n_t), n_t, net.n_cables) + self._per_row(
+                    _COLORS, pa.array(colors), n_t, net.n_cables)))
+            n_p = net.n_prisms
+            for c in range(len(strain) // (n_t * n_p) if n_p else 0):
+                chunks.append(Chunk.from_columns(f'strain/column_{c}', index, self._per_row(
+                    _SCALARS, pa.array(strain[c * n_t * n_p:(c + 1) * n_t * n_p]), n_t, n_p)))
+            chunks.append(Chunk.from_columns('energy', index, self._per_row(
+                _SCALARS, pa.array(energy), n_t, 1)))
+            chunks.append(Chunk.from_columns('constraint_error', index, self._per_row(
+                _SCALARS, pa.array(cerr), n_t, 1)))
             rr.send_chunks(chunks, recording=s)                 # one call for the batch
-            if strain.size:
-                self._wave_add(strain, rows[-1, -3])
+            if n_p:
+                self._wave_add(strain.reshape(-1, n_t, n_p).transpose(1, 0, 2), rows[n_t - 1, -3])
             self._free.put(buffer)
         if self._wave_pending and (wave or restart or time.monotonic() - self._last_wave
                                    >= self.wave_period_s):
             self._log_wave()
         if restart:
             self._wave_n = 0
+
+    def _per_row(self, descriptor, values, n_t, k):
+        """(worker) A component column of ``n_t`` rows of ``k`` values each."""
+        offsets = self._offsets.get((n_t, k))
+        if offsets is None:                     # immutable: shared by every batch of n_t rows
+            offsets = self._offsets[n_t, k] = _i32(np.arange(n_t + 1, dtype=np.int32) * k)
+        return [_Column(descriptor, pa.ListArray.from_arrays(offsets, values))]
 
     def _wave_add(self, strain, t_last):
         """(worker) Append the strain of a batch (n_t, n_columns, n_prisms) to the wave ring."""
@@ -621,8 +708,10 @@ class RerunRecorder:
         for c in range(wave.shape[0]):
             image = np.ascontiguousarray(wave[c])
             lim = float(np.max(np.abs(image))) or 1.0
-            chunks.append(_row_chunk(f'wave/column_{c}', rr.Tensor(
-                image, dim_names=('prism', 'frame'), value_range=(-lim, lim)), self._wave_t))
+            chunks.append(Chunk.from_columns(f'wave/column_{c}', [_Times(_ns([self._wave_t]))], [
+                _Column(_TENSOR_DATA, _one_row(tensor_data(image, ('prism', 'frame')))),
+                _Column(_TENSOR_RANGE, _one_row(pa.FixedSizeListArray.from_arrays(
+                    pa.array([-lim, lim]), type=_RANGE_TYPE)))]))
         rr.send_chunks(chunks, recording=self._stream)
 
     def close(self):

@@ -333,6 +333,70 @@ def test_connect_streams_to_a_running_viewer(tmp_path):
                                   f.strain[0])
 
 
+def test_packed_batch_equals_numpy_gathers():
+    """The compiled batch packing (one pass over a batch buffer) against NumPy: fancy-indexed
+    float32 gathers, :func:`tension_colors` (exact, slack and clipped tensions included), the
+    strain per column and the times in ns; three columns, so the column layout is exercised."""
+    from tensegrity_ros.rerun_log import _LUT_SLACK, _Strips, _pack, tension_colors, trails
+    from solver import structures
+    net = structures.column(n_prisms=3, n_columns=3)
+    rng = np.random.default_rng(4)
+    n_t, n_x, n_p = 7, 3 * net.n_nodes, net.n_prisms
+    n_s, n_c = net.n_columns * n_p, net.n_cables
+    rows = rng.normal(size=(10, n_x + n_s + n_c + 3))          # 10 rows buffered, 7 used
+    ten = rows[:, n_x + n_s:n_x + n_s + n_c]
+    ten[:, ::3] = 0.0                                          # slack
+    ten[:, 1::5] *= 1e3                                        # beyond the top of the ramp
+    rows[:, -3] = np.arange(10) * 0.005 + 1e-10
+    bars = _Strips(trails(net.bar_a, net.bar_b, net.n_nodes), n_t)
+    cables = _Strips(np.stack([net.cable_a, net.cable_b], axis=1), n_t)
+    scale = 3.7
+    nodes, b, c, colors, strain, energy, cerr, times = _pack(
+        rows, n_t, n_x, n_p, n_s, n_c, bars.index, cables.index, _LUT_SLACK, 255.0 / scale)
+    used = rows[:n_t]
+    np.testing.assert_array_equal(nodes, used[:, :n_x].astype(np.float32).ravel())
+    np.testing.assert_array_equal(b, used[:, bars.index].astype(np.float32).ravel())
+    np.testing.assert_array_equal(c, used[:, cables.index].astype(np.float32).ravel())
+    np.testing.assert_array_equal(colors, tension_colors(used[:, n_x + n_s:n_x + n_s + n_c],
+                                                         scale).ravel())
+    want = used[:, n_x:n_x + n_s].reshape(n_t, net.n_columns, n_p).transpose(1, 0, 2)
+    np.testing.assert_array_equal(strain, want.ravel())
+    np.testing.assert_array_equal(energy, used[:, -2])
+    np.testing.assert_array_equal(cerr, used[:, -1])
+    np.testing.assert_array_equal(times, np.rint(used[:, -3] * 1e9).astype(np.int64))
+
+
+def test_tensor_data_equals_rerun_tensor():
+    from tensegrity_ros.rerun_log import tensor_data
+    image = np.random.default_rng(2).normal(size=(5, 9))
+    want = [b.as_arrow_array() for b in rr.Tensor(image, dim_names=('prism', 'frame'))
+            .as_component_batches() if b.component_descriptor() == rr.Tensor.descriptor_data()]
+    got = tensor_data(image, ('prism', 'frame'))
+    assert got.type == want[0].type and got.to_pylist() == want[0].to_pylist()
+
+
+def test_two_columns_record_one_strain_series_and_wave_per_column(tmp_path):
+    scene = Scene.load(FB).with_overrides(['structure.n_prisms=4', 'structure.n_columns=2',
+                                           'run.t_end=0.03', 'model=full3d'])
+    sim = Simulation(scene)
+    sim.apply_impact(0.1, [1])                                 # column 1 only
+    frames = []
+    path = tmp_path / 'two.rrd'
+    with RerunRecorder(sim.network, path, flush_every=4) as rec:
+        run(sim, 0.03, scene['run.output_dt'], on_frame=lambda f: (frames.append(f),
+                                                                   rec.frame(f)))
+    data = read(path)
+    for c in (0, 1):
+        ent = data[f'/strain/column_{c}']
+        assert [t for t, _ in ent['rows']] == [round(f.t * 1e9) for f in frames]
+        for f in frames[::3]:
+            np.testing.assert_array_equal(at(ent, f.t, 'Scalars:scalars'), f.strain[c])
+        shape, values = tensor(data[f'/wave/column_{c}'])
+        np.testing.assert_array_equal(values.reshape(shape),
+                                      np.stack([f.strain[c] for f in frames], axis=1))
+    assert np.abs(frames[-1].strain[1]).max() > np.abs(frames[-1].strain[0]).max()
+
+
 @pytest.mark.parametrize('seed', [0, 1, 2])
 def test_trails_cover_every_member_once(seed):
     from tensegrity_ros.rerun_log import trails
