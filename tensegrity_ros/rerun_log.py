@@ -129,10 +129,10 @@ def trails(a, b, n_nodes):
 
 
 class _Strips:
-    """Line strips through fixed node sequences (one strip per sequence): ``index`` picks a strip
-    point's coordinates out of one frame's ``x.ravel()``; ``offsets`` are the strip offsets of up to
-    ``n_frames`` frames of strips (sliced per batch; never written after construction, so Arrow
-    arrays may view them)."""
+    """Line strips through fixed node sequences (one strip per sequence): ``index`` picks a
+    strip point's coordinates out of one frame's ``x.ravel()``; ``offsets`` are the strip offsets
+    of up to ``n_frames`` frames of strips (sliced per batch; never written after construction,
+    so Arrow arrays may view them)."""
 
     def __init__(self, sequences, n_frames):
         if isinstance(sequences, np.ndarray):         # (n, k): n strips of k nodes each
