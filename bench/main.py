@@ -1,4 +1,5 @@
-"""Entry point of ``tensegrity bench``: work-precision chart, stability map, optional peers."""
+"""Entry point of ``tensegrity bench``: work-precision chart, stability map, optional peers and
+Rerun recording cost."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -6,8 +7,9 @@ from pathlib import Path
 
 def main(out_dir='bench/results', quick=False, peers=False, only=None, log=print):
     """Run the benchmarks into ``out_dir``; ``only`` is None or a subset of
-    ``{'work_precision', 'stability', 'peers'}`` (``peers=True`` adds the peer comparison, which
-    :mod:`bench.peers` provides). Returns the list of files written."""
+    ``{'work_precision', 'stability', 'peers', 'rerun'}`` (``peers=True`` adds the peer
+    comparison, which :mod:`bench.peers` provides; ``rerun``, only on request, the cost of a Rerun
+    recording, :mod:`bench.rerun_overhead`). Returns the list of files written."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     written = []
@@ -22,4 +24,7 @@ def main(out_dir='bench/results', quick=False, peers=False, only=None, log=print
         result = peer_bench.main(out, quick)
         if isinstance(result, (list, tuple)):
             written += [str(p) for p in result]
+    if only is not None and 'rerun' in only:
+        from . import rerun_overhead
+        written += rerun_overhead.main(out, quick=quick, log=log)
     return written

@@ -12,7 +12,9 @@ recorder's worker and Rerun's encoder and writer threads count), per pair, as th
 pairs and as the ratio of the best (smallest) times of each kind (the least disturbed by other
 processes). Each pair is followed by a recording of the same frames fed from memory (the recording
 alone, no simulation): its best time over the best plain run is the cost of recording with the
-least noise. Writes ``rerun_overhead.csv``. Only ratios measured in the same process are reported;
+least noise. Writes ``rerun_overhead.csv`` (one row per pair) and ``rerun_overhead.json`` (the
+medians, and the time a fresh process takes to import the recorder: rerun-sdk and pyarrow, paid
+once per process before any frame). Only ratios measured in the same process are reported;
 the machine may be busy.
 
 The recorder hands the frames to a worker thread (Rerun's own threads encode and write): the timing
@@ -27,8 +29,10 @@ from __future__ import annotations
 
 import argparse
 import csv
+import json
 import os
 import statistics
+import subprocess
 import sys
 import tempfile
 import time
@@ -135,6 +139,16 @@ def measure(scene_path='config/scenes/fb_column.yaml', repeats=3, log=print, t_e
     return rows
 
 
+def import_cost(repeats=3):
+    """Median seconds of importing the recorder (rerun-sdk, pyarrow) in a fresh process that has
+    already imported the solver: what ``tensegrity run --rerun`` pays once, before any frame."""
+    code = ('import time, solver.simulation, solver.runner; t = time.perf_counter(); '
+            'import tensegrity_ros.rerun_log; print(time.perf_counter() - t)')
+    return statistics.median(float(subprocess.run([sys.executable, '-c', code], check=True,
+                                                  capture_output=True, text=True).stdout)
+                             for _ in range(repeats))
+
+
 def main(out='bench/results', quick=False, log=print, scene='config/scenes/fb_column.yaml',
          repeats=None, t_end=None):
     """Run :func:`measure`, write ``rerun_overhead.csv`` into ``out``; returns the files
@@ -165,7 +179,16 @@ def main(out='bench/results', quick=False, log=print, scene='config/scenes/fb_co
         f'{100 * best_cpu:+.1f} %; recording alone / plain run (best of each): wall '
         f'{100 * alone_wall:.1f} %, cpu {100 * alone_cpu:.1f} % (main thread '
         f'{100 * alone_main:.1f} %){quiet_txt}; load average {os.getloadavg()[0]:.2f}  -> {path}')
-    return [str(path)]
+    imp = import_cost()
+    plain = statistics.median(r['wall_plain_s'] for r in rows)
+    log(f'importing the recorder (rerun-sdk) once per process: {imp:.2f} s (median of 3 fresh '
+        f'processes), {imp / plain:.1f}x the plain run')
+    summary = path.with_suffix('.json')
+    summary.write_text(json.dumps({
+        'pairs': len(rows), 'wall_overhead_median': wall, 'cpu_overhead_median': cpu,
+        'wall_overhead_best': best_wall, 'plain_wall_s_median': plain, 'import_s': imp,
+        'load_average': os.getloadavg()[0]}, indent=2) + '\n')
+    return [str(path), str(summary)]
 
 
 if __name__ == '__main__':
