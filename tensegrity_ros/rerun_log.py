@@ -348,6 +348,58 @@ def blueprint(n_columns=1):
         collapse_panels=True)
 
 
+def _topology_arrays(net):
+    """The network's topology as logged on ``topology`` (``AnyValues`` fields)."""
+    return {'bar_a': np.asarray(net.bar_a, np.int64), 'bar_b': np.asarray(net.bar_b, np.int64),
+            'cable_a': np.asarray(net.cable_a, np.int64),
+            'cable_b': np.asarray(net.cable_b, np.int64),
+            'cable_kind': np.array([str(k) for k in net.cable_kind], dtype=object),
+            'levels': np.asarray(net.levels, np.int64).ravel(),
+            'levels_shape': np.asarray(net.levels.shape, np.int64),
+            'x0': np.asarray(net.x0, np.float64).ravel()}
+
+
+def static_archetypes(net):
+    """The static entities of a recording of ``net`` as rerun archetypes: (entity path,
+    archetype) pairs. The recorder logs the same components built directly (see
+    ``RerunRecorder._log_static``); this is the reference it is tested against."""
+    topo = _topology_arrays(net)
+    topo['cable_kind'] = list(topo['cable_kind'])
+    static = [
+        ('topology', rr.AnyValues(**topo)),
+        ('world', rr.ViewCoordinates.RIGHT_HAND_Z_UP),                  # column axis: z
+        ('world/nodes', rr.Points3D.from_fields(colors=[_NODE_RGBA],
+                                                radii=rr.Radius.ui_points(3.0))),
+        ('world/bars', rr.LineStrips3D.from_fields(colors=[_BAR_RGBA],
+                                                   radii=rr.Radius.ui_points(2.5))),
+        ('world/cables', rr.LineStrips3D.from_fields(radii=rr.Radius.ui_points(1.2))),
+        ('energy', rr.SeriesLines(names=['energy'])),
+        ('constraint_error', rr.SeriesLines(names=['constraint error']))]
+    names = [f'prism {p}' for p in range(net.n_prisms)]
+    static += [(f'strain/column_{c}', rr.SeriesLines(names=names))
+               for c in range(net.n_columns if net.n_prisms else 0)]
+    return static
+
+
+class _Net0:
+    """A network of nothing, for the constant static entities and the descriptors."""
+    bar_a = bar_b = cable_a = cable_b = cable_kind = x0 = levels = np.zeros((0,), np.int64)
+    n_prisms = n_columns = 0
+
+
+# the constant static entities (everything but the topology and the strain series names) and the
+# descriptors of the others, converted by rerun once
+_CONSTANT_STATIC = [(path, [(b.component_descriptor(), b.as_arrow_array())
+                            for b in archetype.as_component_batches()])
+                    for path, archetype in static_archetypes(_Net0())
+                    if path not in ('topology',)]
+_ANY = {b.component_descriptor().component: b.component_descriptor()   # one value of each type
+        for b in rr.AnyValues(**{name: ['x'] if a.dtype == object else np.zeros(1, a.dtype)
+                                 for name, a in _topology_arrays(_Net0()).items()})
+        .as_component_batches()}
+_SERIES_NAMES = rr.SeriesLines.descriptor_names()
+
+
 class RerunRecorder:
     """Records solver frames of one network to a ``.rrd`` file and/or a live viewer.
 
@@ -515,30 +567,18 @@ class RerunRecorder:
 
     # -- static ---------------------------------------------------------------------------------
     def _log_static(self):
-        """(worker) The static entities, as one static chunk each, sent in one call."""
+        """(worker) The static entities, as one static chunk each, sent in one call: the
+        constant ones from :data:`_CONSTANT_STATIC` (converted once, at import), the network's
+        arrays wrapped directly as Arrow (what :func:`static_archetypes` logs, tested equal)."""
         net = self.net
-        static = [
-            ('topology', rr.AnyValues(
-                bar_a=np.asarray(net.bar_a, np.int64), bar_b=np.asarray(net.bar_b, np.int64),
-                cable_a=np.asarray(net.cable_a, np.int64),
-                cable_b=np.asarray(net.cable_b, np.int64),
-                cable_kind=[str(k) for k in net.cable_kind],
-                levels=np.asarray(net.levels, np.int64).ravel(),
-                levels_shape=np.asarray(net.levels.shape, np.int64),
-                x0=np.asarray(net.x0, np.float64).ravel())),
-            ('world', rr.ViewCoordinates.RIGHT_HAND_Z_UP),                  # column axis: z
-            ('world/nodes', rr.Points3D.from_fields(colors=[_NODE_RGBA],
-                                                    radii=rr.Radius.ui_points(3.0))),
-            ('world/bars', rr.LineStrips3D.from_fields(colors=[_BAR_RGBA],
-                                                       radii=rr.Radius.ui_points(2.5))),
-            ('world/cables', rr.LineStrips3D.from_fields(radii=rr.Radius.ui_points(1.2)))]
-        names = [f'prism {p}' for p in range(net.n_prisms)]
-        static += [(f'strain/column_{c}', rr.SeriesLines(names=names))
+        topology = [(_ANY[name], pa.array(np.ascontiguousarray(values)))
+                    for name, values in _topology_arrays(net).items()]
+        names = pa.array([f'prism {p}' for p in range(net.n_prisms)], pa.string())
+        static = [('topology', topology)] + _CONSTANT_STATIC
+        static += [(f'strain/column_{c}', [(_SERIES_NAMES, names)])
                    for c in range(net.n_columns if net.n_prisms else 0)]
-        static += [('energy', rr.SeriesLines(names=['energy'])),
-                   ('constraint_error', rr.SeriesLines(names=['constraint error']))]
-        rr.send_chunks([_row_chunk(path, archetype) for path, archetype in static],
-                       recording=self._stream)
+        rr.send_chunks([Chunk.from_columns(path, [], [_Column(d, _one_row(a)) for d, a in batches])
+                        for path, batches in static], recording=self._stream)
 
     # -- per frame ------------------------------------------------------------------------------
     def _new_buffer(self):

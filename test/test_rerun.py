@@ -366,6 +366,21 @@ def test_packed_batch_equals_numpy_gathers():
     np.testing.assert_array_equal(times, np.rint(used[:, -3] * 1e9).astype(np.int64))
 
 
+def test_static_entities_equal_what_rerun_archetypes_log(recorded):
+    """The recorder writes its static components as Arrow arrays built directly (the constant
+    ones converted once at import); they equal rerun's own archetypes of the same content."""
+    from tensegrity_ros.rerun_log import static_archetypes
+    sim, _, data, _ = recorded
+    for path, archetype in static_archetypes(sim.network):
+        got = data['/' + path]['static']
+        for batch in archetype.as_component_batches():
+            name = batch.component_descriptor().component
+            want = batch.as_arrow_array()
+            assert got[name].type.value_type == want.type, (path, name)
+            assert got[name].flatten().to_pylist() == want.to_pylist(), (path, name)
+        assert len(got) == len(list(archetype.as_component_batches())), path
+
+
 def test_tensor_data_equals_rerun_tensor():
     from tensegrity_ros.rerun_log import tensor_data
     image = np.random.default_rng(2).normal(size=(5, 9))
