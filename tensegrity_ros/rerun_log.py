@@ -492,9 +492,8 @@ class RerunRecorder:
         self._cpus = other_cpus() if spare_caller_cpu else None
         self._worker = threading.Thread(target=self._work, name='rerun-recorder', daemon=True)
         # started before its first job: it waits for it (without the GIL), so that this thread
-        # goes on at once instead of waiting for the worker's first GIL release (about 1 ms);
-        # its CPUs are set from here while it waits: a thread moving itself to another CPU holds
-        # the GIL through the migration (1.6 ms of the constructor, measured)
+        # goes on at once instead of waiting for the worker's first GIL release; its CPUs are
+        # set from here while it waits (a thread moving itself holds the GIL meanwhile)
         self._worker.start()
         if self._cpus:                          # inherited by the threads Rerun starts from it
             try:
