@@ -359,14 +359,10 @@ def _topology_arrays(net):
             'x0': np.asarray(net.x0, np.float64).ravel()}
 
 
-def static_archetypes(net):
-    """The static entities of a recording of ``net`` as rerun archetypes: (entity path,
-    archetype) pairs. The recorder logs the same components built directly (see
-    ``RerunRecorder._log_static``); this is the reference it is tested against."""
-    topo = _topology_arrays(net)
-    topo['cable_kind'] = list(topo['cable_kind'])
-    static = [
-        ('topology', rr.AnyValues(**topo)),
+def _style_archetypes():
+    """The static entities that do not depend on the network: view coordinates, colours and
+    radii, the names of the energy and constraint-error series."""
+    return [
         ('world', rr.ViewCoordinates.RIGHT_HAND_Z_UP),                  # column axis: z
         ('world/nodes', rr.Points3D.from_fields(colors=[_NODE_RGBA],
                                                 radii=rr.Radius.ui_points(3.0))),
@@ -375,25 +371,28 @@ def static_archetypes(net):
         ('world/cables', rr.LineStrips3D.from_fields(radii=rr.Radius.ui_points(1.2))),
         ('energy', rr.SeriesLines(names=['energy'])),
         ('constraint_error', rr.SeriesLines(names=['constraint error']))]
+
+
+def static_archetypes(net):
+    """The static entities of a recording of ``net`` as rerun archetypes: (entity path,
+    archetype) pairs. The recorder logs the same components, the network's arrays built
+    directly (see ``RerunRecorder._log_static``); this is the reference it is tested against."""
+    topo = _topology_arrays(net)
+    topo['cable_kind'] = list(topo['cable_kind'])
     names = [f'prism {p}' for p in range(net.n_prisms)]
-    static += [(f'strain/column_{c}', rr.SeriesLines(names=names))
-               for c in range(net.n_columns if net.n_prisms else 0)]
-    return static
+    return ([('topology', rr.AnyValues(**topo))] + _style_archetypes()
+            + [(f'strain/column_{c}', rr.SeriesLines(names=names))
+               for c in range(net.n_columns if net.n_prisms else 0)])
 
 
 class _Net0:
-    """A network of nothing, for the constant static entities and the descriptors."""
+    """A network of nothing: the types of the topology arrays."""
     bar_a = bar_b = cable_a = cable_b = cable_kind = x0 = levels = np.zeros((0,), np.int64)
     n_prisms = n_columns = 0
 
 
-# the constant static entities (everything but the topology and the strain series names) and the
-# descriptors of the others, converted by rerun once
-_CONSTANT_STATIC = [(path, [(b.component_descriptor(), b.as_arrow_array())
-                            for b in archetype.as_component_batches()])
-                    for path, archetype in static_archetypes(_Net0())
-                    if path not in ('topology',)]
-_ANY = {b.component_descriptor().component: b.component_descriptor()   # one value of each type
+# the descriptors of the topology fields (AnyValues), from one value of each type
+_ANY = {b.component_descriptor().component: b.component_descriptor()
         for b in rr.AnyValues(**{name: ['x'] if a.dtype == object else np.zeros(1, a.dtype)
                                  for name, a in _topology_arrays(_Net0()).items()})
         .as_component_batches()}
@@ -567,14 +566,18 @@ class RerunRecorder:
 
     # -- static ---------------------------------------------------------------------------------
     def _log_static(self):
-        """(worker) The static entities, as one static chunk each, sent in one call: the
-        constant ones from :data:`_CONSTANT_STATIC` (converted once, at import), the network's
-        arrays wrapped directly as Arrow (what :func:`static_archetypes` logs, tested equal)."""
+        """(worker) The static entities, as one static chunk each, sent in one call: what
+        :func:`static_archetypes` logs (tested equal), with the network's arrays (topology,
+        series names) wrapped directly as Arrow instead of converted by rerun's archetypes
+        (0.8 ms less per recording)."""
         net = self.net
         topology = [(_ANY[name], pa.array(np.ascontiguousarray(values)))
                     for name, values in _topology_arrays(net).items()]
         names = pa.array([f'prism {p}' for p in range(net.n_prisms)], pa.string())
-        static = [('topology', topology)] + _CONSTANT_STATIC
+        static = [('topology', topology)] + [
+            (path, [(b.component_descriptor(), b.as_arrow_array())
+                    for b in archetype.as_component_batches()])
+            for path, archetype in _style_archetypes()]
         static += [(f'strain/column_{c}', [(_SERIES_NAMES, names)])
                    for c in range(net.n_columns if net.n_prisms else 0)]
         rr.send_chunks([Chunk.from_columns(path, [], [_Column(d, _one_row(a)) for d, a in batches])

@@ -367,8 +367,8 @@ def test_packed_batch_equals_numpy_gathers():
 
 
 def test_static_entities_equal_what_rerun_archetypes_log(recorded):
-    """The recorder writes its static components as Arrow arrays built directly (the constant
-    ones converted once at import); they equal rerun's own archetypes of the same content."""
+    """The recorder writes the network's static arrays (topology, series names) as Arrow arrays
+    built directly; every static component equals what rerun's own archetypes log."""
     from tensegrity_ros.rerun_log import static_archetypes
     sim, _, data, _ = recorded
     for path, archetype in static_archetypes(sim.network):
