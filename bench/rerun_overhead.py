@@ -13,9 +13,9 @@ pairs and as the ratio of the best (smallest) times of each kind (the least dist
 processes). Each pair is followed by a recording of the same frames fed from memory (the recording
 alone, no simulation): its best time over the best plain run is the cost of recording with the
 least noise. Writes ``rerun_overhead.csv`` (one row per pair) and ``rerun_overhead.json`` (the
-medians, and the time a fresh process takes to import the recorder: rerun-sdk and pyarrow, paid
-once per process before any frame). Only ratios measured in the same process are reported;
-the machine may be busy.
+medians, the time a fresh process takes to import the recorder, rerun-sdk and pyarrow, paid once
+per process before any frame, and the time of a first small recording in that process). Only
+ratios measured in the same process are reported; the machine may be busy.
 
 The recorder hands the frames to a worker thread (Rerun's own threads encode and write): the timing
 ends when ``close()`` returns, which is after the file was written to its end (footer included).
@@ -140,13 +140,33 @@ def measure(scene_path='config/scenes/fb_column.yaml', repeats=3, log=print, t_e
 
 
 def import_cost(repeats=3):
-    """Median seconds of importing the recorder (rerun-sdk, pyarrow) in a fresh process that has
-    already imported the solver: what ``tensegrity run --rerun`` pays once, before any frame."""
-    code = ('import time, solver.simulation, solver.runner; t = time.perf_counter(); '
-            'import tensegrity_ros.rerun_log; print(time.perf_counter() - t)')
-    return statistics.median(float(subprocess.run([sys.executable, '-c', code], check=True,
-                                                  capture_output=True, text=True).stdout)
-                             for _ in range(repeats))
+    """Medians over ``repeats`` fresh processes that have already set up a simulation: (seconds
+    to import the recorder, rerun-sdk and pyarrow; seconds of a first, 3-frame recording in that
+    process). What ``tensegrity run --rerun`` pays once, besides the run's own cost; the second
+    figure would show any first-use cost (a compiled kernel loading, say) the warm benchmark
+    above does not see."""
+    code = '\n'.join([
+        'import tempfile, time',
+        'from solver.scene import Scene',
+        'from solver.simulation import Simulation',
+        "sim = Simulation(Scene.load('config/scenes/fb_column.yaml'))",
+        'frames = []',
+        'for _ in range(3):',
+        '    frames.append(sim.frame())',
+        '    sim.advance(0.005)',
+        't0 = time.perf_counter()',
+        'from tensegrity_ros.rerun_log import RerunRecorder',
+        't1 = time.perf_counter()',
+        'with tempfile.TemporaryDirectory() as tmp:',
+        "    with RerunRecorder(sim.network, tmp + '/first.rrd') as rec:",
+        '        for frame in frames:',
+        '            rec.frame(frame)',
+        '    t2 = time.perf_counter()',
+        'print(t1 - t0, t2 - t1)'])
+    runs = [[float(v) for v in subprocess.run(
+        [sys.executable, '-c', code], check=True, capture_output=True, text=True,
+        cwd=Path(__file__).resolve().parents[1]).stdout.split()] for _ in range(repeats)]
+    return (statistics.median(r[0] for r in runs), statistics.median(r[1] for r in runs))
 
 
 def main(out='bench/results', quick=False, log=print, scene='config/scenes/fb_column.yaml',
@@ -179,14 +199,16 @@ def main(out='bench/results', quick=False, log=print, scene='config/scenes/fb_co
         f'{100 * best_cpu:+.1f} %; recording alone / plain run (best of each): wall '
         f'{100 * alone_wall:.1f} %, cpu {100 * alone_cpu:.1f} % (main thread '
         f'{100 * alone_main:.1f} %){quiet_txt}; load average {os.getloadavg()[0]:.2f}  -> {path}')
-    imp = import_cost()
+    imp, first = import_cost()
     plain = statistics.median(r['wall_plain_s'] for r in rows)
-    log(f'importing the recorder (rerun-sdk) once per process: {imp:.2f} s (median of 3 fresh '
-        f'processes), {imp / plain:.1f}x the plain run')
+    log(f'once per process (median of 3 fresh processes): importing the recorder (rerun-sdk) '
+        f'{imp:.2f} s, {imp / plain:.1f}x the plain run; a first 3-frame recording '
+        f'{1e3 * first:.1f} ms')
     summary = path.with_suffix('.json')
     summary.write_text(json.dumps({
         'pairs': len(rows), 'wall_overhead_median': wall, 'cpu_overhead_median': cpu,
         'wall_overhead_best': best_wall, 'plain_wall_s_median': plain, 'import_s': imp,
+        'first_recording_s': first,
         'load_average': os.getloadavg()[0]}, indent=2) + '\n')
     return [str(path), str(summary)]
 

@@ -46,8 +46,6 @@ import rerun as rr
 import rerun.blueprint as rrb
 from rerun.chunk import Chunk
 
-from solver._jit import jit
-
 DEFAULT_URL = 'rerun+http://127.0.0.1:9876/proxy'
 TIMELINE = 'sim_time'
 
@@ -164,44 +162,29 @@ def _i32(a):
     return pa.Array.from_buffers(pa.int32(), len(a), [None, pa.py_buffer(a)])
 
 
-@jit
 def _pack(rows, n_t, n_x, n_p, n_s, n_c, bar_index, cable_index, lut, k):
-    """(worker, GIL released) The Rerun arrays of the first ``n_t`` rows of a batch buffer, in one
-    pass: node positions, bar-trail points and cable end points as float32 (frame after frame),
-    packed cable colours (``lut[0]`` for slack cables, else ``lut[1 + level]`` with
-    ``level = clip(rint(T * k), 0, 255)``, ``k = 255 / tension_scale``: as
-    :func:`tension_colors` with ``lut = _LUT_SLACK``), the strain per column (column, frame, prism:
-    ``n_s / n_p`` columns of ``n_p`` prisms), energy, constraint error and the times in int64 ns.
-    Every array is new."""
-    n_b, n_cp = len(bar_index), len(cable_index)
-    nodes = np.empty(n_t * n_x, np.float32)
-    bars = np.empty(n_t * n_b, np.float32)
-    cables = np.empty(n_t * n_cp, np.float32)
-    colors = np.empty(n_t * n_c, np.uint32)
-    strain = np.empty(n_t * n_s)
-    energy = np.empty(n_t)
-    cerr = np.empty(n_t)
-    times = np.empty(n_t, np.int64)
-    w = rows.shape[1]
-    for i in range(n_t):
-        r = rows[i]
-        for j in range(n_x):
-            nodes[i * n_x + j] = r[j]
-        for j in range(n_b):
-            bars[i * n_b + j] = r[bar_index[j]]
-        for j in range(n_cp):
-            cables[i * n_cp + j] = r[cable_index[j]]
-        for j in range(n_s):
-            strain[(j // n_p) * n_t * n_p + i * n_p + j % n_p] = r[n_x + j]
-        for j in range(n_c):
-            tension = r[n_x + n_s + j]
-            level = np.rint(tension * k)
-            level = min(max(level, 0.0), 255.0)
-            colors[i * n_c + j] = lut[int(level) + 1] if tension > 0.0 else lut[0]
-        times[i] = np.int64(np.rint(r[w - 3] * 1e9))
-        energy[i] = r[w - 2]
-        cerr[i] = r[w - 1]
-    return nodes, bars, cables, colors, strain, energy, cerr, times
+    """(worker) The Rerun arrays of the first ``n_t`` rows of a batch buffer: node positions,
+    bar-trail points and cable end points as float32 (frame after frame), packed cable colours
+    (``lut[0]`` for slack cables, else ``lut[1 + level]`` with ``level = clip(rint(T * k), 0,
+    255)``, ``k = 255 / tension_scale``: as :func:`tension_colors` with ``lut = _LUT_SLACK``),
+    the strain per column (column, frame, prism: ``n_s / n_p`` columns of ``n_p`` prisms),
+    energy, constraint error and the times in int64 ns. Every array is new. NumPy: a compiled
+    version took 0.23 instead of 0.41 ms per 50 frames, but its first call in a process 0.22 s
+    (loading the numba cache), more than it saves in a run of ``tensegrity run``."""
+    r = rows[:n_t]
+    x = r[:, :n_x]
+    nodes = x.astype(np.float32).reshape(-1)
+    bars = x.take(bar_index, axis=1).astype(np.float32).reshape(-1)
+    cables = x.take(cable_index, axis=1).astype(np.float32).reshape(-1)
+    tension = r[:, n_x + n_s:n_x + n_s + n_c]
+    level = tension * k
+    np.rint(level, out=level)
+    np.clip(level, 0.0, 255.0, out=level)
+    level += tension > 0.0                      # 0: slack, else 1 + the level
+    colors = lut.take(level.astype(np.intp)).reshape(-1)
+    strain = r[:, n_x:n_x + n_s].reshape(n_t, -1, max(n_p, 1)).transpose(1, 0, 2).reshape(-1)
+    times = np.rint(r[:, -3] * 1e9).astype(np.int64)
+    return nodes, bars, cables, colors, strain, r[:, -2].copy(), r[:, -1].copy(), times
 
 
 _STRIP_TYPE = rr.components.LineStrip3DBatch._ARROW_DATATYPE

@@ -334,9 +334,10 @@ def test_connect_streams_to_a_running_viewer(tmp_path):
 
 
 def test_packed_batch_equals_numpy_gathers():
-    """The compiled batch packing (one pass over a batch buffer) against NumPy: fancy-indexed
-    float32 gathers, :func:`tension_colors` (exact, slack and clipped tensions included), the
-    strain per column and the times in ns; three columns, so the column layout is exercised."""
+    """The batch packing (every array Rerun gets from a batch buffer) against plain NumPy
+    gathers per array: float32 positions, :func:`tension_colors` (exact, slack and clipped
+    tensions included), the strain per column and the times in ns; three columns, so the column
+    layout is exercised."""
     from tensegrity_ros.rerun_log import _LUT_SLACK, _Strips, _pack, tension_colors, trails
     from solver import structures
     net = structures.column(n_prisms=3, n_columns=3)
