@@ -15,6 +15,7 @@ command.
 """
 from __future__ import annotations
 
+import gc
 import math
 import sys
 import time
@@ -344,6 +345,7 @@ def main(args=None):
     code = 0
     try:
         node = TensegritySim()
+        gc.freeze()             # see cli.cmd_run: the start-up's objects are not scanned again
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
