@@ -25,9 +25,11 @@ Frames are buffered and sent in column batches (one chunk per entity, ``Chunk.fr
 one ``send_chunks`` call per batch) every ``flush_every`` frames and on :meth:`close`. The caller's
 thread only checks each frame and copies it into a batch buffer (a few microseconds); a worker
 thread of the recorder opens the stream, sends the blueprint and the static entities, converts and
-sends the batches, the commands and the wave images, and finishes the file, while the simulation
-goes on (its kernels release the GIL); Rerun's own threads encode and write. Every array handed to
-Rerun is a fresh one (Arrow may keep referencing it after the call); the batch buffers are reused.
+sends the batches, the commands and the wave images while the simulation goes on (its kernels
+release the GIL); Rerun's own threads encode and write. :meth:`close` waits for the worker, then
+sends the last batch and the wave image and finishes the file on the calling thread. Every array
+handed to Rerun is a fresh one (Arrow may keep referencing it after the call); the batch buffers
+are reused.
 """
 from __future__ import annotations
 
@@ -499,8 +501,8 @@ class RerunRecorder:
             try:
                 if job is None:
                     return
-                if self._error is None or job[0] == self._finish:   # after an error, drain
-                    job[0](*job[1:])                                 # without sending
+                if self._error is None:         # after an error, drain without sending
+                    job[0](*job[1:])
             except Exception as exc:            # raised in the caller's thread by _check
                 if self._error is None:
                     self._error = exc
