@@ -60,8 +60,24 @@ def run(sim: Simulation, t_end, output_dt, on_frame=None, progress=None):
     return rec
 
 
+def json_safe(value):
+    """``value`` (dicts, lists, numbers, strings) with every non-finite float replaced by None, so
+    that it is strict JSON (``null``): a pulse not found in a short run has NaN figures, and JSON
+    has no NaN."""
+    if isinstance(value, dict):
+        return {k: json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_safe(v) for v in value]
+    if isinstance(value, (float, np.floating)):
+        return float(value) if np.isfinite(value) else None
+    if isinstance(value, np.integer):
+        return int(value)
+    return value
+
+
 def summary(scene: Scene, sim: Simulation, rec: RunRecord, outputs=None):
-    """The JSON summary of ``tensegrity run`` (interfaces.md section 2)."""
+    """The JSON summary of ``tensegrity run`` (interfaces.md section 2); non-finite figures (a
+    pulse not found, a run too short to time) are None."""
     t_end = float(rec.times[-1] - rec.times[0])
     e0 = rec.energy[0]
     drift = float(np.max(np.abs(rec.energy - e0)) / abs(e0)) if e0 else 0.0
@@ -79,4 +95,4 @@ def summary(scene: Scene, sim: Simulation, rec: RunRecord, outputs=None):
         'pulses': [p.as_dict() for p in rec.pulses],
         'outputs': dict({'mcap': None, 'rerun': None, 'plot': None}, **(outputs or {})),
     }
-    return out
+    return json_safe(out)

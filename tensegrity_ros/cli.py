@@ -119,21 +119,24 @@ def cmd_run(args):
                                           title=f'{scene.name}: v0 = {v0} m/s'))
     result = summary(scene, sim, rec, outputs)
     if out_dir is not None:
-        (out_dir / 'summary.json').write_text(json.dumps(result, indent=2))
+        (out_dir / 'summary.json').write_text(json.dumps(result, indent=2, allow_nan=False))
     if args.json:
-        print(json.dumps(result))
+        print(json.dumps(result, allow_nan=False))
     else:
         p = result['pulse'] or {}
         print(f"{result['scene']}: {result['model']} + {result['integrator']}, "
               f"dt = {result['dt']:g} s,"
               f" t_end = {result['t_end']:g} s, {result['steps_taken']} steps in "
-              f"{result['wall_time_s']:.2f} s ({result['real_time_factor']:.1f}x real time)")
+              f"{result['wall_time_s']:.2f} s ({result['real_time_factor'] or 0:.1f}x real time)")
         print(f"  energy drift {result['energy_drift_rel']:.2e} /s, constraint error "
               f"{result['constraint_error_rel']:.2e}")
-        if p:
+        if p and p['amplitude'] is None:
+            print(f"  pulse: none found by t = {result['t_end']:g} s")
+        elif p:
+            speed = 'n/a' if p['speed_m_s'] is None else f"{p['speed_m_s']:.3f} m/s"
+            median = 'n/a' if p['amplitude_median'] is None else f"{p['amplitude_median']:.4f}"
             print(f"  pulse: amplitude {p['amplitude']:.4f} at t = {p['t_ref']:g} s (median "
-                  f"{p['amplitude_median']:.4f}), speed {p['speed_m_s']:.3f} m/s, width "
-                  f"{p['width_prisms']} prisms")
+                  f"{median}), speed {speed}, width {p['width_prisms']} prisms")
         for key, path in result['outputs'].items():
             if path:
                 print(f'  {key}: {path}')

@@ -81,6 +81,23 @@ def test_run_json_summary_has_the_documented_keys(tmp_path):
     assert json.loads((tmp_path / 'summary.json').read_text())['scene'] == 'prism'
 
 
+def test_a_run_too_short_for_a_pulse_gives_strict_json_with_nulls(tmp_path):
+    """No pulse is found in 5 ms of the FB column: its figures are null (JSON has no NaN) in the
+    printed summary and in summary.json, and the text output says so."""
+    def strict(text):
+        def bad(name):
+            raise AssertionError(f'{name} in the JSON')
+        return json.loads(text, parse_constant=bad)
+    res = _cli('run', str(SCENES / 'fb_column.yaml'), '--t-end', '0.005', '--json', '--out',
+               str(tmp_path))
+    assert res.returncode == 0, res.stderr
+    out = strict(res.stdout)
+    assert out['pulse']['amplitude'] is None and out['pulse']['speed_m_s'] is None
+    assert strict((tmp_path / 'summary.json').read_text())['pulse']['amplitude'] is None
+    res = _cli('run', str(SCENES / 'fb_column.yaml'), '--t-end', '0.005')
+    assert res.returncode == 0 and 'pulse: none found by t = 0.005 s' in res.stdout
+
+
 @pytest.mark.parametrize('args,needle', [
     (('run', 'no/such/scene.yaml'), 'cannot read scene file'),
     (('run', str(SCENES / 'prism.yaml'), '--set', 'integrator.dt=-1'), 'integrator.dt'),
