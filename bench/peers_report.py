@@ -13,6 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
+from solver.runner import json_safe
+
 TARGETS = {'speedup_vs_mujoco': 10.0, 'speedup_vs_scipy': 50.0, 'step_over_kernel_bound': 1.5,
            'real_time_factor_fb': 50.0}
 
@@ -70,17 +72,6 @@ def json_default(o):
     if isinstance(o, np.ndarray):
         return o.tolist()
     raise TypeError(f'not JSON serialisable: {type(o).__name__}')
-
-
-def clean(o):
-    """Replace NaN and infinities by None, recursively (JSON has neither)."""
-    if isinstance(o, dict):
-        return {k: clean(v) for k, v in o.items()}
-    if isinstance(o, (list, tuple)):
-        return [clean(v) for v in o]
-    if isinstance(o, (float, np.floating)):
-        return float(o) if math.isfinite(o) else None
-    return o
 
 
 def mujoco_check(network, v_ours, dt, v0, rest_time=0.05):
@@ -205,7 +196,7 @@ def assemble(*, target, t_end, quick, ref_n, halving, pulse_ref, ours, ours_all,
     res['targets'] = dict(TARGETS, met=met)
     res['machine'] = machine
     res['versions'] = versions
-    return clean(res)
+    return json_safe(res)      # NaN and infinities as None: JSON has neither
 
 
 def write_csv(rows, path):

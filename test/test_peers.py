@@ -13,6 +13,7 @@ import pytest
 
 from solver import dynamics as dyn
 from solver import structures
+from solver.runner import json_safe
 from solver.scene import Scene
 from solver.simulation import Simulation
 
@@ -256,9 +257,9 @@ def test_report_ratios_targets_and_json_on_hand_made_runs(tmp_path):
     assert 'full3d_only' not in res                        # no full3d candidate was given
     text = json.dumps(res, allow_nan=False, default=peers_report.json_default)
     assert json.loads(text)['scipy']['pulse_amplitude_rel_diff'] == pytest.approx(0.01 / 0.15)
-    rows = [peers_report.clean(dict(peer='ours', configuration='x', knob='dt', value=1e-3,
-                                    strain_error=5e-4, completed=True, t_end_s=1.0, cpu_s=0.02,
-                                    wall_s=0.05, steps=100, real_time_factor=50.0))]
+    rows = [json_safe(dict(peer='ours', configuration='x', knob='dt', value=1e-3,
+                          strain_error=5e-4, completed=True, t_end_s=1.0, cpu_s=0.02,
+                          wall_s=0.05, steps=100, real_time_factor=50.0))]
     peers_report.write_csv(rows, tmp_path / 'p.csv')
     lines = (tmp_path / 'p.csv').read_text().splitlines()
     assert lines[0].startswith('peer,configuration,knob,value,strain_error')
