@@ -66,7 +66,7 @@ def check_complete(path, n_frames):
 def _one(sim, scene, path, frames=None):
     """(wall s, process CPU s, main-thread CPU s) of one run, plain (``path`` None) or recorded
     to ``path``; with ``frames`` (the run's frames), only recording those frames is timed."""
-    from solver.runner import run
+    from solver.runner import frame_count, run
     from tensegrity_ros.rerun_log import RerunRecorder
 
     v0 = scene['loading.impact.v0']
@@ -77,7 +77,7 @@ def _one(sim, scene, path, frames=None):
     if path is None:
         run(sim, t_end, output_dt)
     else:
-        n_frames = int(round(t_end / output_dt)) + 1 if frames is None else len(frames)
+        n_frames = frame_count(t_end, output_dt) if frames is None else len(frames)
         with RerunRecorder(sim.network, path, expected_frames=n_frames) as rec:   # as the CLI
             rec.command(sim.t, f'impact v0 = {v0} m/s')
             if frames is None:

@@ -25,6 +25,11 @@ class RunRecord:
     pulses: list = field(default_factory=list)
 
 
+def frame_count(t_end, output_dt):
+    """Frames :func:`run` hands out for ``t_end`` in ``output_dt`` steps (the first included)."""
+    return int(round(t_end / output_dt)) + 1
+
+
 def run(sim: Simulation, t_end, output_dt, on_frame=None, progress=None):
     """Advance ``sim`` to ``t_end`` in ``output_dt`` intervals, calling ``on_frame(frame)`` at each
     output time (including the first) and ``progress(n)`` with the steps of each interval."""
@@ -32,7 +37,7 @@ def run(sim: Simulation, t_end, output_dt, on_frame=None, progress=None):
     if abs(ratio - round(ratio)) > 1e-6 * ratio:       # advance() takes whole steps
         raise ValueError(f'run.output_dt: {output_dt:g} s is not a whole multiple of '
                          f'integrator.dt = {sim.dt:g} s')
-    n_out = int(round(t_end / output_dt))
+    n_out = frame_count(t_end, output_dt) - 1
     times, strain, energy, cerr = [], [], [], []
 
     def record(frame):

@@ -50,8 +50,10 @@ def _open_mcap(stack, frame_sinks, scene, sim, path):
 def _open_rerun(stack, frame_sinks, scene, sim, path=None, url=None):
     """Record the run to a Rerun ``.rrd`` at ``path`` and/or stream it to the viewer at ``url``;
     closed by ``stack``. Logs the impact applied before the run as a command event."""
+    from solver.runner import frame_count
+
     from .rerun_log import RerunRecorder
-    n_frames = int(round(scene['run.t_end'] / scene['run.output_dt'])) + 1    # runner.run's
+    n_frames = frame_count(scene['run.t_end'], scene['run.output_dt'])
     recorder = stack.enter_context(RerunRecorder(sim.network, path, connect=url,
                                                  expected_frames=n_frames))
     v0 = scene['loading.impact.v0']
@@ -64,7 +66,7 @@ def _open_rerun(stack, frame_sinks, scene, sim, path=None, url=None):
 
 
 def cmd_run(args):
-    from solver.runner import run, summary
+    from solver.runner import frame_count, run, summary
     from solver.scene import Scene
     from solver.simulation import Simulation
 
@@ -90,7 +92,7 @@ def cmd_run(args):
         out_dir = Path('runs') / scene.name
     if out_dir is not None:
         out_dir.mkdir(parents=True, exist_ok=True)
-    update, close = _progress(int(round(t_end / output_dt)), scene.name)
+    update, close = _progress(frame_count(t_end, output_dt) - 1, scene.name)
     outputs, frame_sinks = {}, []
     if args.rerun or args.rerun_connect:
         from . import rerun_log  # noqa: F401  (imported before the freeze below)
