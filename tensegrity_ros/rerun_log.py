@@ -164,28 +164,22 @@ def _i32(a):
     return pa.Array.from_buffers(pa.int32(), len(a), [None, pa.py_buffer(a)])
 
 
-def _pack(rows, n_t, n_x, n_p, n_s, n_c, bar_index, cable_index, lut, k):
+def _pack(rows, n_t, n_x, n_p, n_s, n_c, bar_index, cable_index, scale):
     """(worker) The Rerun arrays of the first ``n_t`` rows of a batch buffer: node positions,
-    bar-trail points and cable end points as float32 (frame after frame), packed cable colours
-    (``lut[0]`` for slack cables, else ``lut[1 + level]`` with ``level = clip(rint(T * k), 0,
-    255)``, ``k = 255 / tension_scale``: as :func:`tension_colors` with ``lut = _LUT_SLACK``),
-    the strain per column (column, frame, prism: ``n_s / n_p`` columns of ``n_p`` prisms),
-    energy, constraint error and the times in int64 ns. Every array is new. NumPy: a compiled
-    version took 0.23 instead of 0.41 ms per 50 frames, but its first call in a process 0.22 s
-    (loading the numba cache), more than it saves in a run of ``tensegrity run``."""
+    bar-trail points and cable end points as float32 (frame after frame), the cable colours
+    (:func:`tension_colors` with ``scale``), the strain per column (column, frame, prism:
+    ``n_s / n_p`` columns of ``n_p`` prisms), energy, constraint error and the times in int64 ns.
+    Every array is new. NumPy: a compiled version took 0.23 instead of 0.41 ms per 50 frames, but
+    its first call in a process 0.22 s (loading the numba cache), more than it saves in a run of
+    ``tensegrity run``."""
     r = rows[:n_t]
     x = r[:, :n_x]
     nodes = x.astype(np.float32).reshape(-1)
     bars = x.take(bar_index, axis=1).astype(np.float32).reshape(-1)
     cables = x.take(cable_index, axis=1).astype(np.float32).reshape(-1)
-    tension = r[:, n_x + n_s:n_x + n_s + n_c]
-    level = tension * k
-    np.rint(level, out=level)
-    np.clip(level, 0.0, 255.0, out=level)
-    level += tension > 0.0                      # 0: slack, else 1 + the level
-    colors = lut.take(level.astype(np.intp)).reshape(-1)
+    colors = tension_colors(r[:, n_x + n_s:n_x + n_s + n_c], scale).reshape(-1)
     strain = r[:, n_x:n_x + n_s].reshape(n_t, -1, max(n_p, 1)).transpose(1, 0, 2).reshape(-1)
-    times = np.rint(r[:, -3] * 1e9).astype(np.int64)
+    times = _ns(r[:, -3])
     return nodes, bars, cables, colors, strain, r[:, -2].copy(), r[:, -1].copy(), times
 
 
@@ -541,7 +535,7 @@ class RerunRecorder:
                                         axis=1).reshape(-1, 2), self.flush_every)
         n_p = net.n_prisms
         self._pack_args = (n_p, math.prod(self._shapes[1]), net.n_cables, self._bars.index,
-                           self._cables.index, _LUT_SLACK, 255.0 / self.tension_scale)
+                           self._cables.index, self.tension_scale)
         self._offsets = {}                      # (n_t, k) -> row offsets, as Arrow
         self._wave = None                       # (n_columns, n_prisms, wave_window) ring
         self._wave_n = 0                        # frames in the wave (since the last restart)

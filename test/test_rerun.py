@@ -335,10 +335,11 @@ def test_connect_streams_to_a_running_viewer(tmp_path):
 
 def test_packed_batch_equals_numpy_gathers():
     """The batch packing (every array Rerun gets from a batch buffer) against plain NumPy
-    gathers per array: float32 positions, :func:`tension_colors` (exact, slack and clipped
-    tensions included), the strain per column and the times in ns; three columns, so the column
-    layout is exercised."""
-    from tensegrity_ros.rerun_log import _LUT_SLACK, _Strips, _pack, tension_colors, trails
+    gathers per array: float32 positions, the colours of the buffer's tensions (slack and clipped
+    included; the colour law itself is checked against the ROS markers' in
+    test_cable_colours_follow_tension_and_dim_slack_cables), the strain per column and the times
+    in ns; three columns, so the column layout is exercised."""
+    from tensegrity_ros.rerun_log import _Strips, _pack, tension_colors, trails
     from solver import structures
     net = structures.column(n_prisms=3, n_columns=3)
     rng = np.random.default_rng(4)
@@ -353,7 +354,7 @@ def test_packed_batch_equals_numpy_gathers():
     cables = _Strips(np.stack([net.cable_a, net.cable_b], axis=1), n_t)
     scale = 3.7
     nodes, b, c, colors, strain, energy, cerr, times = _pack(
-        rows, n_t, n_x, n_p, n_s, n_c, bars.index, cables.index, _LUT_SLACK, 255.0 / scale)
+        rows, n_t, n_x, n_p, n_s, n_c, bars.index, cables.index, scale)
     used = rows[:n_t]
     np.testing.assert_array_equal(nodes, used[:, :n_x].astype(np.float32).ravel())
     np.testing.assert_array_equal(b, used[:, bars.index].astype(np.float32).ravel())
