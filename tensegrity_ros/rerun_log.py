@@ -224,9 +224,7 @@ def _row_chunk(entity_path, archetype, t=None):
     ``t`` s: what ``log(entity_path, archetype, static=...)`` records (after ``set_time``),
     without the row batcher."""
     return Chunk.from_columns(entity_path, [] if t is None else [_Times(_ns([t]))], [
-        _Column(batch.component_descriptor(),
-                pa.ListArray.from_arrays(pa.array([0, len(batch.as_arrow_array())], pa.int32()),
-                                         batch.as_arrow_array()))
+        _Column(batch.component_descriptor(), _one_row(batch.as_arrow_array()))
         for batch in archetype.as_component_batches()])
 
 
