@@ -173,14 +173,14 @@ def _pack(rows, n_t, n_x, n_p, n_s, n_c, bar_index, cable_index, scale):
     its first call in a process 0.22 s (loading the numba cache), more than it saves in a run of
     ``tensegrity run``."""
     r = rows[:n_t]
-    x = r[:, :n_x]
-    nodes = x.astype(np.float32).reshape(-1)
-    bars = x.take(bar_index, axis=1).astype(np.float32).reshape(-1)
-    cables = x.take(cable_index, axis=1).astype(np.float32).reshape(-1)
+    nodes = r[:, :n_x].astype(np.float32)
+    bars = nodes.take(bar_index, axis=1).reshape(-1)        # gathered from float32: 2x fewer bytes
+    cables = nodes.take(cable_index, axis=1).reshape(-1)
     colors = tension_colors(r[:, n_x + n_s:n_x + n_s + n_c], scale).reshape(-1)
     strain = r[:, n_x:n_x + n_s].reshape(n_t, -1, max(n_p, 1)).transpose(1, 0, 2).reshape(-1)
     times = _ns(r[:, -3])
-    return nodes, bars, cables, colors, strain, r[:, -2].copy(), r[:, -1].copy(), times
+    return (nodes.reshape(-1), bars, cables, colors, strain, r[:, -2].copy(), r[:, -1].copy(),
+            times)
 
 
 _STRIP_TYPE = rr.components.LineStrip3DBatch._ARROW_DATATYPE
@@ -235,22 +235,27 @@ def _one_row(values):
 
 _TENSOR_TYPE = rr.components.TensorDataBatch._ARROW_DATATYPE
 _RANGE_TYPE = rr.components.ValueRangeBatch._ARROW_DATATYPE
+_UNION = _TENSOR_TYPE.field('buffer').type
+_F64 = [f.name for f in _UNION].index('F64')
+# the union's other members, empty (constants: built once, 0.3 ms per wave image otherwise)
+_UNION_EMPTY = [pa.nulls(0, f.type) if pa.types.is_null(f.type) else pa.array([], type=f.type)
+                for f in _UNION]
+_UNION_TAG = pa.py_buffer(np.array([_UNION.type_codes[_F64]], np.int8))
+_UNION_OFFSET = pa.py_buffer(np.zeros(1, np.int32))
 
 
 def tensor_data(image, dim_names):
     """One ``TensorData`` (what ``rr.Tensor(image, dim_names=...)`` logs as ``Tensor:data``) of a
-    float64 array, built directly as Arrow: shape, dimension names and the values as the ``F64``
-    member of the buffer union (``rr.Tensor`` converts in Python, 1.3 ms for a 50 x 241 image)."""
-    image = np.ascontiguousarray(image, dtype=np.float64)
-    union = _TENSOR_TYPE.field('buffer').type
-    children = [pa.ListArray.from_arrays(pa.array([0, image.size], pa.int32()),
-                                         pa.array(image.reshape(-1)), type=f.type)
-                if f.name == 'F64' else pa.nulls(0, f.type) if pa.types.is_null(f.type)
-                else pa.array([], type=f.type) for f in union]
-    f64 = [f.name for f in union].index('F64')
+    float64 array, built directly as Arrow: shape, dimension names and the values (a copy of
+    ``image``, wrapped without a further one) as the ``F64`` member of the buffer union
+    (``rr.Tensor`` converts in Python, 1.3 ms for a 50 x 241 image)."""
+    image = np.array(image, dtype=np.float64, order='C')        # a copy: Arrow keeps viewing it
+    values = pa.Array.from_buffers(pa.float64(), image.size, [None, pa.py_buffer(image)])
+    children = list(_UNION_EMPTY)
+    children[_F64] = pa.ListArray.from_arrays(_i32(np.array([0, image.size], np.int32)), values,
+                                              type=_UNION[_F64].type)
     buffer = pa.UnionArray.from_buffers(      # keeps the union's exact type (field nullability)
-        union, 1, [None, pa.py_buffer(np.array([union.type_codes[f64]], np.int8)),
-                   pa.py_buffer(np.zeros(1, np.int32))], children=children)
+        _UNION, 1, [None, _UNION_TAG, _UNION_OFFSET], children=children)
     shape = pa.array([list(image.shape)], _TENSOR_TYPE.field('shape').type)
     names = pa.array([list(dim_names)], _TENSOR_TYPE.field('names').type)
     return pa.StructArray.from_arrays([shape, names, buffer], fields=list(_TENSOR_TYPE))
@@ -458,8 +463,8 @@ class RerunRecorder:
         self._closed = False
         self._error = None
         if self.path is not None:               # create the file now: errors come at once
-            try:
-                open(self.path, 'wb').close()
+            try:                                # (appending: an old file is truncated by the
+                open(self.path, 'ab').close()   # worker's sink, not here: 1.7 ms for 2 MB)
             except OSError as exc:              # e.g. a directory that does not exist
                 raise ValueError(f'rerun: cannot record to {self.path}: '
                                  f'{exc.strerror or exc}') from None
@@ -729,8 +734,8 @@ class RerunRecorder:
             wave = np.concatenate((self._wave[:, :, n % w:], self._wave[:, :, :n % w]), axis=2)
         chunks = []
         for c in range(wave.shape[0]):
-            image = np.ascontiguousarray(wave[c])
-            lim = float(np.max(np.abs(image))) or 1.0
+            image = wave[c]                         # tensor_data copies it
+            lim = float(max(image.max(initial=0.0), -image.min(initial=0.0))) or 1.0
             chunks.append(Chunk.from_columns(f'wave/column_{c}', [_Times(_ns([self._wave_t]))], [
                 _Column(_TENSOR_DATA, _one_row(tensor_data(image, ('prism', 'frame')))),
                 _Column(_TENSOR_RANGE, _one_row(pa.FixedSizeListArray.from_arrays(
