@@ -1,7 +1,7 @@
 """Cost of a Rerun recording: a run with and without :class:`RerunRecorder`, side by side.
 
-    python -m bench.rerun_overhead [--scene config/scenes/fb_column.yaml] [--repeats 7] [--out DIR]
-                                   [--t-end S]
+    python -m bench.rerun_overhead [--scene config/scenes/fb_column.yaml] [--repeats 30]
+                                   [--out DIR] [--t-end S]
 
 The same simulation is run from its impact to ``run.t_end`` (or ``--t-end``: the opening and
 closing of a recording are a fixed cost that weighs less in longer runs) at the scene's output rate
@@ -9,8 +9,8 @@ closing of a recording are a fixed cost that weighs less in longer runs) at the 
 every frame and ``close()`` included), ``repeats`` pairs after one discarded warm-up pair. Reports
 the overhead ``recorded / plain - 1`` of wall time and of process CPU time (all threads, so the
 recorder's worker and Rerun's encoder and writer threads count), per pair, as the median of the
-pairs and as the ratio of the best (smallest) times of each kind (the least disturbed by other
-processes). Each pair is followed by a recording of the same frames fed from memory (the recording
+pairs (with a 90 % bootstrap interval of that median: :func:`median_interval`) and as the ratio
+of the best (smallest) times of each kind (the least disturbed by other processes). Each pair is followed by a recording of the same frames fed from memory (the recording
 alone, no simulation): its best time over the best plain run is the cost of recording with the
 least noise. Writes ``rerun_overhead.csv`` (one row per pair) and ``rerun_overhead.json`` (the
 medians, the time a fresh process takes to import the recorder, rerun-sdk and pyarrow, paid once
@@ -142,6 +142,18 @@ def measure(scene_path='config/scenes/fb_column.yaml', repeats=3, log=print, t_e
     return rows
 
 
+def median_interval(values, level=0.9, resamples=2000, seed=0):
+    """(low, high): the central ``level`` interval of the median of ``values`` over bootstrap
+    resamples (pairs drawn with replacement; a fixed seed, so a run reports one interval). It
+    shows how far the median of this many pairs may move by chance; pairs measured within the
+    same minute share the host's phase, so runs at other times may spread wider."""
+    import numpy as np
+    v = np.asarray(values, dtype=float)
+    draws = np.random.default_rng(seed).choice(v, size=(resamples, len(v)))
+    lo, hi = np.quantile(np.median(draws, axis=1), [(1 - level) / 2, (1 + level) / 2])
+    return float(lo), float(hi)
+
+
 def import_cost(repeats=3):
     """Medians over ``repeats`` fresh processes that have already set up a simulation: (seconds
     to import the recorder, rerun-sdk and pyarrow; seconds of a first, 3-frame recording in that
@@ -177,7 +189,7 @@ def main(out='bench/results', quick=False, log=print, scene='config/scenes/fb_co
          repeats=None, t_end=None):
     """Run :func:`measure`, write ``rerun_overhead.csv`` into ``out``; returns the files
     written."""
-    rows = measure(scene, repeats or (3 if quick else 7), log=log, t_end=t_end)
+    rows = measure(scene, repeats or (3 if quick else 30), log=log, t_end=t_end)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     path = out / ('rerun_overhead.csv' if t_end is None else f'rerun_overhead_t{t_end:g}.csv')
@@ -186,6 +198,7 @@ def main(out='bench/results', quick=False, log=print, scene='config/scenes/fb_co
         w.writeheader()
         w.writerows(rows)
     wall = statistics.median(r['wall_overhead'] for r in rows)
+    wall_lo, wall_hi = median_interval([r['wall_overhead'] for r in rows])
     cpu = statistics.median(r['cpu_overhead'] for r in rows)
     best_wall = min(r['wall_rec_s'] for r in rows) / min(r['wall_plain_s'] for r in rows) - 1
     best_cpu = min(r['cpu_rec_s'] for r in rows) / min(r['cpu_plain_s'] for r in rows) - 1
@@ -198,7 +211,8 @@ def main(out='bench/results', quick=False, log=print, scene='config/scenes/fb_co
         quiet_txt += (f', median wall '
                       f'{100 * statistics.median(r["wall_overhead"] for r in quiet):+.1f} %, cpu '
                       f'{100 * statistics.median(r["cpu_overhead"] for r in quiet):+.1f} %')
-    log(f'rerun recording overhead, median of {len(rows)} pairs: wall {100 * wall:+.1f} %, '
+    log(f'rerun recording overhead, median of {len(rows)} pairs: wall {100 * wall:+.1f} % '
+        f'(90 % interval of the median {100 * wall_lo:+.1f} to {100 * wall_hi:+.1f} %), '
         f'cpu {100 * cpu:+.1f} %; best of each: wall {100 * best_wall:+.1f} %, cpu '
         f'{100 * best_cpu:+.1f} %; recording alone / plain run (best of each): wall '
         f'{100 * alone_wall:.1f} %, cpu {100 * alone_cpu:.1f} % (main thread '
@@ -210,7 +224,8 @@ def main(out='bench/results', quick=False, log=print, scene='config/scenes/fb_co
         f'{1e3 * first:.1f} ms')
     summary = path.with_suffix('.json')
     summary.write_text(json.dumps({
-        'pairs': len(rows), 'wall_overhead_median': wall, 'cpu_overhead_median': cpu,
+        'pairs': len(rows), 'wall_overhead_median': wall,
+        'wall_overhead_median_90': [wall_lo, wall_hi], 'cpu_overhead_median': cpu,
         'wall_overhead_best': best_wall, 'plain_wall_s_median': plain, 'import_s': imp,
         'first_recording_s': first,
         'load_average': os.getloadavg()[0]}, indent=2) + '\n')
@@ -220,7 +235,7 @@ def main(out='bench/results', quick=False, log=print, scene='config/scenes/fb_co
 if __name__ == '__main__':
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('--scene', default='config/scenes/fb_column.yaml')
-    ap.add_argument('--repeats', type=int, default=7)
+    ap.add_argument('--repeats', type=int, default=30)
     ap.add_argument('--out', default='bench/results')
     ap.add_argument('--t-end', type=float, help='simulated seconds per run (default: the scene)')
     a = ap.parse_args()
