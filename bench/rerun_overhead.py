@@ -12,10 +12,11 @@ recorder's worker and Rerun's encoder and writer threads count), per pair, as th
 pairs (with a 90 % bootstrap interval of that median: :func:`median_interval`) and as the ratio
 of the best (smallest) times of each kind (the least disturbed by other processes). Each pair is
 followed by a recording of the same frames fed from memory (the recording alone, no simulation):
-its best time over the best plain run is the cost of recording with the least noise. Writes ``rerun_overhead.csv`` (one row per pair) and ``rerun_overhead.json`` (the
-medians, the time a fresh process takes to import the recorder, rerun-sdk and pyarrow, paid once
-per process before any frame, and the time of a first small recording in that process). Only
-ratios measured in the same process are reported; the machine may be busy.
+its best time over the best plain run is the cost of recording with the least noise. Writes
+``rerun_overhead.csv`` (one row per pair) and ``rerun_overhead.json`` (the medians, the time a
+fresh process takes to import the recorder, rerun-sdk and pyarrow, paid once per process before
+any frame, and the time of a first small recording in that process). Only ratios measured in the
+same process are reported; the machine may be busy.
 
 The recorder hands the frames to a worker thread (Rerun's own threads encode and write): the timing
 ends when ``close()`` returns, which is after the file was written to its end (footer included).
