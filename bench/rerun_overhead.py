@@ -22,9 +22,11 @@ The recorder hands the frames to a worker thread (Rerun's own threads encode and
 ends when ``close()`` returns, which is after the file was written to its end (footer included).
 Every recorded file is checked after its timing: it must hold every frame and read without the
 "no footer" warning. ``others_cores`` is the CPU time other processes used during a pair per
-second of it (from ``/proc/stat``; 1.0 = one of the two cores busy all along): with a busy second
-core the recording's threads compete with the simulation, so the summary also gives the median of
-the quiet pairs (others below 0.2 core), besides the median of all pairs.
+second of it, ``steal_cores`` the time the hypervisor took from this machine's vCPUs (both from
+``/proc/stat``; 1.0 = one of the two cores all along): with a busy or stolen second core the
+recording's threads compete with the simulation (and a worker holding the GIL may be descheduled),
+so the summary also gives the median of the quiet pairs (the two below 0.2 core together), besides
+the median of all pairs, and says so when the median pair was not quiet.
 """
 from __future__ import annotations
 
@@ -42,14 +44,17 @@ import warnings
 from pathlib import Path
 
 
-def _busy_s():
-    """CPU seconds the whole machine spent busy so far (``/proc/stat``), or None."""
+def _cpu_stat():
+    """(CPU seconds the whole machine spent busy so far, without idle, iowait and steal; CPU
+    seconds the hypervisor took from this machine's vCPUs so far: steal), from ``/proc/stat``, or
+    None."""
     try:
         with open('/proc/stat') as f:
             v = [int(x) for x in f.readline().split()[1:9]]
     except (OSError, ValueError):
         return None
-    return (sum(v) - v[3] - v[4]) / os.sysconf('SC_CLK_TCK')        # without idle and iowait
+    tick = os.sysconf('SC_CLK_TCK')
+    return (sum(v[:3]) + sum(v[5:7])) / tick, v[7] / tick
 
 
 def check_complete(path, n_frames):
@@ -113,10 +118,10 @@ def measure(scene_path='config/scenes/fb_column.yaml', repeats=3, log=print, t_e
             rrd = Path(tmp) / f'run{i}.rrd'
             order = (None, rrd) if i % 2 == 0 else (rrd, None)
             got = {}
-            b0, c0, w0 = _busy_s(), time.process_time(), time.perf_counter()
+            b0, c0, w0 = _cpu_stat(), time.process_time(), time.perf_counter()
             for path in order:
                 got['rec' if path is not None else 'plain'] = _one(sim, scene, path)
-            b1, c1, w1 = _busy_s(), time.process_time(), time.perf_counter()
+            b1, c1, w1 = _cpu_stat(), time.process_time(), time.perf_counter()
             got['only'] = _one(sim, scene, Path(tmp) / 'only.rrd', frames)
             check_complete(rrd, len(frames))                  # after the timings
             check_complete(Path(tmp) / 'only.rrd', len(frames))
@@ -128,7 +133,8 @@ def measure(scene_path='config/scenes/fb_column.yaml', repeats=3, log=print, t_e
                    'main_cpu_rec_only_s': got['only'][2],
                    'rrd_bytes': rrd.stat().st_size,
                    'others_cores': (None if b0 is None else
-                                    max(0.0, (b1 - b0) - (c1 - c0)) / (w1 - w0))}
+                                    max(0.0, (b1[0] - b0[0]) - (c1 - c0)) / (w1 - w0)),
+                   'steal_cores': None if b0 is None else (b1[1] - b0[1]) / (w1 - w0)}
             row['wall_overhead'] = row['wall_rec_s'] / row['wall_plain_s'] - 1.0
             row['cpu_overhead'] = row['cpu_rec_s'] / row['cpu_plain_s'] - 1.0
             log(f"pair {i}: wall {row['wall_plain_s']:.3f} s plain, {row['wall_rec_s']:.3f} s "
@@ -137,8 +143,8 @@ def measure(scene_path='config/scenes/fb_column.yaml', repeats=3, log=print, t_e
                 f"{row['wall_rec_only_s']:.3f} s wall, {row['cpu_rec_only_s']:.3f} s cpu "
                 f"({row['main_cpu_rec_only_s']:.3f} s in the main thread); "
                 f"{row['rrd_bytes'] / 1e6:.2f} MB; others "
-                + ('?' if row['others_cores'] is None else f"{row['others_cores']:.2f}")
-                + ' cores')
+                + ('?' if row['others_cores'] is None else
+                   f"{row['others_cores']:.2f} cores, steal {row['steal_cores']:.2f} cores"))
             rows.append(row)
     return rows
 
@@ -206,12 +212,22 @@ def main(out='bench/results', quick=False, log=print, scene='config/scenes/fb_co
     alone_wall = min(r['wall_rec_only_s'] for r in rows) / min(r['wall_plain_s'] for r in rows)
     alone_cpu = min(r['cpu_rec_only_s'] for r in rows) / min(r['cpu_plain_s'] for r in rows)
     alone_main = min(r['main_cpu_rec_only_s'] for r in rows) / min(r['cpu_plain_s'] for r in rows)
-    quiet = [r for r in rows if r['others_cores'] is not None and r['others_cores'] < 0.2]
-    quiet_txt = f'; quiet pairs (others < 0.2 core): {len(quiet)}'
+    quiet = [r for r in rows if r['others_cores'] is not None
+             and r['others_cores'] + r['steal_cores'] < 0.2]
+    quiet_txt = f'; quiet pairs (others and steal < 0.2 core): {len(quiet)}'
     if quiet:
         quiet_txt += (f', median wall '
                       f'{100 * statistics.median(r["wall_overhead"] for r in quiet):+.1f} %, cpu '
                       f'{100 * statistics.median(r["cpu_overhead"] for r in quiet):+.1f} %')
+    busy = None
+    if rows[0]['others_cores'] is not None:
+        busy = (statistics.median(r['others_cores'] for r in rows),
+                statistics.median(r['steal_cores'] for r in rows))
+        if sum(busy) >= 0.2:
+            log(f'HOST BUSY: other processes used {busy[0]:.2f} and the hypervisor took (steal) '
+                f'{busy[1]:.2f} of a core during the median pair: the recorder relies on the '
+                f'second vCPU, so this figure shows the host, not the recording; measure again '
+                f'when the machine is quiet')
     log(f'rerun recording overhead, median of {len(rows)} pairs: wall {100 * wall:+.1f} % '
         f'(90 % interval of the median {100 * wall_lo:+.1f} to {100 * wall_hi:+.1f} %), '
         f'cpu {100 * cpu:+.1f} %; best of each: wall {100 * best_wall:+.1f} %, cpu '
@@ -228,7 +244,9 @@ def main(out='bench/results', quick=False, log=print, scene='config/scenes/fb_co
         'pairs': len(rows), 'wall_overhead_median': wall,
         'wall_overhead_median_90': [wall_lo, wall_hi], 'cpu_overhead_median': cpu,
         'wall_overhead_best': best_wall, 'plain_wall_s_median': plain, 'import_s': imp,
-        'first_recording_s': first,
+        'first_recording_s': first, 'quiet_pairs': len(quiet),
+        'others_cores_median': None if busy is None else busy[0],
+        'steal_cores_median': None if busy is None else busy[1],
         'load_average': os.getloadavg()[0]}, indent=2) + '\n')
     return [str(path), str(summary)]
 

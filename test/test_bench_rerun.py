@@ -30,3 +30,5 @@ def test_one_short_pair_is_measured_and_checked():
     for key in ('wall_plain_s', 'wall_rec_s', 'cpu_plain_s', 'cpu_rec_s', 'wall_rec_only_s'):
         assert row[key] > 0 and math.isfinite(row[key])
     assert row['wall_overhead'] == pytest.approx(row['wall_rec_s'] / row['wall_plain_s'] - 1)
+    for key in ('others_cores', 'steal_cores'):         # None where /proc/stat is missing
+        assert row[key] is None or 0 <= row[key] <= 64
