@@ -394,6 +394,21 @@ def all_finite(a):
 
 
 @jit
+def finite_below(a, limit):
+    """Whether every entry of the 1D array ``a`` is finite and of magnitude below ``limit`` (a NaN
+    fails). For callers between kernels (a recorder checking each frame): NumPy's and OpenBLAS's
+    reductions take 512-bit instructions on CPUs with AVX-512, after which the solver's kernels ran
+    slower for a while (7 % of a recorded run, see docs/rerun.md); numba's code keeps to 256-bit
+    vectors."""
+    s = 0.0
+    m = 0.0
+    for i in range(a.shape[0]):
+        s += a[i] * 0.0
+        m = max(m, abs(a[i]))
+    return s == 0.0 and m < limit
+
+
+@jit
 def kinetic_energy(v, node_mass, clamped, bar_a, bar_b, bar_mass):
     """``sum 1/2 m_p |v_p|^2 + sum_bars m_b / 6 (|v_a|^2 + v_a.v_b + |v_b|^2)`` J."""
     e = 0.0

@@ -48,6 +48,8 @@ import rerun as rr
 import rerun.blueprint as rrb
 from rerun.chunk import Chunk
 
+from solver.dynamics import finite_below
+
 DEFAULT_URL = 'rerun+http://127.0.0.1:9876/proxy'
 TIMELINE = 'sim_time'
 
@@ -66,9 +68,8 @@ _LUT = _rgba32(np.rint(255 * _U).astype(np.uint32), np.rint(51 * (1 - _U)).astyp
                np.rint(255 * (1 - _U)).astype(np.uint32), np.uint32(255))
 SLACK_COLOR = _rgba32(128, 128, 128, 64)
 _LUT_SLACK = np.concatenate(([SLACK_COLOR], _LUT))        # index 0: slack, 1 + level
-# a frame is refused unless the sum of squares of its values is below this: then every value is
-# finite (NaN and inf propagate) and fits float32 (as positions are stored)
-_SQ_LIMIT = float(np.finfo(np.float32).max) ** 2
+# a frame is refused unless every value is finite and fits float32 (as positions are stored)
+_F32_MAX = float(np.finfo(np.float32).max)
 
 
 def tension_colors(tension, scale):
@@ -608,7 +609,7 @@ class RerunRecorder:
         row[-3] = t
         row[-2] = float(frame.energy)
         row[-1] = float(frame.constraint_error)
-        if not row @ row < _SQ_LIMIT:                # one dot product: the cheap common case
+        if not finite_below(row, _F32_MAX):         # compiled: no 512-bit instructions
             bad = [name for name, v in (('time', row[-3]), ('energy', row[-2]),
                                         ('constraint error', row[-1]), ('positions', x),
                                         ('strain', strain), ('tension', tension))

@@ -162,3 +162,20 @@ def test_all_finite_matches_numpy(shape):
             b = a.copy()
             b[idx] = bad
             assert dyn.all_finite(b) == bool(np.isfinite(b).all()) is False
+
+
+@pytest.mark.parametrize('n', [0, 1, 7, 815])
+def test_finite_below_matches_numpy(n):
+    """``finite_below(a, limit)`` equals ``np.isfinite(a).all() and np.abs(a).max() < limit``
+    with a NaN, an infinity or a value at the limit at every position."""
+    limit = float(np.finfo(np.float32).max)
+    a = np.random.default_rng(2).uniform(-1.0, 1.0, n) * 1e38
+    assert dyn.finite_below(a, limit) and np.isfinite(a).all() and (np.abs(a) < limit).all()
+    for bad in (np.nan, np.inf, -np.inf, limit, -limit, 1e300):
+        for i in range(0, n, max(1, n // 40)):
+            b = a.copy()
+            b[i] = bad
+            expected = bool(np.isfinite(b).all() and (np.abs(b) < limit).all())
+            assert expected is False and dyn.finite_below(b, limit) is False
+    zeros = a * 0.0                          # magnitudes 0: below any positive limit, not below 0
+    assert dyn.finite_below(zeros, 1e-300) and not dyn.finite_below(zeros, 0.0)
