@@ -7,27 +7,29 @@ The same simulation is run from its impact to ``run.t_end`` (or ``--t-end``: the
 closing of a recording are a fixed cost that weighs less in longer runs) at the scene's output rate
 (``run.output_dt``), alternately plain and recording to a ``.rrd`` file (recorder construction,
 every frame and ``close()`` included), ``repeats`` pairs after one discarded warm-up pair. Reports
-the overhead ``recorded / plain - 1`` of wall time and of process CPU time (all threads, so the
-recorder's worker and Rerun's encoder and writer threads count), per pair, as the median of the
+the overhead ``recorded / plain - 1`` of wall time and of CPU time (all threads of this process
+and of the recorder's helper process, as it reports it: Rerun's encoder and writer threads
+count), per pair, as the median of the
 pairs (with a 90 % bootstrap interval of that median: :func:`median_interval`) and as the ratio
 of the best (smallest) times of each kind (the least disturbed by other processes). Each pair is
 followed by a recording of the same frames fed from memory (the recording alone, no simulation):
 its best time over the best plain run is the cost of recording with the least noise. Writes
 ``rerun_overhead.csv`` (one row per pair) and ``rerun_overhead.json`` (the medians, the time a
 fresh process takes to import the recorder, rerun-sdk and pyarrow, paid once per process before
-any frame, and the time of a first small recording in that process). Only ratios measured in the
-same process are reported; the machine may be busy.
+any frame, and the time of a first small recording in that process, which starts the helper
+process). Only ratios measured in the same process are reported; the machine may be busy.
 
-The recorder hands the frames to a worker thread (Rerun's own threads encode and write): the timing
-ends when ``close()`` returns, which is after the file was written to its end (footer included).
+The recorder hands the frames to a helper process through shared memory (the helper, started by
+the warm-up pair and kept, converts them; Rerun's threads in it encode and write): the timing ends
+when ``close()`` returns, which is after the file was written to its end (footer included).
 Every recorded file is checked after its timing: it must hold every frame and read without the
 "no footer" warning. ``others_cores`` is the CPU time other processes used during a pair per
 second of it, ``steal_cores`` the time the hypervisor took from this machine's vCPUs (both from
-``/proc/stat``; 1.0 = one of the two cores all along): with a busy or stolen second core the
-recording's threads compete with the simulation (and a worker holding the GIL may be descheduled),
-so the summary also gives the median of the quiet pairs (the two below :data:`QUIET_CORES`
-together), besides the median of all pairs, and says ``HOST BUSY`` when the median pair was not
-quiet: the figure then shows the host rather than the recording.
+``/proc/stat``, less this process and the helper; 1.0 = one of the two cores all along): with a
+busy or stolen second core the recording's threads compete with the simulation, so the summary
+also gives the median of the quiet pairs (the two below :data:`QUIET_CORES` together), besides
+the median of all pairs, and says ``HOST BUSY`` when the median pair was not quiet: the figure
+then shows the host rather than the recording.
 """
 from __future__ import annotations
 
@@ -76,8 +78,9 @@ def check_complete(path, n_frames):
 
 
 def _one(sim, scene, path, frames=None):
-    """(wall s, process CPU s, main-thread CPU s) of one run, plain (``path`` None) or recorded
-    to ``path``; with ``frames`` (the run's frames), only recording those frames is timed."""
+    """(wall s, CPU s of this process and of the recorder's helper process, main-thread CPU s,
+    helper CPU s) of one run, plain (``path`` None) or recorded to ``path``; with ``frames`` (the
+    run's frames), only recording those frames is timed."""
     from solver.runner import frame_count, run
     from tensegrity_ros.rerun_log import RerunRecorder
 
@@ -86,6 +89,7 @@ def _one(sim, scene, path, frames=None):
     sim.reset()
     sim.apply_impact(v0, scene['loading.impact.columns'])
     w0, c0, m0 = time.perf_counter(), time.process_time(), time.thread_time()
+    helper = 0.0
     if path is None:
         run(sim, t_end, output_dt)
     else:
@@ -97,7 +101,9 @@ def _one(sim, scene, path, frames=None):
             else:
                 for f in frames:
                     rec.frame(f)
-    return time.perf_counter() - w0, time.process_time() - c0, time.thread_time() - m0
+        helper = rec.helper_cpu_s
+    w, c, m = time.perf_counter() - w0, time.process_time() - c0, time.thread_time() - m0
+    return w, c + helper, m, helper
 
 
 def measure(scene_path='config/scenes/fb_column.yaml', repeats=3, log=print, t_end=None):
@@ -138,8 +144,8 @@ def measure(scene_path='config/scenes/fb_column.yaml', repeats=3, log=print, t_e
                    'wall_rec_only_s': got['only'][0], 'cpu_rec_only_s': got['only'][1],
                    'main_cpu_rec_only_s': got['only'][2],
                    'rrd_bytes': rrd.stat().st_size,
-                   'others_cores': (None if b0 is None else
-                                    max(0.0, (b1[0] - b0[0]) - (c1 - c0)) / (w1 - w0)),
+                   'others_cores': (None if b0 is None else max(
+                       0.0, (b1[0] - b0[0]) - (c1 - c0) - got['rec'][3]) / (w1 - w0)),
                    'steal_cores': None if b0 is None else (b1[1] - b0[1]) / (w1 - w0)}
             row['wall_overhead'] = row['wall_rec_s'] / row['wall_plain_s'] - 1.0
             row['cpu_overhead'] = row['cpu_rec_s'] / row['cpu_plain_s'] - 1.0
@@ -170,9 +176,9 @@ def median_interval(values, level=0.9, resamples=2000, seed=0):
 def import_cost(repeats=3):
     """Medians over ``repeats`` fresh processes that have already set up a simulation: (seconds
     to import the recorder, rerun-sdk and pyarrow; seconds of a first, 3-frame recording in that
-    process). What ``tensegrity run --rerun`` pays once, besides the run's own cost; the second
-    figure would show any first-use cost (a compiled kernel loading, say) the warm benchmark
-    above does not see."""
+    process: it starts the helper process). What a process pays once, besides the run's own cost
+    (``tensegrity run --rerun`` starts the helper ahead, while it builds the simulation); the
+    second figure shows the first-use costs the warm benchmark above does not see."""
     code = '\n'.join([
         'import gc, tempfile, time',
         'from solver.scene import Scene',
@@ -243,8 +249,8 @@ def main(out='bench/results', quick=False, log=print, scene='config/scenes/fb_co
     imp, first = import_cost()
     plain = statistics.median(r['wall_plain_s'] for r in rows)
     log(f'once per process (median of 3 fresh processes): importing the recorder (rerun-sdk) '
-        f'{imp:.2f} s, {imp / plain:.1f}x the plain run; a first 3-frame recording '
-        f'{1e3 * first:.1f} ms')
+        f'{imp:.2f} s, {imp / plain:.1f}x the plain run; a first 3-frame recording, which '
+        f'starts the helper process, {1e3 * first:.1f} ms')
     summary = path.with_suffix('.json')
     summary.write_text(json.dumps({
         'pairs': len(rows), 'wall_overhead_median': wall,

@@ -70,6 +70,9 @@ def cmd_run(args):
     from solver.scene import Scene
     from solver.simulation import Simulation
 
+    if args.rerun or args.rerun_connect:
+        from . import rerun_log
+        rerun_log.prestart()     # the recorder's helper process starts while the run is set up
     scene = Scene.load(args.scene)
     sets = list(args.set or [])
     if args.v0 is not None:

@@ -23,23 +23,32 @@ timeline ``sim_time`` (a duration, from the simulation clock; no wall-clock time
 
 Frames are buffered and sent in column batches (one chunk per entity, ``Chunk.from_columns`` and
 one ``send_chunks`` call per batch) every ``flush_every`` frames and on :meth:`close`. The caller's
-thread only checks each frame and copies it into a batch buffer (a few microseconds); a worker
-thread of the recorder opens the stream, sends the blueprint and the static entities, converts and
-sends the batches, the commands and the wave images while the simulation goes on (its kernels
-release the GIL); Rerun's own threads encode and write. :meth:`close` waits for the worker, then
-sends the last batch and the wave image and finishes the file on the calling thread. Every array
+thread only checks each frame (a compiled check) and copies it into a batch buffer in shared
+memory (a few microseconds); a helper process (:func:`serve`, a fresh interpreter started on first
+use or ahead by :func:`prestart`, kept for later recordings) opens the stream, sends the
+blueprint and the static entities, converts and sends the batches, the commands and the wave
+images while the simulation goes on; Rerun's own threads in it encode and write. :meth:`close`
+hands over the last batch and waits until the helper has finished the file. On a thread of the
+simulation's process instead (sessions 1-4), the recorder's Python held the GIL the simulation
+needs between its kernels: +30 % of a default run against +14 % now (docs/rerun.md). Every array
 handed to Rerun is a fresh one (Arrow may keep referencing it after the call); the batch buffers
-are reused.
+are reused once the helper hands them back.
 """
 from __future__ import annotations
 
 import math
+import mmap
 import os
-import queue
+import signal
 import socket
+import subprocess
+import sys
 import threading
 import time
 import urllib.parse
+from multiprocessing.connection import Connection
+from multiprocessing.reduction import recv_handle, send_handle
+from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
@@ -47,8 +56,6 @@ import pyarrow.compute  # noqa: F401  (imported by rerun on first use; load it w
 import rerun as rr
 import rerun.blueprint as rrb
 from rerun.chunk import Chunk
-
-from solver.dynamics import finite_below
 
 DEFAULT_URL = 'rerun+http://127.0.0.1:9876/proxy'
 TIMELINE = 'sim_time'
@@ -382,141 +389,167 @@ _ANY = {b.component_descriptor().component: b.component_descriptor()
 _SERIES_NAMES = rr.SeriesLines.descriptor_names()
 
 
-class RerunRecorder:
-    """Records solver frames of one network to a ``.rrd`` file and/or a live viewer.
+# -- the helper process ---------------------------------------------------------------------------
+# A recording is written by a helper process (one per recording at a time, kept for later ones):
+# Rerun's Python (the blueprint, the chunks) held the GIL that the simulation needs between its
+# kernels when it ran on a thread of the simulation's process (docs/rerun.md).
+_HELPER_CODE = 'import sys\nfrom tensegrity_ros.rerun_log import serve\nserve(int(sys.argv[1]))\n'
+_IDLE = []                              # helpers with no recording, newest last
+_IDLE_LOCK = threading.Lock()
 
-    ``network``: the :class:`solver.network.Network` (read-only arrays). ``path``: ``.rrd`` file to
-    write (headless). ``connect``: gRPC URL of a running viewer (``True`` for :data:`DEFAULT_URL`).
-    At least one of the two is required. ``tension_scale`` N: tension shown at the top of the
-    colour ramp (default :func:`reference_tension_scale`).
-    Frames are sent in batches of ``flush_every`` frames, or sooner when ``max_latency_s`` of wall
-    time passed since the last batch (a live viewer stays current; a paced node's file stays
-    fresh; small batches also let Rerun's encoder threads work while the simulation runs).
-    ``expected_frames``, for a run of known length (``tensegrity run``), shortens the first batch
-    so that the last one holds at most ``flush_every // 10`` frames: :meth:`close` then waits for
-    less (default 1.2 s run: close 7.0 -> 4.6 ms, median of 12). The strain-wave image (the
-    last ``wave_window`` frames) is sent at most every ``wave_period_s`` wall seconds, and on
-    :meth:`close`.
 
-    The caller's thread only checks and copies each frame into a batch buffer; one worker thread
-    of the recorder sends the blueprint, the static entities, the batches, the commands and the
-    wave images through the stream, in the order they were handed over (the solver's kernels
-    release the GIL, so this overlaps with the simulation). An error in the worker is raised as
-    ValueError by the next :meth:`frame`, :meth:`command`, :meth:`flush` or :meth:`close`.
-    :attr:`stream` waits until the worker has sent everything handed to it. With
-    ``spare_caller_cpu`` (and more than one CPU) the worker and the threads Rerun starts from it
-    (encoder, file writer) run on the other CPUs than the one the constructing thread ran on, so
-    that they do not preempt the simulation.
-    """
+class _Helper:
+    """A helper process running :func:`serve`, and the connection to it."""
 
-    def __init__(self, network, path=None, *, connect=None, tension_scale=None, flush_every=50,
-                 max_latency_s=0.5, wave_window=1000, wave_period_s=2.0,
-                 application_id='tensegrity_ros', recording_id=None, send_blueprint=True,
-                 spare_caller_cpu=True, expected_frames=None):
-        if path is None and not connect:
-            raise ValueError('rerun: give a file path or a viewer URL (connect) to record to')
-        if tension_scale is not None and not (np.isfinite(tension_scale) and tension_scale > 0):
-            raise ValueError(f'rerun: tension_scale must be a positive number, got '
-                             f'{tension_scale}')
-        if int(flush_every) < 1 or int(wave_window) < 1:
-            raise ValueError('rerun: flush_every and wave_window must be at least 1')
-        if not max_latency_s > 0:
-            raise ValueError(f'rerun: max_latency_s must be positive, got {max_latency_s}')
-        if expected_frames is not None and not (isinstance(expected_frames, (int, np.integer))
-                                                and expected_frames >= 1):
-            raise ValueError(f'rerun: expected_frames must be a positive integer, got '
-                             f'{expected_frames!r}')
-        self.net = network
-        self.path = None if path is None else str(path)
-        self.url = (DEFAULT_URL if connect is True else connect) or None
-        if self.url is not None:
-            check_viewer(self.url)
-        self.tension_scale = (reference_tension_scale(network) if tension_scale is None
-                              else float(tension_scale))
-        self.flush_every = int(flush_every)
-        self.max_latency_s = float(max_latency_s)
-        # frames of the batch being filled; for a run of known length the first batch is cut so
-        # that the last one, which close() waits for, is short
-        self._batch = self.flush_every
-        if expected_frames is not None:
-            tail = max(1, self.flush_every // 10)
-            self._batch = (int(expected_frames) - tail) % self.flush_every or self.flush_every
-        self._last_flush = time.monotonic()
-        self.n_frames = 0
-        self.n_commands = 0
-        self.n_restarts = 0
-        # A batch buffer holds one float64 row per frame: positions (n_nodes * 3), strain
-        # (n_columns * n_prisms), tension (n_cables), then t, energy and constraint error. A full
-        # buffer is handed to the worker and another one taken; the worker gives it back (in
-        # _free) once sent (nothing handed to Rerun is a view of it).
-        self._shapes = ((network.n_nodes, 3), tuple(network.levels.shape[:1])
-                        + (network.n_prisms,), (network.n_cables,))
-        n_x, n_s = 3 * network.n_nodes, math.prod(self._shapes[1])
-        self._cols = (slice(0, n_x), slice(n_x, n_x + n_s),
-                      slice(n_x + n_s, n_x + n_s + network.n_cables))
-        self._width = n_x + n_s + network.n_cables + 3
-        self._free = queue.SimpleQueue()
-        self._new_buffer()
-        self._n_buf = 0
-        self.wave_window = int(wave_window)
-        self.wave_period_s = float(wave_period_s)
-        self._last_t = None
-        self._closed = False
-        self._error = None
-        if self.path is not None:               # create the file now: errors come at once
-            try:                                # (appending: an old file is truncated by the
-                open(self.path, 'ab').close()   # worker's sink, not here: 1.7 ms for 2 MB)
-            except OSError as exc:              # e.g. a directory that does not exist
-                raise ValueError(f'rerun: cannot record to {self.path}: '
-                                 f'{exc.strerror or exc}') from None
+    def __init__(self):
+        ours, theirs = socket.socketpair()
+        root = str(Path(__file__).resolve().parents[1])
+        env = dict(os.environ, PYTHONPATH=os.pathsep.join(
+            [root] + [p for p in os.environ.get('PYTHONPATH', '').split(os.pathsep) if p]))
+        try:
+            self.proc = subprocess.Popen(
+                [sys.executable, '-c', _HELPER_CODE, str(theirs.fileno())],
+                pass_fds=(theirs.fileno(),), stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                env=env, close_fds=True)
+        finally:
+            theirs.close()
+        self.conn = Connection(ours.detach())
+
+    def alive(self):
+        return self.proc.poll() is None
+
+
+def prestart():
+    """Start a helper process now, if none is idle, so that a recording made later in this process
+    does not wait for one (it imports rerun-sdk and pyarrow: about 0.4 s). ``tensegrity run`` and
+    the node call it before they build the simulation."""
+    with _IDLE_LOCK:
+        if not any(h.alive() for h in _IDLE):
+            _IDLE.append(_Helper())
+
+
+def _take_helper():
+    with _IDLE_LOCK:
+        while _IDLE:
+            helper = _IDLE.pop()
+            if helper.alive():
+                return helper
+    return _Helper()
+
+
+def _give_back(helper):
+    with _IDLE_LOCK:
+        _IDLE.append(helper)
+
+
+def serve(fd):
+    """(helper process) Write the recordings described by the messages on the socket ``fd``, one
+    after the other; exit when the other end closes (a recording in progress is finished first,
+    so that a killed simulation still leaves a complete file of what it handed over). Interrupts
+    are ignored: the process that owns the recording decides when it ends."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    conn = Connection(fd)
+    all_cpus = os.sched_getaffinity(0)
+    while True:
+        try:
+            msg = conn.recv()
+        except (EOFError, OSError):
+            return
+        if msg[0] != 'open':
+            continue
+        memfd = recv_handle(conn)
+        if not _Writer(conn, memfd, all_cpus, *msg[1:]).run():
+            return
+
+
+class _Writer:
+    """(helper process) One recording: the stream, its sinks, the blueprint and the static
+    entities, then the batches, commands and wave images handed over, until ``close``. Batches
+    are read from shared memory (``memfd``: ``n_buffers`` buffers of ``flush_every`` rows of
+    ``width`` float64, as the recorder fills them); each buffer is handed back (``free``) once
+    sent. The first error is reported (``error``) and the rest is drained without sending; the
+    file is finished in any case."""
+
+    def __init__(self, conn, memfd, all_cpus, net, path, url, tension_scale, flush_every,
+                 wave_window, wave_period_s, shapes, n_buffers, cpus, application_id,
+                 recording_id, send_blueprint):
+        self._cpu0 = time.process_time()
+        self.conn, self.all_cpus = conn, all_cpus
+        self.net, self.path, self.url = net, path, url
+        self.tension_scale, self.flush_every = tension_scale, flush_every
+        self.wave_window, self.wave_period_s = wave_window, wave_period_s
+        self._shapes = shapes
+        self._width = 3 * net.n_nodes + math.prod(shapes[1]) + net.n_cables + 3
+        size = n_buffers * flush_every * self._width * 8
+        try:
+            self._mem = mmap.mmap(memfd, size)
+        finally:
+            os.close(memfd)
+        self._buffers = np.ndarray((n_buffers, flush_every, self._width), np.float64, self._mem)
         self._stream = None
-        self._jobs = queue.Queue(maxsize=16)   # backpressure if the worker falls behind
-        self._cpus = other_cpus() if spare_caller_cpu else None
-        self._worker = threading.Thread(target=self._work, name='rerun-recorder', daemon=True)
-        # started before its first job: it waits for it (without the GIL), so that this thread
-        # goes on at once instead of waiting for the worker's first GIL release; its CPUs are
-        # set from here while it waits (a thread moving itself holds the GIL meanwhile)
-        self._worker.start()
-        if self._cpus:                          # inherited by the threads Rerun starts from it
+        self._error = None
+        self._tids = set()
+        if cpus:                                # inherited by the threads Rerun starts
             try:
-                os.sched_setaffinity(self._worker.native_id, self._cpus)
+                os.sched_setaffinity(0, cpus)
             except OSError:
-                self._cpus = None
-        self._jobs.put((self._open, application_id, recording_id, send_blueprint))
+                pass
+        self._do(self._open, application_id, recording_id, send_blueprint)
 
-    @property
-    def stream(self):
-        """The :class:`rerun.RecordingStream`, once the worker has sent everything handed to it
-        so far (frames still in the batch buffer are not: see :meth:`flush`); None once
-        closed."""
-        self._jobs.join()
-        return self._stream
+    def _do(self, fn, *args):
+        if self._error is not None:             # after an error, drain without sending
+            return
+        try:
+            fn(*args)
+        except Exception as exc:
+            self._error = exc
+            self.conn.send(('error', _message(exc)))
 
-    # -- worker ---------------------------------------------------------------------------------
-    def _work(self):
+    def run(self):
+        """Serve this recording until ``close`` (True) or until the other end goes (False)."""
+        conn = self.conn
         while True:
-            job = self._jobs.get()
             try:
-                if job is None:
-                    return
-                if self._error is None:         # after an error, drain without sending
-                    job[0](*job[1:])
-            except Exception as exc:            # raised in the caller's thread by _check
+                msg = conn.recv()
+            except (EOFError, OSError):
+                self._close(None, 0)
+                return False
+            kind = msg[0]
+            if kind == 'send':
+                _, index, n_t, wave, restart = msg
+                self._do(self._send, index, n_t, wave, restart)
+                if index is not None:
+                    conn.send(('free', index))
+            elif kind == 'command':
+                self._do(self._log_command, *msg[1:])
+            elif kind == 'sync':
+                conn.send(('synced',))
+            elif kind == 'close':
+                error = self._close(*msg[1:])
+                conn.send(('closed', error, time.process_time() - self._cpu0))
+                return True
+
+    def _close(self, index, n_t):
+        """Spread over every CPU (the recording process waits now), send the last batch and the
+        wave image, finish the file; the first error's message, or None."""
+        for tid in self._tids:
+            try:
+                os.sched_setaffinity(tid, self.all_cpus)
+            except OSError:                     # a thread that has ended
+                pass
+        if self._stream is not None:
+            self._do(self._send, index, n_t, True, False)
+            try:
+                self._finish()
+            except Exception as exc:
                 if self._error is None:
                     self._error = exc
-            finally:
-                self._jobs.task_done()
-
-    def _check(self):
-        """Raise the worker's first error (as ValueError) in the caller's thread."""
-        err = self._error
-        if err is not None:
-            raise ValueError(str(err) if isinstance(err, ValueError)
-                             else f'rerun: recording failed: {err!r}') from err
+        del self._buffers
+        self._mem.close()
+        return None if self._error is None else _message(self._error)
 
     def _open(self, application_id, recording_id, send_blueprint):
-        """(worker) The stream, its sinks, the blueprint and the static entities; what the
-        batches need."""
         net = self.net
         before = _threads()
         stream = rr.RecordingStream(application_id, recording_id=recording_id)
@@ -537,9 +570,8 @@ class RerunRecorder:
         self._bars = _Strips(trails(net.bar_a, net.bar_b, net.n_nodes), self.flush_every)
         self._cables = _Strips(np.stack([np.asarray(net.cable_a), np.asarray(net.cable_b)],
                                         axis=1).reshape(-1, 2), self.flush_every)
-        n_p = net.n_prisms
-        self._pack_args = (n_p, math.prod(self._shapes[1]), net.n_cables, self._bars.index,
-                           self._cables.index, self.tension_scale)
+        self._pack_args = (net.n_prisms, math.prod(self._shapes[1]), net.n_cables,
+                           self._bars.index, self._cables.index, self.tension_scale)
         self._offsets = {}                      # (n_t, k) -> row offsets, as Arrow
         self._wave = None                       # (n_columns, n_prisms, wave_window) ring
         self._wave_n = 0                        # frames in the wave (since the last restart)
@@ -547,9 +579,8 @@ class RerunRecorder:
         self._wave_pending = False
         self._last_wave = time.monotonic()
 
-    # -- static ---------------------------------------------------------------------------------
     def _log_static(self):
-        """(worker) The static entities, as one static chunk each, sent in one call: what
+        """The static entities, as one static chunk each, sent in one call: what
         :func:`static_archetypes` logs (tested equal), with the network's arrays (topology,
         series names) wrapped directly as Arrow instead of converted by rerun's archetypes
         (0.8 ms less per recording)."""
@@ -566,13 +597,267 @@ class RerunRecorder:
         rr.send_chunks([Chunk.from_columns(path, [], [_Column(d, _one_row(a)) for d, a in batches])
                         for path, batches in static], recording=self._stream)
 
+    def _log_command(self, t, text, level):
+        rr.send_chunks(_row_chunk('commands', rr.TextLog(text, level=level), t),
+                       recording=self._stream)
+
+    def _send(self, index, n_t, wave, restart):
+        """Send the first ``n_t`` rows of buffer ``index``; then the wave if due."""
+        net, s = self.net, self._stream
+        if n_t:
+            rows = self._buffers[index]
+            # every array handed to Rerun is a new one (Arrow may reference it after the call):
+            # the buffer goes back to the recording process for later batches
+            nodes, bars, cables, colors, strain, energy, cerr, times = _pack(
+                rows, n_t, 3 * net.n_nodes, *self._pack_args)
+            index = [_Times(times)]
+            chunks = [Chunk.from_columns('world/nodes', index, self._per_row(
+                _POSITIONS, pa.FixedSizeListArray.from_arrays(_f32(nodes), type=_POINT_TYPE),
+                n_t, net.n_nodes))]
+            if net.n_bars:
+                chunks.append(Chunk.from_columns('world/bars', index, self._per_row(
+                    _STRIPS, self._bars.arrow(bars, n_t), n_t, self._bars.n)))
+            if net.n_cables:
+                chunks.append(Chunk.from_columns('world/cables', index, self._per_row(
+                    _STRIPS, self._cables.arrow(cables, n_t), n_t, net.n_cables) + self._per_row(
+                    _COLORS, pa.array(colors), n_t, net.n_cables)))
+            n_p = net.n_prisms
+            for c in range(len(strain) // (n_t * n_p) if n_p else 0):
+                chunks.append(Chunk.from_columns(f'strain/column_{c}', index, self._per_row(
+                    _SCALARS, pa.array(strain[c * n_t * n_p:(c + 1) * n_t * n_p]), n_t, n_p)))
+            chunks.append(Chunk.from_columns('energy', index, self._per_row(
+                _SCALARS, pa.array(energy), n_t, 1)))
+            chunks.append(Chunk.from_columns('constraint_error', index, self._per_row(
+                _SCALARS, pa.array(cerr), n_t, 1)))
+            rr.send_chunks(chunks, recording=s)                 # one call for the batch
+            if n_p:
+                self._wave_add(strain.reshape(-1, n_t, n_p).transpose(1, 0, 2), rows[n_t - 1, -3])
+        if self._wave_pending and (wave or restart or time.monotonic() - self._last_wave
+                                   >= self.wave_period_s):
+            self._log_wave()
+        if restart:
+            self._wave_n = 0
+
+    def _per_row(self, descriptor, values, n_t, k):
+        """A component column of ``n_t`` rows of ``k`` values each."""
+        offsets = self._offsets.get((n_t, k))
+        if offsets is None:                     # immutable: shared by every batch of n_t rows
+            offsets = self._offsets[n_t, k] = _i32(np.arange(n_t + 1, dtype=np.int32) * k)
+        return [_Column(descriptor, pa.ListArray.from_arrays(offsets, values))]
+
+    def _wave_add(self, strain, t_last):
+        """Append the strain of a batch (n_t, n_columns, n_prisms) to the wave ring."""
+        w = self.wave_window
+        if self._wave is None:
+            self._wave = np.empty(strain.shape[1:] + (w,))
+        keep = strain[-w:]                      # more frames than the window: the last ones
+        at = (self._wave_n + len(strain) - len(keep) + np.arange(len(keep))) % w
+        self._wave[:, :, at] = keep.transpose(1, 2, 0)
+        self._wave_n += len(strain)
+        self._wave_t = float(t_last)
+        self._wave_pending = True
+
+    def _log_wave(self):
+        self._wave_pending = False
+        self._last_wave = time.monotonic()
+        n, w = self._wave_n, self.wave_window
+        if n <= w:
+            wave = self._wave[:, :, :n]                 # (n_columns, n_prisms, n_frames)
+        else:                                           # oldest first
+            wave = np.concatenate((self._wave[:, :, n % w:], self._wave[:, :, :n % w]), axis=2)
+        chunks = []
+        for c in range(wave.shape[0]):
+            image = wave[c]                         # tensor_data copies it
+            lim = float(max(image.max(initial=0.0), -image.min(initial=0.0))) or 1.0
+            chunks.append(Chunk.from_columns(f'wave/column_{c}', [_Times(_ns([self._wave_t]))], [
+                _Column(_TENSOR_DATA, _one_row(tensor_data(image, ('prism', 'frame')))),
+                _Column(_TENSOR_RANGE, _one_row(pa.FixedSizeListArray.from_arrays(
+                    pa.array([-lim, lim]), type=_RANGE_TYPE)))]))
+        rr.send_chunks(chunks, recording=self._stream)
+
+    def _finish(self):
+        """Flush to a viewer; disconnect, which writes the rest of the file and its footer (for
+        a file alone no separate flush is needed); then let go of the stream."""
+        stream, self._stream = self._stream, None
+        try:
+            if self.url is not None:
+                stream.flush()
+        except RuntimeError as exc:             # the viewer went away: the file is still written
+            raise ValueError(f'rerun: {exc}') from None
+        finally:
+            stream.disconnect()
+            del stream
+
+
+def _message(exc):
+    """The text the recorder raises (as ValueError) for an error of the helper."""
+    return str(exc) if isinstance(exc, ValueError) else f'rerun: recording failed: {exc!r}'
+
+
+# -- the recorder ---------------------------------------------------------------------------------
+class RerunRecorder:
+    """Records solver frames of one network to a ``.rrd`` file and/or a live viewer.
+
+    ``network``: the :class:`solver.network.Network` (read-only arrays). ``path``: ``.rrd`` file to
+    write (headless). ``connect``: gRPC URL of a running viewer (``True`` for :data:`DEFAULT_URL`).
+    At least one of the two is required. ``tension_scale`` N: tension shown at the top of the
+    colour ramp (default :func:`reference_tension_scale`).
+    Frames are sent in batches of ``flush_every`` frames, or sooner when ``max_latency_s`` of wall
+    time passed since the last batch (a live viewer stays current; a paced node's file stays
+    fresh). ``expected_frames``, for a run of known length (``tensegrity run``), shortens the
+    first batch so that the last one holds at most ``flush_every // 10`` frames: :meth:`close`
+    then waits for less. The strain-wave image (the last ``wave_window`` frames) is sent at most
+    every ``wave_period_s`` wall seconds, and on :meth:`close`.
+
+    The calling thread only checks each frame and copies it into a batch buffer in memory shared
+    with a helper process (:func:`serve`; started on first use, or ahead by :func:`prestart`, and
+    kept for later recordings), which opens the stream and sends the blueprint, the static
+    entities, the batches, the commands and the wave images, in the order they were handed over.
+    An error in the helper is raised as ValueError by a later :meth:`frame` (at the next batch),
+    :meth:`command`, :meth:`flush`, :meth:`sync` or :meth:`close`. If the recording process dies,
+    the helper finishes the file with every batch handed to it. With ``spare_caller_cpu`` (and more
+    than one CPU) the helper and the threads Rerun starts in it run on the other CPUs than the
+    one the constructing thread ran on, until :meth:`close`. After :meth:`close`,
+    :attr:`helper_cpu_s` is the CPU time the helper process spent on the recording (all its
+    threads, Rerun's included).
+    """
+
+    n_buffers = 8                       # batch buffers in shared memory (backpressure beyond)
+
+    def __init__(self, network, path=None, *, connect=None, tension_scale=None, flush_every=50,
+                 max_latency_s=0.5, wave_window=1000, wave_period_s=2.0,
+                 application_id='tensegrity_ros', recording_id=None, send_blueprint=True,
+                 spare_caller_cpu=True, expected_frames=None):
+        if path is None and not connect:
+            raise ValueError('rerun: give a file path or a viewer URL (connect) to record to')
+        if tension_scale is not None and not (np.isfinite(tension_scale) and tension_scale > 0):
+            raise ValueError(f'rerun: tension_scale must be a positive number, got '
+                             f'{tension_scale}')
+        if int(flush_every) < 1 or int(wave_window) < 1:
+            raise ValueError('rerun: flush_every and wave_window must be at least 1')
+        if not max_latency_s > 0:
+            raise ValueError(f'rerun: max_latency_s must be positive, got {max_latency_s}')
+        if expected_frames is not None and not (isinstance(expected_frames, (int, np.integer))
+                                                and expected_frames >= 1):
+            raise ValueError(f'rerun: expected_frames must be a positive integer, got '
+                             f'{expected_frames!r}')
+        from solver.dynamics import finite_below   # here: the helper process needs no numba
+        self._finite_below = finite_below
+        self.path = None if path is None else str(path)
+        self.url = (DEFAULT_URL if connect is True else connect) or None
+        if self.url is not None:
+            check_viewer(self.url)
+        self.tension_scale = (reference_tension_scale(network) if tension_scale is None
+                              else float(tension_scale))
+        self.flush_every = int(flush_every)
+        self.max_latency_s = float(max_latency_s)
+        # frames of the batch being filled; for a run of known length the first batch is cut so
+        # that the last one, which close() waits for, is short
+        self._batch = self.flush_every
+        if expected_frames is not None:
+            tail = max(1, self.flush_every // 10)
+            self._batch = (int(expected_frames) - tail) % self.flush_every or self.flush_every
+        self._last_flush = time.monotonic()
+        self.n_frames = 0
+        self.n_commands = 0
+        self.n_restarts = 0
+        # A batch buffer holds one float64 row per frame: positions (n_nodes * 3), strain
+        # (n_columns * n_prisms), tension (n_cables), then t, energy and constraint error.
+        shapes = ((network.n_nodes, 3), tuple(network.levels.shape[:1]) + (network.n_prisms,),
+                  (network.n_cables,))
+        self._shapes = shapes
+        n_x, n_s = 3 * network.n_nodes, math.prod(shapes[1])
+        self._cols = (slice(0, n_x), slice(n_x, n_x + n_s),
+                      slice(n_x + n_s, n_x + n_s + network.n_cables))
+        width = n_x + n_s + network.n_cables + 3
+        self._last_t = None
+        self._closed = False
+        self._error = None
+        self._helper = None
+        self.helper_cpu_s = None                # CPU seconds of the helper, known after close()
+        if self.path is not None:               # create the file now: errors come at once
+            try:                                # (appending: an old file is truncated by the
+                open(self.path, 'ab').close()   # helper's sink, not here: 1.7 ms for 2 MB)
+            except OSError as exc:              # e.g. a directory that does not exist
+                raise ValueError(f'rerun: cannot record to {self.path}: '
+                                 f'{exc.strerror or exc}') from None
+        size = self.n_buffers * self.flush_every * width * 8
+        memfd = os.memfd_create('tensegrity-rerun', os.MFD_CLOEXEC)
+        try:
+            os.ftruncate(memfd, size)
+            self._mem = mmap.mmap(memfd, size)
+            self._buffers = np.ndarray((self.n_buffers, self.flush_every, width), np.float64,
+                                       self._mem)
+            self._free = list(range(self.n_buffers - 1, -1, -1))
+            helper = _take_helper()
+            cpus = other_cpus() if spare_caller_cpu else None
+            net = _NetArrays(network)
+            helper.conn.send(('open', net, self.path, self.url, self.tension_scale,
+                              self.flush_every, int(wave_window), float(wave_period_s), shapes,
+                              self.n_buffers, cpus, application_id, recording_id,
+                              send_blueprint))
+            send_handle(helper.conn, memfd, helper.proc.pid)
+        except (OSError, EOFError) as exc:
+            raise ValueError(f'rerun: cannot start the recording helper process: {exc}') from None
+        finally:
+            os.close(memfd)
+        self._helper = helper
+        self._n_buf = 0
+        self._new_buffer()
+
+    # -- messages -------------------------------------------------------------------------------
+    def _post(self, msg):
+        try:
+            self._helper.conn.send(msg)
+        except OSError:
+            self._lost()
+
+    def _lost(self):
+        code = self._helper.proc.poll()
+        self._error = self._error or ValueError(
+            f'rerun: the recording helper process exited (code {code}); recording stopped')
+        self._check()
+
+    def _handle(self, msg):
+        kind = msg[0]
+        if kind == 'free':
+            self._free.append(msg[1])
+        elif kind == 'error' and self._error is None:
+            self._error = ValueError(msg[1])
+        return kind
+
+    def _receive(self, until=None):
+        """Handle the helper's messages: those already here, or (``until``) every message up to
+        the first of that kind."""
+        conn = self._helper.conn
+        try:
+            while until is not None or conn.poll():
+                if self._handle(conn.recv()) == until:
+                    return
+        except (EOFError, OSError):
+            self._lost()
+
+    def _check(self):
+        """Raise the helper's first error (as ValueError) in the caller's thread."""
+        if self._error is not None:
+            raise self._error
+
+    def sync(self):
+        """Wait until the helper has sent everything handed to it so far (frames still in the
+        batch buffer are not: see :meth:`flush`); raise its error if any."""
+        if self._closed:
+            raise ValueError('rerun: recorder is closed')
+        self._post(('sync',))
+        self._receive(until='synced')
+        self._check()
+
     # -- per frame ------------------------------------------------------------------------------
     def _new_buffer(self):
-        try:
-            rows = self._free.get_nowait()      # a buffer the worker has finished with
-        except queue.Empty:
-            rows = np.empty((self.flush_every, self._width))
-        self._rows = rows
+        self._receive()                         # buffers handed back, errors
+        if not self._free:                      # the helper is behind: wait for a buffer
+            self._receive(until='free')
+        self._index = self._free.pop()
+        rows = self._rows = self._buffers[self._index]
         n_b, (cx, cs, ct) = self.flush_every, self._cols
         self._bx = rows[:, cx].reshape((n_b,) + self._shapes[0])        # views into rows
         self._bs = rows[:, cs].reshape((n_b,) + self._shapes[1])
@@ -609,7 +894,7 @@ class RerunRecorder:
         row[-3] = t
         row[-2] = float(frame.energy)
         row[-1] = float(frame.constraint_error)
-        if not finite_below(row, _F32_MAX):         # compiled: no 512-bit instructions
+        if not self._finite_below(row, _F32_MAX):      # compiled: no 512-bit instructions
             bad = [name for name, v in (('time', row[-3]), ('energy', row[-2]),
                                         ('constraint error', row[-1]), ('positions', x),
                                         ('strain', strain), ('tension', tension))
@@ -634,167 +919,63 @@ class RerunRecorder:
         ``level`` defaults to WARN for texts starting with 'rejected' or 'paused', else INFO."""
         if self._closed:
             raise ValueError('rerun: recorder is closed')
+        self._receive()
         self._check()
         if not math.isfinite(t):
             raise ValueError(f'rerun: command time {t} is not finite')
         text = str(text)
         if level is None:
             level = 'WARN' if text.startswith(('rejected', 'paused')) else 'INFO'
-        self._jobs.put((self._log_command, float(t), text, level))
+        self._post(('command', float(t), text, level))
         self.n_commands += 1
-
-    def _log_command(self, t, text, level):
-        rr.send_chunks(_row_chunk('commands', rr.TextLog(text, level=level), t),
-                       recording=self._stream)
 
     # -- batches --------------------------------------------------------------------------------
     def flush(self, wave=False):
-        """Hand the buffered frames to the worker, which sends them as column batches; the
+        """Hand the buffered frames to the helper, which sends them as column batches; the
         strain-wave image so far too if ``wave`` or ``wave_period_s`` of wall time passed since
         it was last sent."""
         if self._closed:
             raise ValueError('rerun: recorder is closed')
+        self._receive()
         self._check()
         self._submit(self._n_buf, wave)
 
     def _submit(self, n_t, wave=False, restart=False):
         self._last_flush = time.monotonic()
         self._batch = self.flush_every
-        rows = None
+        index = None
         if n_t:
-            rows = self._rows
+            index = self._index
+        if n_t or wave or restart:
+            self._post(('send', index, n_t, wave, restart))
+        if n_t:
             self._new_buffer()
         self._n_buf = 0
-        if n_t or wave or restart:
-            self._jobs.put((self._send, rows, n_t, wave, restart))
-
-    def _send(self, rows, n_t, wave, restart):
-        """(worker; the last batch from close()) Send the first ``n_t`` rows of a batch buffer;
-        then the wave if due."""
-        net, s, buffer = self.net, self._stream, rows
-        if n_t:
-            # every array handed to Rerun is a new one (Arrow may reference it after the call):
-            # the buffer goes back to the caller's thread for later batches
-            nodes, bars, cables, colors, strain, energy, cerr, times = _pack(
-                rows, n_t, 3 * net.n_nodes, *self._pack_args)
-            index = [_Times(times)]
-            chunks = [Chunk.from_columns('world/nodes', index, self._per_row(
-                _POSITIONS, pa.FixedSizeListArray.from_arrays(_f32(nodes), type=_POINT_TYPE),
-                n_t, net.n_nodes))]
-            if net.n_bars:
-                chunks.append(Chunk.from_columns('world/bars', index, self._per_row(
-                    _STRIPS, self._bars.arrow(bars, n_t), n_t, self._bars.n)))
-            if net.n_cables:
-                chunks.append(Chunk.from_columns('world/cables', index, self._per_row(
-                    _STRIPS, self._cables.arrow(cables, n_t), n_t, net.n_cables) + self._per_row(
-                    _COLORS, pa.array(colors), n_t, net.n_cables)))
-            n_p = net.n_prisms
-            for c in range(len(strain) // (n_t * n_p) if n_p else 0):
-                chunks.append(Chunk.from_columns(f'strain/column_{c}', index, self._per_row(
-                    _SCALARS, pa.array(strain[c * n_t * n_p:(c + 1) * n_t * n_p]), n_t, n_p)))
-            chunks.append(Chunk.from_columns('energy', index, self._per_row(
-                _SCALARS, pa.array(energy), n_t, 1)))
-            chunks.append(Chunk.from_columns('constraint_error', index, self._per_row(
-                _SCALARS, pa.array(cerr), n_t, 1)))
-            rr.send_chunks(chunks, recording=s)                 # one call for the batch
-            if n_p:
-                self._wave_add(strain.reshape(-1, n_t, n_p).transpose(1, 0, 2), rows[n_t - 1, -3])
-            self._free.put(buffer)
-        if self._wave_pending and (wave or restart or time.monotonic() - self._last_wave
-                                   >= self.wave_period_s):
-            self._log_wave()
-        if restart:
-            self._wave_n = 0
-
-    def _per_row(self, descriptor, values, n_t, k):
-        """(worker) A component column of ``n_t`` rows of ``k`` values each."""
-        offsets = self._offsets.get((n_t, k))
-        if offsets is None:                     # immutable: shared by every batch of n_t rows
-            offsets = self._offsets[n_t, k] = _i32(np.arange(n_t + 1, dtype=np.int32) * k)
-        return [_Column(descriptor, pa.ListArray.from_arrays(offsets, values))]
-
-    def _wave_add(self, strain, t_last):
-        """(worker) Append the strain of a batch (n_t, n_columns, n_prisms) to the wave ring."""
-        w = self.wave_window
-        if self._wave is None:
-            self._wave = np.empty(strain.shape[1:] + (w,))
-        keep = strain[-w:]                      # more frames than the window: the last ones
-        at = (self._wave_n + len(strain) - len(keep) + np.arange(len(keep))) % w
-        self._wave[:, :, at] = keep.transpose(1, 2, 0)
-        self._wave_n += len(strain)
-        self._wave_t = float(t_last)
-        self._wave_pending = True
-
-    def _log_wave(self):
-        self._wave_pending = False
-        self._last_wave = time.monotonic()
-        n, w = self._wave_n, self.wave_window
-        if n <= w:
-            wave = self._wave[:, :, :n]                 # (n_columns, n_prisms, n_frames)
-        else:                                           # oldest first
-            wave = np.concatenate((self._wave[:, :, n % w:], self._wave[:, :, :n % w]), axis=2)
-        chunks = []
-        for c in range(wave.shape[0]):
-            image = wave[c]                         # tensor_data copies it
-            lim = float(max(image.max(initial=0.0), -image.min(initial=0.0))) or 1.0
-            chunks.append(Chunk.from_columns(f'wave/column_{c}', [_Times(_ns([self._wave_t]))], [
-                _Column(_TENSOR_DATA, _one_row(tensor_data(image, ('prism', 'frame')))),
-                _Column(_TENSOR_RANGE, _one_row(pa.FixedSizeListArray.from_arrays(
-                    pa.array([-lim, lim]), type=_RANGE_TYPE)))]))
-        rr.send_chunks(chunks, recording=self._stream)
 
     def close(self):
         """Send what is buffered and the wave image, then finish the file / disconnect: the file
-        is complete when this returns. Idempotent. The worker's jobs are waited for (it is idle
-        then, and ends); the rest is done on the calling thread, whose CPU is running anyway
-        (handing it to the worker costs a wake-up of another CPU, 0.1-1 ms in a VM)."""
+        is complete when this returns. Idempotent."""
         if self._closed:
             return
         self._closed = True
-        self._spread()                          # the caller waits now: use its CPU too
-        self._jobs.join()                       # everything handed over so far is sent
-        self._jobs.put(None)
-        n_t, rows = self._n_buf, self._rows
+        helper, n_t = self._helper, self._n_buf
         self._n_buf = 0
         try:
-            if self._error is None and self._stream is not None:
-                self._send(rows if n_t else None, n_t, True, False)
-        except Exception as exc:                # as the worker would: raised below
-            self._error = exc
-        try:
-            self._finish()
-        except Exception as exc:
-            if self._error is None:
-                self._error = exc
-        self._check()
-
-    def _spread(self):
-        """Let the recorder's threads (the worker and Rerun's) run on every CPU again."""
-        if not self._cpus:
-            return
-        cpus = os.sched_getaffinity(0)
-        for tid in getattr(self, '_tids', ()):
-            try:
-                os.sched_setaffinity(tid, cpus)
-            except OSError:                     # a thread that has ended
-                pass
-
-    def _finish(self):
-        """(close()) Flush to a viewer; disconnect, which writes the rest of the file and its
-        footer (for a file alone no separate flush is needed); then let go of the stream, whose
-        clean-up (about 0.4 ms) would otherwise run whenever the last reference goes, maybe in
-        the middle of a later run."""
-        stream, self._stream = self._stream, None
-        if stream is None:                      # opening failed: that error is raised
-            return
-        try:
-            if self.url is not None:
-                stream.flush()
-        except RuntimeError as exc:             # the viewer went away: the file is still written
-            raise ValueError(f'rerun: {exc}') from None
+            helper.conn.send(('close', self._index if n_t else None, n_t))
+            while True:
+                msg = helper.conn.recv()
+                if self._handle(msg) == 'closed':
+                    break
+        except (EOFError, OSError):
+            self._lost()
         finally:
-            stream.disconnect()
-            del stream
+            self._rows = self._bx = self._bs = self._bt = self._buffers = None
+            self._mem.close()
+        _give_back(helper)                      # the file is finished: ready for another one
+        self.helper_cpu_s = msg[2]
+        if msg[1] is not None and self._error is None:
+            self._error = ValueError(msg[1])
+        self._check()
 
     def __enter__(self):
         return self
@@ -802,3 +983,13 @@ class RerunRecorder:
     def __exit__(self, *exc):
         self.close()
         return False
+
+
+class _NetArrays:
+    """What the helper needs of a network (its arrays and counts), picklable."""
+
+    def __init__(self, net):
+        for name in ('bar_a', 'bar_b', 'cable_a', 'cable_b', 'cable_kind', 'levels', 'x0'):
+            setattr(self, name, np.asarray(getattr(net, name)))
+        for name in ('n_nodes', 'n_bars', 'n_cables', 'n_prisms', 'n_columns'):
+            setattr(self, name, int(getattr(net, name)))

@@ -431,10 +431,10 @@ def test_trails_cover_every_member_once(seed):
     assert got == sorted(tuple(sorted(pq)) for pq in zip(a.tolist(), b.tolist()))
 
 
-@pytest.mark.filterwarnings('ignore:RRD file has no footer')
 def test_a_killed_recording_keeps_every_batch_sent(tmp_path):
-    """SIGKILL after two batches of 50 frames were sent: the file holds those 100 frames (the 20
-    buffered after them are lost) and reads without its footer."""
+    """SIGKILL of the recording process after two batches of 50 frames were handed over: its
+    helper process finishes the file with those 100 frames (the 20 buffered after them are lost),
+    footer included, and exits."""
     path = tmp_path / 'killed.rrd'
     code = f'''
 import sys, time
@@ -446,22 +446,36 @@ rec = RerunRecorder(sim.network, {str(path)!r}, flush_every=50, max_latency_s=1e
 for k in range(120):
     rec.frame(sim.frame())
     sim.advance(0.005)
-rec.stream.flush()
-print('ready', flush=True)
+rec.sync()
+print('ready', rec._helper.proc.pid, flush=True)
 time.sleep(120)
 '''
     proc = subprocess.Popen([sys.executable, '-c', code], cwd=ROOT, stdout=subprocess.PIPE,
                             text=True, env=dict(os.environ, PYTHONPATH=str(ROOT)))
     try:
-        assert proc.stdout.readline().strip() == 'ready'
+        word, helper = proc.stdout.readline().split()
+        assert word == 'ready'
     finally:
         proc.kill()
         proc.wait(timeout=30)
-    rows = read(path)['/energy']['rows']
+    deadline = time.monotonic() + 30
+    while _running(int(helper)):                      # it finishes the file, then exits
+        assert time.monotonic() < deadline, 'the helper process did not exit'
+        time.sleep(0.02)
+    rows = _read_checked(path)['/energy']['rows']
     assert [t for t, _ in rows] == [k * 5_000_000 for k in range(100)]
 
 
-# -- the worker thread -------------------------------------------------------------------------
+def _running(pid):
+    """Whether process ``pid`` exists and is not a zombie (Linux)."""
+    try:
+        with open(f'/proc/{pid}/stat') as f:
+            return f.read().rsplit(')', 1)[1].split()[0] != 'Z'
+    except OSError:
+        return False
+
+
+# -- the helper process ------------------------------------------------------------------------
 def _read_checked(path):
     """read(path), failing on any warning of rerun's reader (e.g. a missing footer)."""
     import warnings
@@ -496,14 +510,21 @@ def test_worker_errors_are_raised_in_the_callers_thread(tmp_path, monkeypatch):
     sim = Simulation(scene)
     path = tmp_path / 'broken.rrd'
 
-    def broken(self, *args):
-        raise RuntimeError('disk on fire')
-    monkeypatch.setattr(RerunRecorder, '_send', broken)
+    from tensegrity_ros import rerun_log
+    # a helper process whose batches fail (started for this test only, ended after it)
+    monkeypatch.setattr(rerun_log, '_HELPER_CODE', rerun_log._HELPER_CODE.replace(
+        'from tensegrity_ros.rerun_log import serve\n',
+        'from tensegrity_ros.rerun_log import serve, _Writer\n'
+        'def broken(self, *args):\n'
+        '    raise RuntimeError("disk on fire")\n'
+        '_Writer._send = broken\n'))
+    monkeypatch.setattr(rerun_log, '_IDLE', [])
     rec = RerunRecorder(sim.network, path, flush_every=2)
     rec.frame(sim.frame())
     sim.advance(0.005)
-    rec.frame(sim.frame())                            # the batch goes to the worker, which fails
-    rec.stream                                        # waits for the worker
+    rec.frame(sim.frame())                            # the batch goes to the helper, which fails
+    with pytest.raises(ValueError, match='disk on fire'):
+        rec.sync()                                    # waits for the helper
     with pytest.raises(ValueError, match='disk on fire'):
         rec.frame(sim.frame())
     with pytest.raises(ValueError, match='disk on fire'):
@@ -513,6 +534,9 @@ def test_worker_errors_are_raised_in_the_callers_thread(tmp_path, monkeypatch):
     data = _read_checked(path)                        # finished: static entities and footer
     assert data['/topology']['static'] and '/energy' not in {
         e for e, v in data.items() if v['rows']}
+    for helper in rerun_log._IDLE:                    # end the broken helper
+        helper.conn.close()
+        helper.proc.wait(timeout=30)
 
 
 def test_values_beyond_float32_are_refused(tmp_path):
