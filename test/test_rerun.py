@@ -339,7 +339,7 @@ def test_packed_batch_equals_numpy_gathers():
     included; the colour law itself is checked against the ROS markers' in
     test_cable_colours_follow_tension_and_dim_slack_cables), the strain per column and the times
     in ns; three columns, so the column layout is exercised."""
-    from tensegrity_ros.rerun_log import _Strips, _pack, tension_colors, trails
+    from tensegrity_ros.rerun_writer import _Strips, _pack, tension_colors, trails
     from solver import structures
     net = structures.column(n_prisms=3, n_columns=3)
     rng = np.random.default_rng(4)
@@ -371,7 +371,7 @@ def test_packed_batch_equals_numpy_gathers():
 def test_static_entities_equal_what_rerun_archetypes_log(recorded):
     """The recorder writes the network's static arrays (topology, series names) as Arrow arrays
     built directly; every static component equals what rerun's own archetypes log."""
-    from tensegrity_ros.rerun_log import static_archetypes
+    from tensegrity_ros.rerun_writer import static_archetypes
     sim, _, data, _ = recorded
     for path, archetype in static_archetypes(sim.network):
         got = data['/' + path]['static']
@@ -384,7 +384,7 @@ def test_static_entities_equal_what_rerun_archetypes_log(recorded):
 
 
 def test_tensor_data_equals_rerun_tensor():
-    from tensegrity_ros.rerun_log import tensor_data
+    from tensegrity_ros.rerun_writer import tensor_data
     image = np.random.default_rng(2).normal(size=(5, 9))
     want = [b.as_arrow_array() for b in rr.Tensor(image, dim_names=('prism', 'frame'))
             .as_component_batches() if b.component_descriptor() == rr.Tensor.descriptor_data()]
@@ -422,7 +422,7 @@ def test_two_columns_record_one_strain_series_and_wave_per_column(tmp_path):
 
 @pytest.mark.parametrize('seed', [0, 1, 2])
 def test_trails_cover_every_member_once(seed):
-    from tensegrity_ros.rerun_log import trails
+    from tensegrity_ros.rerun_writer import trails
     rng = np.random.default_rng(seed)
     n = 12
     a = rng.integers(0, n, 30)
@@ -513,8 +513,8 @@ def test_worker_errors_are_raised_in_the_callers_thread(tmp_path, monkeypatch):
     from tensegrity_ros import rerun_log
     # a helper process whose batches fail (started for this test only, ended after it)
     monkeypatch.setattr(rerun_log, '_HELPER_CODE', rerun_log._HELPER_CODE.replace(
-        'from tensegrity_ros.rerun_log import serve\n',
-        'from tensegrity_ros.rerun_log import serve, _Writer\n'
+        'from tensegrity_ros.rerun_writer import serve\n',
+        'from tensegrity_ros.rerun_writer import serve, _Writer\n'
         'def broken(self, *args):\n'
         '    raise RuntimeError("disk on fire")\n'
         '_Writer._send = broken\n'))
