@@ -15,8 +15,8 @@ of the best (smallest) times of each kind (the least disturbed by other processe
 followed by a recording of the same frames fed from memory (the recording alone, no simulation):
 its best time over the best plain run is the cost of recording with the least noise. Writes
 ``rerun_overhead.csv`` (one row per pair) and ``rerun_overhead.json`` (the medians, the time a
-fresh process takes to import the recorder, rerun-sdk and pyarrow, paid once per process before
-any frame, and the time of a first small recording in that process, which starts the helper
+fresh process takes to import the recorder, not rerun-sdk: the helper does, and the time of a
+first small recording in that process, which starts the helper process: paid once per
 process). Only ratios measured in the same process are reported; the machine may be busy.
 
 The recorder hands the frames to a helper process through shared memory (the helper, started by
@@ -175,7 +175,8 @@ def median_interval(values, level=0.9, resamples=2000, seed=0):
 
 def import_cost(repeats=3):
     """Medians over ``repeats`` fresh processes that have already set up a simulation: (seconds
-    to import the recorder, rerun-sdk and pyarrow; seconds of a first, 3-frame recording in that
+    to import the recorder, which leaves rerun-sdk and pyarrow to the helper process; seconds of a
+    first, 3-frame recording in that
     process: it starts the helper process). What a process pays once, besides the run's own cost
     (``tensegrity run --rerun`` starts the helper ahead, while it builds the simulation); the
     second figure shows the first-use costs the warm benchmark above does not see."""
@@ -248,7 +249,7 @@ def main(out='bench/results', quick=False, log=print, scene='config/scenes/fb_co
         f'{100 * alone_main:.1f} %){quiet_txt}; load average {os.getloadavg()[0]:.2f}  -> {path}')
     imp, first = import_cost()
     plain = statistics.median(r['wall_plain_s'] for r in rows)
-    log(f'once per process (median of 3 fresh processes): importing the recorder (rerun-sdk) '
+    log(f'once per process (median of 3 fresh processes): importing the recorder '
         f'{imp:.2f} s, {imp / plain:.1f}x the plain run; a first 3-frame recording, which '
         f'starts the helper process, {1e3 * first:.1f} ms')
     summary = path.with_suffix('.json')
