@@ -54,6 +54,9 @@ class TensegritySim(Node):
                 description=DESCRIPTIONS[name], dynamic_typing=True))
         self.params = check_parameters({n: self.get_parameter(n).value for n in DEFAULTS})
         self.period = 1.0 / self.params['publish_rate_hz']
+        if self.params['record_rerun']:    # the recorder's helper starts while the node sets up
+            from .rerun_log import prestart
+            prestart()
         if sim is None:
             sim = load_simulation(self.params)
             self._step_cost = measure_step_cost(sim)

@@ -126,18 +126,24 @@ class _Helper:
 def prestart():
     """Start a helper process now, if none is idle, so that a recording made later in this process
     does not wait for one (it imports rerun-sdk and pyarrow: about 0.4 s). ``tensegrity run`` and
-    the node call it before they build the simulation."""
+    the node (with ``record_rerun``) call it before they build the simulation."""
     with _IDLE_LOCK:
-        if not any(h.alive() for h in _IDLE):
+        _drop_dead()
+        if not _IDLE:
             _IDLE.append(_Helper())
+
+
+def _drop_dead():
+    for helper in [h for h in _IDLE if not h.alive()]:
+        _IDLE.remove(helper)
+        helper.conn.close()
 
 
 def _take_helper():
     with _IDLE_LOCK:
-        while _IDLE:
-            helper = _IDLE.pop()
-            if helper.alive():
-                return helper
+        _drop_dead()
+        if _IDLE:
+            return _IDLE.pop()
     return _Helper()
 
 
@@ -249,7 +255,7 @@ class RerunRecorder:
                               self.n_buffers, cpus, application_id, recording_id,
                               send_blueprint))
             send_handle(helper.conn, memfd, helper.proc.pid)
-        except (OSError, EOFError) as exc:
+        except (OSError, EOFError, AttributeError) as exc:    # AttributeError: no memfd here
             raise ValueError(f'rerun: cannot start the recording helper process: {exc}') from None
         finally:
             os.close(memfd)
