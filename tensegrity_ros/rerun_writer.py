@@ -123,7 +123,7 @@ def _i32(a):
 
 
 def _pack(rows, n_t, n_x, n_p, n_s, n_c, bar_index, cable_index, scale):
-    """(worker) The Rerun arrays of the first ``n_t`` rows of a batch buffer: node positions,
+    """(helper) The Rerun arrays of the first ``n_t`` rows of a batch buffer: node positions,
     bar-trail points and cable end points as float32 (frame after frame), the cable colours
     (:func:`tension_colors` with ``scale``), the strain per column (column, frame, prism:
     ``n_s / n_p`` columns of ``n_p`` prisms), energy, constraint error and the times in int64 ns.
