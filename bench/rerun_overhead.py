@@ -176,8 +176,8 @@ def median_interval(values, level=0.9, resamples=2000, seed=0):
 def import_cost(repeats=3):
     """Medians over ``repeats`` fresh processes that have already set up a simulation: (seconds
     to import the recorder, which leaves rerun-sdk and pyarrow to the helper process; seconds of a
-    first, 3-frame recording in that
-    process: it starts the helper process). What a process pays once, besides the run's own cost
+    first, 3-frame recording in that process: it starts the helper process). What a process pays
+    once, besides the run's own cost
     (``tensegrity run --rerun`` starts the helper ahead, while it builds the simulation); the
     second figure shows the first-use costs the warm benchmark above does not see."""
     code = '\n'.join([

@@ -73,6 +73,7 @@ def cmd_run(args):
     if args.rerun or args.rerun_connect:
         from . import rerun_log
         rerun_log.prestart()     # the recorder's helper process starts while the run is set up
+                                 # (the module is imported before the gc.freeze() below)
     scene = Scene.load(args.scene)
     sets = list(args.set or [])
     if args.v0 is not None:
@@ -97,8 +98,6 @@ def cmd_run(args):
         out_dir.mkdir(parents=True, exist_ok=True)
     update, close = _progress(frame_count(t_end, output_dt) - 1, scene.name)
     outputs, frame_sinks = {}, []
-    if args.rerun or args.rerun_connect:
-        from . import rerun_log  # noqa: F401  (imported before the freeze below)
     if args.mcap:
         from . import mcap_run, recording  # noqa: F401
     # The objects of the imports and the set-up (some 160 000) are moved out of the garbage

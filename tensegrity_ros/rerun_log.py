@@ -252,7 +252,7 @@ class RerunRecorder:
             net = _NetArrays(network)
             helper.conn.send(('open', net, self.path, self.url, self.tension_scale,
                               self.flush_every, int(wave_window), float(wave_period_s), shapes,
-                              self.n_buffers, cpus, application_id, recording_id,
+                              self._buffers.shape, cpus, application_id, recording_id,
                               send_blueprint))
             send_handle(helper.conn, memfd, helper.proc.pid)
         except (OSError, EOFError, AttributeError) as exc:    # AttributeError: no memfd here
@@ -271,34 +271,31 @@ class RerunRecorder:
             self._lost()
 
     def _lost(self):
-        code = self._helper.proc.poll()
-        self._error = self._error or ValueError(
-            f'rerun: the recording helper process exited (code {code}); recording stopped')
+        if self._error is None:
+            self._error = (f'rerun: the recording helper process exited (code '
+                           f'{self._helper.proc.poll()}); recording stopped')
         self._check()
 
-    def _handle(self, msg):
-        kind = msg[0]
-        if kind == 'free':
-            self._free.append(msg[1])
-        elif kind == 'error' and self._error is None:
-            self._error = ValueError(msg[1])
-        return kind
-
     def _receive(self, until=None):
-        """Handle the helper's messages: those already here, or (``until``) every message up to
-        the first of that kind."""
+        """Handle the helper's messages (buffers handed back, its first error): those already
+        here, or (``until``) every message up to the first of that kind, which is returned."""
         conn = self._helper.conn
         try:
             while until is not None or conn.poll():
-                if self._handle(conn.recv()) == until:
-                    return
+                msg = conn.recv()
+                if msg[0] == 'free':
+                    self._free.append(msg[1])
+                elif msg[0] == 'error' and self._error is None:
+                    self._error = msg[1]
+                elif msg[0] == until:
+                    return msg
         except (EOFError, OSError):
             self._lost()
 
     def _check(self):
-        """Raise the helper's first error (as ValueError) in the caller's thread."""
+        """Raise the helper's first error (its message, as ValueError) in the caller's thread."""
         if self._error is not None:
-            raise self._error
+            raise ValueError(self._error)
 
     def sync(self):
         """Wait until the helper has sent everything handed to it so far (frames still in the
@@ -401,11 +398,8 @@ class RerunRecorder:
     def _submit(self, n_t, wave=False, restart=False):
         self._last_flush = time.monotonic()
         self._batch = self.flush_every
-        index = None
-        if n_t:
-            index = self._index
         if n_t or wave or restart:
-            self._post(('send', index, n_t, wave, restart))
+            self._post(('send', self._index if n_t else None, n_t, wave, restart))
         if n_t:
             self._new_buffer()
         self._n_buf = 0
@@ -416,23 +410,16 @@ class RerunRecorder:
         if self._closed:
             return
         self._closed = True
-        helper, n_t = self._helper, self._n_buf
-        self._n_buf = 0
+        n_t, self._n_buf = self._n_buf, 0
         try:
-            helper.conn.send(('close', self._index if n_t else None, n_t))
-            while True:
-                msg = helper.conn.recv()
-                if self._handle(msg) == 'closed':
-                    break
-        except (EOFError, OSError):
-            self._lost()
+            self._post(('close', self._index if n_t else None, n_t))
+            _, error, self.helper_cpu_s = self._receive(until='closed')
         finally:
             self._rows = self._bx = self._bs = self._bt = self._buffers = None
             self._mem.close()
-        _give_back(helper)                      # the file is finished: ready for another one
-        self.helper_cpu_s = msg[2]
-        if msg[1] is not None and self._error is None:
-            self._error = ValueError(msg[1])
+        _give_back(self._helper)                # the file is finished: ready for another one
+        if self._error is None:
+            self._error = error
         self._check()
 
     def __enter__(self):

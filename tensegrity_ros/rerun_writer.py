@@ -338,13 +338,13 @@ def serve(fd):
 class _Writer:
     """(helper process) One recording: the stream, its sinks, the blueprint and the static
     entities, then the batches, commands and wave images handed over, until ``close``. Batches
-    are read from shared memory (``memfd``: ``n_buffers`` buffers of ``flush_every`` rows of
-    ``width`` float64, as the recorder fills them); each buffer is handed back (``free``) once
+    are read from shared memory (``memfd``: float64 buffers of ``buffer_shape``, buffer x row x
+    value, as the recorder fills them); each buffer is handed back (``free``) once
     sent. The first error is reported (``error``) and the rest is drained without sending; the
     file is finished in any case."""
 
     def __init__(self, conn, memfd, all_cpus, net, path, url, tension_scale, flush_every,
-                 wave_window, wave_period_s, shapes, n_buffers, cpus, application_id,
+                 wave_window, wave_period_s, shapes, buffer_shape, cpus, application_id,
                  recording_id, send_blueprint):
         self._cpu0 = time.process_time()
         self.conn, self.all_cpus = conn, all_cpus
@@ -352,13 +352,11 @@ class _Writer:
         self.tension_scale, self.flush_every = tension_scale, flush_every
         self.wave_window, self.wave_period_s = wave_window, wave_period_s
         self._shapes = shapes
-        self._width = 3 * net.n_nodes + math.prod(shapes[1]) + net.n_cables + 3
-        size = n_buffers * flush_every * self._width * 8
         try:
-            self._mem = mmap.mmap(memfd, size)
+            self._mem = mmap.mmap(memfd, 8 * math.prod(buffer_shape))
         finally:
             os.close(memfd)
-        self._buffers = np.ndarray((n_buffers, flush_every, self._width), np.float64, self._mem)
+        self._buffers = np.ndarray(buffer_shape, np.float64, self._mem)
         self._stream = None
         self._error = None
         self._tids = set()
@@ -376,7 +374,10 @@ class _Writer:
             fn(*args)
         except Exception as exc:
             self._error = exc
-            self.conn.send(('error', _message(exc)))
+            try:
+                self.conn.send(('error', _message(exc)))
+            except OSError:                     # the recording process is gone: finish anyway
+                pass
 
     def run(self):
         """Serve this recording until ``close`` (True) or until the other end goes (False)."""
