@@ -94,7 +94,8 @@ def build_network(scene):
             prestrain=scene['prestrain'], bases=s['bases'], stacking=s['stacking'],
             rigid_bases_as=s['rigid_bases_as'], kappa=s['kappa'], n_columns=s['n_columns'],
             column_spacing=s['column_spacing'], clamped_levels=tuple(s['clamped_levels']),
-            handedness=s['handedness'])
+            handedness=s['handedness'], bar_mass_fraction=m['bar_mass_fraction'],
+            mass_placement=s['mass_placement'], end_mass=m['end_mass'])
     EA = m['cable_E'] * math.pi * m['cable_radius'] ** 2
     rest = s['cable_rest_length']
     return structures.explicit(s['nodes'], s['bars'], s['cables'], s['node_mass'], EA,

@@ -20,7 +20,7 @@ are the full model's, to round-off. The kernels of :mod:`solver.dynamics` and
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -82,9 +82,9 @@ class ReducedNetwork:
     cable_map: np.ndarray
     reps: np.ndarray
     kkt: tuple = massmatrix.NO_KKT
-    bar_a: np.ndarray = massmatrix.EMPTY_I
-    bar_b: np.ndarray = massmatrix.EMPTY_I
-    bar_mass: np.ndarray = massmatrix.EMPTY_F
+    bar_a: np.ndarray = field(default_factory=lambda: massmatrix.EMPTY_I)
+    bar_b: np.ndarray = field(default_factory=lambda: massmatrix.EMPTY_I)
+    bar_mass: np.ndarray = field(default_factory=lambda: massmatrix.EMPTY_F)
 
     @property
     def n_nodes(self):
