@@ -383,7 +383,8 @@ def test_gravity_acts_on_bar_masses():
     plus half of each bar attached to it."""
     net = structures.column(n_prisms=3, bar_mass_fraction=0.5)
     sim = Simulation(Scene({'structure': {'n_prisms': 3}, 'model': 'full3d',
-                            'materials': {'bar_mass_fraction': 0.5}, 'loading': {'gravity': 9.81}}))
+                            'materials': {'bar_mass_fraction': 0.5},
+                            'loading': {'gravity': 9.81}}))
     weight = 9.81 * (np.sum(np.asarray(net.node_mass)[~net.clamped]) + np.sum(net.bar_mass)
                      - 0.5 * np.sum(np.asarray(net.bar_mass)[net.clamped[net.bar_a]]))
     assert -sim.f_ext[:, 2].sum() == pytest.approx(weight, rel=1e-12)
