@@ -184,6 +184,9 @@ class Chain1D:
         meta = network.meta
         if meta.get('builder') != 'column' or network.n_columns != 1:
             raise ValueError('model chain1d: needs a single column built by the column builder')
+        if np.any(network.bar_mass):
+            raise ValueError('model chain1d: bar masses are not modelled (a level carries only '
+                             'its lumped node masses); use sym3d or full3d')
         self.network = network
         lev = np.asarray(network.levels[0])
         self.levels = lev

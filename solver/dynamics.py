@@ -6,7 +6,7 @@ Two levels, as everywhere in the solver: :func:`pack` (Python) validates and all
 ``net`` tuple (read-only model arrays, see :class:`solver.network.Network`)::
 
     (w_diag, partner, w_off, con_tail, con_head, con_length, con_coef, cable_a, cable_b,
-     con_rot, cable_rot, con_coef3)
+     con_rot, cable_rot, con_coef3, kkt)
 
 The last three serve the symmetric reduction (:mod:`solver.sym3d`) and are empty for a plain
 network:
@@ -16,6 +16,9 @@ force
 on the image is rotated back onto the node. ``con_coef3`` (n_con, bw + 1, 3) replaces ``con_coef``:
 ``A[c, c-k] = coef3[c, k] . (b_c^z b_d^z, b_c^x b_d^x + b_c^y b_d^y, b_c^y b_d^x - b_c^x b_d^y)``.
 With empty arrays every kernel takes the plain path (r = 0), so ``full3d`` pays nothing for them.
+``kkt`` is the layout of the mass-matrix system of :mod:`solver.massmatrix` (massive bars that
+share nodes); its arrays are empty for every other network, and the kernels then take the
+node-local inverse mass path unchanged.
 
 ``act`` tuple (actuation, mutable by commands)::
 
@@ -31,6 +34,7 @@ import math
 
 import numpy as np
 
+from . import massmatrix as mm
 from ._jit import jit, jit_inline
 from .rotated import (ROT_C, ROT_S, add_constraint_forces_rot, assemble_band_rot,  # noqa: F401
                       cable_forces_rot, member_vectors_rot)
@@ -39,6 +43,7 @@ OK, SINGULAR, NONFINITE, NOT_CONVERGED = 0, 1, 2, 3
 STATUS_TEXT = {OK: 'ok', SINGULAR: 'constraint matrix singular (degenerate rigid members)',
                NONFINITE: 'non-finite positions or velocities',
                NOT_CONVERGED: 'position projection did not converge'}
+STATUS_TEXT.update(mm.STATUS_TEXT)
 
 
 NO_ROT = np.zeros(0, dtype=np.int64)
@@ -54,7 +59,7 @@ def pack(network, cable_rest_length=None, cable_EA=None, f_ext=None):
     net = (network.w_diag, network.partner, network.w_off, network.con_tail, network.con_head,
            network.con_length, network.con_coef, network.cable_a, network.cable_b,
            getattr(network, 'con_rot', NO_ROT), getattr(network, 'cable_rot', NO_ROT),
-           getattr(network, 'con_coef3', NO_COEF3))
+           getattr(network, 'con_coef3', NO_COEF3), getattr(network, 'kkt', mm.NO_KKT))
     rest = np.array(network.cable_rest_length if cable_rest_length is None else cable_rest_length,
                     dtype=np.float64)
     EA = np.array(network.cable_EA if cable_EA is None else cable_EA, dtype=np.float64)
@@ -62,13 +67,21 @@ def pack(network, cable_rest_length=None, cable_EA=None, f_ext=None):
     return net, (rest, EA, f)
 
 
-def workspace(n_nodes, n_con, bandwidth):
-    """Scratch arrays: ``(f, wf, bvec, band, lam, stage arrays...)``."""
+def workspace(n_nodes, n_con, bandwidth, kkt_dims=None):
+    """Scratch arrays: ``(f, wf, bvec, band, lam, stage arrays..., kws)``; ``kws`` (the last) is
+    the scratch of the mass-matrix system for ``kkt_dims = (n_u, kl, ku)`` (empty when None)."""
     def z(*shape):
         return np.zeros(shape)
     return (z(n_nodes, 3), z(n_nodes, 3), z(n_con, 3), z(n_con, bandwidth + 1), z(n_con),
             z(n_nodes, 3), z(n_nodes, 3), z(n_nodes, 3), z(n_nodes, 3), z(n_nodes, 3),
-            z(n_nodes, 3))
+            z(n_nodes, 3), mm.scratch(mm.NO_DIMS if kkt_dims is None else kkt_dims))
+
+
+def workspace_for(network):
+    """:func:`workspace` sized for ``network`` (a :class:`~solver.network.Network` or a reduced
+    one), including the scratch of its mass-matrix system."""
+    kkt = getattr(network, 'kkt', mm.NO_KKT)
+    return workspace(network.n_nodes, network.n_constraints, network.bandwidth, kkt[5])
 
 
 @jit
@@ -261,6 +274,8 @@ def accelerations(x, v, net, act, ws, out):
         cable_forces(x, cable_a, cable_b, rest, EA, f)
     else:
         cable_forces_rot(x, cable_a, cable_b, net[10], rest, EA, f)
+    if net[12][0].shape[0] != 0:        # massive bars sharing nodes: the banded KKT system
+        return mm.accelerations(x, v, f, tail, head, rot, net[12], ws[11], bvec, lam, out)
     apply_w(f, w_diag, partner, w_off, wf)
     if rot.shape[0] == 0:
         member_vectors(x, tail, head, bvec)
@@ -311,6 +326,9 @@ def project_positions(x, net, ws, tol, max_iter):
     w_diag, partner, w_off, tail, head, length = net[0], net[1], net[2], net[3], net[4], net[5]
     coef, rot, coef3 = net[6], net[9], net[11]
     f, wf, bvec, band, lam = ws[0], ws[1], ws[2], ws[3], ws[4]
+    if net[12][0].shape[0] != 0:
+        return mm.project_positions(x, tail, head, rot, length, net[12], ws[11], bvec, tol,
+                                    max_iter)
     for it in range(max_iter + 1):
         _members(x, tail, head, rot, bvec)
         worst = 0.0
@@ -346,6 +364,8 @@ def project_velocities(x, v, net, ws):
     w_diag, partner, w_off, tail, head, rot = net[0], net[1], net[2], net[3], net[4], net[9]
     coef, coef3 = net[6], net[11]
     f, wf, bvec, band, lam = ws[0], ws[1], ws[2], ws[3], ws[4]
+    if net[12][0].shape[0] != 0:
+        return mm.project_velocities(x, v, tail, head, rot, net[12], ws[11], bvec)
     _members(x, tail, head, rot, bvec)
     if rot.shape[0] == 0:
         for c in range(tail.shape[0]):

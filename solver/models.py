@@ -49,7 +49,7 @@ class Full3D(Model):
     def __init__(self, network, f_ext=None):
         super().__init__(network)
         self.net, self.act = dyn.pack(network, f_ext=f_ext)
-        self.ws = dyn.workspace(network.n_nodes, network.n_constraints, network.bandwidth)
+        self.ws = dyn.workspace_for(network)
         self.x = np.array(network.x0)
         self.v = np.zeros_like(self.x)
         self.summ = full_summary_arrays(network)

@@ -24,6 +24,10 @@ Shapes and units (SI):
   ``partner`` (n_nodes,) int64 (-1 if none) and ``w_off`` (n_nodes,): ``(W f)_p = w_diag[p] f_p +
   w_off[p] f_partner[p]``. Partners come from massive bars (2x2 rod block); clamped nodes have ``w
   = 0``.
+- Massive bars that share nodes (class k for the masses, e.g. columns on shared bases): the
+  inverse mass is not node-local; ``kkt`` holds the layout of the banded saddle-point system of
+  :mod:`solver.massmatrix` (empty arrays otherwise), and ``w_diag`` is then only the inverse of
+  the diagonal of M (used for nothing but the constraint ordering).
 - ``levels`` (n_columns, n_levels, 3) int64: node indices of each base level of each column (empty
 for
   networks that are not columns); ``h0`` m: reference prism height.
@@ -35,6 +39,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import reverse_cuthill_mckee
+
+from . import massmatrix
 
 
 class NetworkError(ValueError):
@@ -73,6 +79,7 @@ class Network:
     levels: np.ndarray
     h0: float
     meta: dict = field(default_factory=dict)
+    kkt: tuple = massmatrix.NO_KKT
 
     @property
     def n_nodes(self):
@@ -136,7 +143,12 @@ class Network:
         if np.any(bar_mass < 0) or np.any(node_mass < 0):
             raise NetworkError('masses must be non-negative')
 
-        w_diag, partner, w_off = _inverse_mass(node_mass, is_clamped, bars, bar_mass)
+        class_k = massmatrix.needs_kkt(bars, bar_mass)
+        if class_k:
+            w_diag, partner, w_off, mass = _diagonal_inverse_mass(node_mass, is_clamped, bars,
+                                                                  bar_mass)
+        else:
+            w_diag, partner, w_off = _inverse_mass(node_mass, is_clamped, bars, bar_mass)
 
         members = np.concatenate([bars, edges]) if len(edges) else bars
         length = np.linalg.norm(x0[members[:, 1]] - x0[members[:, 0]], axis=1)
@@ -150,6 +162,10 @@ class Network:
         if len(members) and np.any(coef[:, 0] <= 0):
             raise NetworkError('a rigid member has no free mass at either end')
 
+        kkt = massmatrix.NO_KKT
+        if class_k:
+            node_u, con_u, dims = massmatrix.layout(n, is_clamped, members, mass[0], mass[1], x0)
+            kkt = tuple(_ro(a, a.dtype) for a in (node_u, con_u, mass[0], mass[1], mass[2], dims))
         if levels is None:
             levels = np.zeros((0, 0, 3), dtype=np.int64)
         kind = tuple(cable_kind) if cable_kind is not None else ('cable',) * len(cables)
@@ -166,7 +182,22 @@ class Network:
             w_off=_ro(w_off, np.float64),
             con_tail=_ro(members[:, 0], np.int64), con_head=_ro(members[:, 1], np.int64),
             con_length=_ro(length, np.float64), con_coef=_ro(coef, np.float64),
-            bandwidth=int(bw), levels=_ro(levels, np.int64), h0=float(h0), meta=dict(meta or {}))
+            bandwidth=int(bw), levels=_ro(levels, np.int64), h0=float(h0), meta=dict(meta or {}),
+            kkt=kkt)
+
+    def gravity_mass(self):
+        """Mass (n_nodes,) kg on which uniform gravity acts at each node: the lumped mass plus
+        half of each bar's mass at each of its ends (the consistent load of a uniform rod)."""
+        m = np.array(self.node_mass, dtype=np.float64)
+        if np.any(self.bar_mass):
+            np.add.at(m, self.bar_a, 0.5 * self.bar_mass)
+            np.add.at(m, self.bar_b, 0.5 * self.bar_mass)
+        return m
+
+    @property
+    def total_mass(self):
+        """Sum of the entries of the mass matrix (clamped nodes included), kg."""
+        return float(np.sum(self.node_mass) + np.sum(self.bar_mass))
 
 
 def _inverse_mass(node_mass, clamped, bars, bar_mass):
@@ -207,6 +238,21 @@ def _inverse_mass(node_mass, clamped, bars, bar_mass):
             w_diag[p] = 1.0 / m_diag[p]
     partner = np.where(w_off != 0, partner, -1)
     return w_diag, partner, w_off
+
+
+def _diagonal_inverse_mass(node_mass, clamped, bars, bar_mass):
+    """For networks on the mass-matrix path: ``1 / M_pp`` on free nodes (no partners) and the
+    entries of M restricted to free nodes (:func:`solver.massmatrix.mass_entries`)."""
+    mp, mq, mv, diag = massmatrix.mass_entries(node_mass, clamped, bars, bar_mass)
+    n = len(node_mass)
+    w_diag = np.zeros(n)
+    for p in range(n):
+        if clamped[p]:
+            continue
+        if not diag[p] > 0:
+            raise NetworkError(f'free node {p} has no mass')
+        w_diag[p] = 1.0 / diag[p]
+    return w_diag, -np.ones(n, dtype=np.int64), np.zeros(n), (mp, mq, mv)
 
 
 def _adjacency(members, partner):

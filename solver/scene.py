@@ -30,6 +30,7 @@ COLUMN_DEFAULTS = {
     'kappa': 100.0,
     'clamped_levels': [0],
     'handedness': 'right',
+    'mass_placement': 'level',
 }
 EXPLICIT_DEFAULTS = {
     'builder': 'explicit',
@@ -47,7 +48,8 @@ DEFAULTS = {
     'name': 'scene',
     'description': '',
     'structure': COLUMN_DEFAULTS,
-    'materials': {'cable_E': 5.48e6, 'cable_radius': 1.4e-4, 'unit_mass': 0.0249, 'bar_mass': 0.0},
+    'materials': {'cable_E': 5.48e6, 'cable_radius': 1.4e-4, 'unit_mass': 0.0249, 'bar_mass': 0.0,
+                  'bar_mass_fraction': 0.0, 'end_mass': 0.0},
     'prestrain': 0.002,
     'loading': {'impact': {'v0': 0.1, 'mode': 'impulse', 'columns': None}, 'gravity': 0.0},
     'model': 'auto',
@@ -64,6 +66,8 @@ CHOICES = {
     'structure.stacking': ('shared', 'parallel'),
     'structure.rigid_bases_as': ('edges', 'stiff_cables'),
     'structure.handedness': ('right', 'left'),
+    # where the lumped part of each prism's mass sits: one unit per level, or half on each base
+    'structure.mass_placement': ('level', 'unit_bases'),
     'loading.impact.mode': ('impulse', 'energy'),
     'model': ('auto', 'full3d', 'sym3d', 'chain1d'),
     # stop when a prism twists through 180 deg (its bars cross): in rigid-base columns only (the
@@ -84,6 +88,7 @@ RANGES = {
     'materials.cable_radius': (0.0, math.inf, False),
     'materials.unit_mass': (0.0, math.inf, False),
     'materials.bar_mass': (0.0, math.inf, True),
+    'materials.end_mass': (0.0, math.inf, True),
     'prestrain': (0.0, 0.5, False),
     'loading.impact.v0': (-10.0, 10.0, True),
     'integrator.dt': (0.0, 0.1, False),
@@ -201,6 +206,15 @@ def validate(raw):
                                                  for c in cols):
             raise SceneError(f'loading.impact.columns: expected a list of column indices '
                              f'0..{n_col - 1} or null, got {cols!r}')
+    mat = data['materials']
+    if not 0.0 <= mat['bar_mass_fraction'] < 1.0:     # [0, 1): RANGES has no open upper end
+        raise SceneError(f'materials.bar_mass_fraction: {mat["bar_mass_fraction"]!r} is outside '
+                         '[0.0, 1.0)')
+    if builder != 'column':
+        for key in ('bar_mass_fraction', 'end_mass'):
+            if mat[key] != 0.0:
+                raise SceneError(f'materials.{key}: only for structure.builder column (give '
+                                 'node_mass and materials.bar_mass instead)')
     if data['run']['output_dt'] < data['integrator']['dt']:
         raise SceneError('run.output_dt: must not be smaller than integrator.dt')
     return data

@@ -94,7 +94,8 @@ def build_network(scene):
             prestrain=scene['prestrain'], bases=s['bases'], stacking=s['stacking'],
             rigid_bases_as=s['rigid_bases_as'], kappa=s['kappa'], n_columns=s['n_columns'],
             column_spacing=s['column_spacing'], clamped_levels=tuple(s['clamped_levels']),
-            handedness=s['handedness'])
+            handedness=s['handedness'], bar_mass_fraction=m['bar_mass_fraction'],
+            mass_placement=s['mass_placement'], end_mass=m['end_mass'])
     EA = m['cable_E'] * math.pi * m['cable_radius'] ** 2
     rest = s['cable_rest_length']
     return structures.explicit(s['nodes'], s['bars'], s['cables'], s['node_mass'], EA,
@@ -113,7 +114,7 @@ class Simulation:
         g = scene['loading.gravity']
         f_ext = np.zeros((self.network.n_nodes, 3))
         if g:
-            f_ext[:, 2] = -g * self.network.node_mass
+            f_ext[:, 2] = -g * self.network.gravity_mass()
             f_ext[self.network.clamped] = 0.0
         self.f_ext = f_ext
         self._f_ext_or_none = f_ext if np.any(f_ext) else None
@@ -270,7 +271,7 @@ class Simulation:
             kick[net.levels[c, -1], 2] = -vc
         ke_target = observables.kinetic_energy(kick, net)
         net_t, _ = dyn.pack(net)
-        ws = dyn.workspace(net.n_nodes, net.n_constraints, net.bandwidth)
+        ws = dyn.workspace_for(net)
         status = dyn.project_velocities(x, kick, net_t, ws)
         if status != dyn.OK:
             raise ValueError(f'impact: {dyn.STATUS_TEXT[status]}')

@@ -33,7 +33,8 @@ def rest_for_tension(length, EA, tension):
 def column(n_prisms=50, radius=0.005, h0=0.0062, cable_E=5.48e6, cable_radius=1.4e-4,
            unit_mass=0.0249, bar_mass=0.0, prestrain=0.002, bases='flexible', stacking='shared',
            rigid_bases_as='edges', kappa=100.0, n_columns=1, column_spacing=0.03,
-           clamped_levels=(0,), handedness='right'):
+           clamped_levels=(0,), handedness='right', bar_mass_fraction=0.0,
+           mass_placement='level', end_mass=0.0):
     """Columns of tensegrity prisms along z (physics.md section 3).
 
     Level j of column c (j = 0..n_prisms) holds nodes ``3 j + k`` (+ ``c * 3 (n_prisms + 1)``) at
@@ -45,7 +46,12 @@ def column(n_prisms=50, radius=0.005, h0=0.0062, cable_E=5.48e6, cable_radius=1.
     (twice at
     interior levels with ``stacking='shared'``; one cable per prism with ``stacking='parallel'``).
     Rigid bases are rigid edges (``rigid_bases_as='edges'``) or base cables with EA x ``kappa``.
-    ``unit_mass`` (kg per prism) is lumped on the base nodes, a third per node.
+    Masses (:func:`column_masses`): ``unit_mass`` kg per prism, of which ``bar_mass_fraction``
+    is in the prism's three bars (uniform rods) and the rest lumped on base nodes, a third per
+    node, by ``mass_placement``: ``'level'`` one unit per level (level 0 keeps a whole unit: no
+    prism below it has bars), ``'unit_bases'`` half of each prism on each of its two bases (the
+    end levels carry half a unit). ``bar_mass`` kg is added to every bar, ``end_mass`` kg to the
+    free end level (the last one), shared by its three nodes.
     """
     if n_prisms < 1 or n_columns < 1:
         raise NetworkError('n_prisms and n_columns must be at least 1')
@@ -107,18 +113,54 @@ def column(n_prisms=50, radius=0.005, h0=0.0062, cable_E=5.48e6, cable_radius=1.
                     cable_rest.append(rest_for_tension(side, base_EA, n_adjacent * t_l))
                     kinds.append('base')
 
-    node_mass = np.full(len(x), unit_mass / 3.0)
     clamped = [node(c, j, k) for c in range(n_columns) for j in clamped_levels for k in range(3)]
+    node_mass, bar_masses = column_masses(levels, len(x), unit_mass, bar_mass, bar_mass_fraction,
+                                          mass_placement, end_mass, clamped)
     meta = dict(builder='column', n_prisms=n_prisms, radius=radius, h0=h0, EA=EA,
                 prestrain=prestrain,
                 bases=bases, stacking=stacking, rigid_bases_as=rigid_bases_as, kappa=kappa,
                 cross_length=s_len, cross_rest_length=L_s, gamma_s=gamma_s, base_tension=t_l,
                 bar_length=float(np.linalg.norm(x[node(0, 1, 0)] - x[node(0, 0, 0)])),
-                unit_mass=unit_mass, twist=phi0)
+                unit_mass=unit_mass, twist=phi0, bar_mass_fraction=bar_mass_fraction,
+                mass_placement=mass_placement, end_mass=end_mass)
     return Network.build(x, node_mass, bars, cables, cable_rest, cable_EA, rigid_edges=edges,
-                         clamped=clamped, bar_mass=bar_mass, cable_kind=kinds, levels=levels,
+                         clamped=clamped, bar_mass=bar_masses, cable_kind=kinds, levels=levels,
                          h0=h0,
                          meta=meta)
+
+
+MASS_PLACEMENTS = ('level', 'unit_bases')
+
+
+def column_masses(levels, n_nodes, unit_mass, bar_mass=0.0, bar_mass_fraction=0.0,
+                  mass_placement='level', end_mass=0.0, clamped=()):
+    """Lumped node masses (n_nodes,) kg and bar masses (n_bars,) kg of columns whose levels are
+    ``levels`` (n_columns, n_levels, 3) and whose bars are ordered as :func:`column` makes them
+    (three per prism, prism by prism, column by column). See :func:`column` for the meaning."""
+    if not 0.0 <= bar_mass_fraction < 1.0:
+        raise NetworkError(f'bar_mass_fraction: {bar_mass_fraction!r} is outside [0, 1)')
+    if mass_placement not in MASS_PLACEMENTS:
+        raise NetworkError(f'mass_placement: {mass_placement!r} is not one of '
+                           f'{", ".join(MASS_PLACEMENTS)}')
+    if end_mass < 0 or bar_mass < 0:
+        raise NetworkError('end_mass and bar_mass must be non-negative')
+    n_columns, n_levels = levels.shape[0], levels.shape[1]
+    n_prisms = n_levels - 1
+    lumped = (1.0 - bar_mass_fraction) * unit_mass        # per prism, on base nodes
+    node_mass = np.full(n_nodes, lumped / 3.0)
+    if mass_placement == 'level':
+        node_mass[levels[:, 0].ravel()] = unit_mass / 3.0
+    else:
+        node_mass[levels[:, 0].ravel()] = 0.5 * lumped / 3.0
+        node_mass[levels[:, -1].ravel()] = 0.5 * lumped / 3.0
+    if end_mass:
+        end = levels[:, -1].ravel()
+        if np.any(np.isin(end, np.asarray(clamped, dtype=np.int64))):
+            raise NetworkError('end_mass: the end level is clamped (the extra mass belongs on '
+                               'the free, impacted end)')
+        node_mass[end] += end_mass / 3.0
+    bars = np.full(3 * n_prisms * n_columns, bar_mass + bar_mass_fraction * unit_mass / 3.0)
+    return node_mass, bars
 
 
 def explicit(nodes, bars, cables, node_mass, cable_EA, cable_rest_length=None, prestrain=None,

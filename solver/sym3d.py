@@ -20,7 +20,7 @@ are the full model's, to round-off. The kernels of :mod:`solver.dynamics` and
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -28,7 +28,8 @@ from scipy.spatial import cKDTree
 from . import dynamics as dyn
 from ._jit import jit
 from .rotated import ROT_C, ROT_S
-from .network import NetworkError, _band_order, _inverse_mass, _ro
+from . import massmatrix
+from .network import NetworkError, _band_order, _diagonal_inverse_mass, _inverse_mass, _ro
 
 R3 = np.array([[-0.5, -math.sqrt(3.0) / 2.0, 0.0], [math.sqrt(3.0) / 2.0, -0.5, 0.0],
                [0.0, 0.0, 1.0]])
@@ -80,6 +81,10 @@ class ReducedNetwork:
     node_rot: np.ndarray
     cable_map: np.ndarray
     reps: np.ndarray
+    kkt: tuple = massmatrix.NO_KKT
+    bar_a: np.ndarray = field(default_factory=lambda: massmatrix.EMPTY_I)
+    bar_b: np.ndarray = field(default_factory=lambda: massmatrix.EMPTY_I)
+    bar_mass: np.ndarray = field(default_factory=lambda: massmatrix.EMPTY_F)
 
     @property
     def n_nodes(self):
@@ -205,7 +210,14 @@ def reduce_network(network, tol=1e-9):
         raise NotSymmetric('a massive bar joins a node to a rotated image (not supported)')
     node_mass = np.asarray(network.node_mass)[reps]
     clamped = np.asarray(network.clamped)[reps]
-    w_diag, partner, w_off = _inverse_mass(node_mass, clamped, rbars[:, :2], bmass)
+    # massive bars that share nodes: the reduced mass matrix has the rod blocks of the reduced
+    # bars (every massive bar has r = 0, so a block couples x_a and x_b, not a rotated image)
+    class_k = massmatrix.needs_kkt(rbars[:, :2], bmass)
+    if class_k:
+        w_diag, partner, w_off, mass = _diagonal_inverse_mass(node_mass, clamped, rbars[:, :2],
+                                                              bmass)
+    else:
+        w_diag, partner, w_off = _inverse_mass(node_mass, clamped, rbars[:, :2], bmass)
 
     members = np.concatenate([rbars, redges]) if len(redges) else rbars
     x_red = x0[reps]
@@ -221,6 +233,11 @@ def reduce_network(network, tol=1e-9):
     con_rot = members[:, 2] if np.any(members[:, 2]) else np.zeros(0, dtype=np.int64)
     if len(members) and np.any((coef3[:, 0, 0] <= 0) & (coef3[:, 0, 1] <= 0)):
         raise NetworkError('a rigid member has no free mass at either end')
+    kkt = massmatrix.NO_KKT
+    if class_k:
+        node_u, con_u, dims = massmatrix.layout(len(reps), clamped, members[:, :2], mass[0],
+                                                mass[1], x_red)
+        kkt = tuple(_ro(a, a.dtype) for a in (node_u, con_u, mass[0], mass[1], mass[2], dims))
     return ReducedNetwork(
         x0=_ro(x_red, np.float64), node_mass=_ro(node_mass, np.float64),
         clamped=_ro(clamped, bool), w_diag=_ro(w_diag, np.float64), partner=_ro(partner, np.int64),
@@ -231,7 +248,9 @@ def reduce_network(network, tol=1e-9):
         cable_a=_ro(rcab[:, 0], np.int64), cable_b=_ro(rcab[:, 1], np.int64),
         cable_rot=_ro(rcab[:, 2], np.int64), cable_rest_length=_ro(cprop[:, 0], np.float64),
         cable_EA=_ro(cprop[:, 1], np.float64), node_rep=_ro(rep, np.int64),
-        node_rot=_ro(rot, np.int64), cable_map=_ro(cable_map, np.int64), reps=_ro(reps, np.int64))
+        node_rot=_ro(rot, np.int64), cable_map=_ro(cable_map, np.int64), reps=_ro(reps, np.int64),
+        kkt=kkt, bar_a=_ro(rbars[:, 0], np.int64), bar_b=_ro(rbars[:, 1], np.int64),
+        bar_mass=_ro(bmass, np.float64))
 
 
 class Sym3D:
@@ -252,19 +271,22 @@ class Sym3D:
         f_full = np.zeros((network.n_nodes, 3)) if f_ext is None else np.asarray(f_ext, float)
         f_red = self._reduce(f_full, 'external forces')
         self.net, self.act = dyn.pack(red, f_ext=f_red)
-        self.ws = dyn.workspace(red.n_nodes, red.n_constraints, red.bandwidth)
+        self.ws = dyn.workspace_for(red)
         self.x = np.array(red.x0)
         self.v = np.zeros_like(self.x)
         # state summary on the reduced state: each reduced node and cable stands for as many
         # full ones as map to it, a level's height is that of one of its nodes (rotations about
-        # z keep z). Exact only without bar masses (the kinetic energy of a bar couples nodes of
-        # different orbits) and with every level one orbit; otherwise summ is None.
+        # z keep z). A massive bar joins two representatives without rotation (reduce_network
+        # refuses any other), so its kinetic energy is that of each of the three bars it stands
+        # for. Exact only with every level one orbit; otherwise summ is None.
         levels = network.levels
         self.summ = None
-        if not np.any(network.bar_mass) and (not levels.size or np.all(
-                red.node_rep[levels] == red.node_rep[levels[:, :, :1]])):
+        if not levels.size or np.all(red.node_rep[levels] == red.node_rep[levels[:, :, :1]]):
+            massive = np.asarray(red.bar_mass) != 0
             self.summ = dyn.summary_arrays(
-                red.x0, red.node_mass, red.clamped, dyn.NO_ROT, dyn.NO_ROT, np.zeros(0),
+                red.x0, red.node_mass, red.clamped,
+                np.ascontiguousarray(red.bar_a[massive]), np.ascontiguousarray(red.bar_b[massive]),
+                3.0 * np.asarray(red.bar_mass)[massive],
                 np.ascontiguousarray(red.node_rep[levels[:, :, :1]], dtype=np.int64)
                 if levels.size else np.zeros((0, 0, 1), dtype=np.int64), len(red.cable_a),
                 node_mult=np.bincount(red.node_rep, minlength=red.n_nodes).astype(np.float64),
