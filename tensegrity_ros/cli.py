@@ -65,16 +65,8 @@ def _open_rerun(stack, frame_sinks, scene, sim, path=None, url=None):
     return str(path) if path is not None else url
 
 
-def cmd_run(args):
-    from solver.runner import frame_count, run, summary
-    from solver.scene import Scene
-    from solver.simulation import Simulation
-
-    if args.rerun or args.rerun_connect:
-        from . import rerun_log
-        rerun_log.prestart()     # the recorder's helper process starts while the run is set up
-                                 # (the module is imported before the gc.freeze() below)
-    scene = Scene.load(args.scene)
+def run_overrides(args):
+    """The scene overrides of ``tensegrity run``'s options, in the order they apply."""
     sets = list(args.set or [])
     if args.v0 is not None:
         sets.append(('loading.impact.v0', args.v0))
@@ -82,46 +74,53 @@ def cmd_run(args):
         sets.append(('prestrain', args.prestrain))
     if args.t_end is not None:
         sets.append(('run.t_end', args.t_end))
-    if sets:
-        scene = scene.with_overrides(sets)
-    sim = Simulation(scene)
-    sim.advance(sim.dt)          # compile (or load cached) kernels outside the timed loop
-    sim.reset()
-    v0 = scene['loading.impact.v0']
-    if v0:
-        sim.apply_impact(v0, scene['loading.impact.columns'])
-    t_end, output_dt = scene['run.t_end'], scene['run.output_dt']
-    out_dir = Path(args.out) if args.out else None
-    if out_dir is None and (args.plot or args.mcap or args.rerun):
-        out_dir = Path('runs') / scene.name
-    if out_dir is not None:
-        out_dir.mkdir(parents=True, exist_ok=True)
-    update, close = _progress(frame_count(t_end, output_dt) - 1, scene.name)
-    outputs, frame_sinks = {}, []
-    if args.mcap:
-        from . import mcap_run, recording  # noqa: F401
-    # The objects of the imports and the set-up (some 160 000) are moved out of the garbage
-    # collector's reach: otherwise its first full collection, 50-80 ms holding the GIL, tends to
-    # fall in the run (with a Rerun recording: in the recorder's start, measured)
-    gc.freeze()
-    with contextlib.ExitStack() as stack:
+    return sets
+
+
+def cmd_run(args):
+    from solver.runner import frame_count, simulate
+
+    if args.rerun or args.rerun_connect:
+        from . import rerun_log
+        rerun_log.prestart()     # the recorder's helper process starts while the run is set up
+                                 # (the module is imported before the gc.freeze() below)
+    outputs, ctx = {}, {}
+
+    def setup(stack, scene, sim):
+        t_end, output_dt = scene['run.t_end'], scene['run.output_dt']
+        out_dir = Path(args.out) if args.out else None
+        if out_dir is None and (args.plot or args.mcap or args.rerun):
+            out_dir = Path('runs') / scene.name
+        if out_dir is not None:
+            out_dir.mkdir(parents=True, exist_ok=True)
+        ctx['out_dir'] = out_dir
+        update, close = _progress(frame_count(t_end, output_dt) - 1, scene.name)
+        stack.callback(close)
+        frame_sinks = []
+        if args.mcap:
+            from . import mcap_run, recording  # noqa: F401
+        # The objects of the imports and the set-up (some 160 000) are moved out of the garbage
+        # collector's reach: otherwise its first full collection, 50-80 ms holding the GIL, tends
+        # to fall in the run (with a Rerun recording: in the recorder's start, measured)
+        gc.freeze()
         if args.mcap:
             outputs['mcap'] = _open_mcap(stack, frame_sinks, scene, sim, out_dir / 'run.mcap')
         if args.rerun or args.rerun_connect:
             outputs['rerun'] = _open_rerun(stack, frame_sinks, scene, sim,
                                            out_dir / 'run.rrd' if args.rerun else None,
                                            args.rerun_connect)
-        try:
-            rec = run(sim, t_end, output_dt, progress=update,
-                      on_frame=(lambda f: [sink(f) for sink in frame_sinks]) if frame_sinks
-                      else None)
-        finally:
-            close()
+        on_frame = (lambda f: [sink(f) for sink in frame_sinks]) if frame_sinks else None
+        return on_frame, update
+
+    point = simulate(args.scene, run_overrides(args), setup=setup)
+    scene, rec, out_dir = point.scene, point.record, ctx['out_dir']
+    v0 = scene['loading.impact.v0']
     if args.plot:
         from .plots import strain_wave
         outputs['plot'] = str(strain_wave(rec, out_dir / 'strain_wave.png',
                                           title=f'{scene.name}: v0 = {v0} m/s'))
-    result = summary(scene, sim, rec, outputs)
+    result = point.summary
+    result['outputs'].update(outputs)
     if out_dir is not None:
         (out_dir / 'summary.json').write_text(json.dumps(result, indent=2, allow_nan=False))
     if args.json:
