@@ -78,8 +78,10 @@ class Pulse:
     between the two output frames around ``t_ref`` (the nearest tracked time when the history
     does not reach ``t_ref``); ``amplitude_median/min/max`` over the window
     where the peak is in prisms ``window``; ``amplitude_passage_max`` the largest |strain| of the
-    peak over the history given (the first passage in :func:`first_passage`), refined by a
-    parabola through the per-frame values around the largest one. ``speed_m_s`` is the slope of
+    peak over the history given (the first passage in :func:`first_passage`) once the peak is
+    ``window[0]`` prisms or more from the impacted end (the strain concentrated at the impacted
+    end right after the impact is not the pulse), refined by a parabola through the per-frame
+    values around the largest one. ``speed_m_s`` is the slope of
     peak position against time in the window; ``speed_snapshot_m_s`` the peak position at
     ``t_ref`` (prisms from the impacted end, times ``h0``) divided by ``t_ref``;
     ``speed_arrival_m_s`` the distance to the clamped end (``n_prisms - 2`` prisms from the
@@ -273,7 +275,8 @@ def track_pulse(times, strains, h0, window=(10, 40), t_ref=0.5):
         width = hi_i - lo_i + 1 if abs(eps[i]) >= half else 0
     return Pulse(amplitude, med, lo, hi, speed, int(width),
                  float(times[k_ref]) if len(times) else t_ref, arrival,
-                 amplitude_passage_max=_max_over_time(times, amp),
+                 amplitude_passage_max=_max_over_time(times, np.where(pos >= window[0], amp,
+                                                                      np.nan)),
                  speed_snapshot_m_s=float(snapshot), speed_arrival_m_s=speed_arrival,
                  arrival_end_s=arrival_end, width_half_prisms=_at_time(times, halves, t_ref),
                  width_10_prisms=_at_time(times, tenths, t_ref))

@@ -232,6 +232,25 @@ def cmd_demo(args):
     return 0 if summary['node_exit_code'] == 0 else 1
 
 
+def cmd_sweep(args):
+    """``tensegrity sweep``: one run per point of a grid, on Dask (tensegrity_ros.sweep)."""
+    from . import sweep
+    try:
+        return sweep.main(args)
+    except sweep.SweepError as exc:
+        raise UserError(str(exc)) from None
+
+
+def cmd_fit(args):
+    """``tensegrity fit``: scene values that reproduce target figures (tensegrity_ros.fit)."""
+    from . import fit
+    from .sweep import SweepError
+    try:
+        return fit.main(args)
+    except SweepError as exc:
+        raise UserError(str(exc)) from None
+
+
 def build_parser():
     parser = argparse.ArgumentParser(prog='tensegrity', description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest='command', required=True)
@@ -253,6 +272,44 @@ def build_parser():
                    help='stream the run to a running Rerun viewer (default URL %(const)s)')
     p.add_argument('--json', action='store_true', help='print the summary as one JSON object')
     p.set_defaults(func=cmd_run)
+    p = sub.add_parser('sweep', help='one run per point of a grid of scene values, on Dask; '
+                       'a Parquet and CSV table')
+    p.add_argument('scene', help='scene YAML file')
+    p.add_argument('--grid', action='append', metavar='KEY=V1,V2|KEY=START:STOP:N',
+                   help='a swept scene key (as --set names it): listed values, N values from '
+                        'START to STOP, or START:STOP with --samples (repeatable)')
+    p.add_argument('--samples', type=int, metavar='N',
+                   help='N Latin-hypercube points over the START:STOP ranges')
+    p.add_argument('--seed', type=int, default=0, help='seed of --samples (default 0)')
+    p.add_argument('--out', help='output directory (default runs/sweeps/SCENE)')
+    p.add_argument('--workers', type=int,
+                   help='local worker processes (default: one per core; 1 = in this process)')
+    p.add_argument('--scheduler', metavar='ADDRESS',
+                   help='an existing Dask scheduler, e.g. tcp://HOST:8786')
+    p.add_argument('--t-end', type=float, help='simulated time of every run, s')
+    p.add_argument('--plot', metavar='FIGURE',
+                   help='heat map of FIGURE (e.g. pulse.amplitude) over the first two keys')
+    p.set_defaults(func=cmd_sweep)
+    p = sub.add_parser('fit', help='scene values that reproduce target figures (differential '
+                       'evolution on Dask)')
+    p.add_argument('scene', help='scene YAML file')
+    p.add_argument('--target', required=True, metavar='TARGET.yaml',
+                   help='cases: [{set: {...}, figures: {...}, weights: {...}}, ...]')
+    p.add_argument('--free', action='append', metavar='KEY=LO:HI',
+                   help='a continuous scene key and its bounds (repeatable)')
+    p.add_argument('--choice', action='append', metavar='KEY=A,B',
+                   help='a discrete scene key and its values (repeatable)')
+    p.add_argument('--t-end', type=float, help='simulated time of every run, s')
+    p.add_argument('--workers', type=int,
+                   help='local worker processes (default: one per core; 1 = in this process)')
+    p.add_argument('--scheduler', metavar='ADDRESS', help='an existing Dask scheduler')
+    p.add_argument('--seed', type=int, default=0, help='seed of the optimiser (default 0)')
+    p.add_argument('--popsize', type=int, default=8,
+                   help='population per free dimension (default 8)')
+    p.add_argument('--maxiter', type=int, default=20, help='generations at most (default 20)')
+    p.add_argument('--json', action='store_true', help='print the result as one JSON object')
+    p.add_argument('--write-scene', metavar='OUT.yaml', help='write the scene with the best values')
+    p.set_defaults(func=cmd_fit)
     p = sub.add_parser('replay', help='republish an MCAP log over ROS 2 (with /clock), or '
                        'convert it to a Rerun recording')
     p.add_argument('log', metavar='RUN.mcap', help='MCAP log (tensegrity run --mcap, node)')
