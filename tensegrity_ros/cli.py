@@ -307,6 +307,8 @@ def build_parser():
     p.add_argument('--popsize', type=int, default=8,
                    help='population per free dimension (default 8)')
     p.add_argument('--maxiter', type=int, default=20, help='generations at most (default 20)')
+    p.add_argument('--no-polish', action='store_true',
+                   help='skip the least-squares refinement of the best point')
     p.add_argument('--json', action='store_true', help='print the result as one JSON object')
     p.add_argument('--write-scene', metavar='OUT.yaml', help='write the scene with the best values')
     p.set_defaults(func=cmd_fit)

@@ -119,33 +119,33 @@ class Problem:
         return {**case.set, **values, **self.extra}
 
 
-def case_error(case, figures):
-    """Weighted sum of squared relative errors and the sum of weights of one case's
-    ``figures`` (a flattened summary); a missing figure counts as :data:`PENALTY`."""
-    total = wsum = 0.0
+def case_residuals(case, figures):
+    """The weighted relative errors ``sqrt(w) (simulated - target) / target`` of one case's
+    ``figures`` (a flattened summary, or None for a diverged run): a missing figure counts as
+    :data:`PENALTY`."""
+    out = []
     for name, target in case.figures.items():
-        w = case.weights[name]
         got = figures.get(name) if figures else None
         rel = PENALTY if got is None or not math.isfinite(got) else (got - target) / target
-        total += w * rel * rel
-        wsum += w
-    return total, wsum
+        out.append(math.sqrt(case.weights[name]) * rel)
+    return out
 
 
 class Objective:
-    """The error of a point (picklable: it is what each Dask task calls)."""
+    """The error of a point (picklable: it is what each Dask task calls): the weighted root mean
+    square of the relative errors over every figure of every case."""
 
     def __init__(self, problem):
         self.problem = problem
+        self.wsum = sum(sum(c.weights.values()) for c in problem.cases)
 
     def evaluate(self, x):
-        """``(error, [flattened summary or None per case], [status per case])``."""
+        """``(error, residuals, [flattened summary or None per case], [status per case])``."""
         from solver.runner import simulate
         from solver.simulation import SimulationDiverged
         p = self.problem
         values = p.values(x)
-        total = wsum = 0.0
-        figs, status = [], []
+        res, figs, status = [], [], []
         for case in p.cases:
             try:
                 f = flatten(simulate(p.scene, list(p.overrides(case, values).items())).summary)
@@ -153,11 +153,10 @@ class Objective:
             except SimulationDiverged as exc:
                 f = None
                 status.append(f'diverged: {str(exc).splitlines()[0]}')
-            t, w = case_error(case, f)
-            total += t
-            wsum += w
+            res += case_residuals(case, f)
             figs.append(f)
-        return math.sqrt(total / wsum), figs, status
+        res = np.array(res)
+        return math.sqrt(float(res @ res) / self.wsum), res, figs, status
 
     def __call__(self, x):
         return self.evaluate(x)[0]
@@ -222,8 +221,37 @@ def build(scene_path, target, free, choices, t_end=None):
     return problem
 
 
-def fit(problem, cluster=None, seed=0, popsize=8, maxiter=20, tol=1e-3, log=None):
-    """Run the fit; returns the result as a JSON-ready dict (see :func:`report`)."""
+def polish(obj, x, mapper, max_nfev=40):
+    """Refine the continuous values of ``x`` (its choices fixed) by
+    :func:`scipy.optimize.least_squares` on the weighted relative errors; each evaluation is
+    recorded in ``mapper.history``. Returns the better of ``x`` and the refined point."""
+    from scipy.optimize import least_squares
+    p = obj.problem
+    nf = len(p.free)
+    if nf == 0:
+        return x
+    lo = np.array([b[0] for b in p.bounds[:nf]])
+    hi = np.array([b[1] for b in p.bounds[:nf]])
+    fixed = x[nf:]
+
+    def residuals(z):
+        full = np.concatenate([z, fixed])
+        err, res, _, _ = obj.evaluate(full)
+        mapper.history.append((full, err))
+        return res
+
+    sol = least_squares(residuals, np.clip(x[:nf], lo, hi), bounds=(lo, hi), x_scale=hi - lo,
+                        diff_step=1e-3, max_nfev=max_nfev, method='trf')
+    best = min(mapper.history, key=lambda h: h[1])
+    del sol                      # the best point evaluated (the solution is among them)
+    return np.array(best[0])
+
+
+def fit(problem, cluster=None, seed=0, popsize=8, maxiter=20, tol=1e-3, refine=True):
+    """Run the fit: differential evolution over the free keys and the choices (the choices as
+    integer indices, ``integrality``), each generation evaluated by the map over ``cluster``;
+    then, with ``refine``, :func:`polish` on the continuous values at the best point's choices.
+    Returns the result as a JSON-ready dict."""
     from scipy.optimize import differential_evolution
     obj = Objective(problem)
     mapper = RecordingMap(cluster)
@@ -231,7 +259,10 @@ def fit(problem, cluster=None, seed=0, popsize=8, maxiter=20, tol=1e-3, log=None
                                  workers=mapper, updating='deferred', polish=False, rng=seed,
                                  popsize=popsize, maxiter=maxiter, tol=tol)
     best_x = np.array(res.x, dtype=float)
-    err, figs, status = obj.evaluate(best_x)
+    n_de = len(mapper.history)
+    if refine:
+        best_x = polish(obj, best_x, mapper)
+    err, _, figs, status = obj.evaluate(best_x)
     n_runs = (len(mapper.history) + 1) * len(problem.cases)
     combos = {}                   # choice values -> (best error, its point, points evaluated)
     for x, y in mapper.history:
@@ -253,6 +284,7 @@ def fit(problem, cluster=None, seed=0, popsize=8, maxiter=20, tol=1e-3, log=None
                           'best': problem.values(x), 'error': y, 'evaluations': n}
                          for c, (y, x, n) in ranking],
         'runs': n_runs, 'evaluations': len(mapper.history) + 1, 'generations': int(res.nit),
+        'evaluations_evolution': n_de, 'evaluations_polish': len(mapper.history) - n_de,
         'converged': bool(res.success), 'message': str(res.message), 'seed': seed,
         'popsize': popsize, 'maxiter': maxiter,
     }
@@ -310,7 +342,7 @@ def main(args):
         if args.scheduler or (args.workers or os.cpu_count() or 1) > 1:
             cluster = Cluster(workers=args.workers, address=args.scheduler)
         result = fit(problem, cluster, seed=args.seed, popsize=args.popsize,
-                     maxiter=args.maxiter)
+                     maxiter=args.maxiter, refine=not args.no_polish)
     finally:
         if cluster is not None:
             cluster.close()
