@@ -405,7 +405,8 @@ def plot(rows, keys, figure, path):
         ax.plot([g[0] for g in good], [g[1] for g in good], 'o-', label=figure)
         for r in bad:
             ax.axvline(pos[r[k]], color='red', ls=':', lw=1)
-            ax.plot(pos[r[k]], np.nanmin([g[1] for g in good]) if good else 0, 'rx', ms=9)
+            ax.plot(pos[r[k]], min((g[1] for g in good if np.isfinite(g[1])), default=0.0),
+                    'rx', ms=9)
         if not numeric:
             ax.set_xticks(range(len(xs)), [str(v) for v in xs])
         ax.set_xlabel(k)
