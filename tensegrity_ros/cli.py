@@ -6,7 +6,6 @@ a diverged run), never a traceback.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import gc
 import json
 import sys
@@ -310,7 +309,8 @@ def build_parser():
     p.add_argument('--no-polish', action='store_true',
                    help='skip the least-squares refinement of the best point')
     p.add_argument('--json', action='store_true', help='print the result as one JSON object')
-    p.add_argument('--write-scene', metavar='OUT.yaml', help='write the scene with the best values')
+    p.add_argument('--write-scene', metavar='OUT.yaml',
+                   help='write the scene with the best values')
     p.set_defaults(func=cmd_fit)
     p = sub.add_parser('replay', help='republish an MCAP log over ROS 2 (with /clock), or '
                        'convert it to a Rerun recording')
@@ -330,9 +330,10 @@ def build_parser():
     p.add_argument('--out', default='bench/results', help='output directory (CSV and PNG)')
     p.add_argument('--peers', action='store_true', help='also run the peer comparison')
     p.add_argument('--only', action='append',
-                   choices=('work_precision', 'stability', 'peers', 'rerun'),
+                   choices=('work_precision', 'stability', 'peers', 'rerun', 'sweep'),
                    help='run only this benchmark (repeatable); rerun: the cost of a Rerun '
-                        'recording (only on request)')
+                        'recording, sweep: the parallel efficiency of a 64-point sweep (both '
+                        'only on request)')
     p.set_defaults(func=cmd_bench)
     p = sub.add_parser('paper', help="the paper's table (FB and RB, v0 = 0.1, 0.125, 0.15) "
                        'under every modelling variant, next to the paper\'s FB values')

@@ -32,6 +32,8 @@ PULSE_FIELDS = ('amplitude', 'amplitude_median', 'amplitude_min', 'amplitude_max
                 'amplitude_passage_max', 'speed_m_s', 'speed_snapshot_m_s', 'speed_arrival_m_s',
                 'width_prisms', 'width_half_prisms', 'width_10_prisms', 't_ref',
                 'arrival_time_s', 'arrival_end_s')
+# the fields of a row that depend on the machine and the moment, not on the point
+TIMING_FIELDS = ('wall_time_s', 'real_time_factor', 'task_wall_s', 'cpu_time_s', 'worker_pid')
 # the numeric figures a fit may use, named as in the summary
 FIGURES = tuple(f'pulse.{k}' for k in PULSE_FIELDS if k != 't_ref') + (
     'energy_drift_rel', 'constraint_error_rel')
