@@ -259,7 +259,7 @@ class Cluster:
         else:
             n = workers or os.cpu_count() or 1
             self.cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                                        dashboard_address=None, silence_logs=40)
+                                        dashboard_address=':0', silence_logs=40)
             self.client = Client(self.cluster)
         self.timings['cluster_start_s'] = time.perf_counter() - t0
 

@@ -204,7 +204,6 @@ def test_fit_recovers_known_values_with_a_continuous_and_a_discrete_key(cluster,
                                                 'prestrain=0.0025:0.0035'],
                         ['structure.stacking=shared,parallel'], t_end=T_END)
     result = fit.fit(problem, cluster, seed=1, popsize=2, maxiter=2)
-    print(result['evaluations'], result['evaluations_polish'], result['best'])
     best = result['best']
     assert best['structure.stacking'] == 'parallel'
     assert best['structure.radius'] == pytest.approx(0.0042, rel=0.02)
