@@ -430,9 +430,12 @@ def plot(rows, keys, figure, path):
                           rotation=45 if len(xs) > 6 else 0)
             ax.set_yticks(range(len(ys)), [f'{v:.4g}' if ny else str(v) for v in ys])
         else:                              # scattered (Latin-hypercube) samples
-            good = [r for r in rows if r.get('status') == 'ok']
+            good = [r for r in rows if r.get('status') == 'ok' and np.isfinite(val(r))]
+            none = [r for r in rows if r.get('status') == 'ok' and not np.isfinite(val(r))]
             im = ax.scatter([r[kx] for r in good], [r[ky] for r in good],
                             c=[val(r) for r in good], cmap='viridis')
+            ax.scatter([r[kx] for r in none], [r[ky] for r in none], facecolors='none',
+                       edgecolors='grey', label=f'no {figure}')
             ax.plot([r[kx] for r in bad], [r[ky] for r in bad], 'rx', ms=10, mew=2)
         fig.colorbar(im, ax=ax, label=figure)
         ax.set_xlabel(kx)
