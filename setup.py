@@ -28,6 +28,9 @@ CORE = [
     'mcap==1.6.0',
     'mcap-ros2-support==0.6.0',
     'rerun-sdk==0.41.0',
+    'dask==2026.8.0',
+    'distributed==2026.8.0',
+    'pyarrow==26.0.1',
 ]
 
 setup(

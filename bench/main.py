@@ -7,9 +7,10 @@ from pathlib import Path
 
 def main(out_dir='bench/results', quick=False, peers=False, only=None, log=print):
     """Run the benchmarks into ``out_dir``; ``only`` is None or a subset of
-    ``{'work_precision', 'stability', 'peers', 'rerun'}`` (``peers=True`` adds the peer
+    ``{'work_precision', 'stability', 'peers', 'rerun', 'sweep'}`` (``peers=True`` adds the peer
     comparison, which :mod:`bench.peers` provides; ``rerun``, only on request, the cost of a Rerun
-    recording, :mod:`bench.rerun_overhead`). Returns the list of files written."""
+    recording, :mod:`bench.rerun_overhead`; ``sweep``, only on request, the parallel
+    efficiency of a sweep, :mod:`bench.sweep`). Returns the list of files written."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     written = []
@@ -24,6 +25,9 @@ def main(out_dir='bench/results', quick=False, peers=False, only=None, log=print
         result = peer_bench.main(out, quick)
         if isinstance(result, (list, tuple)):
             written += [str(p) for p in result]
+    if only is not None and 'sweep' in only:
+        from . import sweep
+        written += sweep.main(out, quick=quick, log=log)
     if only is not None and 'rerun' in only:
         from . import rerun_overhead
         written += rerun_overhead.main(out, quick=quick, log=log)

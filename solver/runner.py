@@ -1,6 +1,7 @@
 """Headless runs: a scene from its impact to ``t_end``, recorded at ``output_dt``; the summary."""
 from __future__ import annotations
 
+import contextlib
 import time
 from dataclasses import dataclass, field
 
@@ -101,3 +102,46 @@ def summary(scene: Scene, sim: Simulation, rec: RunRecord, outputs=None):
         'outputs': dict({'mcap': None, 'rerun': None, 'plot': None}, **(outputs or {})),
     }
     return json_safe(out)
+
+
+@dataclass
+class Point:
+    """One run of :func:`simulate`: the scene with its overrides, the simulation, the record and
+    the summary."""
+    scene: Scene
+    sim: Simulation
+    record: RunRecord
+    summary: dict
+
+
+def prepare(scene, overrides=()):
+    """``(scene, sim)``: ``scene`` (a :class:`Scene` or a path) with ``overrides`` (``KEY=VALUE``
+    strings or (key, value) pairs, applied in order) and its simulation, kernels compiled or
+    loaded, the scene's impact applied."""
+    if not isinstance(scene, Scene):
+        scene = Scene.load(scene)
+    overrides = list(overrides)
+    if overrides:
+        scene = scene.with_overrides(overrides)
+    sim = Simulation(scene)
+    sim.advance(sim.dt)          # compile (or load cached) kernels outside the timed loop
+    sim.reset()
+    v0 = scene['loading.impact.v0']
+    if v0:
+        sim.apply_impact(v0, scene['loading.impact.columns'])
+    return scene, sim
+
+
+def simulate(scene, overrides=(), setup=None):
+    """Scene + overrides -> simulation -> impact -> run to ``run.t_end`` -> summary: one run of
+    ``tensegrity run`` (and of each point of a sweep or a fit). ``setup(stack, scene, sim)``, when
+    given, is called after the impact inside a :class:`contextlib.ExitStack` that stays open for
+    the run; it returns ``(on_frame, progress)`` for :func:`run` (either may be None).
+    Raises :class:`~solver.simulation.SimulationDiverged` when the run diverges. Returns a
+    :class:`Point`."""
+    scene, sim = prepare(scene, overrides)
+    with contextlib.ExitStack() as stack:
+        on_frame, progress = setup(stack, scene, sim) if setup is not None else (None, None)
+        rec = run(sim, scene['run.t_end'], scene['run.output_dt'], on_frame=on_frame,
+                  progress=progress)
+    return Point(scene, sim, rec, summary(scene, sim, rec))

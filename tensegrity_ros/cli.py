@@ -6,7 +6,6 @@ a diverged run), never a traceback.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import gc
 import json
 import sys
@@ -65,16 +64,8 @@ def _open_rerun(stack, frame_sinks, scene, sim, path=None, url=None):
     return str(path) if path is not None else url
 
 
-def cmd_run(args):
-    from solver.runner import frame_count, run, summary
-    from solver.scene import Scene
-    from solver.simulation import Simulation
-
-    if args.rerun or args.rerun_connect:
-        from . import rerun_log
-        rerun_log.prestart()     # the recorder's helper process starts while the run is set up
-                                 # (the module is imported before the gc.freeze() below)
-    scene = Scene.load(args.scene)
+def run_overrides(args):
+    """The scene overrides of ``tensegrity run``'s options, in the order they apply."""
     sets = list(args.set or [])
     if args.v0 is not None:
         sets.append(('loading.impact.v0', args.v0))
@@ -82,46 +73,53 @@ def cmd_run(args):
         sets.append(('prestrain', args.prestrain))
     if args.t_end is not None:
         sets.append(('run.t_end', args.t_end))
-    if sets:
-        scene = scene.with_overrides(sets)
-    sim = Simulation(scene)
-    sim.advance(sim.dt)          # compile (or load cached) kernels outside the timed loop
-    sim.reset()
-    v0 = scene['loading.impact.v0']
-    if v0:
-        sim.apply_impact(v0, scene['loading.impact.columns'])
-    t_end, output_dt = scene['run.t_end'], scene['run.output_dt']
-    out_dir = Path(args.out) if args.out else None
-    if out_dir is None and (args.plot or args.mcap or args.rerun):
-        out_dir = Path('runs') / scene.name
-    if out_dir is not None:
-        out_dir.mkdir(parents=True, exist_ok=True)
-    update, close = _progress(frame_count(t_end, output_dt) - 1, scene.name)
-    outputs, frame_sinks = {}, []
-    if args.mcap:
-        from . import mcap_run, recording  # noqa: F401
-    # The objects of the imports and the set-up (some 160 000) are moved out of the garbage
-    # collector's reach: otherwise its first full collection, 50-80 ms holding the GIL, tends to
-    # fall in the run (with a Rerun recording: in the recorder's start, measured)
-    gc.freeze()
-    with contextlib.ExitStack() as stack:
+    return sets
+
+
+def cmd_run(args):
+    from solver.runner import frame_count, simulate
+
+    if args.rerun or args.rerun_connect:
+        from . import rerun_log
+        rerun_log.prestart()     # the recorder's helper process starts while the run is set up
+                                 # (the module is imported before the gc.freeze() below)
+    outputs, ctx = {}, {}
+
+    def setup(stack, scene, sim):
+        t_end, output_dt = scene['run.t_end'], scene['run.output_dt']
+        out_dir = Path(args.out) if args.out else None
+        if out_dir is None and (args.plot or args.mcap or args.rerun):
+            out_dir = Path('runs') / scene.name
+        if out_dir is not None:
+            out_dir.mkdir(parents=True, exist_ok=True)
+        ctx['out_dir'] = out_dir
+        update, close = _progress(frame_count(t_end, output_dt) - 1, scene.name)
+        stack.callback(close)
+        frame_sinks = []
+        if args.mcap:
+            from . import mcap_run, recording  # noqa: F401
+        # The objects of the imports and the set-up (some 160 000) are moved out of the garbage
+        # collector's reach: otherwise its first full collection, 50-80 ms holding the GIL, tends
+        # to fall in the run (with a Rerun recording: in the recorder's start, measured)
+        gc.freeze()
         if args.mcap:
             outputs['mcap'] = _open_mcap(stack, frame_sinks, scene, sim, out_dir / 'run.mcap')
         if args.rerun or args.rerun_connect:
             outputs['rerun'] = _open_rerun(stack, frame_sinks, scene, sim,
                                            out_dir / 'run.rrd' if args.rerun else None,
                                            args.rerun_connect)
-        try:
-            rec = run(sim, t_end, output_dt, progress=update,
-                      on_frame=(lambda f: [sink(f) for sink in frame_sinks]) if frame_sinks
-                      else None)
-        finally:
-            close()
+        on_frame = (lambda f: [sink(f) for sink in frame_sinks]) if frame_sinks else None
+        return on_frame, update
+
+    point = simulate(args.scene, run_overrides(args), setup=setup)
+    scene, rec, out_dir = point.scene, point.record, ctx['out_dir']
+    v0 = scene['loading.impact.v0']
     if args.plot:
         from .plots import strain_wave
         outputs['plot'] = str(strain_wave(rec, out_dir / 'strain_wave.png',
                                           title=f'{scene.name}: v0 = {v0} m/s'))
-    result = summary(scene, sim, rec, outputs)
+    result = point.summary
+    result['outputs'].update(outputs)
     if out_dir is not None:
         (out_dir / 'summary.json').write_text(json.dumps(result, indent=2, allow_nan=False))
     if args.json:
@@ -233,6 +231,25 @@ def cmd_demo(args):
     return 0 if summary['node_exit_code'] == 0 else 1
 
 
+def cmd_sweep(args):
+    """``tensegrity sweep``: one run per point of a grid, on Dask (tensegrity_ros.sweep)."""
+    from . import sweep
+    try:
+        return sweep.main(args)
+    except sweep.SweepError as exc:
+        raise UserError(str(exc)) from None
+
+
+def cmd_fit(args):
+    """``tensegrity fit``: scene values that reproduce target figures (tensegrity_ros.fit)."""
+    from . import fit
+    from .sweep import SweepError
+    try:
+        return fit.main(args)
+    except SweepError as exc:
+        raise UserError(str(exc)) from None
+
+
 def build_parser():
     parser = argparse.ArgumentParser(prog='tensegrity', description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest='command', required=True)
@@ -254,6 +271,47 @@ def build_parser():
                    help='stream the run to a running Rerun viewer (default URL %(const)s)')
     p.add_argument('--json', action='store_true', help='print the summary as one JSON object')
     p.set_defaults(func=cmd_run)
+    p = sub.add_parser('sweep', help='one run per point of a grid of scene values, on Dask; '
+                       'a Parquet and CSV table')
+    p.add_argument('scene', help='scene YAML file')
+    p.add_argument('--grid', action='append', metavar='KEY=V1,V2|KEY=START:STOP:N',
+                   help='a swept scene key (as --set names it): listed values, N values from '
+                        'START to STOP, or START:STOP with --samples (repeatable)')
+    p.add_argument('--samples', type=int, metavar='N',
+                   help='N Latin-hypercube points over the START:STOP ranges')
+    p.add_argument('--seed', type=int, default=0, help='seed of --samples (default 0)')
+    p.add_argument('--out', help='output directory (default runs/sweeps/SCENE)')
+    p.add_argument('--workers', type=int,
+                   help='local worker processes (default: one per core; 1 = in this process)')
+    p.add_argument('--scheduler', metavar='ADDRESS',
+                   help='an existing Dask scheduler, e.g. tcp://HOST:8786')
+    p.add_argument('--t-end', type=float, help='simulated time of every run, s')
+    p.add_argument('--plot', metavar='FIGURE',
+                   help='heat map of FIGURE (e.g. pulse.amplitude) over the first two keys')
+    p.set_defaults(func=cmd_sweep)
+    p = sub.add_parser('fit', help='scene values that reproduce target figures (differential '
+                       'evolution on Dask)')
+    p.add_argument('scene', help='scene YAML file')
+    p.add_argument('--target', required=True, metavar='TARGET.yaml',
+                   help='cases: [{set: {...}, figures: {...}, weights: {...}}, ...]')
+    p.add_argument('--free', action='append', metavar='KEY=LO:HI',
+                   help='a continuous scene key and its bounds (repeatable)')
+    p.add_argument('--choice', action='append', metavar='KEY=A,B',
+                   help='a discrete scene key and its values (repeatable)')
+    p.add_argument('--t-end', type=float, help='simulated time of every run, s')
+    p.add_argument('--workers', type=int,
+                   help='local worker processes (default: one per core; 1 = in this process)')
+    p.add_argument('--scheduler', metavar='ADDRESS', help='an existing Dask scheduler')
+    p.add_argument('--seed', type=int, default=0, help='seed of the optimiser (default 0)')
+    p.add_argument('--popsize', type=int, default=8,
+                   help='population per free dimension (default 8)')
+    p.add_argument('--maxiter', type=int, default=20, help='generations at most (default 20)')
+    p.add_argument('--no-polish', action='store_true',
+                   help='skip the least-squares refinement of the best point')
+    p.add_argument('--json', action='store_true', help='print the result as one JSON object')
+    p.add_argument('--write-scene', metavar='OUT.yaml',
+                   help='write the scene with the best values')
+    p.set_defaults(func=cmd_fit)
     p = sub.add_parser('replay', help='republish an MCAP log over ROS 2 (with /clock), or '
                        'convert it to a Rerun recording')
     p.add_argument('log', metavar='RUN.mcap', help='MCAP log (tensegrity run --mcap, node)')
@@ -272,9 +330,10 @@ def build_parser():
     p.add_argument('--out', default='bench/results', help='output directory (CSV and PNG)')
     p.add_argument('--peers', action='store_true', help='also run the peer comparison')
     p.add_argument('--only', action='append',
-                   choices=('work_precision', 'stability', 'peers', 'rerun'),
+                   choices=('work_precision', 'stability', 'peers', 'rerun', 'sweep'),
                    help='run only this benchmark (repeatable); rerun: the cost of a Rerun '
-                        'recording (only on request)')
+                        'recording, sweep: the parallel efficiency of a 64-point sweep (both '
+                        'only on request)')
     p.set_defaults(func=cmd_bench)
     p = sub.add_parser('paper', help="the paper's table (FB and RB, v0 = 0.1, 0.125, 0.15) "
                        'under every modelling variant, next to the paper\'s FB values')

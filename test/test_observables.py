@@ -54,3 +54,61 @@ def test_strain_of_a_uniformly_compressed_column():
     x = np.zeros((12, 3))
     x[:, 2] = np.repeat(np.arange(4) * h, 3)
     assert np.allclose(prism_strains(x, levels, 0.0062), (h - 0.0062) / h)
+
+
+# -- interpolated peak and the pulse measures, on a sech^2 pulse with known answers ---------------
+def _sech2_history(c, amp, w, n=50, dt=0.007, t_end=1.4, modulation=None):
+    """Strain history (prism 0 at the clamped end, impact at prism n-1) of a compression
+    ``-amp(t) sech^2((k - c t) / w)`` moving ``c`` prisms/s away from the impacted end (k =
+    prisms from it); output every ``dt`` s, which puts t = 0.5 s between two frames."""
+    times = np.arange(0.0, t_end, dt)
+    k = np.arange(n)[::-1].astype(float)
+    strain = np.zeros((len(times), n))
+    for i, t in enumerate(times):
+        a = amp if modulation is None else amp * modulation(t)
+        strain[i] = -a / np.cosh((k - c * t) / w) ** 2
+    return times, strain
+
+
+def test_pulse_measures_of_a_sech2_pulse_match_their_closed_forms():
+    from solver.observables import first_passage
+    h0, c, amp, w = 0.0062, 41.3, 0.054, 4.0
+    times, strain = _sech2_history(c, amp, w)
+    p = first_passage(times, strain, h0)
+    assert 0.5 not in times
+    # amplitude at t = 0.5 s between frames, the peak between prisms (20.65 prisms travelled);
+    # a parabola through three prisms of a pulse 4 prisms wide is within 0.3 % of its top
+    assert p.amplitude == pytest.approx(amp, rel=3e-3)
+    assert p.amplitude_passage_max == pytest.approx(amp, rel=3e-3)
+    # snapshot: position at t_ref / t_ref; slope; arrival at the clamped end (n - 2 prisms)
+    assert p.speed_snapshot_m_s == pytest.approx(c * h0, rel=2e-3)
+    assert p.speed_m_s == pytest.approx(c * h0, rel=2e-3)
+    assert p.arrival_end_s == pytest.approx(48 / c, abs=1e-3)
+    assert p.speed_arrival_m_s == pytest.approx(c * h0, rel=2e-3)
+    # sech^2(x / w) = f at x = w acosh(1 / sqrt(f)): width 2 w acosh(sqrt(2)) at half maximum,
+    # 2 w acosh(sqrt(10)) at 10 % (linear interpolation between prisms: within 0.1 prism)
+    assert p.width_half_prisms == pytest.approx(2 * w * np.arccosh(np.sqrt(2)), abs=0.1)
+    assert p.width_10_prisms == pytest.approx(2 * w * np.arccosh(np.sqrt(10)), abs=0.1)
+
+
+def test_maximum_over_the_first_passage_falls_between_frames():
+    from solver.observables import first_passage
+    t_star = 0.4431                               # between frames (dt = 0.007)
+
+    def modulation(t):
+        return 1.0 + 0.3 * np.exp(-((t - t_star) / 0.12) ** 2)
+
+    times, strain = _sech2_history(37.0, 0.05, 4.0, modulation=modulation)
+    p = first_passage(times, strain, 0.0062)
+    assert p.amplitude_passage_max == pytest.approx(0.05 * 1.3, rel=3e-3)
+    assert p.amplitude == pytest.approx(0.05 * modulation(0.5), rel=3e-3)
+    sampled = np.abs(strain).max(axis=1).max()
+    assert p.amplitude_passage_max > sampled      # above every sampled value: interpolated
+
+
+def test_peak_between_prisms_is_interpolated_along_the_column():
+    # a parabola-shaped peak: the interpolation is exact
+    k = np.arange(20, dtype=float)
+    eps = -np.maximum(0.0, 0.04 - 0.002 * (k - 7.3) ** 2)
+    pos, e = leading_peak(eps)
+    assert pos == pytest.approx(7.3, abs=1e-12) and e == pytest.approx(-0.04, rel=1e-12)

@@ -1,0 +1,259 @@
+"""tensegrity sweep and fit: rows against `tensegrity run --json`, the Dask cluster against the
+serial run, diverged points, resuming, a killed worker, a fit that recovers known values, smooth
+figures, bad input."""
+import json
+import math
+import os
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from tensegrity_ros import cli
+from tensegrity_ros import sweep as sw
+
+ROOT = Path(__file__).resolve().parents[1]
+FB = str(ROOT / 'config' / 'scenes' / 'fb_column.yaml')
+RB = str(ROOT / 'config' / 'scenes' / 'rb_column.yaml')
+T_END = 0.55                      # past t_ref = 0.5 s: every figure is defined
+GRID = ['loading.impact.v0=0.08,0.12', 'structure.stacking=shared,parallel']
+TIMING = sw.TIMING_FIELDS
+
+
+@pytest.fixture(scope='module')
+def cluster():
+    c = sw.Cluster(workers=2)
+    yield c
+    c.close()
+
+
+@pytest.fixture(scope='module')
+def serial_rows(tmp_path_factory):
+    sweep = sw.build(FB, GRID, out=tmp_path_factory.mktemp('serial'), t_end=T_END)
+    rows, n = sw.execute(sweep)
+    assert n == 4
+    return rows
+
+
+def _run_json(capsys, *args):
+    capsys.readouterr()
+    assert cli.main(['run', *args, '--json']) == 0
+    return json.loads(capsys.readouterr().out)
+
+
+def _figures(row):
+    return {k: v for k, v in row.items() if k not in TIMING}
+
+
+def test_a_sweep_row_equals_the_run_summary_of_the_same_point(serial_rows, capsys):
+    row = serial_rows[3]
+    assert (row['loading.impact.v0'], row['structure.stacking']) == (0.12, 'parallel')
+    summary = _run_json(capsys, FB, '--set', 'loading.impact.v0=0.12',
+                        '--set', 'structure.stacking=parallel', '--t-end', str(T_END))
+    assert row['status'] == 'ok'
+    for key, value in summary['pulse'].items():
+        assert row[f'pulse.{key}'] == value, key             # exactly
+    for key in ('energy_drift_rel', 'constraint_error_rel', 'steps', 'steps_taken', 'dt'):
+        assert row[key] == summary[key], key
+    # every figure defined by t_end (the pulse has not reached the clamped end yet)
+    assert all(math.isfinite(row[f'pulse.{k}']) for k in sw.PULSE_FIELDS
+               if k not in ('speed_arrival_m_s', 'arrival_end_s'))
+
+
+def test_the_cluster_sweep_returns_the_rows_of_the_serial_sweep(cluster, serial_rows, tmp_path):
+    sweep = sw.build(FB, GRID, out=tmp_path, t_end=T_END)
+    rows, n = sw.execute(sweep, cluster)
+    assert n == 4
+    assert [_figures(r) for r in rows] == [_figures(r) for r in serial_rows]
+    assert len({r['worker_pid'] for r in rows} - {os.getpid()}) >= 1     # ran on the workers
+    # the table on disk holds the same rows
+    import pyarrow.parquet as pq
+    table = pq.read_table(tmp_path / sw.TABLE).to_pylist()
+    assert [r['pulse.amplitude'] for r in table] == [r['pulse.amplitude'] for r in rows]
+    assert (tmp_path / sw.CSV).read_text().count('\n') == 5
+
+
+def test_a_diverged_point_is_a_row(tmp_path, capsys):
+    # the rigid-base column at 1 m/s: its bars cross at once (tensegrity run exits 1)
+    assert cli.main(['run', RB, '--v0', '1', '--t-end', '0.05']) == 1
+    sweep = sw.build(RB, ['loading.impact.v0=0.1,1'], out=tmp_path, t_end=0.05)
+    rows, _ = sw.execute(sweep)
+    assert [r['status'] for r in rows] == ['ok', 'diverged']
+    assert 'diverged' in rows[1]['reason'] and '\n' not in rows[1]['reason']
+    assert rows[1]['pulse.amplitude'] is None
+    assert cli.main(['sweep', RB, '--grid', 'loading.impact.v0=0.1,1', '--t-end', '0.05',
+                     '--out', str(tmp_path / 'cli'), '--workers', '1',
+                     '--plot', 'pulse.amplitude']) == 0
+    assert (tmp_path / 'cli' / 'pulse.amplitude.png').stat().st_size > 0
+
+
+def test_a_resumed_sweep_runs_only_the_missing_points(tmp_path):
+    ran = []
+
+    def task(scene, overrides, pid):
+        ran.append(dict(overrides))
+        return sw.run_point(scene, overrides, pid)
+
+    first = sw.build(FB, ['loading.impact.v0=0.08,0.1'], out=tmp_path, t_end=0.05)
+    sw.execute(first, task=task)
+    assert len(ran) == 2
+    ran.clear()
+    # same points again in another spelling and order, plus one new
+    again = sw.build(FB, ['loading.impact.v0=0.12,0.1,0.08'], out=tmp_path, t_end=0.05)
+    rows, n = sw.execute(again, task=task)
+    assert n == 1 and ran == [{'loading.impact.v0': 0.12, 'run.t_end': 0.05}]
+    assert [r['loading.impact.v0'] for r in rows] == [0.12, 0.1, 0.08]
+    assert sw.execute(again, task=task)[1] == 0
+
+
+def test_an_interrupted_sweep_keeps_its_finished_rows(tmp_path):
+    sweep = sw.build(FB, ['loading.impact.v0=0.08,0.1,0.12'], out=tmp_path, t_end=0.05)
+
+    def interrupt(row):
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        sw.execute(sweep, on_row=interrupt)
+    assert len(sw.read_rows(tmp_path)) == 1
+    import pyarrow.parquet as pq
+    assert pq.read_table(tmp_path / sw.TABLE).num_rows == 1
+    assert sw.execute(sweep)[1] == 2
+
+
+def _die_once(scene, overrides, pid, marker):
+    """Kills its own worker process the first time it runs (a marker file remembers)."""
+    marker = Path(marker)
+    if not marker.exists():
+        marker.write_text(str(os.getpid()))
+        os._exit(1)
+    return sw.run_point(scene, overrides, pid)
+
+
+def test_a_worker_killed_during_a_sweep_loses_no_row(cluster, tmp_path):
+    import cloudpickle
+    cloudpickle.register_pickle_by_value(sys.modules[__name__])
+    import functools
+    marker = tmp_path / 'killed'
+    sweep = sw.build(FB, ['loading.impact.v0=0.08,0.1,0.12'], out=tmp_path / 'out', t_end=0.05)
+    try:
+        rows, n = sw.execute(sweep, cluster, task=functools.partial(_die_once, marker=str(marker)))
+    finally:
+        cloudpickle.unregister_pickle_by_value(sys.modules[__name__])
+    assert marker.exists()                             # a worker did die
+    assert n == 3 and [r['status'] for r in rows] == ['ok'] * 3
+    assert int(marker.read_text()) not in {r['worker_pid'] for r in rows}
+
+
+def test_latin_hypercube_points_are_seeded_and_stratified():
+    axes = [sw.parse_axis('prestrain=0.002:0.004'), sw.parse_axis('structure.radius=0.004:0.005'),
+            sw.parse_axis('structure.stacking=shared,parallel')]
+    a = sw.points(axes, samples=8, seed=3)
+    assert a == sw.points(axes, samples=8, seed=3) != sw.points(axes, samples=8, seed=4)
+    assert len(a) == 16
+    p = np.array([pt['prestrain'] for pt in a[:8]])
+    # one sample in each eighth of the range
+    assert sorted(np.floor((p - 0.002) / 0.00025).astype(int)) == list(range(8))
+
+
+def test_small_parameter_changes_move_the_figures_continuously():
+    """Over a fine prestrain grid (radius 4.2 mm, parallel base cables, v0 = 0.1) the figures
+    change at every step, monotonically, with first differences that vary slowly (a figure read
+    at the nearest prism and frame moves in steps: equal values, or jumps)."""
+    from solver.runner import simulate
+    ps = np.linspace(0.0030, 0.0035, 6)
+    names = ('amplitude', 'amplitude_median', 'amplitude_max', 'speed_m_s',
+             'speed_snapshot_m_s')
+    figs = {n: [] for n in names}
+    for p in ps:
+        pulse = simulate(FB, [('structure.radius', 0.0042), ('structure.stacking', 'parallel'),
+                              ('prestrain', float(p)), ('run.t_end', T_END)]).summary['pulse']
+        for n in names:
+            figs[n].append(pulse[n])
+    assert f'{figs["amplitude"][0]:.4f}' != f'{figs["amplitude"][-1]:.4f}'
+    for n in names:
+        d = np.diff(figs[n])
+        assert np.all(d != 0), n
+        assert np.all(np.sign(d) == np.sign(d[0])), n
+        ratio = d[1:] / d[:-1]
+        assert np.all((ratio > 0.6) & (ratio < 1.6)), (n, ratio)
+
+
+def _target(tmp_path):
+    """Figures of the project's own runs at radius 4.2 mm, prestrain 0.003, parallel base cables
+    (not the defaults) at two impact velocities."""
+    from solver.runner import simulate
+    cases = []
+    for v0 in (0.02, 0.1):
+        s = simulate(FB, [('structure.radius', 0.0042), ('prestrain', 0.003),
+                          ('structure.stacking', 'parallel'), ('loading.impact.v0', v0),
+                          ('run.t_end', T_END)]).summary
+        f = sw.flatten(s)
+        cases.append({'set': {'loading.impact.v0': v0},
+                      'figures': {k: f[k] for k in ('pulse.amplitude', 'pulse.amplitude_median',
+                                                    'pulse.speed_m_s')}})
+    path = tmp_path / 'target.yaml'
+    path.write_text(yaml.safe_dump({'cases': cases}))
+    return path
+
+
+def test_fit_recovers_known_values_with_a_continuous_and_a_discrete_key(cluster, tmp_path):
+    from tensegrity_ros import fit
+    problem = fit.build(FB, _target(tmp_path), ['structure.radius=0.0038:0.0046',
+                                                'prestrain=0.0025:0.0035'],
+                        ['structure.stacking=shared,parallel'], t_end=T_END)
+    result = fit.fit(problem, cluster, seed=1, popsize=2, maxiter=2)
+    best = result['best']
+    assert best['structure.stacking'] == 'parallel'
+    assert best['structure.radius'] == pytest.approx(0.0042, rel=0.02)
+    assert best['prestrain'] == pytest.approx(0.003, rel=0.02)
+    assert [c['choice']['structure.stacking'] for c in result['combinations']] == \
+        ['parallel', 'shared']
+    assert result['runs'] == 2 * result['evaluations']
+    out = tmp_path / 'best.yaml'
+    fit.write_scene(problem, best, out)
+    from solver.scene import Scene
+    assert Scene.load(out)['structure.radius'] == best['structure.radius']
+
+
+@pytest.mark.parametrize('args, needle', [
+    (['sweep', FB, '--grid', 'structure.nope=1,2'], 'structure.nope: unknown key'),
+    (['sweep', FB, '--grid', 'prestrain=0.004:0.002:3'], 'must be greater than START'),
+    (['sweep', FB, '--grid', 'prestrain=0.001:0.9:3'], 'prestrain: 0.9 is outside'),
+    (['sweep', FB, '--grid', 'structure.stacking=shared,diagonal'], "'diagonal' is not one of"),
+    (['sweep', FB, '--grid', 'prestrain=0.002:0.003'], 'needs a count'),
+    (['sweep', FB, '--grid', 'prestrain=1,2', '--plot', 'pulse.nope'], 'unknown figure'),
+    (['fit', FB, '--target', 'TARGET', '--free', 'prestrain=0.002:0.003'], None),
+])
+def test_bad_input_is_one_line_exit_2_and_runs_nothing(args, needle, tmp_path, capsys):
+    if 'TARGET' in args:
+        bad = tmp_path / 't.yaml'
+        cases = [
+            ('cases: [{figures: {pulse.amp: 0.05}}]', "unknown figure 'pulse.amp'"),
+            ('cases: [{figures: {pulse.amplitude: 0.05}, weights: {pulse.speed_m_s: 1}}]',
+             'not among its figures'),
+            ('cases: {a: 1}', 'non-empty list'),
+            ('cases: [{set: {loading.nope: 1}, figures: {pulse.amplitude: 0.05}}]',
+             'loading.nope: unknown key'),
+            ('cases: [: bad', 'not valid YAML'),
+        ]
+        for text, msg in cases:
+            bad.write_text(text)
+            capsys.readouterr()
+            assert cli.main([a if a != 'TARGET' else str(bad) for a in args]) == 2
+            err = capsys.readouterr().err
+            assert msg in err and err.count('\n') == 1, (text, err)
+        for extra, msg in ((['--free', 'structure.radius=0.005:0.004'], 'greater than START'),
+                           (['--choice', 'structure.bases=flexible,soft'], "'soft' is not one")):
+            bad.write_text('cases: [{figures: {pulse.amplitude: 0.05}}]')
+            assert cli.main(['fit', FB, '--target', str(bad), *extra]) == 2
+            err = capsys.readouterr().err
+            assert msg in err and err.count('\n') == 1, err
+        return
+    out = tmp_path / 'out'
+    capsys.readouterr()
+    assert cli.main([*args, '--out', str(out), '--workers', '1']) == 2
+    err = capsys.readouterr().err
+    assert needle in err and err.count('\n') == 1 and 'Traceback' not in err
+    assert not out.exists()
