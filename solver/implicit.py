@@ -3,35 +3,36 @@
 One step of size ``h`` from ``(x0, v0)`` solves, for the new positions ``x1`` and one multiplier
 per rigid member,
 
-    M (x1 - x0 - h v0) = h^2 / 2 (f(xm, vm) + G(xm)^T lambda),   g(x1) = 0,
-    xm = (x0 + x1) / 2,  vm = (x1 - x0) / h,  v1 = 2 (x1 - x0) / h - v0,
+    M (x1 - x0 - h v0) = h^2 / 2 (f + G(xm)^T lambda),   g(x1) = 0,
+    xm = (x0 + x1) / 2,   v1 = 2 (x1 - x0) / h - v0,
 
-i.e. the implicit midpoint rule ``x1 = x0 + h (v0 + v1) / 2``, ``v1 = v0 + h a(xm, vm)`` with the
-bar forces as unknowns that put ``x1`` exactly on the rigid members. ``f`` is every force
-:func:`solver.dynamics.accelerations` knows (it comes from that kernel, ``W f`` in ``ws[1]``).
-Then positions and velocities are projected (:func:`solver.dynamics.project_positions`,
-``project_velocities``) as in ``rk4_projected``: bar errors stay at the projection tolerance.
+i.e. the implicit midpoint rule ``x1 = x0 + h (v0 + v1) / 2``, ``v1 = v0 + h M^-1 (f + G^T
+lambda)`` with the bar forces as unknowns that put ``x1`` exactly on the rigid members. The cable
+force ``f`` is the discrete gradient of the cable energy between ``x0`` and ``x1``
+(:func:`dg_forces`): for a taut cable it is the midpoint force of a linear spring, and its work
+over the step equals the change of cable energy exactly, also across a slack/taut transition. The
+constraint term does no work either (``g`` is quadratic, ``g(x0) = g(x1) = 0``), so the step
+conserves the energy to the Newton tolerance. Then positions and velocities are projected
+(:func:`solver.dynamics.project_positions`, ``project_velocities``) as in ``rk4_projected``: bar
+errors stay at the projection tolerance and the energy can only decrease. External forces enter
+as they are (``act[2]``); velocity-dependent forces are not part of the step.
 
 Newton's method on the saddle-point (KKT) system
 
-    [ M + h^2/4 K(xm) + H_c   G^T ] [dx ]   [-r]
-    [ G                       0   ] [dnu] = [-g]
+    [ M + h^2/2 K + H_c   G^T ] [dx ]   [-r]
+    [ G                   0   ] [dnu] = [-g]
 
-with ``K`` the analytic tangent stiffness of the taut cables (material ``EA/L n n^T`` plus
-geometric ``gamma (I - n n^T)``) and ``H_c`` the constraint curvature. The unknowns are ordered
-node by node (in the order that gives the smaller band: the network's own or reverse
-Cuthill-McKee) with each rigid member right after the later of its two nodes, so the matrix is
-banded (a cable or a member couples only its two nodes) and every leading block is itself a
-non-singular KKT matrix: a banded LDL^T factorisation without pivoting (signed pivots) solves it in
-``O(n b^2)``, ``b`` the band (about 30 for the 50-prism column in ``full3d``, 10 in ``sym3d``).
-The matrix is assembled and factored at every iterate (a simplified Newton that keeps the first
-factor diverges when stiff cables go slack or taut within the step). A step fails (status ``NEWTON_FAILED``) after ``NEWTON_MAX_ITER`` iterations.
+with ``K`` the symmetrised tangent of the discrete-gradient cable forces and ``H_c`` the
+constraint curvature. The unknowns are ordered node by node (the network's order or reverse
+Cuthill-McKee, whichever gives the smaller band) with each rigid member right after the later of
+its two nodes, so the matrix is banded (a cable or member couples only its two nodes) and every
+leading block is itself a non-singular KKT matrix: a banded LDL^T factorisation without pivoting
+(signed pivots) solves it in ``O(N b^2)``. The matrix is assembled and factored at every iterate
+(a frozen factor diverges when stiff cables go slack or taut within the step); a step fails
+(``NEWTON_FAILED``) after ``NEWTON_MAX_ITER`` iterations.
 
-Properties: order 2; A-stable (a stiff linear cable mode of any frequency stays bounded: the
-amplification has modulus 1 and the phase per step is ``2 atan(omega h / 2)``); symmetric, and
-for a linear spring it conserves the quadratic energy exactly (to the Newton tolerance); no
-numerical damping of stiff modes (they keep their energy, with a wrong frequency when
-``omega h >> 1``).
+Properties: order 2; for a linear spring A-stable without damping (the step is a rotation by
+``2 atan(omega h / 2)``) and the quadratic energy is conserved; the energy never rises.
 
 Two levels as in :mod:`solver.dynamics`: :func:`layout` (Python) orders the unknowns and sizes
 the band, the ``@jit`` kernels take arrays and tuples. Networks with massive bars (a non-diagonal

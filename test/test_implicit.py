@@ -154,7 +154,8 @@ def test_energy_conserved_exactly_for_a_linear_spring_at_a_large_step():
 
     def energy():
         s = abs(m.x[1, 2] - m.x[0, 2])
-        return 0.5 * 0.0083 * m.v[1, 2] ** 2 + 0.5 * k * (s - 0.01) ** 2 + 0.0083 * 9.81 * m.x[1, 2]
+        return (0.5 * 0.0083 * m.v[1, 2] ** 2 + 0.5 * k * (s - 0.01) ** 2
+                + 0.0083 * 9.81 * m.x[1, 2])
     e0 = energy()
     sim.integrator.run(m.x, m.v, 3.0 / w, 200, m.net, m.act, m.ws)
     assert abs(energy() - e0) < 1e-11 * 0.5 * 0.0083 * 0.05 ** 2
