@@ -16,6 +16,11 @@ symmetric impact) over ``T_END`` s, recorded every ``OUTPUT_DT`` s, classified a
 The reference of each (column, v0, prestrain) is ``dopri54_projected`` with rtol 1e-10
 (dt <= 1e-3). Where the reference itself diverges (a physical failure) a run that finishes is
 ``inaccurate``. ``dopri54_projected`` is placed by its largest step dt (rtol 1e-6).
+
+Stiff scenes (:data:`STIFF_SCENES`, one entry per scene: a column and its scene overrides): the
+same classification for every method, ``implicit_midpoint`` included, on a finer dt grid
+(:data:`STIFF_DTS`) at v0 = 0.1 m/s, written to ``stability_stiff.csv`` and, per scene and method,
+the largest stable and accurate dt to ``stability_stiff_limits.csv``.
 """
 from __future__ import annotations
 
@@ -25,7 +30,7 @@ import numpy as np
 
 from . import common
 
-METHODS = ('rk4_projected', 'rk4', 'rattle', 'dopri54_projected')
+METHODS = ('rk4_projected', 'rk4', 'rattle', 'dopri54_projected', 'implicit_midpoint')
 DTS = (5e-4, 1e-3, 2e-3, 4e-3, 8e-3, 1.6e-2, 3.2e-2)    # all divide OUTPUT_DT
 V0S = (0.05, 0.1, 0.15, 0.2, 0.3, 0.5, 1.0)
 PRESTRAINS = (0.0005, 0.002, 0.01)
@@ -39,10 +44,72 @@ SHORT = {'prism height': 'S', 'prism twist': 'L', 'energy': 'E', 'constraint err
          'state': 'N', 'rigid members': 'R', 'constraint projection': 'P', 'step size': 'H'}
 
 
+# stiff scenes: name -> (column, scene overrides); add a scene with one entry
+STIFF_SCENES = {
+    'RB, stiff-cable bases, kappa 1e4': ('RB', ('structure.rigid_bases_as=stiff_cables',
+                                                 'structure.kappa=1e4')),
+    'RB, stiff-cable bases, kappa 1e3': ('RB', ('structure.rigid_bases_as=stiff_cables',
+                                                 'structure.kappa=1e3')),
+}
+STIFF_DTS = (1e-4, 2e-4, 4e-4, 8e-4, 1.6e-3, 3.2e-3, 6.4e-3)   # all divide STIFF_OUTPUT_DT
+STIFF_OUTPUT_DT = 6.4e-3
+STIFF_METHODS = ('rk4_projected', 'rk4', 'rattle', 'dopri54_projected', 'implicit_midpoint')
+
+
 def _grid(quick):
     if quick:
         return ('rk4_projected', 'rattle', 'dopri54_projected'), (1e-3, 8e-3), (0.1, 1.0), (0.002,)
     return METHODS, DTS, V0S, PRESTRAINS
+
+
+def stiff_run(quick=False, log=print, v0=0.1):
+    """The stiff scenes: every method of :data:`STIFF_METHODS` at every dt of
+    :data:`STIFF_DTS` (quick: three of them, one scene), classified against a
+    ``dopri54_projected`` reference at rtol 1e-10. Returns rows."""
+    model = common.available_models(('sym3d', 'full3d'))[0]
+    t_end = T_END / 4 if quick else T_END
+    scenes = list(STIFF_SCENES.items())[:1] if quick else list(STIFF_SCENES.items())
+    dts = STIFF_DTS[1::2] if quick else STIFF_DTS
+    rows = []
+    for name, (column, over) in scenes:
+        def sc(method, dt, rtol=None, atol=None):
+            return common.scene(column, model, method, dt, STIFF_OUTPUT_DT, t_end, v0=v0,
+                                rtol=rtol, atol=atol, divergence=LOOSE).with_overrides(list(over))
+        ref = common.record(sc('dopri54_projected', 1e-3, 1e-10, 1e-13))
+        ref_state = 'ok' if not ref.diverged else f'diverged: {ref.quantity}'
+        for method in STIFF_METHODS:
+            for dt in dts:
+                rtol = 1e-6 if method == 'dopri54_projected' else None
+                h = common.record(sc(method, dt, rtol, None if rtol is None else 1e-9))
+                cls, err, drift, cerr = classify(h, ref)
+                rows.append({'scene': name, 'column': column, 'model': model, 'method': method,
+                             'dt': dt, 'v0': v0, 't_end': t_end, 'class': cls,
+                             'quantity': h.quantity or '', 't_fail': h.t_fail,
+                             'strain_error_rel': err, 'energy_drift_rel': drift,
+                             'constraint_error': cerr, 'steps': h.steps,
+                             'evaluations': h.evaluations, 'wall_s': h.wall_s,
+                             'reference': ref_state})
+            log(f'stability (stiff): {name}: {method}: ' + ' '.join(
+                f'{r["dt"]:g}:{r["class"][:3]}' for r in rows
+                if (r['scene'], r['method']) == (name, method)))
+    return rows
+
+
+def stiff_limits(rows):
+    """Per stiff scene and method: the largest dt below which no run diverged, the largest
+    below which every run is accurate, and the stable-step ratio to ``rk4_projected``."""
+    out = []
+    for name in dict.fromkeys(r['scene'] for r in rows):
+        sel = [dict(r, column=name, prestrain=0.002, v0=0.1) for r in rows if r['scene'] == name]
+        lim = largest_stable(sel, name, v0s=(0.1,))
+        base = lim.get('rk4_projected', (None, None))[0]
+        for method, (stable, accurate) in lim.items():
+            out.append({'scene': name, 'method': method,
+                        'largest_stable_dt': stable if stable else '',
+                        'largest_accurate_dt': accurate if accurate else '',
+                        'stable_dt_vs_rk4_projected': (stable / base if stable and base
+                                                       else float('nan'))})
+    return out
 
 
 def classify(hist, ref):
@@ -172,6 +239,21 @@ def main(out, quick=False, log=print):
                            'largest_accurate_dt': accurate if accurate else ''})
             log(f'  {column}: {method}: largest stable dt {stable}, largest accurate dt '
                 f'{accurate} (grid {sorted({r["dt"] for r in rows})})')
-    return [common.write_csv(out / f'stability{tag}.csv', rows),
-            common.write_csv(out / f'stability_limits{tag}.csv', limits),
-            plot(rows, out / f'stability{tag}.png')]
+    written = [common.write_csv(out / f'stability{tag}.csv', rows),
+               common.write_csv(out / f'stability_limits{tag}.csv', limits),
+               plot(rows, out / f'stability{tag}.png')]
+    return written + stiff_main(out, quick, log)
+
+
+def stiff_main(out, quick=False, log=print):
+    """The stiff scenes only: ``stability_stiff.csv`` and ``stability_stiff_limits.csv``."""
+    out = Path(out)
+    tag = '_quick' if quick else ''
+    rows = stiff_run(quick, log)
+    limits = stiff_limits(rows)
+    for r in limits:
+        log(f'  {r["scene"]}: {r["method"]}: largest stable dt {r["largest_stable_dt"]}, '
+            f'accurate {r["largest_accurate_dt"]}, x{r["stable_dt_vs_rk4_projected"]:.3g} '
+            'rk4_projected')
+    return [common.write_csv(out / f'stability_stiff{tag}.csv', rows),
+            common.write_csv(out / f'stability_stiff_limits{tag}.csv', limits)]

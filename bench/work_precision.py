@@ -18,6 +18,12 @@ The first two bound the "reference spread" shaded on the chart; errors below it 
 Timings: the fastest of 3 to 7 runs; ``cost_vs_default`` = wall time divided by that of
 ``rk4_projected`` at dt = 5e-4 s on the same column and model, measured in the same process (the
 machine may be busy: read ratios).
+
+Stiff scenes (:data:`bench.stability.STIFF_SCENES`): the same error and cost for the explicit
+methods and ``implicit_midpoint`` over a window of ``STIFF_T_END`` s at v0 = 0.1 m/s, against an
+``rk4_projected`` reference at ``STIFF_REF_DT`` (checked against ``implicit_midpoint`` at
+``STIFF_CHECK_DT``, an independent method), into ``work_precision_stiff.csv`` and
+``work_precision_stiff.png``.
 """
 from __future__ import annotations
 
@@ -32,6 +38,10 @@ REF_DT = 1.5625e-5
 T_END = 0.4
 QUICK_T_END = 0.1
 LEVELS = (1e-2, 1e-4, 1e-6, 1e-8)         # accuracy levels of the "fastest method" table
+STIFF_T_END = 0.128
+STIFF_OUTPUT_DT = 6.4e-3
+STIFF_REF_DT = 2.5e-5
+STIFF_CHECK_DT = 5e-5
 
 
 def _grid(quick):
@@ -116,6 +126,100 @@ def run(out, quick=False, log=print):
                         f'err={err:.2e} wall/sim-s={h.wall_s / t_end:.3g} s '
                         f'{"" if not h.diverged else "DIVERGED " + h.quantity}')
     return rows, spreads
+
+
+def _stiff_grid(quick):
+    imp = [6.4e-3 / 2 ** k for k in range(0, 8)]             # 6.4 ms ... 50 us
+    rk4 = [4e-4 / 2 ** k for k in range(0, 4)]               # 0.4 ms ... 50 us
+    tols = [10.0 ** -k for k in range(4, 11, 2)]
+    if quick:
+        imp, rk4, tols = imp[1::3], rk4[1:2], tols[:1]
+    return [('rk4_projected', 'rk4_projected', True, [(dt, None) for dt in rk4]),
+            ('rattle', 'rattle', True, [(dt, None) for dt in rk4]),
+            ('dopri54_projected', 'dopri54_projected', True, [(1e-3, t) for t in tols]),
+            ('implicit_midpoint', 'implicit_midpoint', True, [(dt, None) for dt in imp])]
+
+
+def stiff_run(quick=False, log=print):
+    """Error against cost on the stiff scenes; returns (rows, spreads)."""
+    from .stability import STIFF_SCENES
+    model = common.available_models()[0]
+    t_end = STIFF_T_END / 4 if quick else STIFF_T_END
+    scenes = list(STIFF_SCENES.items())[:1] if quick else list(STIFF_SCENES.items())
+    rows, spreads = [], {}
+    for name, (column, over) in scenes:
+        def sc(method, dt, rtol=None, kinks=True):
+            return common.scene(column, model, method, dt, STIFF_OUTPUT_DT, t_end, rtol=rtol,
+                                atol=None if rtol is None else rtol * 1e-3,
+                                kinks=kinks).with_overrides(list(over))
+        ref = common.record(sc('rk4_projected', STIFF_REF_DT))
+        if ref.diverged:
+            raise RuntimeError(f'stiff reference diverged: {ref.diverged}')
+        check = common.record(sc('implicit_midpoint', STIFF_CHECK_DT))
+        spreads[name] = {f'independent: implicit_midpoint dt={STIFF_CHECK_DT:g}':
+                         common.strain_error(check, ref)}
+        log(f'  {name}: reference vs implicit_midpoint dt={STIFF_CHECK_DT:g}: '
+            f'{spreads[name]}')
+        for label, method, kinks, points in _stiff_grid(quick):
+            for dt, rtol in points:
+                h = common.record(sc(method, dt, rtol, kinks), repeats=1 if quick else 3)
+                err = common.strain_error(h, ref) if not h.diverged else float('nan')
+                rows.append({'scene': name, 'column': column, 'model': model, 'method': label,
+                             'dt': dt, 'rtol': rtol if rtol is not None else '',
+                             't_end': t_end, 'steps': h.steps, 'evaluations': h.evaluations,
+                             'evals_per_sim_s': h.evaluations / t_end, 'wall_s': h.wall_s,
+                             'wall_per_sim_s': h.wall_s / t_end, 'strain_error_rel': err,
+                             'energy_drift_rel': (common.energy_drift(h) if not h.diverged
+                                                  else float('nan')),
+                             'constraint_error': float(np.max(h.constraint_error)),
+                             'status': 'ok' if not h.diverged else f'diverged: {h.quantity}'})
+                log(f'  {name} {label:18s} dt={dt:.3g} rtol={rtol or "":<6} err={err:.2e} '
+                    f'wall/sim-s={h.wall_s / t_end:.3g} s steps={h.steps} '
+                    f'{"" if not h.diverged else "DIVERGED " + h.quantity}')
+    return rows, spreads
+
+
+def stiff_plot(rows, path):
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+
+    scenes = list(dict.fromkeys(r['scene'] for r in rows))
+    fig, axes = plt.subplots(2, len(scenes), figsize=(6.5 * len(scenes), 9), squeeze=False,
+                             constrained_layout=True)
+    colours = {'rk4_projected': 'C0', 'rattle': 'C2', 'dopri54_projected': 'C1',
+               'implicit_midpoint': 'C4'}
+    for i, (key, ylabel) in enumerate((('wall_per_sim_s', 'wall time per simulated second, s'),
+                                       ('steps', 'steps in the window'))):
+        for ax, name in zip(axes[i], scenes):
+            for label in colours:
+                sel = sorted((r for r in rows if (r['scene'], r['method']) == (name, label)
+                              and r['status'] == 'ok' and np.isfinite(r['strain_error_rel'])),
+                             key=lambda r: r['strain_error_rel'])
+                if sel:
+                    ax.loglog([max(r['strain_error_rel'], 1e-16) for r in sel],
+                              [r[key] for r in sel], marker='o', ms=3.5,
+                              color=colours[label], label=label)
+            failed = sorted({f'{r["method"]} {r["dt"] * 1e3:g} ms' for r in rows
+                             if r['scene'] == name and r['status'] != 'ok'})
+            ax.set_title(f'{name}\ndiverged: {", ".join(failed) or "none"}', fontsize=8)
+            ax.set_xlabel('strain-history error / peak strain')
+            ax.set_ylabel(ylabel)
+            ax.grid(True, which='both', alpha=0.3)
+            ax.legend(fontsize=7)
+    fig.suptitle('Work-precision on stiff scenes (v0 = 0.1 m/s, sym3d)')
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return str(path)
+
+
+def stiff_main(out, quick=False, log=print):
+    """The stiff scenes only: ``work_precision_stiff.csv``, ``work_precision_stiff.png``."""
+    out = Path(out)
+    tag = '_quick' if quick else ''
+    rows, spreads = stiff_run(quick, log)
+    return [common.write_csv(out / f'work_precision_stiff{tag}.csv', rows),
+            stiff_plot(rows, out / f'work_precision_stiff{tag}.png')]
 
 
 def fastest(rows, levels=LEVELS, cost='wall_s', exclude=()):
@@ -235,6 +339,7 @@ def main(out, quick=False, log=print):
                common.write_csv(out / f'work_precision_fastest{tag}.csv', best),
                common.write_csv(out / f'work_precision_reference{tag}.csv', ref_rows),
                plot(rows, spreads, out / f'work_precision{tag}.png')]
+    written += stiff_main(out, quick, log)
     for b in best:
         log(f'  fastest ({b["ranking"]}) at error <= {b["level"]:g}: {b["column"]} {b["model"]}: '
             f'{b["method"]} '

@@ -18,6 +18,9 @@ one):
 - ``dopri54_projected``: adaptive Dormand-Prince 5(4) with error control (``integrator.rtol``,
   ``integrator.atol``), ``dt`` is the initial and largest step; projection after every accepted
   step, steps land on kinks.
+- ``implicit_midpoint``: the implicit midpoint rule with the bar forces as unknowns
+  (:mod:`solver.implicit`), for stiff scenes: order 2, A-stable, Newton on a banded KKT system
+  per step, then projection; fixed steps.
 
 To add a method: write an ``@jit`` kernel ``_my_run(x, v, dt, n_steps, net, act, ws, tol, max_iter,
 kinks)`` with that contract (calling only :func:`solver.dynamics.accelerations`,
@@ -380,11 +383,68 @@ class DOPRI54Projected(Integrator):
                 self.scratch('xs', (n, 3)), self.scratch('vs', (n, 3)), self.hstate)
 
 
-METHODS = {cls.name: cls for cls in (RK4Projected, RK4, Rattle, DOPRI54Projected)}
+class ImplicitMidpoint(Integrator):
+    """Implicit midpoint rule with the rigid members as unknown forces, for stiff scenes (see
+    :mod:`solver.implicit`): order 2, A-stable, symmetric; Newton on a banded KKT system each
+    step, then projection. Fixed steps (no kink landing). ``stats()`` counts Newton iterations,
+    factorisations and force evaluations. Massive bars are refused."""
+    name = 'implicit_midpoint'
+    order = 2
+    projected = True
+    evaluations_per_step = 3
+
+    def __init__(self, rtol=1e-8, atol=1e-10):
+        super().__init__(rtol, atol)
+        from . import implicit
+        self._implicit = implicit
+        self.nstate = np.zeros(4)
+        self._layout = None
+
+    @property
+    def kernel(self):
+        return self._implicit.midpoint_run
+
+    @property
+    def checked(self):
+        return self._implicit.midpoint_checked
+
+    def reset(self):
+        self.nstate[:] = 0.0
+
+    def stats(self):
+        """``{'steps', 'newton_iterations', 'factorizations', 'evaluations'}`` since the last
+        reset."""
+        s = self.nstate
+        return {'steps': int(s[2]), 'newton_iterations': int(s[0]),
+                'factorizations': int(s[1]), 'evaluations': int(s[3])}
+
+    def _args(self, x, net):
+        if self._layout is None or self._layout[0] is not net:
+            self._layout = (net, self._implicit.layout(net))
+        node_pos, con_pos, size, bw = self._layout[1]
+        n, m = x.shape[0], len(con_pos)
+        return (node_pos, con_pos, self.scratch('band', (size, bw + 1)),
+                self.scratch('rhs', (size,)), self.scratch('nu', (m,)),
+                self.scratch('x0', x.shape), self.scratch('v0', x.shape),
+                self.scratch('xm', x.shape), self.scratch('f', x.shape),
+                self.scratch('acc', (n, 3)), self.nstate)
+
+    def run(self, x, v, dt, n_steps, net, act, ws, tol=1e-12, max_iter=3, kinks=True):
+        steps, status = self.kernel(x, v, float(dt), int(n_steps), net, act, ws, float(tol),
+                                    int(max_iter), *self._args(x, net))
+        return int(steps), int(status)
+
+    def checked_args(self, x, net, act, ws, tol, max_iter, kinks, keep, summ):
+        return (net, act, ws, float(tol), int(max_iter)) + self._args(x, net) + (keep, summ)
+
+
+METHODS = {cls.name: cls for cls in (RK4Projected, RK4, Rattle, DOPRI54Projected,
+                                     ImplicitMidpoint)}
 
 STATUS_TEXT = dict(dyn.STATUS_TEXT)
 STATUS_TEXT[STEP_TOO_SMALL] = ('adaptive step size fell below 1e-9 dt (stiff or singular '
                                'motion)')
+STATUS_TEXT[11] = 'implicit step: Newton iteration did not converge'    # implicit.NEWTON_FAILED
 
 
 def status_text(status):

@@ -65,3 +65,15 @@ def test_record_of_a_short_run_is_finite_and_timed():
     h = common.record(sc)
     assert h.diverged is None and h.strain.shape == (6, 50) and h.wall_s > 0
     assert np.all(np.isfinite(h.strain)) and np.min(h.strain) < 0     # the impact compresses
+
+
+def test_stiff_limits_give_the_stable_step_ratio_to_rk4_projected():
+    rows = [{'scene': 's', 'method': m, 'dt': dt, 'class': c} for m, dt, c in (
+        ('rk4_projected', 1e-4, 'drifting'), ('rk4_projected', 2e-4, 'diverged'),
+        ('implicit_midpoint', 1e-4, 'accurate'), ('implicit_midpoint', 2e-4, 'inaccurate'),
+        ('implicit_midpoint', 4e-4, 'diverged'))]
+    lim = {r['method']: r for r in stability.stiff_limits(rows)}
+    assert lim['rk4_projected']['largest_stable_dt'] == 1e-4
+    assert lim['implicit_midpoint']['largest_stable_dt'] == 2e-4
+    assert lim['implicit_midpoint']['largest_accurate_dt'] == 1e-4
+    assert lim['implicit_midpoint']['stable_dt_vs_rk4_projected'] == 2.0
