@@ -83,7 +83,7 @@ def layout(net):
     """``(node_pos, con_pos, n_unknowns, bandwidth)`` of the KKT system of a ``net`` tuple:
     node p's three unknowns at ``node_pos[p] ..+2``, rigid member c's multiplier at
     ``con_pos[c]``. Raises ``ValueError`` for massive bars."""
-    if np.any(np.asarray(net[1]) >= 0):
+    if np.any(np.asarray(net[1]) >= 0) or (len(net) > 12 and np.asarray(net[12][0]).shape[0]):
         raise ValueError('implicit_midpoint: networks with massive bars (materials.bar_mass > 0) '
                          'are not supported (non-diagonal mass matrix); use rk4_projected, '
                          'rattle or dopri54_projected')
