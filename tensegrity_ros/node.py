@@ -43,7 +43,8 @@ from .node_params import (DEFAULTS, DESCRIPTIONS, ParameterError, check_paramete
                           find_config, load_simulation, measure_step_cost)
 
 QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
-LOG_THROTTLE_S = 1.0             # a repeated log line (or rejected-command event) at most this often
+LOG_THROTTLE_S = 1.0             # a repeated log line (or rejected-command event): at most
+                                 # once per this many seconds
 WORK_FRACTION = 0.9              # share of a publish period the stepping (and publishing) may use
 FAST_WORK_FRACTION = 1.0         # the same at real_time_factor 0 (no pace to keep, no margin)
 
