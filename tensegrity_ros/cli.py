@@ -168,8 +168,11 @@ def cmd_replay(args):
     try:
         McapLog(args.log)
         if args.to_rerun:
-            n = to_rerun(args.log, args.to_rerun)
-            print(f'{args.log}: {n} messages -> {args.to_rerun}')
+            status = {}
+            n = to_rerun(args.log, args.to_rerun, status=status)
+            print(f'{args.log}: {n} messages -> {args.to_rerun}'
+                  + (' (file cut short: read up to its last complete chunk)'
+                     if status.get('truncated') else ''))
             return 0
         ros_args = ['--ros-args', *args.ros_args] if args.ros_args else None
         n, truncated = replay_main(args.log, rate=args.rate, loop=args.loop, delay_s=args.delay,
