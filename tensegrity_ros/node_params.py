@@ -38,7 +38,7 @@ DESCRIPTIONS = {
     'record_rerun': 'Rerun .rrd file to record to; empty = none',
     'marker_rate_hz': 'MarkerArray publications per wall second (<= publish_rate_hz)',
     'prestrain_ramp_s': 'simulation time over which a prestrain command is ramped, s',
-    'diagnostics_rate_hz': 'periodic /diagnostics per wall second (also sent on every command)',
+    'diagnostics_rate_hz': '/diagnostics per wall second (with command counters; also at once on a pause)',
 }
 POSITIVE = ('publish_rate_hz', 'marker_rate_hz', 'diagnostics_rate_hz')
 NON_NEGATIVE = ('real_time_factor', 'prestrain_ramp_s', 'dt')
