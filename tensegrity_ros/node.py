@@ -27,7 +27,7 @@ import sys
 import time
 
 import rclpy
-from rcl_interfaces.msg import ParameterDescriptor
+from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, SetParametersResult
 from rclpy.event_handler import PublisherEventCallbacks
 from rclpy._rclpy_pybind11 import RCLError
 from rclpy.executors import ExternalShutdownException
@@ -39,8 +39,9 @@ from std_srvs.srv import SetBool, Trigger
 from solver.simulation import SimulationDiverged
 
 from . import cdr, commands, messages
-from .node_params import (DEFAULTS, DESCRIPTIONS, ParameterError, check_parameters,  # noqa: F401
-                          find_config, load_simulation, measure_step_cost)
+from .node_params import (DEFAULTS, DESCRIPTIONS, RANGES, READ_ONLY, RESTART,  # noqa: F401
+                          ParameterError, check_parameters, find_config, load_simulation,
+                          measure_step_cost, unknown_parameters)
 
 QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
 LOG_THROTTLE_S = 1.0             # a repeated log line (or rejected-command event): at most
@@ -58,10 +59,20 @@ class TensegritySim(Node):
     def __init__(self, sim=None, **kwargs):
         kwargs.setdefault('namespace', messages.NAMESPACE)
         super().__init__(messages.NODE_NAME, **kwargs)
+        unknown = unknown_parameters(self._parameter_overrides)
+        if unknown is not None:
+            raise unknown
         for name, default in DEFAULTS.items():
-            self.declare_parameter(name, default, ParameterDescriptor(
-                description=DESCRIPTIONS[name], dynamic_typing=True))
+            desc = ParameterDescriptor(description=DESCRIPTIONS[name],
+                                       read_only=name in READ_ONLY,
+                                       dynamic_typing=True)    # types: check_parameters
+            if name in RANGES:
+                lo, hi = RANGES[name]
+                desc.floating_point_range = [FloatingPointRange(from_value=lo, to_value=hi)]
+            self.declare_parameter(name, default, desc)
         self.params = check_parameters({n: self.get_parameter(n).value for n in DEFAULTS})
+        self.add_on_set_parameters_callback(self._check_new_parameters)
+        self.add_post_set_parameters_callback(self._apply_new_parameters)
         self.period = 1.0 / self.params['publish_rate_hz']
         if self.params['record_rerun']:    # the recorder's helper starts while the node sets up
             from .rerun_log import prestart
@@ -139,9 +150,8 @@ class TensegritySim(Node):
             from .recording import McapRecorder
             rec = McapRecorder(self.params['record_mcap'],
                                metadata=network_metadata(self.sim.network, self.sim.scene.name))
-            for key, topic in self._topics.items():
-                if key != '/clock' or self.params['use_sim_clock']:
-                    rec.declare(topic, messages.MSG_CLASSES[key], QOS)
+            for key, topic in self._topics.items():     # /clock too: it may be switched on
+                rec.declare(topic, messages.MSG_CLASSES[key], QOS)
             self.add_sink(sink=rec.write, close=rec.close, takes_bytes=True)
         if self.params['record_rerun']:
             from .rerun_log import RerunRecorder
@@ -165,6 +175,43 @@ class TensegritySim(Node):
                 fn()
             except Exception as exc:
                 self.get_logger().error(f'closing a recorder failed: {exc}')
+
+    # -- parameters at run time -----------------------------------------------------------------
+    def _check_new_parameters(self, params):
+        """Refuse (with the reason) a change that the start-up check would refuse, or one of a
+        parameter fixed while the node runs; rclpy refuses read-only ones and out-of-range values
+        before this is called."""
+        values = dict(self.params)
+        for p in params:
+            if p.name in READ_ONLY:
+                return SetParametersResult(successful=False, reason=f'{p.name} {RESTART}')
+            if p.name in values:
+                values[p.name] = p.value
+        try:
+            check_parameters(values)
+        except ParameterError as exc:
+            return SetParametersResult(successful=False, reason=str(exc))
+        return SetParametersResult(successful=True)
+
+    def _apply_new_parameters(self, params):
+        """Make accepted changes take effect now."""
+        new = check_parameters(dict(self.params, **{p.name: p.value for p in params
+                                                    if p.name in self.params}))
+        old, self.params = self.params, new
+        if new['real_time_factor'] != old['real_time_factor']:
+            self._anchor()                         # the new pace counts from now
+        if new['publish_rate_hz'] != old['publish_rate_hz']:
+            self.period = 1.0 / new['publish_rate_hz']
+            self.timer.timer_period_ns = round(self.period * 1e9)
+            self.timer.reset()
+        if new['use_sim_clock'] and '/clock' not in self._pubs:
+            self._pubs['/clock'] = self.create_publisher(
+                messages.MSG_CLASSES['/clock'], '/clock', QOS,
+                event_callbacks=PublisherEventCallbacks(use_default_callbacks=False))
+        changed = [p.name for p in params if p.name in new and new[p.name] != old[p.name]]
+        if changed:
+            self.get_logger().info('parameters: ' + ', '.join(
+                f'{n} = {new[n]!r}' for n in changed), throttle_duration_sec=LOG_THROTTLE_S)
 
     # -- pacing ---------------------------------------------------------------------------------
     def _anchor(self):

@@ -2,12 +2,11 @@
 picture that shows what it says)."""
 import ast
 import re
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-from mcap_helpers import ROOT, small_network, synthetic_frames
+from mcap_helpers import ROOT
 from solver.scene import Scene, SceneError
 
 SCENES = ROOT / 'config' / 'scenes'
