@@ -62,6 +62,10 @@ class TensegritySim(Node):
         unknown = unknown_parameters(self._parameter_overrides)
         if unknown is not None:
             raise unknown
+        # the start-up values through the same check as later changes (before rclpy's range
+        # check at declaration, whose message would not be ours)
+        check_parameters({n: self._parameter_overrides[n].value
+                          if n in self._parameter_overrides else d for n, d in DEFAULTS.items()})
         for name, default in DEFAULTS.items():
             desc = ParameterDescriptor(description=DESCRIPTIONS[name],
                                        read_only=name in READ_ONLY,
