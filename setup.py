@@ -5,8 +5,8 @@ from setuptools import setup
 
 package_name = 'tensegrity_ros'
 
-# ROS 2 Kilted from PyPI wheels (cp311); users with a ROS distribution build with colcon and
-# package.xml instead and may install with TENSEGRITY_NO_ROS_WHEELS=1 (see README).
+# ROS 2 Kilted from PyPI wheels (cp311), the `ros` extra: `pip install -e '.[ros]'`. Users with a
+# ROS distribution install without it (`pip install -e .`, or colcon with package.xml).
 ROS_WHEELS = [
     'ros-rclpy==9.1.2',
     'ros-std-msgs==5.5.1',

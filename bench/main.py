@@ -7,10 +7,11 @@ from pathlib import Path
 
 def main(out_dir='bench/results', quick=False, peers=False, only=None, log=print):
     """Run the benchmarks into ``out_dir``; ``only`` is None or a subset of
-    ``{'work_precision', 'stability', 'peers', 'rerun', 'sweep'}`` (``peers=True`` adds the peer
-    comparison, which :mod:`bench.peers` provides; ``rerun``, only on request, the cost of a Rerun
-    recording, :mod:`bench.rerun_overhead`; ``sweep``, only on request, the parallel
-    efficiency of a sweep, :mod:`bench.sweep`). Returns the list of files written."""
+    ``{'work_precision', 'stability', 'peers', 'rerun', 'sweep', 'soak'}`` (``peers=True`` adds
+    the peer comparison, which :mod:`bench.peers` provides; ``rerun``, only on request, the cost of
+    a Rerun recording, :mod:`bench.rerun_overhead`; ``sweep``, only on request, the parallel
+    efficiency of a sweep, :mod:`bench.sweep`; ``soak``, only on request, the node under a command
+    flood for 10 minutes, 20 s with ``quick``, :mod:`bench.soak`). Returns the files written."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     written = []
@@ -31,4 +32,7 @@ def main(out_dir='bench/results', quick=False, peers=False, only=None, log=print
     if only is not None and 'rerun' in only:
         from . import rerun_overhead
         written += rerun_overhead.main(out, quick=quick, log=log)
+    if only is not None and 'soak' in only:
+        from . import soak
+        written += soak.main(out, quick=quick, log=log)
     return written

@@ -162,6 +162,14 @@ def _check_value(key, default, value):
     return value
 
 
+def _unknown(key, node):
+    """The message for an unknown (dotted) key, listing the valid keys at its level as a scene
+    file's unknown key does."""
+    if not isinstance(node, dict):
+        return f'{key}: unknown key ({key.rsplit(".", 1)[0]} has no sub-keys)'
+    return f'{key}: unknown key (valid here: {", ".join(sorted(node))})'
+
+
 def _merge(defaults, given, prefix=''):
     if not isinstance(given, dict):
         raise SceneError(f'{prefix.rstrip(".") or "scene"}: expected a mapping, got {given!r}')
@@ -241,6 +249,9 @@ class Scene:
             where = f' line {mark.line + 1}' if mark is not None else ''
             raise SceneError(f'{path}:{where} not valid YAML ({getattr(exc, "problem", exc)})') \
                 from None
+        if raw is None:                         # nothing but blanks or comments
+            raise SceneError(f'{path}: the scene file is empty (give at least a name and a '
+                             f'structure; see config/scenes/)')
         try:
             return cls(raw, source=str(path))
         except SceneError as exc:
@@ -281,9 +292,9 @@ class Scene:
             node = data
             for part in parts[:-1]:
                 if not isinstance(node, dict) or part not in node:
-                    raise SceneError(f'{key}: unknown key')
+                    raise SceneError(_unknown(key, node))
                 node = node[part]
             if not isinstance(node, dict) or parts[-1] not in node:
-                raise SceneError(f'{key}: unknown key')
+                raise SceneError(_unknown(key, node))
             node[parts[-1]] = value
         return Scene(data, source=self.source)

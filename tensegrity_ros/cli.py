@@ -166,8 +166,11 @@ def cmd_replay(args):
     try:
         McapLog(args.log)
         if args.to_rerun:
-            n = to_rerun(args.log, args.to_rerun)
-            print(f'{args.log}: {n} messages -> {args.to_rerun}')
+            status = {}
+            n = to_rerun(args.log, args.to_rerun, status=status)
+            print(f'{args.log}: {n} messages -> {args.to_rerun}'
+                  + (' (file cut short: read up to its last complete chunk)'
+                     if status.get('truncated') else ''))
             return 0
         ros_args = ['--ros-args', *args.ros_args] if args.ros_args else None
         n, truncated = replay_main(args.log, rate=args.rate, loop=args.loop, delay_s=args.delay,
@@ -330,10 +333,11 @@ def build_parser():
     p.add_argument('--out', default='bench/results', help='output directory (CSV and PNG)')
     p.add_argument('--peers', action='store_true', help='also run the peer comparison')
     p.add_argument('--only', action='append',
-                   choices=('work_precision', 'stability', 'peers', 'rerun', 'sweep'),
+                   choices=('work_precision', 'stability', 'peers', 'rerun', 'sweep', 'soak'),
                    help='run only this benchmark (repeatable); rerun: the cost of a Rerun '
-                        'recording, sweep: the parallel efficiency of a 64-point sweep (both '
-                        'only on request)')
+                        'recording, sweep: the parallel efficiency of a 64-point sweep, soak: '
+                        'the node under a command flood for 10 minutes (these three only on '
+                        'request)')
     p.set_defaults(func=cmd_bench)
     p = sub.add_parser('paper', help="the paper's table (FB and RB, v0 = 0.1, 0.125, 0.15) "
                        'under every modelling variant, next to the paper\'s FB values')

@@ -177,7 +177,7 @@ def run_demo(scene_file='config/scenes/fb_column.yaml', v0=(0.1,), duration_s=1.
         spin_until(ex, lambda: bool(accepted()), 30.0)
         if not accepted() or accepted()[0][2]['last_command'] != 'accepted':
             raise RuntimeError(f'impact not accepted: {accepted()[:1]}')
-        t_imp = float(accepted()[0][2]['sim_time_s'])
+        t_imp = float(accepted()[0][2]['last_command_sim_time_s'])     # when it was applied
         n_c = len(cmd.clouds)
         w1 = time.monotonic()
         spin_until(ex, lambda: cmd.clouds[-1][0] >= t_imp + duration_s,

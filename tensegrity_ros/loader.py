@@ -81,7 +81,10 @@ class McapLog:
                     break
                 except (McapError, ValueError, EOFError, MemoryError, OSError) as exc:
                     if self.header is None:
-                        raise LogError(f'{self.path}: not an MCAP file ({exc})') from None
+                        detail = str(exc) or type(exc).__name__
+                        if self.path.stat().st_size == 0:
+                            detail = 'the file is empty'
+                        raise LogError(f'{self.path}: not an MCAP file ({detail})') from None
                     self.truncated = True
                     self.error = f'{type(exc).__name__}: {exc}'.rstrip(': ')
                     break

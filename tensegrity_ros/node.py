@@ -2,10 +2,16 @@
 
     tensegrity_node [--ros-args -p real_time_factor:=0.0 --params-file config/node.yaml]
 
-One timer drives everything: each tick advances the simulation towards the paced target time (or as
-far as fits in the tick with ``real_time_factor`` 0), never working longer than one publish period,
-then publishes one frame (messages built once by :mod:`tensegrity_ros.messages`). Commands arrive
-in the same single-threaded executor, so they never race a step. Stamps are simulation time.
+One timer drives everything: each tick applies the commands that arrived since the last one,
+advances the simulation towards the paced target time (or as far as fits in the tick with
+``real_time_factor`` 0), never working longer than one publish period less the time the command
+callbacks took, then publishes one frame (messages built once by :mod:`tensegrity_ros.messages`).
+Commands arrive in the same single-threaded executor, so they never race a step: each one is
+validated (and counted, and handed to the recorders) on arrival, and of the valid ones of a tick
+the last one per topic is applied at the next tick (the others are counted as superseded), so a
+flood of commands cannot starve the simulation. ``/diagnostics`` go out at
+``diagnostics_rate_hz`` with counters (and at once when the simulation pauses itself); repeated log
+lines are throttled. Stamps are simulation time.
 
 Recorders hook in through three lists (see :meth:`TensegritySim.add_sink`): ``_sinks`` get
 ``(topic, msg, stamp_ns)`` for every published message and every received command (the frame's
@@ -21,7 +27,7 @@ import sys
 import time
 
 import rclpy
-from rcl_interfaces.msg import ParameterDescriptor
+from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, SetParametersResult
 from rclpy.event_handler import PublisherEventCallbacks
 from rclpy._rclpy_pybind11 import RCLError
 from rclpy.executors import ExternalShutdownException
@@ -33,10 +39,14 @@ from std_srvs.srv import SetBool, Trigger
 from solver.simulation import SimulationDiverged
 
 from . import cdr, commands, messages
-from .node_params import (DEFAULTS, DESCRIPTIONS, ParameterError, check_parameters,  # noqa: F401
-                          find_config, load_simulation, measure_step_cost)
+from .node_params import (DEFAULTS, DESCRIPTIONS, RANGES, READ_ONLY, RESTART,  # noqa: F401
+                          ParameterError, check_parameters, find_config, load_simulation,
+                          measure_step_cost, unknown_parameters)
 
 QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
+LOG_THROTTLE_S = 1.0             # a repeated log line (or rejected-command event): at most
+                                 # once per this many seconds
+MAX_TAKE = 100                   # commands per topic taken at the start of a tick, at most
 WORK_FRACTION = 0.9              # share of a publish period the stepping (and publishing) may use
 FAST_WORK_FRACTION = 1.0         # the same at real_time_factor 0 (no pace to keep, no margin)
 
@@ -49,10 +59,24 @@ class TensegritySim(Node):
     def __init__(self, sim=None, **kwargs):
         kwargs.setdefault('namespace', messages.NAMESPACE)
         super().__init__(messages.NODE_NAME, **kwargs)
+        unknown = unknown_parameters(self._parameter_overrides)
+        if unknown is not None:
+            raise unknown
+        # the start-up values through the same check as later changes (before rclpy's range
+        # check at declaration, whose message would not be ours)
+        check_parameters({n: self._parameter_overrides[n].value
+                          if n in self._parameter_overrides else d for n, d in DEFAULTS.items()})
         for name, default in DEFAULTS.items():
-            self.declare_parameter(name, default, ParameterDescriptor(
-                description=DESCRIPTIONS[name], dynamic_typing=True))
+            desc = ParameterDescriptor(description=DESCRIPTIONS[name],
+                                       read_only=name in READ_ONLY,
+                                       dynamic_typing=True)    # types: check_parameters
+            if name in RANGES:
+                lo, hi = RANGES[name]
+                desc.floating_point_range = [FloatingPointRange(from_value=lo, to_value=hi)]
+            self.declare_parameter(name, default, desc)
         self.params = check_parameters({n: self.get_parameter(n).value for n in DEFAULTS})
+        self.add_on_set_parameters_callback(self._check_new_parameters)
+        self.add_post_set_parameters_callback(self._apply_new_parameters)
         self.period = 1.0 / self.params['publish_rate_hz']
         if self.params['record_rerun']:    # the recorder's helper starts while the node sets up
             from .rerun_log import prestart
@@ -77,13 +101,23 @@ class TensegritySim(Node):
                       for key in messages.PUBLISHED
                       if key != '/clock' or self.params['use_sim_clock']}
         self._topics = {key: self.resolve_topic_name(key) for key in messages.TYPES}
-        self.create_subscription(Float64MultiArray, '~/cmd/impact', self._on_impact, QOS)
-        self.create_subscription(Float64MultiArray, '~/cmd/prestrain', self._on_prestrain, QOS)
+        self._cmd_subs = [
+            (self.create_subscription(Float64MultiArray, '~/cmd/impact', self._on_impact, QOS),
+             self._on_impact),
+            (self.create_subscription(Float64MultiArray, '~/cmd/prestrain', self._on_prestrain,
+                                      QOS), self._on_prestrain)]
         self.create_service(Trigger, '~/reset', self._on_reset)
         self.create_service(SetBool, '~/set_running', self._on_set_running)
         self.running = True
-        self.counts = {'accepted': 0, 'rejected': 0, 'frames': 0}
+        # commands: accepted = applied; superseded = valid, replaced by a later one of the same
+        # topic before the next tick; rejected = malformed (or refused when applied)
+        self.counts = {'accepted': 0, 'rejected': 0, 'superseded': 0, 'frames': 0}
         self.last_command = ('none', 'none', '')      # (topic, accepted/rejected, detail)
+        self.last_command_t = math.nan                # sim time the last command was applied
+        self._pending = {}             # topic -> apply() of its last valid command since a tick
+        self._cmd_wall = 0.0           # wall seconds the command callbacks took since a tick
+        self._rejected_since = 0       # rejections not yet reported on /diagnostics
+        self._last_reject_event = -math.inf
         self.problem = ''
         self._publish_cost = self._marker_cost = 0.0
         self.tick_max_s = 0.0
@@ -120,9 +154,8 @@ class TensegritySim(Node):
             from .recording import McapRecorder
             rec = McapRecorder(self.params['record_mcap'],
                                metadata=network_metadata(self.sim.network, self.sim.scene.name))
-            for key, topic in self._topics.items():
-                if key != '/clock' or self.params['use_sim_clock']:
-                    rec.declare(topic, messages.MSG_CLASSES[key], QOS)
+            for key, topic in self._topics.items():     # /clock too: it may be switched on
+                rec.declare(topic, messages.MSG_CLASSES[key], QOS)
             self.add_sink(sink=rec.write, close=rec.close, takes_bytes=True)
         if self.params['record_rerun']:
             from .rerun_log import RerunRecorder
@@ -147,6 +180,43 @@ class TensegritySim(Node):
             except Exception as exc:
                 self.get_logger().error(f'closing a recorder failed: {exc}')
 
+    # -- parameters at run time -----------------------------------------------------------------
+    def _check_new_parameters(self, params):
+        """Refuse (with the reason) a change that the start-up check would refuse, or one of a
+        parameter fixed while the node runs; rclpy refuses read-only ones and out-of-range values
+        before this is called."""
+        values = dict(self.params)
+        for p in params:
+            if p.name in READ_ONLY:
+                return SetParametersResult(successful=False, reason=f'{p.name} {RESTART}')
+            if p.name in values:
+                values[p.name] = p.value
+        try:
+            check_parameters(values)
+        except ParameterError as exc:
+            return SetParametersResult(successful=False, reason=str(exc))
+        return SetParametersResult(successful=True)
+
+    def _apply_new_parameters(self, params):
+        """Make accepted changes take effect now."""
+        new = check_parameters(dict(self.params, **{p.name: p.value for p in params
+                                                    if p.name in self.params}))
+        old, self.params = self.params, new
+        if new['real_time_factor'] != old['real_time_factor']:
+            self._anchor()                         # the new pace counts from now
+        if new['publish_rate_hz'] != old['publish_rate_hz']:
+            self.period = 1.0 / new['publish_rate_hz']
+            self.timer.timer_period_ns = round(self.period * 1e9)
+            self.timer.reset()
+        if new['use_sim_clock'] and '/clock' not in self._pubs:
+            self._pubs['/clock'] = self.create_publisher(
+                messages.MSG_CLASSES['/clock'], '/clock', QOS,
+                event_callbacks=PublisherEventCallbacks(use_default_callbacks=False))
+        changed = [p.name for p in params if p.name in new and new[p.name] != old[p.name]]
+        if changed:
+            self.get_logger().info('parameters: ' + ', '.join(
+                f'{n} = {new[n]!r}' for n in changed), throttle_duration_sec=LOG_THROTTLE_S)
+
     # -- pacing ---------------------------------------------------------------------------------
     def _anchor(self):
         self._anchor_wall = time.monotonic()
@@ -161,7 +231,7 @@ class TensegritySim(Node):
         # between ticks; the publish rate falls a little below publish_rate_hz: 187-190 Hz at
         # 200, against 199 Hz with the margin, for 7 points less overhead, measured side by side)
         fraction = FAST_WORK_FRACTION if rtf <= 0 else WORK_FRACTION
-        budget = max(fraction * self.period - publish, 0.2 * self.period)
+        budget = max(fraction * self.period - publish - self._cmd_wall, 0.2 * self.period)
         cap = max(1, int(budget / max(self._step_cost, 1e-9)))
         if rtf <= 0:
             return cap
@@ -186,6 +256,8 @@ class TensegritySim(Node):
         self.tick_max_s = max(self.tick_max_s, time.monotonic() - now)
 
     def _tick_work(self, now):
+        self._take_commands()
+        self._apply_pending()
         if self.running:
             n = self.steps_this_tick(now)
             if n > 0:
@@ -198,13 +270,14 @@ class TensegritySim(Node):
                 cost = (time.perf_counter() - t0) / n
                 self._step_cost = 0.8 * self._step_cost + 0.2 * cost
                 self._publish_frame(now)
+        self._cmd_wall = 0.0
         if now - self._last_diag >= 1.0 / self.params['diagnostics_rate_hz']:
             self._publish_diagnostics(now)
 
     def _pause(self, why):
         self.running = False
         self.problem = why
-        self.get_logger().error(why)
+        self.get_logger().error(why, throttle_duration_sec=LOG_THROTTLE_S)
         self._emit(self._event_sinks, self.sim.t, why)
         self._publish_diagnostics(time.monotonic())
 
@@ -259,15 +332,20 @@ class TensegritySim(Node):
             'frames_published': self.counts['frames'],
             'commands_accepted': self.counts['accepted'],
             'commands_rejected': self.counts['rejected'],
+            'commands_superseded': self.counts['superseded'],
             'last_command_topic': topic, 'last_command': verdict, 'last_command_detail': detail,
+            'last_command_sim_time_s': (float(self.last_command_t)
+                                        if math.isfinite(self.last_command_t) else -1.0),
         }
 
     def _publish_diagnostics(self, now, level=None, message=None):
         self._last_diag = now
         periodic = level is None
         if level is None:
-            level = 2 if self.problem else 0
-            message = self.problem or ('running' if self.running else 'paused')
+            level = 2 if self.problem else 1 if self._rejected_since else 0
+            message = self.problem or (f'rejected {self.last_command[2]}' if self._rejected_since
+                                       else 'running' if self.running else 'paused')
+            self._rejected_since = 0
         stamp = messages.sim_stamp(self.sim.t)
         msg = messages.diagnostics_message(stamp, self.diagnostics_values(), level, message)
         self._pubs['/diagnostics'].publish(msg)
@@ -276,35 +354,75 @@ class TensegritySim(Node):
             self.tick_max_s = 0.0          # tick_max_ms covers one diagnostics period
 
     # -- commands -------------------------------------------------------------------------------
-    def _command(self, key, msg, apply):
+    def _command(self, key, msg, check):
+        """A command received on ``key``: recorded, validated at once (``check()`` returns the
+        ``apply()`` that changes the simulation, or raises), counted; a valid one replaces the
+        topic's pending command and is applied at the next tick. Returns whether it was valid."""
+        w0 = time.perf_counter()
         stamp_ns = messages.stamp_to_ns(messages.sim_stamp(self.sim.t))
         self._emit(self._sinks, self._topics[key], msg, stamp_ns)
         try:
-            detail = apply()
+            apply = check()
         except (commands.CommandError, ValueError) as exc:
-            text = str(exc) if str(exc).startswith('~/') else f'{key}: {exc}'
-            self.counts['rejected'] += 1
-            self.last_command = (key, 'rejected', text)
-            self.get_logger().warning(f'rejected {text}')
+            self._reject(key, exc)
+            ok = False
+        else:
+            if self._pending.pop(key, None) is not None:
+                self.counts['superseded'] += 1
+            self._pending[key] = apply
+            ok = True
+        self._cmd_wall += time.perf_counter() - w0
+        return ok
+
+    def _reject(self, key, exc):
+        text = str(exc) if str(exc).startswith('~/') else f'{key}: {exc}'
+        self.counts['rejected'] += 1
+        self._rejected_since += 1
+        self.last_command = (key, 'rejected', text)
+        self.get_logger().warning(f'rejected {text}', throttle_duration_sec=LOG_THROTTLE_S)
+        now = time.monotonic()
+        if now - self._last_reject_event >= LOG_THROTTLE_S:       # events: throttled as well
+            self._last_reject_event = now
             self._emit(self._event_sinks, self.sim.t, f'rejected {text}')
-            self._publish_diagnostics(time.monotonic(), 1, f'rejected {text}')
-            return False
-        self.counts['accepted'] += 1
-        self.last_command = (key, 'accepted', detail)
-        self.get_logger().info(f'{key}: {detail}')
-        self._emit(self._event_sinks, self.sim.t, f'{key}: {detail}')
-        self._publish_diagnostics(time.monotonic(), 0, f'accepted {key}')
-        return True
+
+    def _take_commands(self):
+        """Take every command waiting in the subscriptions now (each through its callback), at
+        once: cheaper than one executor cycle per message, so that a flood is taken whole."""
+        for sub, handler in self._cmd_subs:
+            for _ in range(MAX_TAKE):
+                with sub.handle:
+                    got = sub.handle.take_message(sub.msg_type, sub.raw)
+                if got is None:
+                    break
+                handler(got[0])
+
+    def _apply_pending(self):
+        """Apply the last valid command per topic that arrived since the previous tick."""
+        pending, self._pending = self._pending, {}
+        for key, apply in pending.items():
+            try:
+                detail = apply()
+            except (commands.CommandError, ValueError) as exc:
+                self._reject(key, exc)
+                continue
+            self.counts['accepted'] += 1
+            self.last_command = (key, 'accepted', detail)
+            self.last_command_t = self.sim.t
+            self.get_logger().info(f'{key}: {detail}', throttle_duration_sec=LOG_THROTTLE_S)
+            self._emit(self._event_sinks, self.sim.t, f'{key}: {detail}')
 
     def _on_impact(self, msg):
-        def apply():
+        def check():
             v0 = commands.parse_impact(msg.data, msg.layout, self.sim.network.n_columns)
-            added = self.sim.apply_impact(float(v0[0]) if v0.size == 1 else v0)
-            return f'impact v0 = {commands.describe(v0)} m/s, kinetic energy +{added:.3g} J'
-        return self._command('~/cmd/impact', msg, apply)
+
+            def apply():
+                added = self.sim.apply_impact(float(v0[0]) if v0.size == 1 else v0)
+                return f'impact v0 = {commands.describe(v0)} m/s, kinetic energy +{added:.3g} J'
+            return apply
+        return self._command('~/cmd/impact', msg, check)
 
     def _on_prestrain(self, msg):
-        def apply():
+        def check():
             if self._cross_prism is None:
                 raise commands.CommandError('~/cmd/prestrain: this scene is not a column of '
                                             'prisms; prestrain commands need one')
@@ -315,20 +433,23 @@ class TensegritySim(Node):
             net = self.sim.network
             p = commands.parse_prestrain(msg.data, msg.layout, net.n_columns, net.n_prisms,
                                          self._cross_prism)
-            ramp = self.params['prestrain_ramp_s']
-            self.sim.apply_prestrain(p, ramp_s=ramp)
-            per_col = p.mean(axis=1)
-            return f'prestrain per column {commands.describe(per_col)} over {ramp:g} s'
-        return self._command('~/cmd/prestrain', msg, apply)
+
+            def apply():
+                ramp = self.params['prestrain_ramp_s']
+                self.sim.apply_prestrain(p, ramp_s=ramp)
+                per_col = p.mean(axis=1)
+                return f'prestrain per column {commands.describe(per_col)} over {ramp:g} s'
+            return apply
+        return self._command('~/cmd/prestrain', msg, check)
 
     def _on_reset(self, request, response):
+        self._apply_pending()          # commands that came before the reset, then the reset
         self.sim.reset()
         self.problem = ''
         self._anchor()
         self._rtf_window = (time.monotonic(), self.sim.t, self.counts['frames'])
         self._emit(self._event_sinks, self.sim.t, 'reset')
         self._publish_frame(time.monotonic())
-        self._publish_diagnostics(time.monotonic(), 0, 'reset')
         response.success = True
         response.message = 'reset to the reference geometry at rest, t = 0'
         return response
@@ -338,7 +459,6 @@ class TensegritySim(Node):
         if self.running:
             self.problem = ''
             self._anchor()
-        self._publish_diagnostics(time.monotonic())
         response.success = True
         response.message = 'running' if self.running else 'paused'
         return response

@@ -38,10 +38,32 @@ DESCRIPTIONS = {
     'record_rerun': 'Rerun .rrd file to record to; empty = none',
     'marker_rate_hz': 'MarkerArray publications per wall second (<= publish_rate_hz)',
     'prestrain_ramp_s': 'simulation time over which a prestrain command is ramped, s',
-    'diagnostics_rate_hz': 'periodic /diagnostics per wall second (also sent on every command)',
+    'diagnostics_rate_hz': '/diagnostics per wall second (with command counters; also at once '
+                           'on a pause)',
 }
 POSITIVE = ('publish_rate_hz', 'marker_rate_hz', 'diagnostics_rate_hz')
 NON_NEGATIVE = ('real_time_factor', 'prestrain_ramp_s', 'dt')
+# fixed once the node runs (the simulation and the recorders are built from them): a change is
+# refused with this reason
+READ_ONLY = ('scene_file', 'model', 'integrator', 'dt', 'record_mcap', 'record_rerun')
+RESTART = 'is fixed while the node runs; restart the node with the new value'
+# ranges the parameter descriptors show (FloatingPointRange; the upper ends are generous limits)
+RANGES = {'publish_rate_hz': (1e-3, 10000.0), 'marker_rate_hz': (1e-3, 10000.0),
+          'diagnostics_rate_hz': (1e-3, 1000.0), 'real_time_factor': (0.0, 1e6),
+          'prestrain_ramp_s': (0.0, 1e3), 'dt': (0.0, 1.0)}
+# names the node accepts besides its own (rclpy's)
+ROS_NAMES = ('use_sim_time', 'start_type_description_service')
+
+
+def unknown_parameters(names):
+    """ParameterError naming the parameters in ``names`` that the node does not have, listing the
+    valid ones; None if there are none (QoS overrides and rclpy's own are valid)."""
+    bad = sorted(n for n in names if n not in DEFAULTS and n not in ROS_NAMES
+                 and not n.startswith('qos_overrides.'))
+    if not bad:
+        return None
+    return ParameterError(f'unknown parameter{"s" if len(bad) > 1 else ""} '
+                          f'{", ".join(bad)} (valid: {", ".join(DEFAULTS)})')
 
 
 class ParameterError(ValueError):
@@ -77,6 +99,9 @@ def check_parameters(values):
     for name in NON_NEGATIVE:
         if not (math.isfinite(values[name]) and values[name] >= 0):
             raise ParameterError(f'{name}: must be >= 0, got {values[name]!r}')
+    for name, (lo, hi) in RANGES.items():
+        if not lo <= values[name] <= hi:
+            raise ParameterError(f'{name}: must be within [{lo:g}, {hi:g}], got {values[name]!r}')
     return values
 
 

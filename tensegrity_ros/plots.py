@@ -7,19 +7,32 @@ import numpy as np
 def strain_wave(rec, path, title='', column=0, snapshots=(0.1, 0.3, 0.5, 0.7, 0.9)):
     """Two panels: strain against prism index at several times (like the paper's figures) and a
     prism-by-time heat map of the whole wave. Writes a PNG to ``path``; returns ``path``."""
+    import matplotlib.pyplot as plt
+    fig = strain_wave_figure(rec, title, column, snapshots)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def strain_wave_figure(rec, title='', column=0, snapshots=(0.1, 0.3, 0.5, 0.7, 0.9)):
+    """The figure of :func:`strain_wave`. Snapshot times past the run are left out (the last
+    frame stands in if none is left); points carry markers, so that a single prism shows too."""
     import matplotlib
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import MaxNLocator
 
     strain = rec.strain[:, column]
     n_prisms = strain.shape[1]
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(12, 4.5), constrained_layout=True)
-    for t in snapshots:
-        if t > rec.times[-1]:
-            continue
+    times = [t for t in snapshots if t <= rec.times[-1]] or [rec.times[-1]]
+    for t in times:
         k = int(np.argmin(np.abs(rec.times - t)))
-        ax1.plot(np.arange(1, n_prisms + 1), strain[k], label=f't = {rec.times[k]:.2f} s')
-    ax1.set_xlabel('prism (1 = clamped end, %d = impacted end)' % n_prisms)
+        ax1.plot(np.arange(1, n_prisms + 1), strain[k], marker='o', markersize=3,
+                 label=f't = {rec.times[k]:.2f} s')
+    ax1.set_xlabel('prism (1 = clamped end, %d = impacted end)' % n_prisms if n_prisms > 1
+                   else 'prism (a single prism: clamped below, impacted on top)')
+    ax1.xaxis.set_major_locator(MaxNLocator(integer=True))
     ax1.set_ylabel('axial strain (h - h0) / h')
     ax1.legend(fontsize=8)
     ax1.grid(alpha=0.3)
@@ -29,7 +42,8 @@ def strain_wave(rec, path, title='', column=0, snapshots=(0.1, 0.3, 0.5, 0.7, 0.
     fig.colorbar(im, ax=ax2, label='strain')
     ax2.set_xlabel('time (s)')
     ax2.set_ylabel('prism')
+    ax2.yaxis.set_major_locator(MaxNLocator(integer=True))
+    if n_prisms == 1:
+        ax2.set_yticks([1])
     fig.suptitle(title)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return fig

@@ -215,8 +215,10 @@ def _rgba(colors):
     return np.array([[c.r, c.g, c.b, c.a] for c in colors], dtype=np.float32)
 
 
-def to_rerun(path, out, application_id='tensegrity_ros', recording_id=None):
+def to_rerun(path, out, application_id='tensegrity_ros', recording_id=None, status=None):
     """Convert a log to a Rerun ``.rrd`` file ``out``; returns the number of messages converted.
+    ``status`` (a dict), if given, gets ``truncated``: whether the log was cut short (a killed
+    recording: converted up to its last complete chunk).
 
     A log that carries its network (``tensegrity_network`` metadata, written by the node and by
     ``tensegrity run --mcap``) goes through :class:`~tensegrity_ros.rerun_log.RerunRecorder`, so
@@ -228,7 +230,7 @@ def to_rerun(path, out, application_id='tensegrity_ros', recording_id=None):
             if m.type_name == 'diagnostic_msgs/msg/DiagnosticArray']
     net = log_network(first.metadata)
     if net is None:
-        return to_rerun_generic(path, out, application_id, recording_id)
+        return to_rerun_generic(path, out, application_id, recording_id, status)
     from types import SimpleNamespace
 
     from .rerun_log import RerunRecorder
@@ -263,10 +265,13 @@ def to_rerun(path, out, application_id='tensegrity_ros', recording_id=None):
                 continue
             n += 1
         emit()
+    if status is not None:
+        status['truncated'] = log.truncated
     return n
 
 
-def to_rerun_generic(path, out, application_id='tensegrity_ros', recording_id=None):
+def to_rerun_generic(path, out, application_id='tensegrity_ros', recording_id=None,
+                     status=None):
     """Convert any ROS 2 log to Rerun through an owned recording stream, topic by topic
     (PointCloud2 points, MarkerArray line lists, Float64MultiArray and diagnostics scalars)."""
     import rerun as rr
@@ -303,6 +308,8 @@ def to_rerun_generic(path, out, application_id='tensegrity_ros', recording_id=No
     finally:
         rec.flush()
         rec.disconnect()
+    if status is not None:
+        status['truncated'] = log.truncated
     if n == 0:
         raise LogError(f'{path}: nothing to convert')
     return n

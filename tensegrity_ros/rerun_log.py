@@ -36,6 +36,7 @@ are reused once the helper hands them back.
 """
 from __future__ import annotations
 
+import atexit
 import math
 import mmap
 import os
@@ -98,7 +99,8 @@ def check_viewer(url, timeout_s=1.0):
 # kernels when it ran on a thread of the simulation's process (docs/rerun.md).
 _HELPER_CODE = ('import sys\nfrom tensegrity_ros.rerun_writer import serve\n'
                 'serve(int(sys.argv[1]))\n')
-_IDLE = []                              # helpers with no recording, newest last
+_IDLE = []                              # helpers with no recording: at most one
+_WAIT_SLICE_S = 1.0                     # a wait for the helper checks it is alive this often
 _IDLE_LOCK = threading.Lock()
 
 
@@ -121,6 +123,15 @@ class _Helper:
 
     def alive(self):
         return self.proc.poll() is None
+
+    def stop(self, timeout_s=10.0):
+        """Close the connection (the helper exits when it sees the end) and wait for it."""
+        self.conn.close()
+        try:
+            self.proc.wait(timeout_s)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
 
 
 def prestart():
@@ -148,8 +159,27 @@ def _take_helper():
 
 
 def _give_back(helper):
+    """Keep ``helper`` for a later recording, unless one is idle already (then it exits)."""
     with _IDLE_LOCK:
-        _IDLE.append(helper)
+        _drop_dead()
+        if not _IDLE:
+            _IDLE.append(helper)
+            return
+    helper.stop()
+
+
+def shutdown_helpers(timeout_s=10.0):
+    """Let the idle helpers exit and wait for them (at exit: no helper outlives its owner, and
+    none is left as a zombie). A helper busy with a recording finishes it first (see
+    :meth:`RerunRecorder.close`)."""
+    with _IDLE_LOCK:
+        idle = list(_IDLE)
+        _IDLE.clear()
+    for helper in idle:
+        helper.stop(timeout_s)
+
+
+atexit.register(shutdown_helpers)
 
 
 # -- the recorder ---------------------------------------------------------------------------------
@@ -281,13 +311,20 @@ class RerunRecorder:
         here, or (``until``) every message up to the first of that kind, which is returned."""
         conn = self._helper.conn
         try:
-            while until is not None or conn.poll():
+            while True:
+                if until is None:
+                    if not conn.poll():
+                        return None
+                else:                           # wait, in slices: a helper gone is an error
+                    while not conn.poll(_WAIT_SLICE_S):
+                        if not self._helper.alive():
+                            raise EOFError
                 msg = conn.recv()
                 if msg[0] == 'free':
                     self._free.append(msg[1])
                 elif msg[0] == 'error' and self._error is None:
                     self._error = msg[1]
-                elif msg[0] == until:
+                if msg[0] == until:             # whatever its kind ('free' too)
                     return msg
         except (EOFError, OSError):
             self._lost()

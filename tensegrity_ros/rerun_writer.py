@@ -321,7 +321,7 @@ def serve(fd):
     are ignored: the process that owns the recording decides when it ends."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
-    conn = Connection(fd)
+    conn = _OwnedConnection(fd, os.getppid())
     all_cpus = os.sched_getaffinity(0)
     while True:
         try:
@@ -333,6 +333,26 @@ def serve(fd):
         memfd = recv_handle(conn)
         if not _Writer(conn, memfd, all_cpus, *msg[1:]).run():
             return
+
+
+class _OwnedConnection(Connection):
+    """The connection to the recording process, which is this process's parent: a receive that
+    waits checks, every :data:`OWNER_CHECK_S`, that the parent is still there, and ends as the
+    connection's end (EOFError) when it is not. The socket alone would not tell: a process the
+    owner forked keeps its end open after the owner is gone."""
+
+    def __init__(self, fd, owner):
+        super().__init__(fd)
+        self.owner = owner
+
+    def recv(self):
+        while not self.poll(OWNER_CHECK_S):
+            if os.getppid() != self.owner:
+                raise EOFError('the recording process is gone')
+        return super().recv()
+
+
+OWNER_CHECK_S = 0.25
 
 
 class _Writer:

@@ -192,14 +192,22 @@ def test_malformed_commands_rejected_and_reported(ros):
             sent += 1
         assert ros.spin(lambda: node.counts['rejected'] == sent, 10), \
             f'{node.counts} after {sent} commands ({node.last_command})'
-    assert node.counts == {'accepted': 0, 'rejected': 1000, 'frames': node.counts['frames']}
+    assert node.counts == {'accepted': 0, 'rejected': 1000, 'superseded': 0,
+                           'frames': node.counts['frames']}
     now = [sim.model.positions(), sim.model.velocities(), sim.model.cable_rest_length,
            sim.prestrain]
     assert all(np.array_equal(a, b) for a, b in zip(keep[:4], now)) and sim.t == keep[4]
-    diags = [m for topic, m, _ in ros.sunk if topic == '/diagnostics'][n_diag:]
-    rejected = [d.status[0] for d in diags if d.status[0].message.startswith('rejected')]
-    assert len(rejected) == 1000
-    assert all(st.level == b'\x01' and '~/cmd/' in st.message for st in rejected)
+
+    def reported():
+        return [{kv.key: kv.value for kv in m.status[0].values} | {
+            'level': m.status[0].level, 'message': m.status[0].message}
+            for topic, m, _ in ros.sunk if topic == '/diagnostics'][n_diag:]
+    # /diagnostics at their own rate (not one per command), with the counter and a warning
+    assert ros.spin(lambda: any(d['commands_rejected'] == '1000' for d in reported()), 10)
+    diags = reported()
+    assert len(diags) < 100
+    warned = [d for d in diags if d['message'].startswith('rejected')]
+    assert warned and all(d['level'] == b'\x01' and '~/cmd/' in d['message'] for d in warned)
     # still alive: a good command after all that is accepted and the node steps on
     ros.call(ros.cmd.cli_running, SetBool.Request(data=True))
     ros.cmd.impact([0.05])
@@ -281,3 +289,22 @@ def test_chain1d_model_rejects_prestrain_and_takes_impacts(tmp_path):
         assert min(s.min() for s in r.cmd.strain[n:]) < -0.01
     finally:
         r.close()
+
+
+def test_commands_of_one_tick_are_validated_counted_and_the_last_one_applied(ros):
+    """Three impacts and a malformed one before the next tick: the malformed one is rejected at
+    once, the last valid impact is applied, the two before it are counted as superseded."""
+    from tensegrity_ros import messages
+    node = ros.node
+    ros.call(ros.cmd.cli_running, SetBool.Request(data=False))
+    for v in (0.01, 0.02, float('nan'), 0.03):
+        node._on_impact(messages.command_array([v], 'all'))
+    assert node.counts['rejected'] == 1 and node.counts['accepted'] == 0
+    assert ros.spin(lambda: node.counts['accepted'] == 1)
+    assert node.counts['superseded'] == 2 and node.counts['rejected'] == 1
+    assert node.last_command[2].startswith('impact v0 = [0.03] m/s')
+    from solver.simulation import Simulation
+    fresh = Simulation(node.sim.scene)                    # the same impact on a fresh column
+    added = fresh.apply_impact(0.03)
+    np.testing.assert_allclose(node.sim.model.velocities(), fresh.model.velocities(), atol=1e-12)
+    assert f'+{added:.3g} J' in node.last_command[2]

@@ -1,0 +1,347 @@
+"""Soak of the node under a command flood: ``python -m bench.soak [--minutes 10] [--rate 1000]``
+(also ``tensegrity bench --only soak``).
+
+The node runs in a second process at ``real_time_factor`` 0, recording MCAP and Rerun, on its
+own ROS domain (localhost only). This process floods it with ``--rate`` commands per second:
+valid impacts and prestrains, impacts strong enough to make it diverge (it pauses; the flood's
+``set_running`` calls resume it), malformed commands (NaN, infinite, out of range, wrong length),
+``reset`` calls and parameter changes. It watches ``~/strain`` and ``/diagnostics``, samples the
+node's memory, open files and threads, and at the end stops the node with SIGINT and reads both
+recordings back. The report (printed as a table, written as JSON) says whether the node stayed
+alive, every frame was finite, the publish rate held, the files are complete, and no helper
+process is left.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+SCENE = ROOT / 'config' / 'scenes' / 'fb_column.yaml'
+PUBLISH_RATE_HZ = 200.0
+STRONG_EVERY_S = 10.0            # an impact of 10 m/s (the column diverges) this often
+
+
+def _proc_stats(proc):
+    """RSS (MB), open files, threads of a psutil process; its helper processes (pid, RSS MB)."""
+    import psutil
+    with proc.oneshot():
+        rss = proc.memory_info().rss / 2**20
+        fds = proc.num_fds()
+        threads = proc.num_threads()
+    helpers = []
+    for child in proc.children(recursive=True):
+        try:
+            if 'rerun_writer' in ' '.join(child.cmdline()):
+                helpers.append((child.pid, child.memory_info().rss / 2**20))
+        except psutil.Error:
+            pass
+    return {'rss_mb': rss, 'open_files': fds, 'threads': threads, 'helpers': helpers}
+
+
+def _start_node(out, domain_id):
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
+               PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get('PYTHONPATH', ''))
+    params = {'scene_file': str(SCENE), 'real_time_factor': 0.0,
+              'publish_rate_hz': PUBLISH_RATE_HZ, 'record_mcap': str(out / 'soak.mcap'),
+              'record_rerun': str(out / 'soak.rrd')}
+    cmd = [sys.executable, '-m', 'tensegrity_ros.node', '--ros-args']
+    for k, v in params.items():
+        cmd += ['-p', f'{k}:={v}']
+    log = open(out / 'node.log', 'w')
+    return subprocess.Popen(cmd, env=env, stdout=log, stderr=subprocess.STDOUT, cwd=ROOT), log
+
+
+def _flood_message(rng, n_columns):
+    """(kind, values) of one flood command: 'impact', 'prestrain' or 'bad_impact'/'bad_prestrain'
+    with a malformed value list. (Impacts strong enough to diverge are sent on a timer.)"""
+    u = rng.random()
+    if u < 0.35:
+        return 'impact', [float(rng.uniform(-0.01, 0.01))]
+    if u < 0.65:
+        return 'prestrain', [float(rng.uniform(0.001, 0.01))]
+    bad = rng.integers(4)
+    values = ([math.nan], [math.inf], [11.0], [0.1] * (n_columns + 1))[bad]
+    return ('bad_impact' if rng.random() < 0.5 else 'bad_prestrain'), values
+
+
+def soak(duration_s=600.0, rate=1000.0, out_dir=None, domain_id=None, warmup_s=5.0, log=print,
+         seed=0):
+    """Run the soak for ``duration_s`` s of flood; returns the report (dict)."""
+    import psutil
+    import rclpy
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rcl_interfaces.srv import SetParameters
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.parameter import Parameter
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from std_msgs.msg import Float64MultiArray
+    from std_srvs.srv import SetBool, Trigger
+
+    from tensegrity_ros import messages
+    from tensegrity_ros.commander import spin_until, stop_process
+
+    out = Path(out_dir) if out_dir else Path(tempfile.mkdtemp(prefix='soak-'))
+    out.mkdir(parents=True, exist_ok=True)
+    domain_id = domain_id if domain_id is not None else 100 + os.getpid() % 100
+    proc, node_log = _start_node(out, domain_id)
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=domain_id)
+    client = rclpy.create_node('soak_client', context=ctx)
+    qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+    base = messages.resolve_topic('~/').rstrip('/')
+    pubs = {'impact': client.create_publisher(Float64MultiArray, f'{base}/cmd/impact', qos),
+            'prestrain': client.create_publisher(Float64MultiArray, f'{base}/cmd/prestrain', qos)}
+    seen = {'strain': 0, 'non_finite': 0, 'diag': []}
+
+    def on_strain(msg):
+        seen['strain'] += 1
+        if not np.all(np.isfinite(np.asarray(msg.data))):
+            seen['non_finite'] += 1
+
+    def on_diag(msg):
+        for st in msg.status:
+            if st.name == messages.NODE_NAME:
+                seen['diag'].append((time.monotonic(), st.level, st.message,
+                                     {kv.key: kv.value for kv in st.values}))
+    client.create_subscription(Float64MultiArray, f'{base}/strain', on_strain, qos)
+    client.create_subscription(DiagnosticArray, '/diagnostics', on_diag, qos)
+    cli_running = client.create_client(SetBool, f'{base}/set_running')
+    cli_reset = client.create_client(Trigger, f'{base}/reset')
+    cli_params = client.create_client(SetParameters, f'{base}/set_parameters')
+    ex = SingleThreadedExecutor(context=ctx)
+    ex.add_node(client)
+    report = {'duration_s': duration_s, 'rate_target': rate, 'out_dir': str(out)}
+    sent = {k: 0 for k in ('impact', 'strong', 'prestrain', 'bad_impact', 'bad_prestrain',
+                           'set_running', 'reset', 'set_parameters')}
+    futures = []
+    try:
+        ok = spin_until(ex, lambda: seen['strain'] > 0 and all(
+            p.get_subscription_count() for p in pubs.values()) and cli_running.service_is_ready()
+            and cli_params.service_is_ready(), 180)
+        if not ok:
+            raise RuntimeError(f'the node did not come up (exit code {proc.poll()})')
+        spin_until(ex, lambda: False, warmup_s)
+        node_ps = psutil.Process(proc.pid)
+        report['start'] = _proc_stats(node_ps)
+        log(f'soak: node up, flooding {rate:g} commands/s for {duration_s:g} s')
+        rng = np.random.default_rng(seed)
+        n_columns = 1
+        t0 = time.monotonic()
+        n_sent = 0
+        next_running = next_reset = next_param = t0
+        next_strong, quiet_until = t0 + 2.0, t0
+        samples = []                        # (wall, frames_published) from /diagnostics
+        last_stats = t0
+        while True:
+            now = time.monotonic()
+            if now - t0 >= duration_s or proc.poll() is not None:
+                break
+            due = int((now - t0) * rate)
+            while n_sent < due:
+                kind, values = _flood_message(rng, n_columns)
+                if kind == 'impact' and now < quiet_until:      # the strong one stays the last
+                    kind = 'prestrain'                           # impact of its tick
+                    values = [float(rng.uniform(0.001, 0.01))]
+                if now >= next_strong:              # makes the column diverge: it pauses
+                    kind, values, next_strong = 'strong', [10.0], now + STRONG_EVERY_S
+                    quiet_until = now + 0.05
+                topic = 'impact' if kind in ('impact', 'strong', 'bad_impact') else 'prestrain'
+                pubs[topic].publish(messages.command_array(values, 'all'))
+                sent[kind] += 1
+                n_sent += 1
+            if now >= next_running:                     # resumes a diverged (paused) node
+                futures.append(cli_running.call_async(SetBool.Request(data=True)))
+                sent['set_running'] += 1
+                next_running = now + 0.5
+            if now >= next_reset:
+                futures.append(cli_reset.call_async(Trigger.Request()))
+                sent['reset'] += 1
+                next_reset = now + 2.0
+            if now >= next_param:
+                value = float(rng.choice([10.0, 20.0, 40.0]))
+                req = SetParameters.Request(parameters=[
+                    Parameter('marker_rate_hz', value=value).to_parameter_msg()])
+                futures.append(cli_params.call_async(req))
+                sent['set_parameters'] += 1
+                next_param = now + 1.0
+            if now - last_stats >= 10.0:
+                last_stats = now
+                stats = _proc_stats(node_ps)
+                log(f'soak: {now - t0:5.0f} s, {n_sent} sent, node RSS {stats["rss_mb"]:.0f} MB')
+            ex.spin_once(timeout_sec=0.001)
+            futures = [f for f in futures if not f.done()]
+        wall = time.monotonic() - t0
+        report['sent'] = dict(sent, total=n_sent, per_s=n_sent / wall)
+        report['node_alive'] = proc.poll() is None
+        spin_until(ex, lambda: False, 1.5)           # the last periodic /diagnostics
+        if report['node_alive']:
+            report['end'] = _proc_stats(node_ps)
+        diag = [d for d in seen['diag'] if d[0] >= t0]
+        for w, level, _, values in diag:
+            samples.append((w, int(values['frames_published']),
+                            values['running'] == 'true' and level != b'\x02'))
+        # the rate over the diagnostics periods the node was running throughout (not paused
+        # after a divergence)
+        rates, frames, span = [], 0, 0.0
+        for (w0, f0, r0), (w1, f1, r1) in zip(samples, samples[1:]):
+            if r0 and r1 and w1 - w0 > 0.2:
+                rates.append((f1 - f0) / (w1 - w0))
+                frames += f1 - f0
+                span += w1 - w0
+        total_rate = frames / span if span else 0.0
+        report['running_fraction'] = (span / (samples[-1][0] - samples[0][0])
+                                      if len(samples) > 1 else 0.0)
+        last = diag[-1][3] if diag else {}
+        report['publish_rate'] = {
+            'target_hz': PUBLISH_RATE_HZ, 'mean_hz': total_rate,
+            'p05_hz': float(np.percentile(rates, 5)) if rates else None,
+            'min_hz': float(min(rates)) if rates else None}
+        report['commands'] = {k: int(last.get(f'commands_{k}', 0))
+                              for k in ('accepted', 'superseded', 'rejected')}
+        received = sum(report['commands'].values())
+        report['commands']['received'] = received
+        # topic commands the node never took: overwritten in its subscriptions' keep-last-10
+        # history (reliable QoS does not block a publisher) while it was busy
+        report['commands']['qos_dropped'] = n_sent - received
+        report['pauses'] = sum(1 for a, b in zip(diag, diag[1:])
+                               if b[1] == b'\x02' and a[1] != b'\x02')
+        report['strain_received'] = seen['strain']
+        report['strain_non_finite_received'] = seen['non_finite']
+        report['diagnostics_received'] = len(diag)
+    finally:
+        helpers = []
+        try:
+            helpers = [pid for pid, _ in _proc_stats(psutil.Process(proc.pid))['helpers']]
+        except psutil.Error:
+            pass
+        code, _ = stop_process(proc, 60.0)
+        node_log.close()
+        ex.shutdown()
+        client.destroy_node()
+        rclpy.shutdown(context=ctx)
+    report['node_exit_code'] = code
+    deadline = time.monotonic() + 30
+    while any(psutil.pid_exists(p) and psutil.Process(p).status() != psutil.STATUS_ZOMBIE
+              for p in helpers) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    report['helpers_left'] = [p for p in helpers if psutil.pid_exists(p)
+                              and psutil.Process(p).status() != psutil.STATUS_ZOMBIE]
+    report['log_bytes'] = (out / 'node.log').stat().st_size
+    report['files'] = check_files(out / 'soak.mcap', out / 'soak.rrd')
+    return report
+
+
+def check_files(mcap, rrd):
+    """Read both recordings back: complete (MCAP summary present, no Rerun reader warning), every
+    frame finite, frame counts, sizes."""
+    import pyarrow as pa
+    from rerun.chunk import RrdReader
+
+    from tensegrity_ros.loader import McapLog, cloud_xyz, multi_array_values
+    log = McapLog(mcap)
+    frames = non_finite = diag = cmds = 0
+    for m in log.messages():
+        leaf = m.topic.rsplit('/', 1)[-1]
+        if leaf in ('strain', 'cable_tension'):
+            frames += leaf == 'strain'
+            non_finite += not np.all(np.isfinite(multi_array_values(log.decode(m))[1]))
+        elif leaf == 'nodes':
+            non_finite += not np.all(np.isfinite(cloud_xyz(log.decode(m))))
+        elif leaf == 'diagnostics':
+            diag += 1
+        elif '/cmd/' in m.topic:
+            cmds += 1
+    out = {'mcap': {'complete': not log.truncated, 'frames': frames, 'non_finite': non_finite,
+                    'diagnostics': diag, 'commands': cmds, 'mb': mcap.stat().st_size / 2**20}}
+    rows, bad, complete = 0, 0, True
+    with warnings.catch_warnings():
+        warnings.simplefilter('error')
+        try:
+            for chunk in RrdReader(rrd).stream():
+                if chunk.entity_path.lstrip('/') == 'world/nodes' and not chunk.is_static:
+                    rb = chunk.to_record_batch()
+                    rows += rb.num_rows
+                    col = rb.column(rb.schema.names.index('Points3D:positions'))
+                    vals = pa.concat_arrays([c for c in col.chunks]) if hasattr(col, 'chunks') \
+                        else col
+                    while pa.types.is_list(vals.type) or pa.types.is_fixed_size_list(vals.type):
+                        vals = vals.flatten()
+                    bad += int(not np.all(np.isfinite(vals.to_numpy(zero_copy_only=False))))
+        except Warning:
+            complete = False
+    out['rerun'] = {'complete': complete, 'frames': rows, 'non_finite': bad,
+                    'mb': rrd.stat().st_size / 2**20}
+    return out
+
+
+def table(r):
+    """The report as a short markdown table."""
+    s, e, f = r['start'], r.get('end', {}), r['files']
+    pr = r['publish_rate']
+    c = r['commands']
+    rows = [
+        ('duration, flood', f"{r['duration_s']:g} s, {r['sent']['per_s']:.0f} commands/s "
+                            f"({r['sent']['total']} sent)"),
+        ('node alive at the end', 'yes' if r['node_alive'] else 'NO'),
+        ('non-finite frames (MCAP, Rerun, received)',
+         f"{f['mcap']['non_finite']}, {f['rerun']['non_finite']}, "
+         f"{r['strain_non_finite_received']}"),
+        ('publish rate while running (target 200 Hz)',
+         f"mean {pr['mean_hz']:.1f} Hz, 5th percentile of diagnostics periods "
+         f"{pr['p05_hz'] or 0:.1f} Hz; running {100 * r['running_fraction']:.0f} % of the time"),
+        ('commands received: accepted / superseded / rejected; not taken (QoS keep last 10)',
+         f"{c['accepted']} / {c['superseded']} / {c['rejected']}; {c['qos_dropped']}"),
+        ('pauses (divergence), resumed by set_running', str(r['pauses'])),
+        ('RSS start -> end', f"{s['rss_mb']:.0f} -> {e.get('rss_mb', float('nan')):.0f} MB "
+                             f"({100 * (e.get('rss_mb', 0) / s['rss_mb'] - 1):+.1f} %)"),
+        ('open files, threads start -> end', f"{s['open_files']} -> {e.get('open_files')}, "
+                                             f"{s['threads']} -> {e.get('threads')}"),
+        ('helper processes (RSS) during, after shutdown',
+         f"{len(s['helpers'])} ({', '.join(f'{m:.0f} MB' for _, m in e.get('helpers', []))}), "
+         f"{len(r['helpers_left'])}"),
+        ('MCAP', f"complete {f['mcap']['complete']}, {f['mcap']['frames']} frames, "
+                 f"{f['mcap']['commands']} commands, {f['mcap']['diagnostics']} diagnostics, "
+                 f"{f['mcap']['mb']:.0f} MB"),
+        ('Rerun', f"complete {f['rerun']['complete']}, {f['rerun']['frames']} frames, "
+                  f"{f['rerun']['mb']:.0f} MB"),
+        ('node log', f"{r['log_bytes'] / 1024:.0f} KiB"),
+        ('node exit code (SIGINT)', str(r['node_exit_code'])),
+    ]
+    return '\n'.join(['| | |', '|---|---|'] + [f'| {a} | {b} |' for a, b in rows])
+
+
+def main(out='bench/results', quick=False, log=print, minutes=None, rate=1000.0):
+    """``tensegrity bench --only soak``: the soak (10 minutes; 20 s with ``quick``); writes
+    ``soak.json`` and ``soak.md`` into ``out``; returns their paths."""
+    out = Path(out)
+    duration = 60.0 * minutes if minutes is not None else 20.0 if quick else 600.0
+    with tempfile.TemporaryDirectory(prefix='soak-') as tmp:
+        r = soak(duration, rate, out_dir=tmp, log=log)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / 'soak.json').write_text(json.dumps(r, indent=2, default=str))
+    (out / 'soak.md').write_text(table(r) + '\n')
+    log(table(r))
+    return [str(out / 'soak.json'), str(out / 'soak.md')]
+
+
+if __name__ == '__main__':
+    p = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    p.add_argument('--minutes', type=float, default=10.0)
+    p.add_argument('--rate', type=float, default=1000.0, help='commands per second')
+    p.add_argument('--out', default='bench/results')
+    a = p.parse_args()
+    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    signal.signal(signal.SIGTERM, signal.default_int_handler)
+    main(a.out, minutes=a.minutes, rate=a.rate)
