@@ -265,7 +265,10 @@ class ArraySimulation(Simulation):
 
     def energy(self):
         """Total energy of the array, J."""
-        return float(sum(g.sim.energy() * len(g.columns) for g in self.groups))
+        e = np.empty(self.n_columns)
+        for g in self.groups:
+            e[g.columns] = g.sim.energy()
+        return float(sum(e.tolist()))           # column by column: the same sum however grouped
 
     def constraint_error(self):
         return float(max(g.sim.constraint_error() for g in self.groups))
@@ -412,7 +415,7 @@ class ArraySimulation(Simulation):
         strain = np.empty((nc, n_p))
         tension = np.empty(nc * k)
         base = np.empty(nc)
-        energy, cerr = 0.0, 0.0
+        energy, cerr = np.empty(nc), 0.0
         for grp in self.groups:
             f = grp.sim.frame()
             for c in grp.columns:
@@ -420,10 +423,10 @@ class ArraySimulation(Simulation):
                 tension[c * k:(c + 1) * k] = f.tension
             strain[grp.columns] = f.strain[0]
             base[grp.columns] = f.base_force[0]
-            energy += f.energy * len(grp.columns)
+            energy[grp.columns] = f.energy
             cerr = max(cerr, f.constraint_error)
         return Frame(t=self.t, step=self.step, positions=x, strain=strain, tension=tension,
-                     energy=energy, constraint_error=cerr, base_force=base)
+                     energy=float(sum(energy.tolist())), constraint_error=cerr, base_force=base)
 
 
 def _renamed(exc, columns):

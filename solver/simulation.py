@@ -108,14 +108,14 @@ def build_network(scene):
 
 
 class Simulation:
-    def __new__(cls, scene=None, network=None):
+    def __new__(cls, scene=None, network=None, **options):
         # an array of columns built by the column builder runs as one reduced model per column
         # (solver/array.py) unless a network or another model is asked for
         if cls is Simulation and network is None and scene is not None:
             from .array import ArraySimulation, wants_array
             if wants_array(scene):
-                return super().__new__(ArraySimulation)
-        return super().__new__(cls)
+                return object.__new__(ArraySimulation)
+        return object.__new__(cls)
 
     def __init__(self, scene: Scene, network=None):
         self.scene = scene

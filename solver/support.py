@@ -93,10 +93,10 @@ def axial_momentum(v, network, columns=None):
 
 @dataclass
 class Arrival:
-    """First pulse at a column's base: ``time_s`` when the base force first reaches
-    :data:`ARRIVAL_FRACTION` of its first peak above the rest value (linear interpolation between
-    samples), ``peak_time_s`` and ``peak_N`` (above the rest value) of that first peak; NaN when no
-    pulse arrived."""
+    """First pulse at a column's base: ``time_s`` when the deviation of the base force from its
+    rest value first reaches :data:`ARRIVAL_FRACTION` of its first peak (linear interpolation
+    between samples), ``peak_time_s`` and ``peak_N`` (signed deviation, N: negative when the
+    column first pulls on its support) of that first peak; NaN when no pulse arrived."""
     time_s: float
     peak_time_s: float
     peak_N: float
@@ -109,28 +109,28 @@ class Arrival:
 
 def first_arrival(times, force, rest=None, floor=1e-12):
     """The :class:`Arrival` of a base-force history ``force`` (n_t,) N at ``times`` (n_t,) s.
-    ``rest``: the rest value (default the first sample). The first peak is the first local
-    maximum of ``force - rest`` above :data:`PEAK_FLOOR` of its largest value; the arrival is
-    the first time ``force - rest`` reaches :data:`ARRIVAL_FRACTION` of that peak."""
+    ``rest``: the rest value (default the first sample). With ``d = |force - rest|``, the first
+    peak is the first local maximum of ``d`` above :data:`PEAK_FLOOR` of its largest value over
+    the history; the arrival is the first time ``d`` reaches :data:`ARRIVAL_FRACTION` of that
+    peak. ``floor`` N: a largest deviation below it is no pulse."""
     t = np.asarray(times, dtype=np.float64)
     f = np.asarray(force, dtype=np.float64)
     rest = float(f[0]) if rest is None else float(rest)
-    d = f - rest
+    d = np.abs(f - rest)
     nan = math.nan
-    top = float(d.max(initial=0.0)) if d.size else 0.0
+    top = float(d.max(initial=0.0))
     if not top > floor:
         return Arrival(nan, nan, nan, rest)
-    k = None
-    for i in range(len(d)):
-        if d[i] >= PEAK_FLOOR * top and (i == len(d) - 1 or d[i] >= d[i + 1]):
+    k = len(d) - 1
+    for i in range(len(d) - 1):
+        if d[i] >= PEAK_FLOOR * top and d[i] >= d[i + 1]:
             k = i
             break
-    peak = float(d[k])
-    level = ARRIVAL_FRACTION * peak
+    level = ARRIVAL_FRACTION * d[k]
     i = int(np.argmax(d[:k + 1] >= level))
     if i == 0:
         arrival = float(t[0])
     else:
         u = (level - d[i - 1]) / (d[i] - d[i - 1])
         arrival = float(t[i - 1] + u * (t[i] - t[i - 1]))
-    return Arrival(arrival, float(t[k]), peak, rest)
+    return Arrival(arrival, float(t[k]), float(f[k] - rest), rest)
