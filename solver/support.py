@@ -134,3 +134,17 @@ def first_arrival(times, force, rest=None, floor=1e-12):
         u = (level - d[i - 1]) / (d[i] - d[i - 1])
         arrival = float(t[i - 1] + u * (t[i] - t[i - 1]))
     return Arrival(arrival, float(t[k]), float(f[k] - rest), rest)
+
+
+def base_summary(times, base_force):
+    """Per column of a recorded run: the :class:`Arrival` figures and the largest compressive and
+    tensile base force, N (``base_force`` (n_t, n_columns)); [] without a record."""
+    if base_force is None or np.size(base_force) == 0:
+        return []
+    b = np.asarray(base_force)
+    out = []
+    for c in range(b.shape[1]):
+        d = first_arrival(times, b[:, c]).as_dict()
+        d.update(column=c, max_N=float(b[:, c].max()), min_N=float(b[:, c].min()))
+        out.append(d)
+    return out
