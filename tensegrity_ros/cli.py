@@ -272,9 +272,9 @@ def build_parser():
     p.add_argument('--out', default='bench/results', help='output directory (CSV and PNG)')
     p.add_argument('--peers', action='store_true', help='also run the peer comparison')
     p.add_argument('--only', action='append',
-                   choices=('work_precision', 'stability', 'peers', 'rerun'),
+                   choices=('work_precision', 'stability', 'peers', 'rerun', 'array'),
                    help='run only this benchmark (repeatable); rerun: the cost of a Rerun '
-                        'recording (only on request)')
+                        'recording, array: arrays of columns per column (both only on request)')
     p.set_defaults(func=cmd_bench)
     p = sub.add_parser('paper', help="the paper's table (FB and RB, v0 = 0.1, 0.125, 0.15) "
                        'under every modelling variant, next to the paper\'s FB values')
