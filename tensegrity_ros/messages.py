@@ -217,8 +217,8 @@ def frame_messages(frame, network, stamp=None, markers=True, clock=False, t_max=
     Always ``'~/nodes'`` (PointCloud2), ``'~/strain'`` (dims ``column``, ``prism``) and
     ``'~/cable_tension'`` (dim ``cable``, N); ``'~/base_force'`` (dim ``column``, N, positive
     compressive) when the frame has one value per column; ``'~/markers'`` when ``markers``;
-    ``'/clock'`` when ``clock``. ``stamp`` defaults to :func:`sim_stamp` of ``frame.t``. With ``serialized`` the
-    values are the CDR bytes of the same messages written from the arrays
+    ``'/clock'`` when ``clock``. ``stamp`` defaults to :func:`sim_stamp` of ``frame.t``. With
+    ``serialized`` the values are the CDR bytes of the same messages written from the arrays
     (:mod:`tensegrity_ros.cdr`, for ``Publisher.publish(bytes)``). Raises ``ValueError`` if the
     frame holds a non-finite value (nothing NaN is ever published)."""
     check_finite(frame)
