@@ -9,8 +9,8 @@ the impact velocity, and keeps it on disk. :func:`design` picks ``T0`` in the mi
 interval where every target lies within the map's range (the most margin on both sides), then
 per column the prestrain whose interpolated arrival time is the target (the map need not be
 monotone: every grid segment that brackets the target is a candidate, the first is taken; the
-grid is geometric, denser at small prestrain where the arrival time changes fastest). :func:`simulate` runs the array with those prestrains and one impact on
-every column at once; the plan reports per column the prestrain, the predicted and the
+grid is geometric, denser at small prestrain where the arrival time changes fastest).
+:func:`simulate` runs the array with those prestrains and one impact on every column at once; the plan reports per column the prestrain, the predicted and the
 simulated arrival time and the residual.
 """
 from __future__ import annotations

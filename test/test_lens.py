@@ -66,7 +66,8 @@ def test_unreachable_focus_names_a_column_and_the_range(scene, amap):
         lens.design(scene, (xs[-1] + 0.5, 0.01), 0.1, 0.1)
     text = str(err.value)
     assert 'column' in text and 'out of reach' in text
-    assert f"{scene['lens.prestrain_min']:g}" in text and f"{scene['lens.prestrain_max']:g}" in text
+    lo, hi = scene['lens.prestrain_min'], scene['lens.prestrain_max']
+    assert f'[{lo:g}, {hi:g}]' in text
 
 
 @pytest.mark.parametrize('focus,speed', [((0.0, -0.1), 2.0), ((0.0, 0.1), 0.0),
@@ -89,3 +90,22 @@ def test_field_of_one_source_is_the_delayed_rate_with_spreading():
     assert on.min() == pytest.approx(0.2 + R / C, abs=2e-3)
     p3 = field.pressure(np.array([[0.3, 0.4]]), t, s, [0.0], C, dims=3)[0]
     assert p3.max() == pytest.approx(0.4 / R / R, rel=1e-6)
+
+
+@pytest.mark.parametrize('argv,message', [
+    (['--focus', '0.1', '--medium-speed', '3'], '--focus'),
+    (['--focus', '0.1,0.1', '--medium-speed', '-3'], '--medium-speed'),
+    (['--focus', '0.1,-0.1', '--medium-speed', '3'], 'depth'),
+])
+def test_lens_command_rejects_bad_input_with_exit_2(argv, message, capsys):
+    from tensegrity_ros.cli import main
+    assert main(['lens', 'config/scenes/lens_focus.yaml', *argv]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0]
+
+
+def test_lens_command_rejects_a_single_column(capsys):
+    from tensegrity_ros.cli import main
+    assert main(['lens', 'config/scenes/prism.yaml', '--focus', '0,0.1',
+                 '--medium-speed', '3']) == 2
+    assert 'at least two columns' in capsys.readouterr().err
