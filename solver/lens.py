@@ -10,8 +10,9 @@ interval where every target lies within the map's range (the most margin on both
 per column the prestrain whose interpolated arrival time is the target (the map need not be
 monotone: every grid segment that brackets the target is a candidate, the first is taken; the
 grid is geometric, denser at small prestrain where the arrival time changes fastest).
-:func:`simulate` runs the array with those prestrains and one impact on every column at once; the plan reports per column the prestrain, the predicted and the
-simulated arrival time and the residual.
+:func:`simulate` runs the array with those prestrains and one impact on every column at once;
+the plan reports per column the prestrain, the predicted and the simulated arrival time and the
+residual.
 """
 from __future__ import annotations
 
