@@ -29,6 +29,9 @@ def main(out_dir='bench/results', quick=False, peers=False, only=None, log=print
     if only is not None and 'sweep' in only:
         from . import sweep
         written += sweep.main(out, quick=quick, log=log)
+    if only is not None and 'array' in only:           # arrays of columns (on request)
+        from . import array
+        written += array.main(out, quick=quick, log=log)
     if only is not None and 'rerun' in only:
         from . import rerun_overhead
         written += rerun_overhead.main(out, quick=quick, log=log)

@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import observables
+from . import observables, support
 from .scene import Scene
 from .simulation import Simulation
 
@@ -24,6 +24,7 @@ class RunRecord:
     steps: int
     steps_taken: int
     pulses: list = field(default_factory=list)
+    base_force: np.ndarray = None       # (n_t, n_columns) N, positive compressive
 
 
 def frame_count(t_end, output_dt):
@@ -39,13 +40,14 @@ def run(sim: Simulation, t_end, output_dt, on_frame=None, progress=None):
         raise ValueError(f'run.output_dt: {output_dt:g} s is not a whole multiple of '
                          f'integrator.dt = {sim.dt:g} s')
     n_out = frame_count(t_end, output_dt) - 1
-    times, strain, energy, cerr = [], [], [], []
+    times, strain, energy, cerr, base = [], [], [], [], []
 
     def record(frame):
         times.append(frame.t)
         strain.append(frame.strain)
         energy.append(frame.energy)
         cerr.append(frame.constraint_error)
+        base.append(frame.base_force)
         if on_frame is not None:
             on_frame(frame)
 
@@ -59,7 +61,7 @@ def run(sim: Simulation, t_end, output_dt, on_frame=None, progress=None):
         if progress is not None:
             progress(1)
     rec = RunRecord(np.array(times), np.array(strain), np.array(energy), np.array(cerr), wall,
-                    sim.step, sim.steps_taken)
+                    sim.step, sim.steps_taken, base_force=np.array(base))
     if sim.network.levels.size:
         rec.pulses = [observables.first_passage(rec.times, rec.strain[:, c], sim.network.h0)
                       for c in range(sim.network.n_columns)]
@@ -99,6 +101,7 @@ def summary(scene: Scene, sim: Simulation, rec: RunRecord, outputs=None):
         'constraint_error_rel': float(np.max(rec.constraint_error)),
         'pulse': rec.pulses[0].as_dict() if rec.pulses else None,
         'pulses': [p.as_dict() for p in rec.pulses],
+        'base': support.base_summary(rec.times, rec.base_force),
         'outputs': dict({'mcap': None, 'rerun': None, 'plot': None}, **(outputs or {})),
     }
     return json_safe(out)

@@ -58,6 +58,8 @@ DEFAULTS = {
     'run': {'t_end': 1.2, 'output_dt': 0.005},
     'divergence': {'energy_growth': 1e-3, 'constraint_error': 1e-6, 'bar_crossing': 'rigid'},
     'outputs': {'dir': None},
+    # the focusing design (solver/lens.py): the prestrain range it may use, the grid of its map
+    'lens': {'prestrain_min': 0.003, 'prestrain_max': 0.015, 'grid': 13},
 }
 
 CHOICES = {
@@ -98,6 +100,9 @@ RANGES = {
     'integrator.atol': (0.0, 1.0, False),
     'run.t_end': (0.0, 1e6, True),
     'run.output_dt': (0.0, 1e3, False),
+    'lens.prestrain_min': (0.0, 0.5, False),
+    'lens.prestrain_max': (0.0, 0.5, False),
+    'lens.grid': (3, 200, True),
     'divergence.energy_growth': (0.0, math.inf, False),
     'divergence.constraint_error': (0.0, math.inf, False),
 }

@@ -14,7 +14,7 @@ the last good state.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -72,7 +72,9 @@ class SimulationDiverged(RuntimeError):
 @dataclass
 class Frame:
     """A copied snapshot. ``positions`` (n_nodes, 3) m, ``strain`` (n_columns, n_prisms),
-    ``tension`` (n_cables,) N, ``energy`` J, ``constraint_error`` (relative), ``t`` s."""
+    ``tension`` (n_cables,) N, ``energy`` J, ``constraint_error`` (relative), ``t`` s,
+    ``base_force`` (n_columns,) N: the axial reaction at each column's clamped base, positive
+    compressive (:mod:`solver.support`; empty when not given)."""
     t: float
     step: int
     positions: np.ndarray
@@ -80,6 +82,7 @@ class Frame:
     tension: np.ndarray
     energy: float
     constraint_error: float
+    base_force: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
 def build_network(scene):
@@ -106,6 +109,15 @@ def build_network(scene):
 
 
 class Simulation:
+    def __new__(cls, scene=None, network=None, **options):
+        # an array of columns built by the column builder runs as one reduced model per column
+        # (solver/array.py) unless a network or another model is asked for
+        if cls is Simulation and network is None and scene is not None:
+            from .array import ArraySimulation, wants_array
+            if wants_array(scene):
+                return object.__new__(ArraySimulation)
+        return object.__new__(cls)
+
     def __init__(self, scene: Scene, network=None):
         self.scene = scene
         self.network = network if network is not None else build_network(scene)
@@ -508,6 +520,22 @@ class Simulation:
         return SimulationDiverged(t0 + (k_fail + 1) * self.dt, self.step + k_fail + 1, quantity,
                                   detail, hint)
 
+    def base_force(self):
+        """Axial base force (n_columns,) N of the current state, positive compressive
+        (:class:`solver.support.BaseForce`; zeros for a network without columns or a model
+        without a full state of rigid members)."""
+        def compute():
+            net = self.network
+            if not net.levels.size or hasattr(self.model, 'advance'):     # chain1d: none
+                return np.zeros(net.n_columns)
+            if getattr(self, '_base_force', None) is None:
+                from .support import BaseForce
+                self._base_force = BaseForce(net)
+            x, v = self._full_state()
+            return self._base_force(x, v, self.model.cable_rest_length, self.model.cable_EA,
+                                    self.f_ext)
+        return self._cached('base_force', compute)
+
     def frame(self):
         """A copied :class:`Frame` of the current state."""
         x = np.array(self._full_state()[0])
@@ -520,4 +548,5 @@ class Simulation:
         return Frame(t=self.t, step=self.step, positions=x, strain=strain,
                      tension=observables.cable_tensions(x, net, self.model.cable_rest_length,
                                                         self.model.cable_EA),
-                     energy=self.energy(), constraint_error=self.constraint_error())
+                     energy=self.energy(), constraint_error=self.constraint_error(),
+                     base_force=np.array(self.base_force()))

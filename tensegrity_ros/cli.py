@@ -201,6 +201,81 @@ def cmd_paper(args):
     return 0
 
 
+def cmd_lens(args):
+    """``tensegrity lens SCENE --focus X,Z --medium-speed C``: the focusing design and its
+    check (solver.lens), the field in the medium (solver.field)."""
+    from solver import lens
+    from solver.scene import Scene
+    if not (args.medium_speed > 0 and args.medium_speed < float('inf')):
+        raise UserError(f'--medium-speed: must be a positive number of m/s, got '
+                        f'{args.medium_speed!r}')
+    focus = lens.parse_focus(args.focus)
+    scene = Scene.load(args.scene)
+    v0 = scene['loading.impact.v0'] if args.v0 is None else args.v0
+    if not (-10.0 <= v0 <= 10.0) or v0 == 0:
+        raise UserError(f'--v0: {v0!r} m/s must be nonzero and within [-10, 10]')
+    result = lens_result(scene, focus, args.medium_speed, v0, args.dims)
+    out_dir = Path(args.out) if args.out else Path('runs') / f'{scene.name}_lens'
+    if args.plot:
+        from .plots import lens_field
+        out_dir.mkdir(parents=True, exist_ok=True)
+        result['plot'] = str(lens_field(result, out_dir / 'lens_field.png'))
+    result.pop('_field')
+    if args.json:
+        from solver.runner import json_safe
+        print(json.dumps(json_safe(result), allow_nan=False))
+    else:
+        for line in format_lens(result):
+            print(line)
+    return 0
+
+
+def lens_result(scene, focus, speed, v0, dims=2):
+    """The plan, its check, the field maps and the focal gain of a focus (a dict)."""
+    import numpy as np
+
+    from solver import field, lens
+    plan = lens.design(scene, focus, speed, v0)
+    t, b = lens.check(scene, plan)
+    p_uniform = float(np.mean([c['prestrain'] for c in plan.columns]))
+    tu, bu, _ = lens.simulate(scene, np.full(len(plan.columns), p_uniform), v0)
+    xs_b = lens.base_x(scene)
+    X, Z = focus
+    span = xs_b[-1] - xs_b[0]
+    xs = np.linspace(min(xs_b[0], X) - 0.3 * span, max(xs_b[-1], X) + 0.3 * span, 81)
+    zs = np.linspace(0.05 * Z, 2.0 * Z, 61)
+    pk, _ = field.peak_map(xs, zs, t, field.source_rates(t, b), xs_b, speed, dims)
+    pu, _ = field.peak_map(xs, zs, tu, field.source_rates(tu, bu), xs_b, speed, dims)
+    iz, ix = int(np.argmin(np.abs(zs - Z))), int(np.argmin(np.abs(xs - X)))
+    lateral = float(xs[int(np.argmax(pk[iz]))])
+    result = plan.as_dict()
+    result.update(dims=dims, uniform_prestrain=p_uniform,
+                  focal_gain=float(pk[iz, ix] / pu[iz, ix]) if pu[iz, ix] > 0 else None,
+                  lateral_peak_x_m=lateral, cached_map=plan.cached,
+                  _field={'x': xs, 'z': zs, 'peak': pk, 'uniform': pu, 'bases': xs_b})
+    return result
+
+
+def format_lens(r):
+    X, Z = r['focus_m']
+    lines = [f"lens: focus ({X:g}, {Z:g}) m, medium {r['medium_speed_m_s']:g} m/s, "
+             f"v0 = {r['v0']:g} m/s, T0 = {r['t0_s']:.4f} s"
+             + (' (arrival map from the cache)' if r['cached_map'] else ''),
+             '  column   x m    prestrain   target s   predicted s   simulated s   residual ms']
+    for c in r['columns']:
+        lines.append(f"  {c['column']:6d} {c['x_m']:6.3f} {c['prestrain']:11.5f} "
+                     f"{c['target_s']:10.4f} {c['predicted_s']:13.4f} {c['simulated_s']:13.4f} "
+                     f"{1e3 * c['residual_s']:13.3f}")
+    gain = r['focal_gain']
+    lines.append(f"  field ({r['dims']}D): peak at depth {Z:g} m lies at x = "
+                 f"{r['lateral_peak_x_m']:.3f} m; focal gain "
+                 f"{'n/a' if gain is None else f'{gain:.3f}'} (against uniform prestrain "
+                 f"{r['uniform_prestrain']:.5f})")
+    if r.get('plot'):
+        lines.append(f"  plot: {r['plot']}")
+    return lines
+
+
 def cmd_node(args):
     """``tensegrity node [--ros-args ...]``: the ROS 2 node, as ``tensegrity_node``."""
     from .node import main as node_main
@@ -333,11 +408,12 @@ def build_parser():
     p.add_argument('--out', default='bench/results', help='output directory (CSV and PNG)')
     p.add_argument('--peers', action='store_true', help='also run the peer comparison')
     p.add_argument('--only', action='append',
-                   choices=('work_precision', 'stability', 'peers', 'rerun', 'sweep', 'soak'),
+                   choices=('work_precision', 'stability', 'peers', 'rerun', 'sweep', 'soak',
+                            'array'),
                    help='run only this benchmark (repeatable); rerun: the cost of a Rerun '
                         'recording, sweep: the parallel efficiency of a 64-point sweep, soak: '
-                        'the node under a command flood for 10 minutes (these three only on '
-                        'request)')
+                        'the node under a command flood for 10 minutes, array: arrays of columns '
+                        'per column (these four only on request)')
     p.set_defaults(func=cmd_bench)
     p = sub.add_parser('paper', help="the paper's table (FB and RB, v0 = 0.1, 0.125, 0.15) "
                        'under every modelling variant, next to the paper\'s FB values')
@@ -346,6 +422,20 @@ def build_parser():
     p.add_argument('--quick', action='store_true', help='v0 = 0.1 only, 0.6 s (smoke run)')
     p.add_argument('--no-chain', action='store_true', help='skip the chain1d rows')
     p.set_defaults(func=cmd_paper)
+    p = sub.add_parser('lens', help='focus the pulses of an array into a host medium: one '
+                       'prestrain per column on the delay law of a focus, checked by simulation')
+    p.add_argument('scene', help='scene YAML of an array (config/scenes/lens_focus.yaml)')
+    p.add_argument('--focus', required=True, metavar='X,Z',
+                   help='focus in the medium, m (x along the array, depth z > 0)')
+    p.add_argument('--medium-speed', type=float, required=True, metavar='C',
+                   help='wave speed of the host medium, m/s')
+    p.add_argument('--v0', type=float, help='impact velocity, m/s (default: the scene\'s)')
+    p.add_argument('--dims', type=int, choices=(2, 3), default=2,
+                   help='geometric spreading of the field: 2 (line sources) or 3 (points)')
+    p.add_argument('--plot', action='store_true', help='write OUT/lens_field.png')
+    p.add_argument('--out', help='output directory (default runs/<scene>_lens)')
+    p.add_argument('--json', action='store_true', help='print one JSON object')
+    p.set_defaults(func=cmd_lens)
     p = sub.add_parser('node', help='the ROS 2 node tensegrity_sim (as tensegrity_node)')
     p.add_argument('--ros-args', dest='ros_args', nargs=argparse.REMAINDER,
                    help='ROS arguments: --ros-args -p NAME:=VALUE --params-file config/node.yaml')

@@ -38,6 +38,7 @@ TYPES = {
     '~/strain': 'std_msgs/msg/Float64MultiArray',
     '~/cable_tension': 'std_msgs/msg/Float64MultiArray',
     '~/markers': 'visualization_msgs/msg/MarkerArray',
+    '~/base_force': 'std_msgs/msg/Float64MultiArray',
     '/clock': 'rosgraph_msgs/msg/Clock',
     '/diagnostics': 'diagnostic_msgs/msg/DiagnosticArray',
     '~/cmd/prestrain': 'std_msgs/msg/Float64MultiArray',
@@ -45,10 +46,12 @@ TYPES = {
 }
 MSG_CLASSES = {
     '~/nodes': PointCloud2, '~/strain': Float64MultiArray, '~/cable_tension': Float64MultiArray,
-    '~/markers': MarkerArray, '/clock': Clock, '/diagnostics': DiagnosticArray,
+    '~/markers': MarkerArray, '~/base_force': Float64MultiArray, '/clock': Clock,
+    '/diagnostics': DiagnosticArray,
     '~/cmd/prestrain': Float64MultiArray, '~/cmd/impact': Float64MultiArray,
 }
-PUBLISHED = ('~/nodes', '~/strain', '~/cable_tension', '~/markers', '/clock', '/diagnostics')
+PUBLISHED = ('~/nodes', '~/strain', '~/cable_tension', '~/markers', '/clock', '/diagnostics',
+             '~/base_force')
 COMMANDS = ('~/cmd/prestrain', '~/cmd/impact')
 
 BAR_COLOR = (0.55, 0.55, 0.6, 1.0)
@@ -202,8 +205,8 @@ def reference_tension_scale(network):
 
 def check_finite(frame):
     """``ValueError`` if a frame holds a non-finite value (nothing NaN is ever published)."""
-    for name in ('positions', 'strain', 'tension'):
-        if not np.all(np.isfinite(getattr(frame, name))):
+    for name in ('positions', 'strain', 'tension', 'base_force'):
+        if not np.all(np.isfinite(getattr(frame, name, ()))):
             raise ValueError(f'frame at t = {frame.t:.6g} s: {name} is not finite')
 
 
@@ -212,9 +215,10 @@ def frame_messages(frame, network, stamp=None, markers=True, clock=False, t_max=
     """Messages of one publish frame: dict topic key -> message.
 
     Always ``'~/nodes'`` (PointCloud2), ``'~/strain'`` (dims ``column``, ``prism``) and
-    ``'~/cable_tension'`` (dim ``cable``, N); ``'~/markers'`` when ``markers``; ``'/clock'`` when
-    ``clock``. ``stamp`` defaults to :func:`sim_stamp` of ``frame.t``. With ``serialized`` the
-    values are the CDR bytes of the same messages written from the arrays
+    ``'~/cable_tension'`` (dim ``cable``, N); ``'~/base_force'`` (dim ``column``, N, positive
+    compressive) when the frame has one value per column; ``'~/markers'`` when ``markers``;
+    ``'/clock'`` when ``clock``. ``stamp`` defaults to :func:`sim_stamp` of ``frame.t``. With
+    ``serialized`` the values are the CDR bytes of the same messages written from the arrays
     (:mod:`tensegrity_ros.cdr`, for ``Publisher.publish(bytes)``). Raises ``ValueError`` if the
     frame holds a non-finite value (nothing NaN is ever published)."""
     check_finite(frame)
@@ -235,6 +239,9 @@ def frame_messages(frame, network, stamp=None, markers=True, clock=False, t_max=
                           ('column', 'prism')),
         '~/cable_tension': multi(frame.tension, ('cable',)),
     }
+    base = np.asarray(getattr(frame, 'base_force', ()))
+    if base.shape == (network.n_columns,) and base.size:
+        out['~/base_force'] = multi(base, ('column',))
     if markers:
         out['~/markers'] = marker(frame, network, stamp, t_max)
     if clock:

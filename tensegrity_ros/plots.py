@@ -47,3 +47,37 @@ def strain_wave_figure(rec, title='', column=0, snapshots=(0.1, 0.3, 0.5, 0.7, 0
         ax2.set_yticks([1])
     fig.suptitle(title)
     return fig
+
+
+def lens_field(result, path):
+    """The peak pressure in the medium (the model of :mod:`solver.field`) of the designed array
+    next to the same array at uniform prestrain, the bases and the focus marked. ``result``: the
+    dict of ``tensegrity lens`` (with its ``_field`` maps). Writes a PNG; returns ``path``."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+
+    f = result['_field']
+    xs, zs = f['x'], f['z']
+    X, Z = result['focus_m']
+    top = float(max(f['peak'].max(), f['uniform'].max())) or 1.0
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.8), constrained_layout=True, sharey=True)
+    uniform = f"uniform prestrain {result['uniform_prestrain']:.4f}"
+    for ax, key, name in ((axes[0], 'peak', 'designed prestrains'), (axes[1], 'uniform', uniform)):
+        im = ax.imshow(f[key], origin='upper', aspect='auto', cmap='magma', vmin=0, vmax=top,
+                       extent=(xs[0], xs[-1], zs[-1], zs[0]))
+        ax.plot(f['bases'], np.zeros_like(f['bases']) + zs[0], 'v', color='cyan', ms=7,
+                label='column bases')
+        ax.plot([X], [Z], '+', color='lime', ms=14, mew=2, label='focus')
+        ax.set_xlabel('x (m)')
+        ax.set_title(name)
+    axes[0].set_ylabel('depth z (m)')
+    axes[0].legend(loc='lower left', fontsize=8)
+    fig.colorbar(im, ax=axes, label='peak pressure (model units)')
+    gain = result['focal_gain']
+    fig.suptitle(f"peak pressure in the medium ({result['dims']}D), C = "
+                 f"{result['medium_speed_m_s']:g} m/s, focus ({X:g}, {Z:g}) m: focal gain "
+                 f"{'n/a' if gain is None else f'{gain:.2f}'}")
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path

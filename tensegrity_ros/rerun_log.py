@@ -19,6 +19,8 @@ timeline ``sim_time`` (a duration, from the simulation clock; no wall-clock time
 - ``wave/column_0`` Tensor (n_prisms, n_frames): the strain of column 0 over the frames so far
   (the last ``wave_window`` frames), logged every ``wave_period_s`` wall seconds and at the end, at
   the time of its last frame; one entity per column.
+- ``base_force/column_0`` Scalars: ``frame.base_force[0]`` N (the axial reaction at the clamped
+  base, positive compressive); one entity per column.
 - ``energy`` (J) and ``constraint_error`` Scalars; ``commands`` TextLog events.
 
 Frames are buffered and sent in column batches (one chunk per entity, ``Chunk.from_columns`` and
@@ -250,14 +252,18 @@ class RerunRecorder:
         self.n_commands = 0
         self.n_restarts = 0
         # A batch buffer holds one float64 row per frame: positions (n_nodes * 3), strain
-        # (n_columns * n_prisms), tension (n_cables), then t, energy and constraint error.
+        # (n_columns * n_prisms), tension (n_cables), base force (n_columns, columns only), then
+        # t, energy and constraint error.
         shapes = ((network.n_nodes, 3), tuple(network.levels.shape[:1]) + (network.n_prisms,),
                   (network.n_cables,))
         self._shapes = shapes
         n_x, n_s = 3 * network.n_nodes, math.prod(shapes[1])
         self._cols = (slice(0, n_x), slice(n_x, n_x + n_s),
                       slice(n_x + n_s, n_x + n_s + network.n_cables))
-        width = n_x + n_s + network.n_cables + 3
+        self._n_base = network.n_columns if network.levels.size else 0
+        c0 = n_x + n_s + network.n_cables
+        self._cols += (slice(c0, c0 + self._n_base),)
+        width = c0 + self._n_base + 3
         self._last_t = None
         self._closed = False
         self._error = None
@@ -350,10 +356,11 @@ class RerunRecorder:
             self._receive(until='free')
         self._index = self._free.pop()
         rows = self._rows = self._buffers[self._index]
-        n_b, (cx, cs, ct) = self.flush_every, self._cols
+        n_b, (cx, cs, ct, cb) = self.flush_every, self._cols
         self._bx = rows[:, cx].reshape((n_b,) + self._shapes[0])        # views into rows
         self._bs = rows[:, cs].reshape((n_b,) + self._shapes[1])
         self._bt = rows[:, ct]
+        self._bb = rows[:, cb]
 
     def frame(self, frame):
         """Buffer one :class:`solver.simulation.Frame`; sends a batch every ``flush_every`` frames.
@@ -383,13 +390,17 @@ class RerunRecorder:
             raise ValueError(f'rerun: frame at t = {t:g} s does not match the network '
                              f'(positions {np.shape(x)}, strain {np.shape(strain)}, '
                              f'tension {np.shape(tension)}); not recorded')
+        base = getattr(frame, 'base_force', None)
+        if self._n_base:            # a frame without base forces (an older caller) records 0
+            self._bb[i] = base if np.shape(base) == (self._n_base,) else 0.0
         row[-3] = t
         row[-2] = float(frame.energy)
         row[-1] = float(frame.constraint_error)
         if not self._finite_below(row, _F32_MAX):      # compiled: no 512-bit instructions
             bad = [name for name, v in (('time', row[-3]), ('energy', row[-2]),
                                         ('constraint error', row[-1]), ('positions', x),
-                                        ('strain', strain), ('tension', tension))
+                                        ('strain', strain), ('tension', tension),
+                                        ('base force', self._bb[i]))
                    if not np.isfinite(v).all()] or ['values (beyond float32)']
             raise ValueError(f'rerun: frame at t = {t:g} s has non-finite {bad[0]}; not recorded')
         if self._last_t is not None and t <= self._last_t:
@@ -452,7 +463,7 @@ class RerunRecorder:
             self._post(('close', self._index if n_t else None, n_t))
             _, error, self.helper_cpu_s = self._receive(until='closed')
         finally:
-            self._rows = self._bx = self._bs = self._bt = self._buffers = None
+            self._rows = self._bx = self._bs = self._bt = self._bb = self._buffers = None
             self._mem.close()
         _give_back(self._helper)                # the file is finished: ready for another one
         if self._error is None:

@@ -253,7 +253,8 @@ def blueprint(n_columns=1):
                 rrb.TimeSeriesView(origin='strain', name='strain per prism',
                                    plot_legend=rrb.archetypes.PlotLegend(visible=False)),
                 wave,
-                rrb.Horizontal(rrb.TimeSeriesView(origin='energy', name='energy, J'),
+                rrb.Horizontal(rrb.TimeSeriesView(origin='base_force', name='base force, N'),
+                               rrb.TimeSeriesView(origin='energy', name='energy, J'),
                                rrb.TimeSeriesView(origin='constraint_error',
                                                   name='constraint error')),
                 rrb.TextLogView(origin='commands', name='commands'),
@@ -522,6 +523,7 @@ class _Writer:
                 _SCALARS, pa.array(energy), n_t, 1)))
             chunks.append(Chunk.from_columns('constraint_error', index, self._per_row(
                 _SCALARS, pa.array(cerr), n_t, 1)))
+            chunks += self._base_chunks(rows, n_t, index)
             rr.send_chunks(chunks, recording=s)                 # one call for the batch
             if n_p:
                 self._wave_add(strain.reshape(-1, n_t, n_p).transpose(1, 0, 2), rows[n_t - 1, -3])
@@ -530,6 +532,15 @@ class _Writer:
             self._log_wave()
         if restart:
             self._wave_n = 0
+
+    def _base_chunks(self, rows, n_t, index):
+        """``base_force/column_c`` Scalars (N) of a batch: the row's values after the tensions
+        (one per column; none for a network without columns)."""
+        net = self.net
+        c0 = 3 * net.n_nodes + math.prod(self._shapes[1]) + net.n_cables
+        n_base = rows.shape[1] - 3 - c0
+        return [Chunk.from_columns(f'base_force/column_{c}', index, self._per_row(
+            _SCALARS, pa.array(rows[:n_t, c0 + c].copy()), n_t, 1)) for c in range(n_base)]
 
     def _per_row(self, descriptor, values, n_t, k):
         """A component column of ``n_t`` rows of ``k`` values each."""

@@ -21,7 +21,7 @@ def small_network(n_prisms=3):
 
 def synthetic_frames(net, n, dt=0.01, seed=0):
     """``n`` frames with known, distinct values (not from the solver): positions x0 + noise,
-    strain and tension random (some cables slack), t = k * dt."""
+    strain, tension and base force random (some cables slack), t = k * dt."""
     from solver.simulation import Frame
     rng = np.random.default_rng(seed)
     frames = []
@@ -32,7 +32,8 @@ def synthetic_frames(net, n, dt=0.01, seed=0):
                             positions=net.x0 + 1e-4 * rng.standard_normal(net.x0.shape),
                             strain=rng.uniform(-0.05, 0.01, (net.n_columns, net.n_prisms)),
                             tension=tension, energy=1.0 + 0.01 * k,
-                            constraint_error=1e-12 * (k + 1)))
+                            constraint_error=1e-12 * (k + 1),
+                            base_force=rng.uniform(-0.01, 0.05, net.n_columns)))
     return frames
 
 

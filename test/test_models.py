@@ -68,9 +68,12 @@ def test_auto_selects_sym3d_on_the_paper_columns(name):
 
 def test_auto_falls_back_to_full3d_and_sym3d_on_request_names_the_problem():
     scene = _scene('fb_column', 'structure.n_columns=2', 'structure.n_prisms=3')
-    assert Simulation(scene).model.name == 'full3d'     # two columns: not symmetric about z
+    # two columns: not symmetric about z as one network, each column about its own axis
+    assert Simulation(scene.with_overrides(['model=full3d'])).model.name == 'full3d'
+    assert Simulation(scene).model.name == 'sym3d'
+    assert models.choose('auto', build_network(scene), scene.data) is models.Full3D
     with pytest.raises(ValueError, match='sym3d'):
-        Simulation(scene.with_overrides(['model=sym3d']))
+        Simulation(scene.with_overrides(['model=sym3d']), network=build_network(scene))
     assert Simulation(_scene('fb_column', 'model=chain1d')).model.name == 'chain1d'
 
 

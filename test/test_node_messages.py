@@ -27,7 +27,11 @@ def test_frame_messages_round_trip(sim):
     f = sim.frame()
     net = sim.network
     msgs = messages.frame_messages(f, net, markers=True, clock=True)
-    assert set(msgs) == {'~/nodes', '~/strain', '~/cable_tension', '~/markers', '/clock'}
+    assert set(msgs) == {'~/nodes', '~/strain', '~/cable_tension', '~/markers', '/clock',
+                         '~/base_force'}
+    b = msgs['~/base_force']
+    assert [(d.label, d.size) for d in b.layout.dim] == [('column', net.n_columns)]
+    np.testing.assert_array_equal(np.array(b.data), f.base_force)
     for key, msg in msgs.items():
         assert messages.TYPES[key].split('/')[-1] == type(msg).__name__
         back = deserialize_message(serialize_message(msg), type(msg))
@@ -167,3 +171,12 @@ def test_frame_bytes_refuse_a_non_finite_frame(sim):
     f.strain[0, 3] = float('nan')
     with pytest.raises(ValueError, match='strain is not finite'):
         frame_messages_cdr(f, sim.network)
+
+
+def test_a_non_finite_base_force_is_never_published(sim):
+    from tensegrity_ros.cdr import frame_messages_cdr
+    f = sim.frame()
+    f.base_force[1] = float('inf')
+    for build in (messages.frame_messages, frame_messages_cdr):
+        with pytest.raises(ValueError, match='base_force is not finite'):
+            build(f, sim.network)

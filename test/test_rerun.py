@@ -583,3 +583,13 @@ def test_expected_frames_leaves_a_short_last_batch(tmp_path):
     for bad in (0, -3, 2.5, 'ten'):
         with pytest.raises(ValueError, match='expected_frames'):
             RerunRecorder(sim.network, tmp_path / 'bad.rrd', expected_frames=bad)
+
+
+def test_base_force_series_per_column(recorded):
+    """``base_force/column_0`` holds the frames' base force (N) at every frame time."""
+    sim, frames, data, _ = recorded
+    ent = data['/base_force/column_0']
+    assert [t for t, _ in ent['rows']] == [round(f.t * 1e9) for f in frames]
+    got = np.array([at(ent, f.t, 'Scalars:scalars')[0] for f in frames])
+    want = np.array([f.base_force[0] for f in frames])
+    np.testing.assert_array_equal(got, want)

@@ -1,0 +1,150 @@
+"""What a column delivers to its support: the axial base force and the pulse arrival there.
+
+The base force of a column is the axial reaction at its clamped base level, N, positive when the
+column pushes down on the support (compressive): minus the z sum of the member forces that act
+on the nodes of that level (cable tensions and the bars' constraint forces, the multipliers of
+:func:`solver.dynamics.accelerations`). Rigid members whose two nodes are clamped carry nothing
+(they are not constraints of the network). The base level of a column is its lowest level whose
+three nodes are all clamped; a column without one has no base force (0).
+
+Momentum balance of a column (what the tests check): the support is the only body outside the
+free nodes that members touch, so ``d P_z / dt = B + F_ext,z`` with ``P_z`` the column's axial
+momentum, and ``int B dt`` over an interval is the change of ``P_z`` minus the external impulse.
+
+:func:`first_arrival` times the first pulse at the base from a base-force history.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import dynamics as dyn
+
+ARRIVAL_FRACTION = 0.5        # arrival: the base force first reaches this share of its first peak
+PEAK_FLOOR = 0.1              # the first peak: the first local maximum above this share of the top
+
+
+def base_levels(network):
+    """Node indices (n_columns, 3) of each column's base level (its lowest fully clamped level),
+    -1 rows for a column without one."""
+    levels = network.levels
+    out = -np.ones((levels.shape[0], 3), dtype=np.int64)
+    clamped = np.asarray(network.clamped)
+    for c in range(levels.shape[0]):
+        for j in range(levels.shape[1]):
+            if np.all(clamped[levels[c, j]]):
+                out[c] = levels[c, j]
+                break
+    return out
+
+
+class BaseForce:
+    """Base force per column of a full state of ``network`` (see the module text)."""
+
+    def __init__(self, network):
+        self.network = network
+        self.base = base_levels(network)
+        self.net, _ = dyn.pack(network)
+        self.ws = dyn.workspace(network.n_nodes, network.n_constraints, network.bandwidth)
+        self._acc = np.zeros((network.n_nodes, 3))
+        self._zero = np.zeros((network.n_nodes, 3))
+
+    def member_forces(self, x, v, rest, EA, f_ext=None):
+        """Resultant member force (n_nodes, 3) N on every node (cables and bar multipliers) of
+        the state ``x``, ``v`` (n_nodes, 3) with rest lengths ``rest`` and ``EA`` (n_cables,);
+        ``f_ext`` (n_nodes, 3) N enters the multipliers. Raises ValueError if the constraint
+        matrix is singular."""
+        f_ext = self._zero if f_ext is None else np.ascontiguousarray(f_ext, dtype=np.float64)
+        act = (np.ascontiguousarray(rest, dtype=np.float64),
+               np.ascontiguousarray(EA, dtype=np.float64), f_ext)
+        status = dyn.accelerations(np.ascontiguousarray(x, dtype=np.float64),
+                                   np.ascontiguousarray(v, dtype=np.float64), self.net, act,
+                                   self.ws, self._acc)
+        if status != dyn.OK:
+            raise ValueError(f'base force: {dyn.STATUS_TEXT[status]}')
+        return self.ws[0] - f_ext
+
+    def __call__(self, x, v, rest, EA, f_ext=None):
+        """Base force (n_columns,) N, positive compressive."""
+        f = self.member_forces(x, v, rest, EA, f_ext)
+        out = np.zeros(len(self.base))
+        has = self.base[:, 0] >= 0
+        out[has] = -f[self.base[has], 2].sum(axis=1)
+        return out
+
+
+def axial_momentum(v, network, columns=None):
+    """Axial momentum (n_columns,) kg m/s of each column's free nodes: lumped masses and
+    uniform bars (``m_b (v_a + v_b) / 2``) of the velocities ``v`` (n_nodes, 3)."""
+    levels = network.levels
+    free = ~np.asarray(network.clamped)
+    col = -np.ones(network.n_nodes, dtype=np.int64)
+    for c in range(levels.shape[0]):
+        col[levels[c].ravel()] = c
+    p = np.asarray(network.node_mass) * v[:, 2] * free
+    out = np.bincount(col[col >= 0], weights=p[col >= 0], minlength=levels.shape[0])
+    for a, b, mb in zip(network.bar_a, network.bar_b, network.bar_mass):
+        if mb:
+            out[col[a]] += 0.5 * mb * (v[a, 2] * free[a] + v[b, 2] * free[b])
+    return out
+
+
+@dataclass
+class Arrival:
+    """First pulse at a column's base: ``time_s`` when the deviation of the base force from its
+    rest value first reaches :data:`ARRIVAL_FRACTION` of its first peak (linear interpolation
+    between samples), ``peak_time_s`` and ``peak_N`` (signed deviation, N: negative when the
+    column first pulls on its support) of that first peak; NaN when no pulse arrived."""
+    time_s: float
+    peak_time_s: float
+    peak_N: float
+    rest_N: float
+
+    def as_dict(self):
+        return {'arrival_time_s': self.time_s, 'peak_time_s': self.peak_time_s,
+                'peak_N': self.peak_N, 'rest_N': self.rest_N}
+
+
+def first_arrival(times, force, rest=None, floor=1e-12):
+    """The :class:`Arrival` of a base-force history ``force`` (n_t,) N at ``times`` (n_t,) s.
+    ``rest``: the rest value (default the first sample). With ``d = |force - rest|``, the first
+    peak is the first local maximum of ``d`` above :data:`PEAK_FLOOR` of its largest value over
+    the history; the arrival is the first time ``d`` reaches :data:`ARRIVAL_FRACTION` of that
+    peak. ``floor`` N: a largest deviation below it is no pulse."""
+    t = np.asarray(times, dtype=np.float64)
+    f = np.asarray(force, dtype=np.float64)
+    rest = float(f[0]) if rest is None else float(rest)
+    d = np.abs(f - rest)
+    nan = math.nan
+    top = float(d.max(initial=0.0))
+    if not top > floor:
+        return Arrival(nan, nan, nan, rest)
+    k = len(d) - 1
+    for i in range(len(d) - 1):
+        if d[i] >= PEAK_FLOOR * top and d[i] >= d[i + 1]:
+            k = i
+            break
+    level = ARRIVAL_FRACTION * d[k]
+    i = int(np.argmax(d[:k + 1] >= level))
+    if i == 0:
+        arrival = float(t[0])
+    else:
+        u = (level - d[i - 1]) / (d[i] - d[i - 1])
+        arrival = float(t[i - 1] + u * (t[i] - t[i - 1]))
+    return Arrival(arrival, float(t[k]), float(f[k] - rest), rest)
+
+
+def base_summary(times, base_force):
+    """Per column of a recorded run: the :class:`Arrival` figures and the largest compressive and
+    tensile base force, N (``base_force`` (n_t, n_columns)); [] without a record."""
+    if base_force is None or np.size(base_force) == 0:
+        return []
+    b = np.asarray(base_force)
+    out = []
+    for c in range(b.shape[1]):
+        d = first_arrival(times, b[:, c]).as_dict()
+        d.update(column=c, max_N=float(b[:, c].max()), min_N=float(b[:, c].min()))
+        out.append(d)
+    return out

@@ -1,0 +1,139 @@
+"""Arrays of independent columns: one reduced simulation per column against the whole array in
+full3d (the slower obvious twin), shared simulations of alike columns against one simulation per
+column (bit for bit), splits, expansion of one column, divergence naming its column."""
+import numpy as np
+import pytest
+
+from solver.array import ArraySimulation
+from solver.scene import Scene
+from solver.simulation import Simulation, SimulationDiverged
+
+LENS = 'config/scenes/lens_array.yaml'
+
+
+def _scene(*sets):
+    return Scene.load(LENS).with_overrides(['structure.n_prisms=15', *sets])
+
+
+def _close(a, b, what):
+    """Positions within 1e-9 of the column height; forces (tensions, base forces) are stiffness
+    times position, and the energy force times position: within 1e-7 of their largest value."""
+    fa, fb = a.frame(), b.frame()
+    height = a.network.n_prisms * a.network.h0
+    assert np.max(np.abs(fa.positions - fb.positions)) <= 1e-9 * height, what
+    t_scale = np.max(np.abs(fb.tension))
+    assert np.max(np.abs(fa.tension - fb.tension)) <= 1e-7 * t_scale, what
+    b_scale = max(np.max(np.abs(fb.base_force)), t_scale)      # a sum of member forces
+    assert np.max(np.abs(fa.base_force - fb.base_force)) <= 1e-7 * b_scale, what
+    np.testing.assert_allclose(fa.strain, fb.strain, rtol=0, atol=1e-7)
+    assert fa.energy == pytest.approx(fb.energy, rel=1e-7)
+
+
+def test_auto_runs_an_array_per_column_and_full3d_on_request():
+    sim = Simulation(_scene())
+    assert isinstance(sim, ArraySimulation) and sim.model.name == 'sym3d'
+    assert sim.n_simulated == 1                         # five alike columns, one simulation
+    full = Simulation(_scene('model=full3d'))
+    assert type(full) is Simulation and full.model.name == 'full3d'
+
+
+def test_per_column_reduction_equals_full3d_with_different_prestrains():
+    arr, full = Simulation(_scene()), Simulation(_scene('model=full3d'))
+    p = [0.001, 0.0025, 0.004, 0.003, 0.0015]
+    for s in (arr, full):
+        s.apply_prestrain(p)
+        s.apply_impact([0.1, 0.08, 0.1, 0.12, 0.1])
+    assert arr.n_simulated == 5 and arr.model.name == 'sym3d'
+    moved = 0.0
+    for _ in range(4):
+        for s in (arr, full):
+            s.advance(0.04)
+        _close(arr, full, f't = {arr.t:g}')
+        moved = max(moved, np.max(np.abs(full.frame().positions - full.network.x0)))
+    assert moved > 1e-4                                  # the waves have moved the nodes
+    assert np.max(np.abs(full.frame().base_force)) > 1e-4
+    np.testing.assert_array_equal(arr.prestrain, full.prestrain)
+
+
+def _commands(sim):
+    """The same command sequence; returns the frames after each stage."""
+    frames = []
+    sim.apply_impact(0.1)
+    sim.advance(0.03)
+    frames.append(sim.frame())
+    sim.apply_prestrain(0.004, columns=[2], ramp_s=0.01)          # column 2 alone: a split
+    sim.advance(0.03)
+    frames.append(sim.frame())
+    sim.apply_impact([0.05], columns=[4])                           # column 4 alone
+    sim.advance(0.03)
+    frames.append(sim.frame())
+    sim.apply_prestrain([0.004, 0.004], columns=[0, 1])             # alike again, not merged
+    sim.advance(0.02)
+    frames.append(sim.frame())
+    return frames
+
+
+def test_shared_array_equals_one_simulation_per_column_exactly_and_splits():
+    shared = ArraySimulation(_scene())
+    plain = ArraySimulation(_scene(), dedup=False)
+    assert (shared.n_simulated, plain.n_simulated) == (1, 5)
+    counts = []
+    fs = _commands(shared)
+    counts = shared.n_simulated
+    fp = _commands(plain)
+    for a, b in zip(fs, fp):
+        for name in ('positions', 'strain', 'tension', 'base_force'):
+            np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+        assert a.energy == b.energy and a.t == b.t
+    assert counts == 4                   # {0, 1}, {2}, {3}, {4}
+    assert sorted(g.columns for g in shared.groups) == [[0, 1], [2], [3], [4]]
+    # and the split array is right, not only self-consistent: the full3d twin
+    full = Simulation(_scene('model=full3d'))
+    _commands(full)
+    _close(shared, full, 'after the splits')
+
+
+def test_asymmetric_cables_expand_only_their_column():
+    arr, full = Simulation(_scene()), Simulation(_scene('model=full3d'))
+    rest = np.array(arr.model.cable_rest_length)
+    k = arr.network.n_cables // 5
+    rest[k + 4] *= 1.0005                                 # one cross cable of column 1
+    for s in (arr, full):
+        s.set_cable_rest_lengths(rest)
+        s.apply_impact(0.1)
+        s.advance(0.06)
+    names = {tuple(g.columns): g.sim.model.name for g in arr.groups}
+    assert names == {(0, 2, 3, 4): 'sym3d', (1,): 'full3d'}
+    assert arr.model.name == 'full3d+sym3d' and 'columns [1]' in arr.expanded
+    _close(arr, full, 'one column expanded')
+
+
+def test_divergence_names_the_column_and_restores_every_column():
+    arr = Simulation(_scene())
+    arr.apply_impact(0.1)
+    arr.advance(0.02)
+    arr.apply_impact([3.0], columns=[3])                  # far beyond what column 3 survives
+    before = arr.frame()
+    with pytest.raises(SimulationDiverged, match='column 3'):
+        for _ in range(40):
+            before = arr.frame()
+            arr.advance(0.01)
+    after = arr.frame()
+    assert after.t == before.t
+    for name in ('positions', 'strain', 'tension'):
+        np.testing.assert_array_equal(getattr(after, name), getattr(before, name))
+
+
+@pytest.mark.parametrize('bad', [float('nan'), 0.7, [0.1, 0.2]])
+def test_bad_commands_change_nothing(bad):
+    arr = Simulation(_scene())
+    arr.apply_impact(0.1)
+    arr.advance(0.01)
+    f0, groups = arr.frame(), arr.n_simulated
+    with pytest.raises(ValueError, match='prestrain'):
+        arr.apply_prestrain(bad, columns=[1, 2, 3])
+    with pytest.raises(ValueError, match='impact'):
+        arr.apply_impact([0.1, float('nan')], columns=[0, 7] if bad == 0.7 else [0, 1])
+    f1 = arr.frame()
+    assert arr.n_simulated == groups
+    np.testing.assert_array_equal(f0.positions, f1.positions)

@@ -1,0 +1,111 @@
+"""The focusing design: simulated arrival times on the delay law, the field's peak at the focal
+depth under the focus, an unreachable focus named by column and range, bad input rejected."""
+import numpy as np
+import pytest
+
+from solver import field, lens
+from solver.scene import Scene
+
+SETS = ['structure.n_columns=5', 'lens.grid=7']        # the scene's 30-prism columns, 0.6 s
+
+
+@pytest.fixture(scope='module')
+def scene(tmp_path_factory):
+    import os
+    os.environ['TENSEGRITY_CACHE'] = str(tmp_path_factory.mktemp('cache'))
+    return Scene.load('config/scenes/lens_focus.yaml').with_overrides(SETS)
+
+
+@pytest.fixture(scope='module')
+def amap(scene):
+    return lens.arrival_map(scene, 0.1)
+
+
+def test_arrival_map_is_measured_and_cached(scene, amap):
+    assert np.all(np.isfinite(amap.arrival_s)) and not amap.cached
+    assert np.ptp(amap.arrival_s) > 1e-3                  # prestrain moves the arrival
+    again = lens.arrival_map(scene, 0.1)
+    assert again.cached and np.array_equal(again.arrival_s, amap.arrival_s)
+
+
+def _reachable_focus(scene, amap):
+    """A depth at which the delay law across the array spans half the map's range."""
+    xs = lens.base_x(scene)
+    X = 0.5 * (xs[0] + xs[-1])
+    span = 0.5 * np.ptp(amap.arrival_s)
+    speed = 2.0
+    for Z in np.geomspace(0.01, 10, 400):
+        d = lens.delays(xs, (X, Z), speed)
+        if np.ptp(d) <= span:
+            return (X, Z), speed
+    raise AssertionError('no depth found')
+
+
+def test_reachable_focus_meets_the_delay_law(scene, amap):
+    focus, speed = _reachable_focus(scene, amap)
+    plan = lens.design(scene, focus, speed, 0.1)
+    t, b = lens.check(scene, plan)
+    xs = lens.base_x(scene)
+    law = plan.t0 - np.hypot(xs - focus[0], focus[1]) / speed        # T_i = T0 - |F - X_i| / C
+    sim = np.array([c['simulated_s'] for c in plan.columns])
+    tol = 1e-3                                            # stated: 1 ms (output step 5 ms)
+    assert np.max(np.abs(sim - law)) <= tol
+    p = np.array([c['prestrain'] for c in plan.columns])
+    lo, hi = scene['lens.prestrain_min'], scene['lens.prestrain_max']
+    assert np.all((p >= lo) & (p <= hi)) and np.ptp(p) > 0
+    # the field: at the focal depth the peak pressure is largest within one spacing of X
+    xg = np.linspace(xs[0] - 0.05, xs[-1] + 0.05, 61)
+    pk, _ = field.peak_map(xg, [focus[1]], t, field.source_rates(t, b), xs, speed)
+    spacing = scene['structure.column_spacing']
+    assert abs(xg[int(np.argmax(pk[0]))] - focus[0]) <= spacing
+
+
+def test_unreachable_focus_names_a_column_and_the_range(scene, amap):
+    xs = lens.base_x(scene)
+    with pytest.raises(lens.LensError) as err:
+        lens.design(scene, (xs[-1] + 0.5, 0.01), 0.1, 0.1)
+    text = str(err.value)
+    assert 'column' in text and 'out of reach' in text
+    lo, hi = scene['lens.prestrain_min'], scene['lens.prestrain_max']
+    assert f'[{lo:g}, {hi:g}]' in text
+
+
+@pytest.mark.parametrize('focus,speed', [((0.0, -0.1), 2.0), ((0.0, 0.1), 0.0),
+                                         ((float('nan'), 0.1), 2.0)])
+def test_bad_focus_or_speed_is_rejected(scene, focus, speed):
+    with pytest.raises(lens.LensError):
+        lens.design(scene, focus, speed, 0.1)
+
+
+def test_field_of_one_source_is_the_delayed_rate_with_spreading():
+    """One base, a ramp of force: the model's pressure at distance R is the rate delayed by R / C
+    times z / R / sqrt(R) (2D) or / R (3D)."""
+    t = np.linspace(0, 1, 1001)
+    b = np.where(t > 0.2, np.minimum(t - 0.2, 0.1), 0.0)[:, None]      # rate 1 N/s on [0.2, 0.3]
+    s = field.source_rates(t, b)
+    R, C = 0.5, 2.0
+    p = field.pressure(np.array([[0.3, 0.4]]), t, s, [0.0], C, dims=2)[0]
+    assert p.max() == pytest.approx(0.4 / R / np.sqrt(R), rel=1e-6)
+    on = t[p > 0.5 * p.max()]
+    assert on.min() == pytest.approx(0.2 + R / C, abs=2e-3)
+    p3 = field.pressure(np.array([[0.3, 0.4]]), t, s, [0.0], C, dims=3)[0]
+    assert p3.max() == pytest.approx(0.4 / R / R, rel=1e-6)
+
+
+@pytest.mark.parametrize('argv,message', [
+    (['--focus', '0.1', '--medium-speed', '3'], '--focus'),
+    (['--focus', '0.1,0.1', '--medium-speed', '-3'], '--medium-speed'),
+    (['--focus', '0.1,-0.1', '--medium-speed', '3'], 'depth'),
+])
+def test_lens_command_rejects_bad_input_with_exit_2(argv, message, capsys):
+    from tensegrity_ros.cli import main
+    assert main(['lens', 'config/scenes/lens_focus.yaml', *argv]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0]
+
+
+def test_lens_command_rejects_a_single_column(capsys):
+    from tensegrity_ros.cli import main
+    assert main(['lens', 'config/scenes/prism.yaml', '--focus', '0,0.1',
+                 '--medium-speed', '3']) == 2
+    assert 'at least two columns' in capsys.readouterr().err

@@ -1,0 +1,88 @@
+"""The base force (what a column delivers to its support): the prestress reaction at rest from
+the prism's equilibrium, the momentum balance of the column after an impact, the arrival time of
+a known pulse shape."""
+import math
+
+import numpy as np
+import pytest
+
+from solver.scene import Scene
+from solver.simulation import Simulation
+from solver.support import axial_momentum, first_arrival
+
+SCENES = 'config/scenes/'
+
+
+def _sim(name='fb_column', *sets):
+    return Simulation(Scene.load(f'{SCENES}{name}.yaml').with_overrides(list(sets)))
+
+
+def _cross_axial(net, p):
+    """Axial pull of the cross cables on a level-0 node of a prism at prestrain p: the cable
+    tension EA p (physics: T = EA (s - L) / L with L = s / (1 + p)) times h0 / s."""
+    return net.meta['EA'] * p * net.meta['h0'] / net.meta['cross_length']
+
+
+@pytest.mark.parametrize('name,sets', [
+    ('fb_column', ['structure.n_prisms=10']),
+    ('rb_column', ['structure.n_prisms=10']),
+    ('fb_column', ['structure.n_prisms=6', 'structure.n_columns=3', 'model=full3d']),
+    ('fb_column', ['structure.n_prisms=6', 'structure.n_columns=3']),
+])
+def test_base_force_at_rest_is_the_self_equilibrated_reaction(name, sets):
+    """At rest the level-0 nodes are in equilibrium under the bar, the cross cable and the (level)
+    base members; the base members are horizontal, so the axial parts of the bar push and the
+    cross cable pull cancel: the reaction is 0. Each part alone is 3 EA p h0 / s, so a base force
+    that missed the bars (or the cables) would be that large."""
+    sim = _sim(name, *sets)
+    net = sim.network
+    p = np.linspace(0.001, 0.006, net.n_columns)
+    sim.apply_prestrain(p)
+    scale = 3 * _cross_axial(net, p)
+    assert np.all(scale > 1e-4)
+    b = sim.frame().base_force
+    assert b.shape == (net.n_columns,)
+    assert np.all(np.abs(b) <= 1e-10 * scale)
+
+
+@pytest.mark.parametrize('model,g', [('sym3d', 0.0), ('full3d', 0.0), ('sym3d', 0.2)])
+def test_impulse_on_the_support_is_the_momentum_change(model, g):
+    """d P_z / dt = B + F_ext: the time integral of the base force over the first passage (and
+    the reflection) equals the change of the column's axial momentum after the impact minus the
+    impulse of gravity on its free nodes, within the quadrature error (trapezoid at every
+    step)."""
+    sim = _sim('fb_column', 'structure.n_prisms=20', f'model={model}', f'loading.gravity={g}')
+    weight = g * sim.network.node_mass[~sim.network.clamped].sum()
+    assert axial_momentum(sim.model.velocities(), sim.network)[0] == 0.0
+    sim.apply_impact(0.1)
+    p0 = axial_momentum(sim.model.velocities(), sim.network)[0]
+    assert p0 == pytest.approx(-3 * sim.network.node_mass[-1] * 0.1, rel=1e-12)
+    t, b, p = [0.0], [sim.base_force()[0]], [p0]
+    for _ in range(int(round(0.4 / sim.dt))):
+        sim.advance(sim.dt)
+        t.append(sim.t)
+        b.append(sim.base_force()[0])
+        p.append(axial_momentum(sim.model.velocities(), sim.network)[0])
+    t, b, p = map(np.array, (t, b, p))
+    impulse = np.concatenate([[0.0], np.cumsum(0.5 * (b[1:] + b[:-1]) * np.diff(t))])
+    impulse -= weight * t
+    assert np.max(np.abs(b)) > 1e-3                  # the pulse reached the base
+    assert abs(impulse[-1]) > 0.05 * abs(p0)
+    assert np.max(np.abs(impulse - (p - p0))) <= 1e-4 * abs(p0)
+
+
+def test_arrival_of_a_gaussian_pulse():
+    """Half-height crossing of a Gaussian bump at t0 with width sigma: t0 - sqrt(2 ln 2) sigma;
+    a smaller first bump (of either sign) is the first peak when above 10 % of the largest."""
+    t = np.linspace(0, 1, 2001)
+    t0, sig = 0.5, 0.03
+    bump = 2.0 * np.exp(-0.5 * ((t - t0) / sig) ** 2)
+    a = first_arrival(t, 1.0 + bump)
+    assert a.rest_N == 1.0
+    assert a.time_s == pytest.approx(t0 - math.sqrt(2 * math.log(2)) * sig, abs=1e-5)
+    assert a.peak_time_s == pytest.approx(t0, abs=1e-3) and a.peak_N == pytest.approx(2.0, 1e-6)
+    early = -0.5 * np.exp(-0.5 * ((t - 0.3) / sig) ** 2)
+    b = first_arrival(t, bump + early)
+    assert b.time_s == pytest.approx(0.3 - math.sqrt(2 * math.log(2)) * sig, abs=1e-4)
+    assert b.peak_N == pytest.approx(-0.5, rel=1e-3)
+    assert math.isnan(first_arrival(t, np.zeros_like(t)).time_s)
