@@ -235,7 +235,11 @@ def stop_heights(network, tolerance):
     if network.n_edges > 0:
         b, r = float(meta['bar_length']), float(meta['radius'])
         lock = math.sqrt(max(b * b - 4.0 * r * r, 0.0))
-    return np.full((network.n_columns, network.n_prisms), lock + tolerance * h0)
+    stop = lock + tolerance * h0
+    if not stop < h0:
+        raise ValueError(f'contact.tolerance: {tolerance:g} puts the stop at {stop:.4g} m, not '
+                         f'below the prism height h0 = {h0:.4g} m (the stops would push at rest)')
+    return np.full((network.n_columns, network.n_prisms), stop)
 
 
 def scene_extras(scene_data, network):

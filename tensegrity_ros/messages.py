@@ -38,6 +38,7 @@ TYPES = {
     '~/strain': 'std_msgs/msg/Float64MultiArray',
     '~/cable_tension': 'std_msgs/msg/Float64MultiArray',
     '~/markers': 'visualization_msgs/msg/MarkerArray',
+    '~/striker': 'std_msgs/msg/Float64MultiArray',
     '/clock': 'rosgraph_msgs/msg/Clock',
     '/diagnostics': 'diagnostic_msgs/msg/DiagnosticArray',
     '~/cmd/prestrain': 'std_msgs/msg/Float64MultiArray',
@@ -45,10 +46,12 @@ TYPES = {
 }
 MSG_CLASSES = {
     '~/nodes': PointCloud2, '~/strain': Float64MultiArray, '~/cable_tension': Float64MultiArray,
-    '~/markers': MarkerArray, '/clock': Clock, '/diagnostics': DiagnosticArray,
+    '~/markers': MarkerArray, '~/striker': Float64MultiArray, '/clock': Clock,
+    '/diagnostics': DiagnosticArray,
     '~/cmd/prestrain': Float64MultiArray, '~/cmd/impact': Float64MultiArray,
 }
-PUBLISHED = ('~/nodes', '~/strain', '~/cable_tension', '~/markers', '/clock', '/diagnostics')
+PUBLISHED = ('~/nodes', '~/strain', '~/cable_tension', '~/markers', '~/striker', '/clock',
+             '/diagnostics')
 COMMANDS = ('~/cmd/prestrain', '~/cmd/impact')
 
 BAR_COLOR = (0.55, 0.55, 0.6, 1.0)
@@ -202,8 +205,9 @@ def reference_tension_scale(network):
 
 def check_finite(frame):
     """``ValueError`` if a frame holds a non-finite value (nothing NaN is ever published)."""
-    for name in ('positions', 'strain', 'tension'):
-        if not np.all(np.isfinite(getattr(frame, name))):
+    for name in ('positions', 'strain', 'tension', 'striker'):
+        value = getattr(frame, name, None)
+        if value is not None and not np.all(np.isfinite(value)):
             raise ValueError(f'frame at t = {frame.t:.6g} s: {name} is not finite')
 
 
@@ -213,8 +217,9 @@ def frame_messages(frame, network, stamp=None, markers=True, clock=False, t_max=
 
     Always ``'~/nodes'`` (PointCloud2), ``'~/strain'`` (dims ``column``, ``prism``) and
     ``'~/cable_tension'`` (dim ``cable``, N); ``'~/markers'`` when ``markers``; ``'/clock'`` when
-    ``clock``. ``stamp`` defaults to :func:`sim_stamp` of ``frame.t``. With ``serialized`` the
-    values are the CDR bytes of the same messages written from the arrays
+    ``clock``; ``'~/striker'`` (dims ``column``, ``state``: face height m, axial velocity m/s)
+    when the frame has strikers. ``stamp`` defaults to :func:`sim_stamp` of ``frame.t``. With
+    ``serialized`` the values are the CDR bytes of the same messages written from the arrays
     (:mod:`tensegrity_ros.cdr`, for ``Publisher.publish(bytes)``). Raises ``ValueError`` if the
     frame holds a non-finite value (nothing NaN is ever published)."""
     check_finite(frame)
@@ -235,6 +240,8 @@ def frame_messages(frame, network, stamp=None, markers=True, clock=False, t_max=
                           ('column', 'prism')),
         '~/cable_tension': multi(frame.tension, ('cable',)),
     }
+    if getattr(frame, 'striker', None) is not None:
+        out['~/striker'] = multi(np.ascontiguousarray(frame.striker), ('column', 'state'))
     if markers:
         out['~/markers'] = marker(frame, network, stamp, t_max)
     if clock:
