@@ -197,7 +197,7 @@ class Simulation:
             finite, e, cerr, h_min = dyn.state_summary(m.x, m.v, m.net, m.act, summ, h)
             return finite, e, h, cerr, h_min
         x, v = self._full_state()
-        if contact.active(m.act[3]):             # striker and contact energies
+        if len(m.act) > 3 and contact.active(m.act[3]):     # striker, contact energies
             finite, e, h, cerr = observables.state_summary(x, v, net, m.cable_rest_length,
                                                            m.cable_EA, self._f_ext_or_none)
             e += contact.extra_energy(m.x, m.v, m.act[3])

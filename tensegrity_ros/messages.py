@@ -50,8 +50,8 @@ MSG_CLASSES = {
     '/diagnostics': DiagnosticArray,
     '~/cmd/prestrain': Float64MultiArray, '~/cmd/impact': Float64MultiArray,
 }
-PUBLISHED = ('~/nodes', '~/strain', '~/cable_tension', '~/markers', '~/striker', '/clock',
-             '/diagnostics')
+PUBLISHED = ('~/nodes', '~/strain', '~/cable_tension', '~/markers', '/clock', '/diagnostics')
+OPTIONAL = ('~/striker',)      # published only by scenes that have strikers
 COMMANDS = ('~/cmd/prestrain', '~/cmd/impact')
 
 BAR_COLOR = (0.55, 0.55, 0.6, 1.0)
