@@ -40,6 +40,7 @@ import numpy as np
 
 from . import dynamics as dyn
 from ._jit import jit
+from .contact import contact_kink
 
 
 @jit
@@ -127,6 +128,9 @@ def next_kink(x, v, acc, net, act, h, ignore):
                 t = g / q if q != 0.0 else -1.0
             if ignore < t < t_best:
                 t_best = t
+    ex = act[3]
+    if ex[2].shape[0] != 0 or ex[3].shape[0] != 0:      # stops and strikers (solver.contact)
+        t_best = contact_kink(x, v, acc, ex, t_best, ignore)
     return t_best
 
 

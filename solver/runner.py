@@ -102,6 +102,10 @@ def summary(scene: Scene, sim: Simulation, rec: RunRecord, outputs=None):
         'pulse': rec.pulses[0].as_dict() if rec.pulses else None,
         'pulses': [p.as_dict() for p in rec.pulses],
         'base': support.base_summary(rec.times, rec.base_force),
+        # loading.impact.mode: striker: each column's striker at the end (face height m, axial
+        # velocity m/s, > 0 away from the column)
+        'striker': None if sim.striker() is None else [
+            {'z_m': float(z), 'v_m_s': float(v)} for z, v in sim.striker()],
         'outputs': dict({'mcap': None, 'rerun': None, 'plot': None}, **(outputs or {})),
     }
     return json_safe(out)

@@ -322,8 +322,8 @@ class Sym3D:
         """Load full positions and velocities (n_nodes, 3); :class:`NotSymmetric` if asymmetric."""
         xr = self._reduce(x, 'positions')
         vr = self._reduce(v, 'velocities')
-        self.x[:] = xr
-        self.v[:] = vr
+        self.x[:len(xr)] = xr          # rows beyond the orbits: strikers (solver.contact)
+        self.v[:len(vr)] = vr
 
     @property
     def cable_rest_length(self):

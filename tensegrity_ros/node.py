@@ -98,7 +98,8 @@ class TensegritySim(Node):
         quiet = PublisherEventCallbacks(use_default_callbacks=False)
         self._pubs = {key: self.create_publisher(messages.MSG_CLASSES[key], key, QOS,
                                                  event_callbacks=quiet)
-                      for key in messages.PUBLISHED
+                      for key in messages.PUBLISHED + (
+                          messages.OPTIONAL if self.sim.striker() is not None else ())
                       if key != '/clock' or self.params['use_sim_clock']}
         self._topics = {key: self.resolve_topic_name(key) for key in messages.TYPES}
         self._cmd_subs = [
