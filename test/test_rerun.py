@@ -373,7 +373,7 @@ def test_static_entities_equal_what_rerun_archetypes_log(recorded):
     built directly; every static component equals what rerun's own archetypes log."""
     from tensegrity_ros.rerun_writer import static_archetypes
     sim, _, data, _ = recorded
-    for path, archetype in static_archetypes(sim.network):
+    for path, archetype in static_archetypes(sim.network, reference_tension_scale(sim.network)):
         got = data['/' + path]['static']
         for batch in archetype.as_component_batches():
             name = batch.component_descriptor().component
