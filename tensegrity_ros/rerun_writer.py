@@ -281,7 +281,7 @@ def blueprint(n_columns=1):
         rrb.TensorView(origin=f'wave_scale/column_{c}', name='colour scale: strain',
                        scalar_mapping=rrb.archetypes.TensorScalarMapping(colormap=COLORMAP),
                        view_fit='fill'),
-        row_shares=[6, 1], name=f'column {c}')
+        row_shares=[5, 1], name=f'column {c}')
         for c in range(n_columns)]
 
     def one_or_tabs(views):
@@ -307,6 +307,7 @@ def blueprint(n_columns=1):
 
 
 COLORMAP = 'Spectral'
+PRISM_AXIS = 'prism (0: clamped end)'
 
 
 def legend_markdown(tension_scale):
@@ -623,7 +624,7 @@ class _Writer:
             value_range = _one_row(pa.FixedSizeListArray.from_arrays(pa.array([-lim, lim]),
                                                                      type=_RANGE_TYPE))
             chunks.append(Chunk.from_columns(f'wave/column_{c}', t, [
-                _Column(_TENSOR_DATA, _one_row(tensor_data(image, ('prism', label)))),
+                _Column(_TENSOR_DATA, _one_row(tensor_data(image, (PRISM_AXIS, label)))),
                 _Column(_TENSOR_RANGE, value_range)]))
             scale = np.linspace(-lim, lim, _SCALE_STEPS)[None, :]
             chunks.append(Chunk.from_columns(f'wave_scale/column_{c}', t, [
