@@ -532,7 +532,7 @@ class _Writer:
                         for path, batches in static], recording=self._stream)
 
     def _log_command(self, t, text, level):
-        if text.startswith('impact'):           # the heat map starts here
+        if text.startswith('impact') or ': impact ' in text:   # the heat map starts here
             self._impact_t = t
         rr.send_chunks(_row_chunk('commands', rr.TextLog(text, level=level), t),
                        recording=self._stream)
