@@ -469,7 +469,9 @@ class _Writer:
             except OSError:                     # a thread that has ended
                 pass
         if self._stream is not None:
-            self._do(self._send, index, n_t, True, False)
+            self._do(self._send, index, n_t, False, False)
+            if self._wave is not None and self._wave_n:
+                self._do(self._log_wave, True)
             self._do(self._log_bar_range)
             try:
                 self._finish()
@@ -603,7 +605,10 @@ class _Writer:
         self._wave_t = float(times[-1])
         self._wave_pending = True
 
-    def _log_wave(self):
+    def _log_wave(self, static=False):
+        """The heat map and its colour scale of every column: at the time of the last frame, or
+        (``static``, when the recording closes) at every time, so that the whole wave shows
+        wherever the time cursor is."""
         self._wave_pending = False
         self._last_wave = time.monotonic()
         n, w = self._wave_n, self.wave_window
@@ -616,7 +621,7 @@ class _Writer:
         label = (f'sim_time {image_times[0]:.3f} to {image_times[-1]:.3f} s'
                  + (f', {1e3 * (image_times[1] - image_times[0]):.3g} ms per column'
                     if len(image_times) > 1 else ''))
-        t = [_Times(_ns([self._wave_t]))]
+        t = [] if static else [_Times(_ns([self._wave_t]))]
         chunks = []
         for c in range(wave.shape[0]):
             image = wave[c][:, pick]                    # (n_prisms, n_times); tensor_data copies

@@ -79,9 +79,11 @@ def strips_at(ent, t):
             for strip in rows[0]['LineStrips3D:strips'].flatten().to_pylist()]
 
 
-def tensor(ent, row=-1):
-    """(shape, float64 values) of the Tensor logged in row ``row``."""
-    data = ent['rows'][row][1]['Tensor:data'].flatten().to_pylist()
+def tensor(ent, row=None):
+    """(shape, float64 values) of the Tensor logged in row ``row``; by default the static one
+    (the whole wave, written when the recording closes)."""
+    data = (ent['static'] if row is None else ent['rows'][row][1])['Tensor:data'] \
+        .flatten().to_pylist()
     assert len(data) == 1
     return tuple(data[0]['shape']), np.array(data[0]['buffer'], dtype=np.float64)
 
@@ -173,7 +175,7 @@ def test_topology_is_static_and_matches_the_network(recorded):
 def test_wave_image_is_the_strain_of_every_frame(recorded):
     sim, frames, data, _ = recorded
     wave = data['/wave/column_0']
-    assert wave['rows'][-1][0] == round(frames[-1].t * 1e9)
+    assert 'Tensor:data' in wave['static']      # the whole wave, at every time
     shape, values = tensor(wave)
     assert shape == (sim.network.n_prisms, len(frames))
     np.testing.assert_array_equal(values.reshape(shape),
@@ -647,13 +649,12 @@ def test_heat_map_starts_at_the_impact_on_a_sim_time_axis(tmp_path):
     assert shape == (6, len(after))                        # n_prisms rows, frames from impact
     np.testing.assert_array_equal(values.reshape(shape),
                                   np.stack([f.strain[0] for f in after], axis=1))
-    names = data['/wave/column_0']['rows'][-1][1]['Tensor:data'].flatten().to_pylist()[0]['names']
+    names = data['/wave/column_0']['static']['Tensor:data'].flatten().to_pylist()[0]['names']
     assert names[0].startswith('prism')
     assert names[1] == (f'sim_time {after[0].t:.3f} to {after[-1].t:.3f} s, '
                         f'{1e3 * (after[1].t - after[0].t):.3g} ms per column')
     # the colour scale: the heat map's symmetric range as a gradient strip
-    (lo, hi), = [flat(r['Tensor:value_range']) for _, r in data['/wave_scale/column_0']['rows']
-                 [-1:]]
+    lo, hi = flat(data['/wave_scale/column_0']['static']['Tensor:value_range'])
     lim = np.abs(values).max()
     assert (lo, hi) == (-lim, lim)
     _, scale = tensor(data['/wave_scale/column_0'])

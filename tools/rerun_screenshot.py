@@ -2,11 +2,13 @@
 
     python -m tools.rerun_screenshot [RUN.rrd] [--out docs/images/rerun_layout.png]
 
-Serves the recording with ``rerun --serve-web`` (the venv's rerun, bound to 127.0.0.1 on free
-ports, analytics off, a throw-away HOME) and loads the web viewer in headless Chromium (WebGL
-through SwiftShader), driven over the DevTools protocol on a pipe; after ``--wait`` seconds (the
-viewer needs tens of seconds to load with a software renderer) it saves the page as PNG.
-``--when`` sets the time cursor (``#when=`` of the viewer URL). The recording defaults to
+Hosts the web viewer with ``rerun --serve-web`` (the venv's rerun, bound to 127.0.0.1 on free
+ports, analytics off, a throw-away HOME), serves the file over HTTP on another free port and opens
+``viewer/?url=http://.../run.rrd`` in headless Chromium (WebGL through SwiftShader), driven over
+the DevTools protocol on a pipe: the viewer downloads the whole file at once (over the viewer's
+gRPC proxy it streams in chunk by chunk, minutes with a software renderer). After ``--wait``
+seconds (the viewer needs tens of seconds to load) it saves the page as PNG.
+The recording defaults to
 ``runs/demo/run.rrd`` (what ``make demo`` writes). Chromium: ``bash tools/install_chromium.sh``.
 """
 from __future__ import annotations
@@ -14,6 +16,8 @@ from __future__ import annotations
 import argparse
 import base64
 import fcntl
+import functools
+import http.server
 import json
 import os
 import shutil
@@ -22,6 +26,7 @@ import socket
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 import urllib.parse
 from pathlib import Path
@@ -44,6 +49,17 @@ def _wait_port(port, deadline):
             if time.monotonic() > deadline:
                 raise SystemExit(f'rerun_screenshot: nothing listens on port {port}')
             time.sleep(0.2)
+
+
+class _CorsHandler(http.server.SimpleHTTPRequestHandler):
+    """Static files, readable from the viewer's origin (another port)."""
+
+    def end_headers(self):
+        self.send_header('Access-Control-Allow-Origin', '*')
+        super().end_headers()
+
+    def log_message(self, *args):
+        pass
 
 
 class _DevTools:
@@ -99,7 +115,7 @@ class _DevTools:
             self.proc.wait(timeout=30)
 
 
-def screenshot(rrd, out, wait_s=90.0, when=None, size=(1600, 1000), chromium=None):
+def screenshot(rrd, out, wait_s=90.0, size=(1600, 1000), chromium=None):
     rerun = Path(sys.executable).parent / 'rerun'
     if not rerun.exists():
         raise SystemExit('rerun_screenshot: no rerun binary next to this Python (make install)')
@@ -116,14 +132,19 @@ def screenshot(rrd, out, wait_s=90.0, when=None, size=(1600, 1000), chromium=Non
         log = open(home / 'rerun.log', 'w')
         server = subprocess.Popen(
             [str(rerun), '--serve-web', '--bind', '127.0.0.1', '--port', str(grpc),
-             '--web-viewer-port', str(web), str(rrd)], env=env, stdout=log, stderr=log,
+             '--web-viewer-port', str(web)], env=env, stdout=log, stderr=log,
             start_new_session=True)
+        rrd = Path(rrd).resolve()
+        files = http.server.ThreadingHTTPServer(
+            ('127.0.0.1', 0), functools.partial(_CorsHandler, directory=str(rrd.parent)))
+        threading.Thread(target=files.serve_forever, daemon=True).start()
         browser = None
         try:
             deadline = time.monotonic() + 60
             _wait_port(grpc, deadline)
             _wait_port(web, deadline)
-            inner = f'rerun+http://127.0.0.1:{grpc}/proxy' + (f'#when={when}' if when else '')
+            inner = (f'http://127.0.0.1:{files.server_address[1]}/'
+                     f'{urllib.parse.quote(rrd.name)}')
             url = f'http://127.0.0.1:{web}/?url={urllib.parse.quote(inner, safe="")}'
             browser = _DevTools(
                 [chromium, '--headless', '--no-sandbox', '--use-angle=swiftshader',
@@ -147,6 +168,8 @@ def screenshot(rrd, out, wait_s=90.0, when=None, size=(1600, 1000), chromium=Non
         finally:
             if browser is not None:
                 browser.close()
+            files.shutdown()
+            files.server_close()
             os.killpg(server.pid, signal.SIGTERM)
             server.wait(timeout=30)
             log.close()
@@ -159,15 +182,13 @@ def main(argv=None):
     ap.add_argument('--out', default=str(ROOT / 'docs' / 'images' / 'rerun_layout.png'))
     ap.add_argument('--wait', type=float, default=90.0,
                     help='seconds to let the viewer load before the screenshot (default 90)')
-    ap.add_argument('--when', default=None,
-                    help='time cursor, as the viewer URL fragment: e.g. sim_time@0.5s')
     ap.add_argument('--size', default='1600x1000', help='window size, WIDTHxHEIGHT')
     args = ap.parse_args(argv)
     if not Path(args.rrd).exists():
         raise SystemExit(f'rerun_screenshot: {args.rrd} does not exist (make demo writes '
                          f'runs/demo/run.rrd)')
     w, h = (int(v) for v in args.size.split('x'))
-    print(screenshot(args.rrd, args.out, args.wait, args.when, (w, h)))
+    print(screenshot(args.rrd, args.out, args.wait, (w, h)))
     return 0
 
 
