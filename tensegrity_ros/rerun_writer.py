@@ -135,7 +135,9 @@ def _pack(rows, n_t, n_x, n_p, n_s, n_c, bar_index, cable_index, scale):
     bars = nodes.take(bar_index, axis=1).reshape(-1)        # gathered from float32: 2x fewer bytes
     cables = nodes.take(cable_index, axis=1).reshape(-1)
     colors = tension_colors(r[:, n_x + n_s:n_x + n_s + n_c], scale).reshape(-1)
-    strain = r[:, n_x:n_x + n_s].reshape(n_t, -1, max(n_p, 1)).transpose(1, 0, 2).reshape(-1)
+    # copied in every case (a reshape alone views the buffer when there is one prism)
+    strain = r[:, n_x:n_x + n_s].reshape(n_t, -1, max(n_p, 1)).transpose(1, 0, 2).copy()
+    strain = strain.reshape(-1)
     times = _ns(r[:, -3])
     return (nodes.reshape(-1), bars, cables, colors, strain, r[:, -2].copy(), r[:, -1].copy(),
             times)

@@ -670,3 +670,19 @@ def test_heat_map_grid_resamples_uneven_frames_on_time():
     assert list(pick) == [1, 2, 4, 4, 5, 6]
     grid, pick = heat_map_grid(times, impact_t=5.0)           # no frame that late: all frames
     assert grid[0] == 0.0 and pick[0] == 0
+
+
+def test_a_single_prism_records_its_bar_chart(tmp_path):
+    """One prism: the strain of a batch is a strided view of the batch buffer unless copied."""
+    sim = Simulation(Scene.load(ROOT / 'config' / 'scenes' / 'prism.yaml'))
+    sim.apply_impact(0.05)
+    frames = []
+    path = tmp_path / 'prism.rrd'
+    with RerunRecorder(sim.network, path, flush_every=4) as rec:
+        for _ in range(9):
+            frames.append(sim.frame())
+            rec.frame(frames[-1])
+            sim.advance(0.005)
+    ent = read(path)['/strain_profile/column_0']
+    got = [r['BarChart:values'].flatten().to_pylist()[0]['buffer'] for _, r in ent['rows']]
+    assert got == [list(f.strain[0]) for f in frames]
