@@ -36,6 +36,14 @@ V0S = (0.100, 0.125, 0.150)
 PAPER_FB = {0.100: {'amplitude': 0.054, 'speed_m_s': 0.248},
             0.125: {'amplitude': 0.0697, 'speed_m_s': None},
             0.150: {'amplitude': 0.085, 'speed_m_s': 0.372}}
+# A speed is that of a travelling pulse only when the slope of the leading peak's position
+# against time is positive and fitted over at least MIN_SPEED_POINTS output frames inside the
+# window (prisms 10-40 from the impact); otherwise the table marks it (speed_note).
+MIN_SPEED_POINTS = 5
+SPEED_NOTES = {
+    'no pulse': 'the leading peak never reached prism 10 from the impacted end',
+    'few points': f'fitted over fewer than {MIN_SPEED_POINTS} frames in the window',
+    'negative': 'the peak moved back towards the impacted end (slope <= 0)'}
 DEFAULT_VARIANT = {'stacking': 'shared', 'impact': 'impulse', 'rigid_bases_as': 'edges'}
 
 
@@ -85,6 +93,8 @@ class Row:
     width_prisms: int = 0
     arrival_time_s: float = math.nan
     ke_fraction: float = math.nan
+    speed_points: int = 0
+    speed_note: str = ''
     wall_time_s: float = 0.0
     status: str = 'ok'
     paper: dict = field(default_factory=dict)
@@ -131,7 +141,37 @@ def run_variant(variant, v0, t_end=1.2, output_dt=0.005):
     row.amplitude, row.amplitude_median = p.amplitude, p.amplitude_median
     row.speed_m_s, row.width_prisms, row.arrival_time_s = p.speed_m_s, p.width_prisms, \
         p.arrival_time_s
+    row.speed_points = speed_points(rec.strain[:, 0])
+    row.speed_note = speed_note(row.speed_m_s, row.speed_points)
     return row
+
+
+def speed_points(strain, window=(10, 40)):
+    """The number of frames the speed of :func:`observables.first_passage` is fitted over: frames
+    up to the leading peak's first arrival near the clamped end whose peak lies in ``window``
+    (prisms from the impact). ``strain`` (n_t, n_prisms) of one column."""
+    n = strain.shape[1]
+    count = 0
+    for eps in strain:
+        pos, _ = observables.leading_peak(eps[::-1])
+        if math.isfinite(pos) and window[0] <= pos <= window[1]:
+            count += 1
+        if math.isfinite(pos) and pos >= n - 2:
+            break
+    return count
+
+
+def speed_note(speed_m_s, n_points):
+    """'' for the speed of a travelling pulse, else the key of :data:`SPEED_NOTES` saying why the
+    figure is not one: no fit, a fit over fewer than :data:`MIN_SPEED_POINTS` frames, or a slope
+    that is not positive."""
+    if not math.isfinite(speed_m_s):
+        return 'no pulse'
+    if n_points < MIN_SPEED_POINTS:
+        return 'few points'
+    if speed_m_s <= 0:
+        return 'negative'
+    return ''
 
 
 def chain_errors(rows):
@@ -229,6 +269,31 @@ def _f(x, fmt):
     return format(x, fmt) if isinstance(x, (int, float)) and math.isfinite(x) else '-'
 
 
+def legend():
+    """One line per column of :func:`format_table` (and one per speed mark)."""
+    return [
+        "variant: bases (FB flexible, RB rigid), stacking (shared or parallel interior base "
+        "cables; '-' where it does not apply: RB as rigid edges), for RB how the bases are "
+        "modelled (edges: rigid members; stiff_cables: cables of kappa x EA), impact initial "
+        "condition (impulse or energy), model (sym3d, chain1d)",
+        'v0: impact velocity, m/s',
+        'KE kept: kinetic energy right after the impact over 3 m v0^2 / 2 (the impacted '
+        "level's three nodes at v0); below 1 the constraint projection took part of it",
+        'amp@0.5s: |strain| of the leading compressive peak at t = 0.5 s '
+        "('-': it had reached the clamped end by then)",
+        'amp median: median |strain| of the leading peak while it is in prisms 10-40 from the '
+        'impacted end',
+        'speed m/s: slope of the peak position against time there, times the prism height; '
+        'marked instead of printed when it is not a travelling pulse: '
+        + '; '.join(f'({k}) {v}' for k, v in SPEED_NOTES.items()),
+        'width: prisms around the peak at >= half its strain at t = 0.5 s',
+        'arrival s: first time the peak is in the window (prism 10 from the impact)',
+        "paper amp, paper speed: Fabbrocino & Carpentieri's FB figures ('-': not reported)",
+        'chain/3D amp, chain/3D speed: chain1d over the sym3d impulse row of the same '
+        'structure and v0 (amp median, speed)',
+        'chain-3D arrival s: chain1d arrival time minus that of the same sym3d row, s']
+
+
 def format_table(result, markdown=False):
     """The table as text (``markdown=True``: a Markdown table for the README)."""
     head = ['variant', 'v0', 'KE kept', 'amp@0.5s', 'amp median', 'speed m/s', 'width',
@@ -243,8 +308,12 @@ def format_table(result, markdown=False):
             t = r.status.split('t = ')[1].split(' s')[0] if 't = ' in r.status else '?'
             figures = [f'stopped at t = {t} s: {why}'] + [''] * 4
         else:
-            figures = [_f(r.amplitude, '.4f'), _f(r.amplitude_median, '.4f'),
-                       _f(r.speed_m_s, '.3f'), str(r.width_prisms), _f(r.arrival_time_s, '.3f')]
+            note = getattr(r, 'speed_note', None)
+            if note is None:                    # a row made without the check
+                note = speed_note(r.speed_m_s, getattr(r, 'speed_points', 0))
+            speed = f'({note})' if note else _f(r.speed_m_s, '.3f')
+            figures = [_f(r.amplitude, '.4f'), _f(r.amplitude_median, '.4f'), speed,
+                       str(r.width_prisms), _f(r.arrival_time_s, '.3f')]
         lines.append([r.label, f'{r.v0:.3f}', _f(r.ke_fraction, '.3f')] + figures + [
             _f(paper.get('amplitude'), '.4f'), _f(paper.get('speed_m_s'), '.3f'),
             _f(ce.get('amplitude_ratio'), '.2f'), _f(ce.get('speed_ratio'), '.2f'),
@@ -266,6 +335,9 @@ def format_table(result, markdown=False):
                            + line[3])
             else:
                 out.append('  '.join(c.ljust(w) for c, w in zip(line, widths)))
+    out.append('')
+    bullet = '- ' if markdown else ''
+    out += [bullet + line for line in legend()]
     out.append('')
     for name, s in result['speed'].items():
         bullet = '- ' if markdown else ''
