@@ -36,14 +36,21 @@ def wants_array(scene):
             and scene['model'] in ('auto', 'sym3d'))
 
 
+def _copy_arrays(value):
+    """A copy of a (nested) tuple of arrays: the kernels' ``act`` and ``ws`` tuples."""
+    if isinstance(value, tuple):
+        return tuple(_copy_arrays(v) for v in value)
+    return np.array(value)
+
+
 def _clone(sim):
     """An independent copy of a one-column :class:`Simulation` that continues exactly as
     ``sim`` would (state, cables, prestrain and ramp, energy reference, integrator history)."""
     new = copy.copy(sim)
     m = new.model = copy.copy(sim.model)
     m.x, m.v = sim.model.x.copy(), sim.model.v.copy()
-    m.act = tuple(np.array(a) for a in sim.model.act)
-    m.ws = tuple(np.array(a) for a in sim.model.ws)
+    m.act = _copy_arrays(sim.model.act)
+    m.ws = _copy_arrays(sim.model.ws)
     integ = new.integrator = copy.copy(sim.integrator)
     integ.set_state(copy.deepcopy(sim.integrator.get_state()))
     new.div = dict(sim.div)

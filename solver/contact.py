@@ -260,6 +260,18 @@ def scene_extras(scene_data, network):
             'strikers': strikers, 'par': par}
 
 
+def network_extras(spec, network):
+    """The extras tuple of ``spec`` for the full ``network`` without strikers (cable damping and
+    prism stops only): the member forces of a full state, as the base force needs them."""
+    if spec is None or not active_spec(spec):
+        return NO_EXTRAS
+    damp = NO_EXTRAS[0] if spec['damp'] is None else np.array(spec['damp'], dtype=np.float64)
+    stop_h = NO_EXTRAS[2] if spec['stop_h'] is None else np.array(spec['stop_h'], np.float64)
+    levels = np.ascontiguousarray(network.levels, dtype=np.int64) if network.levels.size \
+        else NO_EXTRAS[1]
+    return (damp, levels, stop_h, NO_EXTRAS[3], NO_EXTRAS[4], spec['par'].copy())
+
+
 def attach(model, spec, striker_state=None):
     """Load the extras ``spec`` (:func:`scene_extras`) into a ``full3d`` or ``sym3d`` model: its
     ``act`` gets the extras tuple; with strikers its state arrays get one row per column at the

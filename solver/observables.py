@@ -230,6 +230,12 @@ def track_pulse(times, strains, h0, window=(10, 40), t_ref=0.5):
         pos[k], e = leading_peak(eps)
         amp[k] = abs(e)
     inside = (pos >= window[0]) & (pos <= window[1])
+    # only the first passage through the window: once the peak has left it at the far end, a
+    # peak found inside again is the wave reflected from the clamped end (a peak that stops
+    # just short of the end never triggers the cut of first_passage)
+    beyond = np.nonzero(pos > window[1])[0]
+    if beyond.size:
+        inside[beyond[0]:] = False
     nan = float('nan')
     if inside.sum() >= 2:
         speed = float(np.polyfit(times[inside], pos[inside], 1)[0] * h0)

@@ -597,7 +597,7 @@ class Simulation:
                 return np.zeros(net.n_columns)
             if getattr(self, '_base_force', None) is None:
                 from .support import BaseForce
-                self._base_force = BaseForce(net)
+                self._base_force = BaseForce(net, self._extras)
             x, v = self._full_state()
             return self._base_force(x, v, self.model.cable_rest_length, self.model.cable_EA,
                                     self.f_ext)
