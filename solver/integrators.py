@@ -433,12 +433,24 @@ class ImplicitMidpoint(Integrator):
                 self.scratch('xm', x.shape), self.scratch('f', x.shape),
                 self.scratch('acc', (n, 3)), self.nstate)
 
+    @staticmethod
+    def _refuse_extras(act):
+        """The step has no cable damping, prism stops or strikers (``act[3]``): refuse them
+        rather than run without them."""
+        ex = act[3] if len(act) > 3 else ()
+        if any(np.asarray(ex[i]).size for i in (0, 2, 3) if i < len(ex)):
+            raise ValueError('implicit_midpoint: cable damping, prism stops (contact.lock) and '
+                             'strikers are not part of its step; use rk4_projected or '
+                             'dopri54_projected')
+
     def run(self, x, v, dt, n_steps, net, act, ws, tol=1e-12, max_iter=3, kinks=True):
+        self._refuse_extras(act)
         steps, status = self.kernel(x, v, float(dt), int(n_steps), net, act, ws, float(tol),
                                     int(max_iter), *self._args(x, net))
         return int(steps), int(status)
 
     def checked_args(self, x, net, act, ws, tol, max_iter, kinks, keep, summ):
+        self._refuse_extras(act)
         return (net, act, ws, float(tol), int(max_iter)) + self._args(x, net) + (keep, summ)
 
 

@@ -55,12 +55,15 @@ class Variant:
     rigid_bases_as: str
     impact: str
     model: str
+    scene: str = ''     # a scene file of its own (the identified model): only v0 and t_end set
 
     @property
     def column(self):
         return 'FB' if self.bases == 'flexible' else 'RB'
 
     def label(self):
+        if self.scene:
+            return f'{self.column} identified ({Path(self.scene).name}) {self.model}'
         parts = [self.column, self.stacking if self.uses_stacking else '-']
         if self.bases == 'rigid':
             parts.append(self.rigid_bases_as)
@@ -72,6 +75,8 @@ class Variant:
         return not (self.bases == 'rigid' and self.rigid_bases_as == 'edges')
 
     def overrides(self, v0, t_end):
+        if self.scene:
+            return [f'loading.impact.v0={v0}', f'model={self.model}', f'run.t_end={t_end}']
         sets = [f'structure.bases={self.bases}', f'structure.stacking={self.stacking}',
                 f'structure.rigid_bases_as={self.rigid_bases_as}',
                 f'loading.impact.mode={self.impact}', f'loading.impact.v0={v0}',
@@ -113,12 +118,19 @@ def variants(models=('sym3d', 'chain1d')):
             impacts = ('impulse',) if model == 'chain1d' else ('impulse', 'energy')
             for impact in impacts:
                 out.append(Variant(bases, stacking, rb_as, impact, model))
+    for name, bases in (('paper_fb.yaml', 'flexible'), ('paper_rb.yaml', 'rigid')):
+        path = SCENES / name      # the model identified on the FB figures (docs/paper.md)
+        if path.exists():
+            sc = Scene.load(path)
+            out.append(Variant(bases, sc['structure.stacking'], sc['structure.rigid_bases_as'],
+                               sc['loading.impact.mode'], 'auto', scene=str(path)))
     return out
 
 
 def run_variant(variant, v0, t_end=1.2, output_dt=0.005):
     """One :class:`Row`: the variant's scene, impact v0, run to ``t_end``."""
-    path = SCENES / ('fb_column.yaml' if variant.bases == 'flexible' else 'rb_column.yaml')
+    path = variant.scene or SCENES / ('fb_column.yaml' if variant.bases == 'flexible'
+                                      else 'rb_column.yaml')
     scene = Scene.load(path).with_overrides(variant.overrides(v0, t_end))
     row = Row(variant=asdict(variant), label=variant.label(), v0=v0)
     if variant.bases == 'flexible':
