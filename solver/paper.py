@@ -2,7 +2,8 @@
 
 Fabbrocino & Carpentieri (2017) report, for the 50-prism column with flexible bases (FB) at cross
 prestrain 0.002, the leading-pulse amplitude and speed at v0 = 0.100, 0.125, 0.150 m/s
-(physics.md section 5). Their modelling choices are partly unstated; this module runs every variant
+(docs/physics.md section 5). Their modelling choices are partly unstated; this module runs every
+variant
 the scenes can express, each from a stated model and nothing else:
 
 - bases: FB (ordinary base cables) or RB (rigid bases), RB as rigid edges or as stiff cables
@@ -83,7 +84,7 @@ class Variant:
 
 @dataclass
 class Row:
-    """Figures of one run (physics.md section 4); ``status`` 'ok' or why the run stopped."""
+    """Figures of one run (docs/physics.md section 4); ``status`` 'ok' or why the run stopped."""
     variant: dict
     label: str
     v0: float

@@ -1,4 +1,5 @@
-"""MCAP logs (interfaces.md section 5): round trip, decoding by two independent decoders, the ROS 2
+"""MCAP logs (docs/interfaces.md section 5): round trip, decoding by two independent decoders, the
+ROS 2
 profile records, truncated files, and Rerun's own MCAP loader."""
 import json
 
