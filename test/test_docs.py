@@ -20,6 +20,9 @@ HISTORY = [
     r'\bwas tried\b', r'\bwe tried\b', r'\bused to\b', r'\bearlier this\b',
     r'(?<![\w&/])#\d+\b',                       # issue numbers ("#5's target")
     r'\bin round \d', r'\bround \d+\b', r'\bno longer\b', r'\bis now\b',
+    r'\b20\d\d-\d\d-\d\d\b',                 # dated figures
+    r'\bcommits? [0-9a-f]{7}\b', r'\bfinal code\b', r'\bmeanwhile\b', r'(?-i:\bLater,)',
+    r'\bwent from\b', r'\bdown from\b', r'\bcame down\b', r'\bany more\b',
 ]
 
 
@@ -77,7 +80,9 @@ def test_no_history_of_the_making(page):
 
 def test_history_patterns_catch_the_old_wording():
     old = ["with the 90 % budget earlier this session", "The node's overhead (#5's 20 % target)",
-           'session 4\'s thread design', 'a design that was tried']
+           'session 4\'s thread design', 'a design that was tried',
+           'Two runs on the final code (2026-11-22, commits 60cc0ea and 711ba0b)',
+           'Later, the headless run writes', '+64 %, down from +165 % measured just before']
     for line in old:
         assert any(re.search(p, line, flags=re.I) for p in HISTORY), line
 
