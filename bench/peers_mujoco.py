@@ -19,10 +19,9 @@ How the pin-jointed network maps onto MuJoCo (the same physics, not an approxima
 - No gravity, no damping, no contacts, no constraints (``<flag contact/constraint="disable">``),
   MuJoCo's RK4.
 
-The impact is the same impulse as the solver's (docs/physics.md section 3.1): node momenta ``m (0,
-0, -v0)``
-on the free-end nodes mapped to generalized velocities ``qvel = M^-1 J^T p``, which is the
-mass-weighted projection onto the constraint tangent space.
+The impact is the same impulse as the solver's (docs/physics.md section 3.1): node momenta
+``m (0, 0, -v0)`` on the free-end nodes mapped to generalized velocities
+``qvel = M^-1 J^T p``, which is the mass-weighted projection onto the constraint tangent space.
 
 Networks with rigid base edges (RB columns), massive bars, or any bar graph that is not a forest
 rooted at clamped nodes are not trees: :func:`build_mjcf` refuses them with a clear error.

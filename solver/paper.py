@@ -3,8 +3,7 @@
 Fabbrocino & Carpentieri (2017) report, for the 50-prism column with flexible bases (FB) at cross
 prestrain 0.002, the leading-pulse amplitude and speed at v0 = 0.100, 0.125, 0.150 m/s
 (docs/physics.md section 5). Their modelling choices are partly unstated; this module runs every
-variant
-the scenes can express, each from a stated model and nothing else:
+variant the scenes can express, each from a stated model and nothing else:
 
 - bases: FB (ordinary base cables) or RB (rigid bases), RB as rigid edges or as stiff cables
   (``kappa`` x EA);
