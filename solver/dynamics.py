@@ -1,4 +1,4 @@
-"""Numba kernels of the constrained dynamics (physics.md section 1.1).
+"""Numba kernels of the constrained dynamics (docs/physics.md section 1.1).
 
 Two levels, as everywhere in the solver: :func:`pack` (Python) validates and allocates, the
 ``@jit`` kernels take arrays and tuples of arrays only and write into ``out`` arrays.

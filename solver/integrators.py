@@ -12,7 +12,7 @@ one):
 - ``rk4_projected`` (default): classical RK4, then mass-weighted projection of positions and
   velocities; steps land on cable slack/taut kinks. Order 4, four force evaluations per step.
 - ``rk4``: the same RK4 without projection. Bar lengths drift (the failure mode of section 1.2 of
-  physics.md, kept to show it).
+  docs/physics.md, kept to show it).
 - ``rattle``: velocity Verlet with RATTLE constraints. Order 2, one force evaluation per step,
   symmetric and (to the projection tolerance) symplectic: energy stays bounded over long runs.
 - ``dopri54_projected``: adaptive Dormand-Prince 5(4) with error control (``integrator.rtol``,
@@ -308,7 +308,7 @@ class Integrator:
 
 class RK4Projected(Integrator):
     """Classical RK4, then mass-weighted projection of positions and velocities after every step
-    (physics.md section 1.2). Four force evaluations per step; steps land on cable kinks."""
+    (docs/physics.md section 1.2). Four force evaluations per step; steps land on cable kinks."""
     name = 'rk4_projected'
     order = 4
     projected = True

@@ -43,7 +43,7 @@ class Model:
 
 
 class Full3D(Model):
-    """Every node in 3D with every rigid member as a constraint (physics.md section 1.1)."""
+    """Every node in 3D with every rigid member as a constraint (docs/physics.md section 1.1)."""
     name = 'full3d'
 
     def __init__(self, network, f_ext=None):

@@ -1,4 +1,4 @@
-"""Observables: strains, tensions, energy, constraint error, and the pulse tracker (physics.md
+"""Observables: strains, tensions, energy, constraint error, and the pulse tracker (docs/physics.md
 section 4).
 
 All functions take plain arrays; shapes and units are in each docstring.
@@ -68,7 +68,7 @@ def constraint_error(x, network):
 
 @dataclass
 class Pulse:
-    """Leading-pulse figures of one column (physics.md section 4).
+    """Leading-pulse figures of one column (docs/physics.md section 4).
 
     Every figure comes from the interpolated peak of each output frame (:func:`leading_peak`: a
     parabola through the three prisms around the extreme gives its position and value between

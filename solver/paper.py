@@ -2,8 +2,8 @@
 
 Fabbrocino & Carpentieri (2017) report, for the 50-prism column with flexible bases (FB) at cross
 prestrain 0.002, the leading-pulse amplitude and speed at v0 = 0.100, 0.125, 0.150 m/s
-(physics.md section 5). Their modelling choices are partly unstated; this module runs every variant
-the scenes can express, each from a stated model and nothing else:
+(docs/physics.md section 5). Their modelling choices are partly unstated; this module runs every
+variant the scenes can express, each from a stated model and nothing else:
 
 - bases: FB (ordinary base cables) or RB (rigid bases), RB as rigid edges or as stiff cables
   (``kappa`` x EA);
@@ -88,7 +88,7 @@ class Variant:
 
 @dataclass
 class Row:
-    """Figures of one run (physics.md section 4); ``status`` 'ok' or why the run stopped."""
+    """Figures of one run (docs/physics.md section 4); ``status`` 'ok' or why the run stopped."""
     variant: dict
     label: str
     v0: float
@@ -284,13 +284,13 @@ def _f(x, fmt):
 def legend():
     """One line per column of :func:`format_table` (and one per speed mark)."""
     return [
-        "variant: bases (FB flexible, RB rigid), stacking (shared or parallel interior base "
-        "cables; '-' where it does not apply: RB as rigid edges), for RB how the bases are "
-        "modelled (edges: rigid members; stiff_cables: cables of kappa x EA), impact initial "
-        "condition (impulse or energy), model (sym3d, chain1d)",
+        "variant: bases (FB flexible, RB rigid); stacking of the interior base cables (shared "
+        "or parallel; '-' for RB as rigid edges, which have no base cables); for RB, how the "
+        "rigid bases are modelled (edges: rigid members; stiff_cables: cables of kappa x EA); "
+        "the impact initial condition (impulse or energy); the model (sym3d, chain1d)",
         'v0: impact velocity, m/s',
-        'KE kept: kinetic energy right after the impact over 3 m v0^2 / 2 (the impacted '
-        "level's three nodes at v0); below 1 the constraint projection took part of it",
+        'KE kept: kinetic energy just after the impact over 3 m v0^2 / 2 (the three nodes of '
+        'the impacted level at v0); below 1, the constraint projection removed the rest',
         'amp@0.5s: |strain| of the leading compressive peak at t = 0.5 s '
         "('-': it had reached the clamped end by then)",
         'amp median: median |strain| of the leading peak while it is in prisms 10-40 from the '
@@ -351,6 +351,8 @@ def format_table(result, markdown=False):
     bullet = '- ' if markdown else ''
     out += [bullet + line for line in legend()]
     out.append('')
+    if result['speed']:
+        out.append('Wall time of sym3d against full3d (one run each):')
     for name, s in result['speed'].items():
         bullet = '- ' if markdown else ''
         out.append(f"{bullet}{name}: full3d {s['full3d_s']:.3f} s, sym3d {s['sym3d_s']:.3f} s "

@@ -84,7 +84,7 @@ def json_safe(value):
 
 
 def summary(scene: Scene, sim: Simulation, rec: RunRecord, outputs=None):
-    """The JSON summary of ``tensegrity run`` (interfaces.md section 2); non-finite figures (a
+    """The JSON summary of ``tensegrity run`` (docs/interfaces.md section 2); non-finite figures (a
     pulse not found, a run too short to time) are None."""
     t_end = float(rec.times[-1] - rec.times[0])
     e0 = rec.energy[0]

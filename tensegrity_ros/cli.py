@@ -1,4 +1,6 @@
-"""The ``tensegrity`` command (interfaces.md section 2).
+"""Impact waves in tensegrity columns: run, sweep, fit, lens, node, demo, replay, paper, bench.
+
+The command line of docs/interfaces.md section 2.
 
 User errors (bad scene, bad option, diverged simulation) print one line on stderr and exit 2 (1 for
 a diverged run), never a traceback.
@@ -343,7 +345,7 @@ def build_parser():
     p.add_argument('--mcap', action='store_true',
                    help='record the run to OUT/run.mcap (ROS 2 profile, the node\'s topics)')
     p.add_argument('--rerun', action='store_true',
-                   help='record the run to OUT/run.rrd (Rerun; open with `rerun OUT/run.rrd`)')
+                   help='record the run to OUT/run.rrd (Rerun; open it with: rerun OUT/run.rrd)')
     p.add_argument('--rerun-connect', nargs='?', metavar='URL',
                    const='rerun+http://127.0.0.1:9876/proxy',
                    help='stream the run to a running Rerun viewer (default URL %(const)s)')

@@ -14,7 +14,7 @@ import numpy as np
 from . import cdr
 from . import messages as M
 
-MARKER_RATE_HZ = 20.0       # the node's default marker_rate_hz (interfaces.md section 4)
+MARKER_RATE_HZ = 20.0       # the node's default marker_rate_hz (docs/interfaces.md section 4)
 
 
 NETWORK_METADATA = 'tensegrity_network'

@@ -1,4 +1,5 @@
-"""The ROS 2 node ``tensegrity_sim`` (interfaces.md section 4): one node class and :func:`main`.
+"""The ROS 2 node ``tensegrity_sim`` (docs/interfaces.md section 4): one node class and
+:func:`main`.
 
     tensegrity_node [--ros-args -p real_time_factor:=0.0 --params-file config/node.yaml]
 
