@@ -10,7 +10,6 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 PAGES = [ROOT / 'README.md', *sorted((ROOT / 'docs').glob('*.md'))]
 # Files another branch adds (docs/paper.md, the identified scene): cited before they land
-PENDING = {'docs/paper.md', 'config/scenes/paper_fb.yaml'}
 
 LINK = re.compile(r'\[[^\]]*\]\(([^)\s]+)\)')
 CODE = re.compile(r'`([^`\n]+)`')
@@ -44,8 +43,6 @@ def test_relative_links_resolve(page):
             continue
         path = target.split('#')[0]
         resolved = (page.parent / path).resolve()
-        if str(resolved.relative_to(ROOT)) in PENDING:
-            continue
         if not resolved.exists():
             missing.append(target)
     assert not missing, f'{page.name}: links to missing files: {missing}'
@@ -63,7 +60,7 @@ def _cited_paths(text):
 @pytest.mark.parametrize('page', PAGES, ids=lambda p: p.name)
 def test_cited_files_exist(page):
     missing = [p for p in _cited_paths(_text(page))
-               if p not in PENDING and not (ROOT / p).exists()
+               if not (ROOT / p).exists()
                and not (ROOT / p.replace('.{csv,json}', '.csv')).exists()]
     assert not missing, f'{page.name}: cites missing files: {missing}'
 
