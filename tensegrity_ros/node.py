@@ -108,7 +108,7 @@ class TensegritySim(Node):
                                       QOS), self._on_prestrain)]
         self.create_service(Trigger, '~/reset', self._on_reset)
         self.create_service(SetBool, '~/set_running', self._on_set_running)
-        self.running = True
+        self.running = not self.params['start_paused']
         # commands: accepted = applied; superseded = valid, replaced by a later one of the same
         # topic before the next tick; rejected = malformed (or refused when applied)
         self.counts = {'accepted': 0, 'rejected': 0, 'superseded': 0, 'frames': 0}

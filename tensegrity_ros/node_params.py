@@ -25,6 +25,7 @@ DEFAULTS = {
     'marker_rate_hz': 20.0,
     'prestrain_ramp_s': 0.05,    # s of simulation time
     'diagnostics_rate_hz': 2.0,
+    'start_paused': False,       # start with the clock stopped; ~/set_running starts it
 }
 DESCRIPTIONS = {
     'scene_file': 'scene YAML (absolute, relative to the working directory, or to the package)',
@@ -40,12 +41,15 @@ DESCRIPTIONS = {
     'prestrain_ramp_s': 'simulation time over which a prestrain command is ramped, s',
     'diagnostics_rate_hz': '/diagnostics per wall second (with command counters; also at once '
                            'on a pause)',
+    'start_paused': 'start with the simulation paused (commands are still applied); '
+                    '~/set_running true starts the clock',
 }
 POSITIVE = ('publish_rate_hz', 'marker_rate_hz', 'diagnostics_rate_hz')
 NON_NEGATIVE = ('real_time_factor', 'prestrain_ramp_s', 'dt')
 # fixed once the node runs (the simulation and the recorders are built from them): a change is
 # refused with this reason
-READ_ONLY = ('scene_file', 'model', 'integrator', 'dt', 'record_mcap', 'record_rerun')
+READ_ONLY = ('scene_file', 'model', 'integrator', 'dt', 'record_mcap', 'record_rerun',
+             'start_paused')
 RESTART = 'is fixed while the node runs; restart the node with the new value'
 # ranges the parameter descriptors show (FloatingPointRange; the upper ends are generous limits)
 RANGES = {'publish_rate_hz': (1e-3, 10000.0), 'marker_rate_hz': (1e-3, 10000.0),
