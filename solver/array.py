@@ -36,6 +36,16 @@ def wants_array(scene):
             and scene['model'] in ('auto', 'sym3d'))
 
 
+def _copy_arrays(value):
+    """A copy of ``value``: arrays copied, tuples (nested, as the workspaces' scratch of the
+    mass-matrix system) copied element by element, anything else as it is."""
+    if isinstance(value, np.ndarray):
+        return value.copy()
+    if isinstance(value, tuple):
+        return tuple(_copy_arrays(v) for v in value)
+    return value
+
+
 def _clone(sim):
     """An independent copy of a one-column :class:`Simulation` that continues exactly as
     ``sim`` would (state, cables, prestrain and ramp, energy reference, integrator history)."""
@@ -43,7 +53,7 @@ def _clone(sim):
     m = new.model = copy.copy(sim.model)
     m.x, m.v = sim.model.x.copy(), sim.model.v.copy()
     m.act = tuple(np.array(a) for a in sim.model.act)
-    m.ws = tuple(np.array(a) for a in sim.model.ws)
+    m.ws = _copy_arrays(sim.model.ws)
     integ = new.integrator = copy.copy(sim.integrator)
     integ.set_state(copy.deepcopy(sim.integrator.get_state()))
     new.div = dict(sim.div)
