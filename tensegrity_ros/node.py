@@ -31,7 +31,7 @@ from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, SetParam
 from rclpy.event_handler import PublisherEventCallbacks
 from rclpy._rclpy_pybind11 import RCLError
 from rclpy.executors import ExternalShutdownException
-from rclpy.node import Node
+from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import SetBool, Trigger
@@ -51,10 +51,12 @@ WORK_FRACTION = 0.9              # share of a publish period the stepping (and p
 FAST_WORK_FRACTION = 1.0         # the same at real_time_factor 0 (no pace to keep, no margin)
 
 
-class TensegritySim(Node):
+class TensegritySim(LifecycleNode):
     """The node ``tensegrity_sim``. ``sim``: an existing :class:`~solver.simulation.Simulation`
     to drive (tests, benchmarks) instead of the one the parameters describe; ``kwargs`` go to
-    :class:`rclpy.node.Node` (``context``, ``parameter_overrides``, ``namespace``)."""
+    :class:`rclpy.lifecycle.LifecycleNode` (``context``, ``parameter_overrides``, ``namespace``).
+    A managed node: with ``autostart`` (the default) it configures and activates itself in the
+    constructor; without, it waits for ``~/change_state``."""
 
     def __init__(self, sim=None, **kwargs):
         kwargs.setdefault('namespace', messages.NAMESPACE)
@@ -78,9 +80,88 @@ class TensegritySim(Node):
         self.add_on_set_parameters_callback(self._check_new_parameters)
         self.add_post_set_parameters_callback(self._apply_new_parameters)
         self.period = 1.0 / self.params['publish_rate_hz']
+        self._given_sim = sim
+        self.sim = self.timer = None
+        self.active = False
+        self._pubs, self._cmd_subs, self._srvs = {}, [], []
+        self._sinks, self._frame_sinks, self._event_sinks, self._closers = [], [], [], []
+        self._bytes_sinks = []
+        if self.params['autostart']:
+            self._setup()          # a bad scene raises here (the console script exits 2)
+            for name, trigger in (('configure', self.trigger_configure),
+                                  ('activate', self.trigger_activate)):
+                if trigger() != TransitionCallbackReturn.SUCCESS:
+                    raise RuntimeError(f'{messages.NODE_NAME}: {name} failed (see the log)')
+
+    # -- lifecycle ------------------------------------------------------------------------------
+    # unconfigured: parameters only; configure: the simulation (scene loaded, kernels compiled),
+    # recorders, publishers, subscriptions and services; activate: the timer (stepping and
+    # publishing); deactivate: the timer stops, the state stays; cleanup / shutdown: back to
+    # parameters only.
+    def on_configure(self, state):
+        if self.sim is None:
+            from solver.network import NetworkError
+            from solver.scene import SceneError
+            try:
+                self._setup()
+            except (ParameterError, SceneError, NetworkError, ValueError) as exc:
+                self.get_logger().error(f'configure: {exc}')
+                return TransitionCallbackReturn.FAILURE
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_activate(self, state):
+        self.active = True
+        self._anchor()
+        self._rtf_window = (time.monotonic(), self.sim.t, self.counts['frames'])
+        self._publish_frame(time.monotonic())
+        self.timer = self.create_timer(self.period, self._tick)
+        return super().on_activate(state)
+
+    def on_deactivate(self, state):
+        self.active = False
+        self._drop_timer()
+        return super().on_deactivate(state)
+
+    def on_cleanup(self, state):
+        self._teardown()
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_shutdown(self, state):
+        self._teardown()
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_error(self, state):
+        self._teardown()
+        return TransitionCallbackReturn.SUCCESS
+
+    def _drop_timer(self):
+        if self.timer is not None:
+            self.timer.cancel()
+            self.destroy_timer(self.timer)
+            self.timer = None
+
+    def _teardown(self):
+        self.active = False
+        self._drop_timer()
+        self.close()
+        for pub in self._pubs.values():
+            self.destroy_publisher(pub)
+        for sub, _ in self._cmd_subs:
+            self.destroy_subscription(sub)
+        for srv in self._srvs:
+            self.destroy_service(srv)
+        self._pubs, self._cmd_subs, self._srvs = {}, [], []
+        self._sinks, self._frame_sinks, self._event_sinks, self._closers = [], [], [], []
+        self._bytes_sinks = []
+        self.sim = None
+
+    def _setup(self):
+        """What configure builds: the simulation (the caller's, in its state, or the one the
+        parameters describe), recorders, publishers, subscriptions, services, counters."""
         if self.params['record_rerun']:    # the recorder's helper starts while the node sets up
             from .rerun_log import prestart
             prestart()
+        sim = self._given_sim
         if sim is None:
             sim = load_simulation(self.params)
             self._step_cost = measure_step_cost(sim)
@@ -88,8 +169,6 @@ class TensegritySim(Node):
             self._step_cost = 0.1 * self.period
         self.sim = sim
         net = self.sim.network
-        self._sinks, self._frame_sinks, self._event_sinks, self._closers = [], [], [], []
-        self._bytes_sinks = []
         self._cross_prism = (self.sim.prestrain_map.cross_prism
                              if self.sim.prestrain is not None else None)
         self._t_max = 2.0 * messages.reference_tension_scale(net)
@@ -106,8 +185,8 @@ class TensegritySim(Node):
              self._on_impact),
             (self.create_subscription(Float64MultiArray, '~/cmd/prestrain', self._on_prestrain,
                                       QOS), self._on_prestrain)]
-        self.create_service(Trigger, '~/reset', self._on_reset)
-        self.create_service(SetBool, '~/set_running', self._on_set_running)
+        self._srvs = [self.create_service(Trigger, '~/reset', self._on_reset),
+                          self.create_service(SetBool, '~/set_running', self._on_set_running)]
         self.running = not self.params['start_paused']
         # commands: accepted = applied; superseded = valid, replaced by a later one of the same
         # topic before the next tick; rejected = malformed (or refused when applied)
@@ -127,8 +206,6 @@ class TensegritySim(Node):
         self.achieved_rtf = 0.0
         self._anchor()
         self._open_recorders()
-        self._publish_frame(time.monotonic())
-        self.timer = self.create_timer(self.period, self._tick)
         self.get_logger().info(
             f'{self.sim.scene.name}: {net.n_nodes} nodes, {net.n_cables} cables, '
             f'{self.sim.model.name} + {self.sim.integrator.name}, dt = {self.sim.dt:g} s, '
@@ -202,13 +279,14 @@ class TensegritySim(Node):
         new = check_parameters(dict(self.params, **{p.name: p.value for p in params
                                                     if p.name in self.params}))
         old, self.params = self.params, new
-        if new['real_time_factor'] != old['real_time_factor']:
+        if new['real_time_factor'] != old['real_time_factor'] and self.sim is not None:
             self._anchor()                         # the new pace counts from now
         if new['publish_rate_hz'] != old['publish_rate_hz']:
             self.period = 1.0 / new['publish_rate_hz']
-            self.timer.timer_period_ns = round(self.period * 1e9)
-            self.timer.reset()
-        if new['use_sim_clock'] and '/clock' not in self._pubs:
+            if self.timer is not None:             # active (else: the next activation's)
+                self.timer.timer_period_ns = round(self.period * 1e9)
+                self.timer.reset()
+        if new['use_sim_clock'] and self.sim is not None and '/clock' not in self._pubs:
             self._pubs['/clock'] = self.create_publisher(
                 messages.MSG_CLASSES['/clock'], '/clock', QOS,
                 event_callbacks=PublisherEventCallbacks(use_default_callbacks=False))
@@ -449,7 +527,8 @@ class TensegritySim(Node):
         self._anchor()
         self._rtf_window = (time.monotonic(), self.sim.t, self.counts['frames'])
         self._emit(self._event_sinks, self.sim.t, 'reset')
-        self._publish_frame(time.monotonic())
+        if self.active:                # frames go out only while active
+            self._publish_frame(time.monotonic())
         response.success = True
         response.message = 'reset to the reference geometry at rest, t = 0'
         return response
