@@ -32,8 +32,10 @@ from rclpy.event_handler import PublisherEventCallbacks
 from rclpy._rclpy_pybind11 import RCLError
 from rclpy.executors import ExternalShutdownException
 from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
-from std_msgs.msg import Float64MultiArray
+from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSPolicyKind, QoSProfile,
+                       ReliabilityPolicy)
+from rclpy.qos_overriding_options import QoSOverridingOptions
+from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import SetBool, Trigger
 
 from solver.simulation import SimulationDiverged
@@ -44,6 +46,23 @@ from .node_params import (DEFAULTS, DESCRIPTIONS, RANGES, READ_ONLY, RESTART,  #
                           measure_step_cost, unknown_parameters)
 
 QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
+# the structure (~/structure, std_msgs/String, JSON): sent once per activation, kept for late
+# subscribers and recorders
+STRUCTURE_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                           durability=DurabilityPolicy.TRANSIENT_LOCAL,
+                           history=HistoryPolicy.KEEP_LAST)
+STRUCTURE_TOPIC = '~/structure'
+# every publisher and command subscription takes its QoS from parameters
+# qos_overrides.<topic>.<publisher|subscription>.<policy> (parameters file or -p), defaults above
+QOS_OVERRIDES = QoSOverridingOptions(policy_kinds=(
+    QoSPolicyKind.HISTORY, QoSPolicyKind.DEPTH, QoSPolicyKind.RELIABILITY,
+    QoSPolicyKind.DURABILITY))
+
+
+def _qos(base=QOS):
+    """A fresh copy of ``base`` (rclpy writes the overrides into the profile it is given)."""
+    return QoSProfile(history=base.history, depth=base.depth, reliability=base.reliability,
+                      durability=base.durability)
 LOG_THROTTLE_S = 1.0             # a repeated log line (or rejected-command event): at most
                                  # once per this many seconds
 MAX_TAKE = 100                   # commands per topic taken at the start of a tick, at most
@@ -113,6 +132,7 @@ class TensegritySim(LifecycleNode):
         self.active = True
         self._anchor()
         self._rtf_window = (time.monotonic(), self.sim.t, self.counts['frames'])
+        self._publish_structure()
         self._publish_frame(time.monotonic())
         self.timer = self.create_timer(self.period, self._tick)
         return super().on_activate(state)
@@ -155,6 +175,24 @@ class TensegritySim(LifecycleNode):
         self._bytes_sinks = []
         self.sim = None
 
+    def _publisher(self, key, msg_class=None, qos=QOS):
+        """The publisher of ``key`` with QoS ``qos`` as overridden by the parameters. No
+        QoS-event handlers: each is a waitable the executor polls on every tick (they were most
+        of the executor's cost per tick)."""
+        return self.create_publisher(
+            msg_class or messages.MSG_CLASSES[key], key, _qos(qos),
+            event_callbacks=PublisherEventCallbacks(use_default_callbacks=False),
+            qos_overriding_options=QOS_OVERRIDES)
+
+    def _publish_structure(self):
+        """``~/structure``: the topology and the current cable rest lengths (JSON)."""
+        from .mcap_run import structure_json
+        msg = String(data=structure_json(self.sim.network, self.sim.scene.name,
+                                         self.sim.model.cable_rest_length))
+        self._pubs[STRUCTURE_TOPIC].publish(msg)
+        self._emit(self._sinks, self._topics[STRUCTURE_TOPIC], msg,
+                   messages.stamp_to_ns(messages.sim_stamp(self.sim.t)))
+
     def _setup(self):
         """What configure builds: the simulation (the caller's, in its state, or the one the
         parameters describe), recorders, publishers, subscriptions, services, counters."""
@@ -172,19 +210,16 @@ class TensegritySim(LifecycleNode):
         self._cross_prism = (self.sim.prestrain_map.cross_prism
                              if self.sim.prestrain is not None else None)
         self._t_max = 2.0 * messages.reference_tension_scale(net)
-        # no QoS-event handlers on the publishers: each is a waitable the executor polls on every
-        # tick (they were most of the executor's cost per tick)
-        quiet = PublisherEventCallbacks(use_default_callbacks=False)
-        self._pubs = {key: self.create_publisher(messages.MSG_CLASSES[key], key, QOS,
-                                                 event_callbacks=quiet)
-                      for key in messages.PUBLISHED
+        self._pubs = {key: self._publisher(key) for key in messages.PUBLISHED
                       if key != '/clock' or self.params['use_sim_clock']}
-        self._topics = {key: self.resolve_topic_name(key) for key in messages.TYPES}
+        self._pubs[STRUCTURE_TOPIC] = self._publisher(STRUCTURE_TOPIC, String, STRUCTURE_QOS)
+        self._topics = {key: self.resolve_topic_name(key)
+                        for key in (*messages.TYPES, STRUCTURE_TOPIC)}
         self._cmd_subs = [
-            (self.create_subscription(Float64MultiArray, '~/cmd/impact', self._on_impact, QOS),
-             self._on_impact),
-            (self.create_subscription(Float64MultiArray, '~/cmd/prestrain', self._on_prestrain,
-                                      QOS), self._on_prestrain)]
+            (self.create_subscription(Float64MultiArray, key, handler, _qos(),
+                                      qos_overriding_options=QOS_OVERRIDES), handler)
+            for key, handler in (('~/cmd/impact', self._on_impact),
+                                 ('~/cmd/prestrain', self._on_prestrain))]
         self._srvs = [self.create_service(Trigger, '~/reset', self._on_reset),
                           self.create_service(SetBool, '~/set_running', self._on_set_running)]
         self.running = not self.params['start_paused']
@@ -232,7 +267,9 @@ class TensegritySim(LifecycleNode):
             rec = McapRecorder(self.params['record_mcap'],
                                metadata=network_metadata(self.sim.network, self.sim.scene.name))
             for key, topic in self._topics.items():     # /clock too: it may be switched on
-                rec.declare(topic, messages.MSG_CLASSES[key], QOS)
+                pub = self._pubs.get(key)
+                rec.declare(topic, messages.MSG_CLASSES.get(key, String),
+                            pub.qos_profile if pub is not None else QOS)
             self.add_sink(sink=rec.write, close=rec.close, takes_bytes=True)
         if self.params['record_rerun']:
             from .rerun_log import RerunRecorder
@@ -287,9 +324,7 @@ class TensegritySim(LifecycleNode):
                 self.timer.timer_period_ns = round(self.period * 1e9)
                 self.timer.reset()
         if new['use_sim_clock'] and self.sim is not None and '/clock' not in self._pubs:
-            self._pubs['/clock'] = self.create_publisher(
-                messages.MSG_CLASSES['/clock'], '/clock', QOS,
-                event_callbacks=PublisherEventCallbacks(use_default_callbacks=False))
+            self._pubs['/clock'] = self._publisher('/clock')
         changed = [p.name for p in params if p.name in new and new[p.name] != old[p.name]]
         if changed:
             self.get_logger().info('parameters: ' + ', '.join(
