@@ -213,8 +213,7 @@ class TensegritySim(LifecycleNode):
         self._pubs = {key: self._publisher(key) for key in messages.PUBLISHED
                       if key != '/clock' or self.params['use_sim_clock']}
         self._pubs[STRUCTURE_TOPIC] = self._publisher(STRUCTURE_TOPIC, String, STRUCTURE_QOS)
-        self._topics = {key: self.resolve_topic_name(key)
-                        for key in (*messages.TYPES, STRUCTURE_TOPIC)}
+        self._topics = {key: self.resolve_topic_name(key) for key in messages.TYPES}
         self._cmd_subs = [
             (self.create_subscription(Float64MultiArray, key, handler, _qos(),
                                       qos_overriding_options=QOS_OVERRIDES), handler)
@@ -268,7 +267,7 @@ class TensegritySim(LifecycleNode):
                                metadata=network_metadata(self.sim.network, self.sim.scene.name))
             for key, topic in self._topics.items():     # /clock too: it may be switched on
                 pub = self._pubs.get(key)
-                rec.declare(topic, messages.MSG_CLASSES.get(key, String),
+                rec.declare(topic, messages.MSG_CLASSES[key],
                             pub.qos_profile if pub is not None else QOS)
             self.add_sink(sink=rec.write, close=rec.close, takes_bytes=True)
         if self.params['record_rerun']:
