@@ -16,6 +16,8 @@ ROS_WHEELS = [
     'ros-rosgraph-msgs==2.3.0',
     'ros-std-srvs==5.5.1',
     'ros-diagnostic-msgs==5.5.1',
+    'ros-lifecycle-msgs==2.3.0',
+    'ros-rcl-lifecycle==10.1.3',
     'ros-rmw-fastrtps-cpp==9.3.3',
 ]
 CORE = [

@@ -296,8 +296,8 @@ def cmd_demo(args):
                                                          args.prestrain.split(',')]
     except ValueError:
         raise UserError('--v0 and --prestrain take numbers separated by commas') from None
-    domain = args.domain_id if args.domain_id is not None else int(os.environ.get('ROS_DOMAIN_ID',
-                                                                                  42))
+    domain = args.domain_id if args.domain_id is not None else (
+        int(os.environ['ROS_DOMAIN_ID']) if os.environ.get('ROS_DOMAIN_ID') else None)
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     try:
         summary = run_demo(args.scene, v0=v0, duration_s=args.duration, rtf=args.rtf,
@@ -451,7 +451,8 @@ def build_parser():
     p.add_argument('--rtf', type=float, default=1.0,
                    help='real-time factor (0 = fast as possible)')
     p.add_argument('--out', default='runs/demo', help='output directory (default runs/demo)')
-    p.add_argument('--domain-id', type=int, help='ROS_DOMAIN_ID (default: env or 42)')
+    p.add_argument('--domain-id', type=int,
+                   help='ROS_DOMAIN_ID (default: env, else 100 + pid %% 50)')
     p.add_argument('--no-record', action='store_true', help='no MCAP / Rerun recording')
     p.set_defaults(func=cmd_demo)
     return parser

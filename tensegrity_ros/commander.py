@@ -2,8 +2,9 @@
 
 :class:`Commander` is an ordinary rclpy node: it publishes ``~/cmd/impact`` and ``~/cmd/prestrain``
 of the simulation node, listens to its ``~/strain`` and ``/diagnostics`` and calls its services.
-:func:`run_demo` starts the node in a second process, commands an impact over the topic, collects
-the strain wave for a while, stops the node with SIGINT and returns a summary dict.
+:func:`run_demo` starts the node paused in a second process, commands an impact over the topic,
+starts the node's clock, collects the strain wave for a while, stops the node with SIGINT and
+returns a summary dict whose figures come from the float64 ``~/strain`` topic.
 """
 from __future__ import annotations
 
@@ -47,11 +48,12 @@ class Commander(Node):
         self.pub_prestrain = self.create_publisher(Float64MultiArray, f'{base}/cmd/prestrain',
                                                    QOS)
         self.clouds, self.strain, self.tension, self.diagnostics = [], [], [], []
-        self.create_subscription(PointCloud2, f'{base}/nodes', self._on_cloud, QOS)
-        self.create_subscription(Float64MultiArray, f'{base}/strain',
-                                 lambda m: self.strain.append(strain_matrix(m)), QOS)
-        self.create_subscription(Float64MultiArray, f'{base}/cable_tension',
-                                 lambda m: self.tension.append(np.asarray(m.data)), QOS)
+        self._frame_subs = [
+            self.create_subscription(PointCloud2, f'{base}/nodes', self._on_cloud, QOS),
+            self.create_subscription(Float64MultiArray, f'{base}/strain',
+                                     lambda m: self.strain.append(strain_matrix(m)), QOS),
+            self.create_subscription(Float64MultiArray, f'{base}/cable_tension',
+                                     lambda m: self.tension.append(np.asarray(m.data)), QOS)]
         self.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, QOS)
         self.cli_reset = self.create_client(Trigger, f'{base}/reset')
         self.cli_running = self.create_client(SetBool, f'{base}/set_running')
@@ -67,17 +69,63 @@ class Commander(Node):
                                          else int(st.level), st.message,
                                          {kv.key: kv.value for kv in st.values}))
 
-    def connected(self):
-        """True once the node subscribes to our commands and we receive its frames."""
-        return self.pub_impact.get_subscription_count() > 0 and \
-            self.pub_prestrain.get_subscription_count() > 0 and bool(self.clouds) and \
-            bool(self.strain) and bool(self.tension)
+    def connected(self, paused=False):
+        """True once the node subscribes to our commands and we receive its frames; for a node
+        started paused (which publishes no frames), once the topics in both directions are
+        matched, its ``/diagnostics`` arrive and ``~/set_running`` is available."""
+        commands_matched = self.pub_impact.get_subscription_count() > 0 and \
+            self.pub_prestrain.get_subscription_count() > 0
+        if paused:
+            return commands_matched and bool(self.diagnostics) and \
+                all(s.get_publisher_count() > 0 for s in self._frame_subs) and \
+                self.cli_running.service_is_ready()
+        return commands_matched and bool(self.clouds) and bool(self.strain) and \
+            bool(self.tension)
 
     def impact(self, v0, label='all'):
         self.pub_impact.publish(messages.command_array(v0, label))
 
     def prestrain(self, p, label='all'):
         self.pub_prestrain.publish(messages.command_array(p, label))
+
+    def set_running(self, executor, running=True, timeout_s=30.0):
+        """Call ``~/set_running``; returns the response (raises RuntimeError without one)."""
+        future = self.cli_running.call_async(SetBool.Request(data=bool(running)))
+        spin_until(executor, future.done, timeout_s)
+        if not future.done() or future.result() is None:
+            raise RuntimeError(f'{self.base}/set_running did not answer within {timeout_s:g} s')
+        return future.result()
+
+
+STRAIN_MATCH_TOL = 1e-4     # |strain from the float32 cloud - float64 strain| of the same frame
+                            # (the rounding is about 2.5e-6; adjacent frames differ far more)
+
+
+def stamped_strain(clouds, strains, levels, h0, tol=STRAIN_MATCH_TOL):
+    """Simulation times for the ``~/strain`` messages (float64, no header): each is matched, in
+    order, to the first ``~/nodes`` cloud not yet used whose strain (recomputed from its float32
+    points) agrees within ``tol``; a message that matches none (its cloud was dropped) is left
+    out. Returns (times (n,), strain (n, n_columns, n_prisms)): the figures come from the float64
+    values, the float32 points only give each its stamp."""
+    from solver import observables
+    s32 = [observables.prism_strains(x, levels, h0) for _, x in clouds]
+    times, got = [], []
+    j0 = 0
+    for s in strains:
+        for j in range(j0, len(clouds)):
+            if s32[j].shape == s.shape and float(np.max(np.abs(s32[j] - s))) <= tol:
+                times.append(clouds[j][0])
+                got.append(s)
+                j0 = j + 1
+                break
+    shape = (0,) + (strains[0].shape if strains else (0, 0))
+    return np.array(times), (np.array(got) if got else np.zeros(shape))
+
+
+def demo_domain_id(pid=None):
+    """The demo's default ROS_DOMAIN_ID when none is given: 100 + pid % 50, so that two demos
+    on one machine rarely share a domain (the tests use other ranges)."""
+    return 100 + (os.getpid() if pid is None else pid) % 50
 
 
 def spin_until(executor, predicate, timeout_s, step_s=0.02):
@@ -124,12 +172,15 @@ def _recorder_available(module):
 
 
 def run_demo(scene_file='config/scenes/fb_column.yaml', v0=(0.1,), duration_s=1.2, rtf=1.0,
-             out_dir='runs/demo', domain_id=42, record=True, prestrain=None, publish_rate_hz=200.0,
-             connect_timeout_s=120.0):
-    """Start the node (second process), wait for it, optionally command a prestrain (per column,
-    waiting for its ramp), command an impact ``v0`` (1 value or one per column) over the topic,
-    collect ``~/nodes`` for ``duration_s`` s of simulation time, stop the node with SIGINT.
-    Returns the summary dict (also written to ``out_dir/summary.json``)."""
+             out_dir='runs/demo', domain_id=None, record=True, prestrain=None,
+             publish_rate_hz=200.0, connect_timeout_s=120.0):
+    """Start the node (second process) paused, wait for it, optionally start it and command a
+    prestrain (per column, waiting for its ramp), command an impact ``v0`` (1 value or one per
+    column) over the topic, start the node's clock (so that without a prestrain the impact lands
+    at t = 0), collect ``~/strain`` (float64, stamped through ``~/nodes``, see
+    :func:`stamped_strain`) for ``duration_s`` s of simulation time, stop the node with SIGINT.
+    ``domain_id`` None: :func:`demo_domain_id`. Returns the summary dict (also written to
+    ``out_dir/summary.json``)."""
     import json
 
     from solver import observables
@@ -138,12 +189,14 @@ def run_demo(scene_file='config/scenes/fb_column.yaml', v0=(0.1,), duration_s=1.
 
     from .node import find_config
 
+    if domain_id is None:
+        domain_id = demo_domain_id()
     scene_path = find_config(scene_file)
     network = build_network(Scene.load(scene_path))
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     params = {'scene_file': str(scene_path), 'real_time_factor': float(rtf),
-              'publish_rate_hz': float(publish_rate_hz)}
+              'publish_rate_hz': float(publish_rate_hz), 'start_paused': True}
     outputs = {'mcap': None, 'rerun': None}
     if record and _recorder_available('recording'):
         outputs['mcap'] = params['record_mcap'] = str(out / 'run.mcap')
@@ -159,15 +212,20 @@ def run_demo(scene_file='config/scenes/fb_column.yaml', v0=(0.1,), duration_s=1.
     info = {}
     try:
         w0 = time.monotonic()
-        spin_until(ex, lambda: cmd.connected() or proc.poll() is not None, connect_timeout_s)
-        if not cmd.connected():
+        spin_until(ex, lambda: cmd.connected(paused=True) or proc.poll() is not None,
+                   connect_timeout_s)
+        if not cmd.connected(paused=True):
             raise RuntimeError('the node did not come up within '
                                f'{connect_timeout_s:g} s (exit code {proc.poll()})')
         info['startup_s'] = time.monotonic() - w0
+        running = False
         if prestrain is not None:
+            cmd.set_running(ex, True)
+            running = True
+            spin_until(ex, lambda: bool(cmd.clouds), 30.0)
             cmd.prestrain(prestrain, 'all' if np.size(prestrain) == 1 else 'column')
-            t_p = cmd.clouds[-1][0]
-            spin_until(ex, lambda: cmd.clouds[-1][0] >= t_p + 0.2, 30.0)
+            t_p = cmd.clouds[-1][0] if cmd.clouds else 0.0
+            spin_until(ex, lambda: bool(cmd.clouds) and cmd.clouds[-1][0] >= t_p + 0.2, 30.0)
         n_diag = len(cmd.diagnostics)
         cmd.impact(v0, 'all' if len(v0) == 1 else 'column')
 
@@ -180,7 +238,9 @@ def run_demo(scene_file='config/scenes/fb_column.yaml', v0=(0.1,), duration_s=1.
         t_imp = float(accepted()[0][2]['last_command_sim_time_s'])     # when it was applied
         n_c = len(cmd.clouds)
         w1 = time.monotonic()
-        spin_until(ex, lambda: cmd.clouds[-1][0] >= t_imp + duration_s,
+        if not running:
+            cmd.set_running(ex, True)
+        spin_until(ex, lambda: bool(cmd.clouds) and cmd.clouds[-1][0] >= t_imp + duration_s,
                    duration_s / max(rtf, 0.05) * 3.0 + 30.0)
         info['wall_s'] = time.monotonic() - w1
         info['frames'] = len(cmd.clouds) - n_c
@@ -189,17 +249,19 @@ def run_demo(scene_file='config/scenes/fb_column.yaml', v0=(0.1,), duration_s=1.
         ex.shutdown()
         cmd.destroy_node()
         rclpy.shutdown(context=ctx)
-    got = [(t, x) for t, x in cmd.clouds if t >= t_imp]
-    times = np.array([t for t, _ in got]) - t_imp
-    strain = np.array([observables.prism_strains(x, network.levels, network.h0) for _, x in got])
-    pulses = [observables.track_pulse(times, strain[:, c], network.h0).as_dict()
-              for c in range(network.n_columns)]
+    t_all, s_all = stamped_strain(cmd.clouds, cmd.strain, network.levels, network.h0)
+    keep = t_all >= t_imp
+    times, strain = t_all[keep] - t_imp, s_all[keep]
+    # the same figures as the headless run (solver.runner): the first passage of the pulse
+    pulses = [observables.first_passage(times, strain[:, c], network.h0).as_dict()
+              for c in range(network.n_columns)] if len(times) else []
     last = cmd.diagnostics[-1][2] if cmd.diagnostics else {}
     span = float(times[-1]) if len(times) else 0.0
     summary = {
         'scene': str(scene_path), 'domain_id': domain_id, 'v0': v0, 'prestrain': prestrain,
         'startup_s': info.get('startup_s'), 't_impact': t_imp, 'sim_span_s': span,
         'wall_s': info.get('wall_s'), 'frames': info.get('frames'),
+        'strain_frames': int(len(times)), 'strain_unmatched': len(cmd.strain) - len(t_all),
         'real_time_factor': span / info['wall_s'] if info.get('wall_s') else None,
         'receive_rate_hz': info['frames'] / info['wall_s'] if info.get('wall_s') else None,
         'min_strain': float(strain.min()) if strain.size else None,
@@ -218,6 +280,7 @@ def format_summary(s):
              f"  received {s['frames']} frames covering {s['sim_span_s']:.3f} s of simulation in "
              f"{s['wall_s']:.2f} s wall: {s['real_time_factor']:.2f}x real time, "
              f"{s['receive_rate_hz']:.0f} Hz"]
+    lines.append(f"  figures from {s['strain_frames']} ~/strain frames (float64)")
     for c, p in enumerate(s['pulses']):
         amp = p['amplitude']
         lines.append(f"  column {c}: leading pulse |strain| {amp:.4f} at {p['t_ref']:g} s after "

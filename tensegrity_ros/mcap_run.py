@@ -39,6 +39,17 @@ def network_metadata(network, scene_name=''):
         'tension_scale': repr(2.0 * M.reference_tension_scale(net))}}
 
 
+def structure_json(network, scene_name, rest):
+    """The node's ``~/structure`` text: :func:`network_metadata`'s topology (JSON values parsed)
+    with the sizes and the cable rest lengths ``rest`` (m, in the network's cable order)."""
+    meta = network_metadata(network, scene_name)[NETWORK_METADATA]
+    data = {k: (v if k == 'scene' else json.loads(v)) for k, v in meta.items()}
+    data.update(n_bars=int(len(network.bar_a)), n_cables=int(network.n_cables),
+                n_columns=int(network.n_columns), n_prisms=int(network.n_prisms),
+                rest_length=[float(r) for r in np.asarray(rest)])
+    return json.dumps(data)
+
+
 def marker_every(output_dt, marker_rate_hz=MARKER_RATE_HZ):
     """Frames between marker (and diagnostics) messages for frames every ``output_dt`` s."""
     return max(1, int(round(1.0 / (marker_rate_hz * output_dt))))

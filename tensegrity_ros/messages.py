@@ -26,7 +26,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Point
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import PointCloud2, PointField
-from std_msgs.msg import ColorRGBA, Float64MultiArray, MultiArrayDimension
+from std_msgs.msg import ColorRGBA, Float64MultiArray, MultiArrayDimension, String
 from visualization_msgs.msg import Marker, MarkerArray
 
 FRAME_ID = 'world'
@@ -44,12 +44,14 @@ TYPES = {
     '/diagnostics': 'diagnostic_msgs/msg/DiagnosticArray',
     '~/cmd/prestrain': 'std_msgs/msg/Float64MultiArray',
     '~/cmd/impact': 'std_msgs/msg/Float64MultiArray',
+    '~/structure': 'std_msgs/msg/String',     # JSON, transient-local, once per activation
 }
 MSG_CLASSES = {
     '~/nodes': PointCloud2, '~/strain': Float64MultiArray, '~/cable_tension': Float64MultiArray,
     '~/markers': MarkerArray, '~/base_force': Float64MultiArray,
     '~/striker': Float64MultiArray, '/clock': Clock, '/diagnostics': DiagnosticArray,
     '~/cmd/prestrain': Float64MultiArray, '~/cmd/impact': Float64MultiArray,
+    '~/structure': String,
 }
 PUBLISHED = ('~/nodes', '~/strain', '~/cable_tension', '~/markers', '/clock', '/diagnostics',
              '~/base_force')

@@ -32,9 +32,11 @@ from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, SetParam
 from rclpy.event_handler import PublisherEventCallbacks
 from rclpy._rclpy_pybind11 import RCLError
 from rclpy.executors import ExternalShutdownException
-from rclpy.node import Node
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
-from std_msgs.msg import Float64MultiArray
+from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
+from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSPolicyKind, QoSProfile,
+                       ReliabilityPolicy)
+from rclpy.qos_overriding_options import QoSOverridingOptions
+from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import SetBool, Trigger
 
 from solver.simulation import SimulationDiverged
@@ -45,6 +47,23 @@ from .node_params import (DEFAULTS, DESCRIPTIONS, RANGES, READ_ONLY, RESTART,  #
                           measure_step_cost, unknown_parameters)
 
 QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
+# the structure (~/structure, std_msgs/String, JSON): sent once per activation, kept for late
+# subscribers and recorders
+STRUCTURE_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                           durability=DurabilityPolicy.TRANSIENT_LOCAL,
+                           history=HistoryPolicy.KEEP_LAST)
+STRUCTURE_TOPIC = '~/structure'
+# every publisher and command subscription takes its QoS from parameters
+# qos_overrides.<topic>.<publisher|subscription>.<policy> (parameters file or -p), defaults above
+QOS_OVERRIDES = QoSOverridingOptions(policy_kinds=(
+    QoSPolicyKind.HISTORY, QoSPolicyKind.DEPTH, QoSPolicyKind.RELIABILITY,
+    QoSPolicyKind.DURABILITY))
+
+
+def _qos(base=QOS):
+    """A fresh copy of ``base`` (rclpy writes the overrides into the profile it is given)."""
+    return QoSProfile(history=base.history, depth=base.depth, reliability=base.reliability,
+                      durability=base.durability)
 LOG_THROTTLE_S = 1.0             # a repeated log line (or rejected-command event): at most
                                  # once per this many seconds
 MAX_TAKE = 100                   # commands per topic taken at the start of a tick, at most
@@ -52,10 +71,12 @@ WORK_FRACTION = 0.9              # share of a publish period the stepping (and p
 FAST_WORK_FRACTION = 1.0         # the same at real_time_factor 0 (no pace to keep, no margin)
 
 
-class TensegritySim(Node):
+class TensegritySim(LifecycleNode):
     """The node ``tensegrity_sim``. ``sim``: an existing :class:`~solver.simulation.Simulation`
     to drive (tests, benchmarks) instead of the one the parameters describe; ``kwargs`` go to
-    :class:`rclpy.node.Node` (``context``, ``parameter_overrides``, ``namespace``)."""
+    :class:`rclpy.lifecycle.LifecycleNode` (``context``, ``parameter_overrides``, ``namespace``).
+    A managed node: with ``autostart`` (the default) it configures and activates itself in the
+    constructor; without, it waits for ``~/change_state``."""
 
     def __init__(self, sim=None, **kwargs):
         kwargs.setdefault('namespace', messages.NAMESPACE)
@@ -79,9 +100,107 @@ class TensegritySim(Node):
         self.add_on_set_parameters_callback(self._check_new_parameters)
         self.add_post_set_parameters_callback(self._apply_new_parameters)
         self.period = 1.0 / self.params['publish_rate_hz']
+        self._given_sim = sim
+        self.sim = self.timer = None
+        self.active = False
+        self._pubs, self._cmd_subs, self._srvs = {}, [], []
+        self._sinks, self._frame_sinks, self._event_sinks, self._closers = [], [], [], []
+        self._bytes_sinks = []
+        if self.params['autostart']:
+            self._setup()          # a bad scene raises here (the console script exits 2)
+            for name, trigger in (('configure', self.trigger_configure),
+                                  ('activate', self.trigger_activate)):
+                if trigger() != TransitionCallbackReturn.SUCCESS:
+                    raise RuntimeError(f'{messages.NODE_NAME}: {name} failed (see the log)')
+
+    # -- lifecycle ------------------------------------------------------------------------------
+    # unconfigured: parameters only; configure: the simulation (scene loaded, kernels compiled),
+    # recorders, publishers, subscriptions and services; activate: the timer (stepping and
+    # publishing); deactivate: the timer stops, the state stays; cleanup / shutdown: back to
+    # parameters only.
+    def on_configure(self, state):
+        if self.sim is None:
+            from solver.network import NetworkError
+            from solver.scene import SceneError
+            try:
+                self._setup()
+            except (ParameterError, SceneError, NetworkError, ValueError) as exc:
+                self.get_logger().error(f'configure: {exc}')
+                return TransitionCallbackReturn.FAILURE
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_activate(self, state):
+        self.active = True
+        self._anchor()
+        self._rtf_window = (time.monotonic(), self.sim.t, self.counts['frames'])
+        self._publish_structure()
+        self._publish_frame(time.monotonic())
+        self.timer = self.create_timer(self.period, self._tick)
+        return super().on_activate(state)
+
+    def on_deactivate(self, state):
+        self.active = False
+        self._drop_timer()
+        return super().on_deactivate(state)
+
+    def on_cleanup(self, state):
+        self._teardown()
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_shutdown(self, state):
+        self._teardown()
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_error(self, state):
+        self._teardown()
+        return TransitionCallbackReturn.SUCCESS
+
+    def _drop_timer(self):
+        if self.timer is not None:
+            self.timer.cancel()
+            self.destroy_timer(self.timer)
+            self.timer = None
+
+    def _teardown(self):
+        self.active = False
+        self._drop_timer()
+        self.close()
+        for pub in self._pubs.values():
+            self.destroy_publisher(pub)
+        for sub, _ in self._cmd_subs:
+            self.destroy_subscription(sub)
+        for srv in self._srvs:
+            self.destroy_service(srv)
+        self._pubs, self._cmd_subs, self._srvs = {}, [], []
+        self._sinks, self._frame_sinks, self._event_sinks, self._closers = [], [], [], []
+        self._bytes_sinks = []
+        self.sim = None
+
+    def _publisher(self, key, msg_class=None, qos=QOS):
+        """The publisher of ``key`` with QoS ``qos`` as overridden by the parameters. No
+        QoS-event handlers: each is a waitable the executor polls on every tick (they were most
+        of the executor's cost per tick)."""
+        return self.create_publisher(
+            msg_class or messages.MSG_CLASSES[key], key, _qos(qos),
+            event_callbacks=PublisherEventCallbacks(use_default_callbacks=False),
+            qos_overriding_options=QOS_OVERRIDES)
+
+    def _publish_structure(self):
+        """``~/structure``: the topology and the current cable rest lengths (JSON)."""
+        from .mcap_run import structure_json
+        msg = String(data=structure_json(self.sim.network, self.sim.scene.name,
+                                         self.sim.model.cable_rest_length))
+        self._pubs[STRUCTURE_TOPIC].publish(msg)
+        self._emit(self._sinks, self._topics[STRUCTURE_TOPIC], msg,
+                   messages.stamp_to_ns(messages.sim_stamp(self.sim.t)))
+
+    def _setup(self):
+        """What configure builds: the simulation (the caller's, in its state, or the one the
+        parameters describe), recorders, publishers, subscriptions, services, counters."""
         if self.params['record_rerun']:    # the recorder's helper starts while the node sets up
             from .rerun_log import prestart
             prestart()
+        sim = self._given_sim
         if sim is None:
             sim = load_simulation(self.params)
             self._step_cost = measure_step_cost(sim)
@@ -89,28 +208,23 @@ class TensegritySim(Node):
             self._step_cost = 0.1 * self.period
         self.sim = sim
         net = self.sim.network
-        self._sinks, self._frame_sinks, self._event_sinks, self._closers = [], [], [], []
-        self._bytes_sinks = []
         self._cross_prism = (self.sim.prestrain_map.cross_prism
                              if self.sim.prestrain is not None else None)
         self._t_max = 2.0 * messages.reference_tension_scale(net)
-        # no QoS-event handlers on the publishers: each is a waitable the executor polls on every
-        # tick (they were most of the executor's cost per tick)
-        quiet = PublisherEventCallbacks(use_default_callbacks=False)
-        self._pubs = {key: self.create_publisher(messages.MSG_CLASSES[key], key, QOS,
-                                                 event_callbacks=quiet)
+        self._pubs = {key: self._publisher(key)
                       for key in messages.PUBLISHED + (
                           messages.OPTIONAL if self.sim.striker() is not None else ())
                       if key != '/clock' or self.params['use_sim_clock']}
+        self._pubs[STRUCTURE_TOPIC] = self._publisher(STRUCTURE_TOPIC, String, STRUCTURE_QOS)
         self._topics = {key: self.resolve_topic_name(key) for key in messages.TYPES}
         self._cmd_subs = [
-            (self.create_subscription(Float64MultiArray, '~/cmd/impact', self._on_impact, QOS),
-             self._on_impact),
-            (self.create_subscription(Float64MultiArray, '~/cmd/prestrain', self._on_prestrain,
-                                      QOS), self._on_prestrain)]
-        self.create_service(Trigger, '~/reset', self._on_reset)
-        self.create_service(SetBool, '~/set_running', self._on_set_running)
-        self.running = True
+            (self.create_subscription(Float64MultiArray, key, handler, _qos(),
+                                      qos_overriding_options=QOS_OVERRIDES), handler)
+            for key, handler in (('~/cmd/impact', self._on_impact),
+                                 ('~/cmd/prestrain', self._on_prestrain))]
+        self._srvs = [self.create_service(Trigger, '~/reset', self._on_reset),
+                          self.create_service(SetBool, '~/set_running', self._on_set_running)]
+        self.running = not self.params['start_paused']
         # commands: accepted = applied; superseded = valid, replaced by a later one of the same
         # topic before the next tick; rejected = malformed (or refused when applied)
         self.counts = {'accepted': 0, 'rejected': 0, 'superseded': 0, 'frames': 0}
@@ -129,8 +243,6 @@ class TensegritySim(Node):
         self.achieved_rtf = 0.0
         self._anchor()
         self._open_recorders()
-        self._publish_frame(time.monotonic())
-        self.timer = self.create_timer(self.period, self._tick)
         self.get_logger().info(
             f'{self.sim.scene.name}: {net.n_nodes} nodes, {net.n_cables} cables, '
             f'{self.sim.model.name} + {self.sim.integrator.name}, dt = {self.sim.dt:g} s, '
@@ -157,7 +269,9 @@ class TensegritySim(Node):
             rec = McapRecorder(self.params['record_mcap'],
                                metadata=network_metadata(self.sim.network, self.sim.scene.name))
             for key, topic in self._topics.items():     # /clock too: it may be switched on
-                rec.declare(topic, messages.MSG_CLASSES[key], QOS)
+                pub = self._pubs.get(key)
+                rec.declare(topic, messages.MSG_CLASSES[key],
+                            pub.qos_profile if pub is not None else QOS)
             self.add_sink(sink=rec.write, close=rec.close, takes_bytes=True)
         if self.params['record_rerun']:
             from .rerun_log import RerunRecorder
@@ -204,16 +318,15 @@ class TensegritySim(Node):
         new = check_parameters(dict(self.params, **{p.name: p.value for p in params
                                                     if p.name in self.params}))
         old, self.params = self.params, new
-        if new['real_time_factor'] != old['real_time_factor']:
+        if new['real_time_factor'] != old['real_time_factor'] and self.sim is not None:
             self._anchor()                         # the new pace counts from now
         if new['publish_rate_hz'] != old['publish_rate_hz']:
             self.period = 1.0 / new['publish_rate_hz']
-            self.timer.timer_period_ns = round(self.period * 1e9)
-            self.timer.reset()
-        if new['use_sim_clock'] and '/clock' not in self._pubs:
-            self._pubs['/clock'] = self.create_publisher(
-                messages.MSG_CLASSES['/clock'], '/clock', QOS,
-                event_callbacks=PublisherEventCallbacks(use_default_callbacks=False))
+            if self.timer is not None:             # active (else: the next activation's)
+                self.timer.timer_period_ns = round(self.period * 1e9)
+                self.timer.reset()
+        if new['use_sim_clock'] and self.sim is not None and '/clock' not in self._pubs:
+            self._pubs['/clock'] = self._publisher('/clock')
         changed = [p.name for p in params if p.name in new and new[p.name] != old[p.name]]
         if changed:
             self.get_logger().info('parameters: ' + ', '.join(
@@ -451,7 +564,8 @@ class TensegritySim(Node):
         self._anchor()
         self._rtf_window = (time.monotonic(), self.sim.t, self.counts['frames'])
         self._emit(self._event_sinks, self.sim.t, 'reset')
-        self._publish_frame(time.monotonic())
+        if self.active:                # frames go out only while active
+            self._publish_frame(time.monotonic())
         response.success = True
         response.message = 'reset to the reference geometry at rest, t = 0'
         return response

@@ -25,6 +25,8 @@ DEFAULTS = {
     'marker_rate_hz': 20.0,
     'prestrain_ramp_s': 0.05,    # s of simulation time
     'diagnostics_rate_hz': 2.0,
+    'start_paused': False,       # start with the clock stopped; ~/set_running starts it
+    'autostart': True,           # configure and activate at start-up (else: ~/change_state)
 }
 DESCRIPTIONS = {
     'scene_file': 'scene YAML (absolute, relative to the working directory, or to the package)',
@@ -40,12 +42,17 @@ DESCRIPTIONS = {
     'prestrain_ramp_s': 'simulation time over which a prestrain command is ramped, s',
     'diagnostics_rate_hz': '/diagnostics per wall second (with command counters; also at once '
                            'on a pause)',
+    'start_paused': 'start with the simulation paused (commands are still applied); '
+                    '~/set_running true starts the clock',
+    'autostart': 'configure and activate the managed node at start-up; false: it waits '
+                 'unconfigured for ~/change_state',
 }
 POSITIVE = ('publish_rate_hz', 'marker_rate_hz', 'diagnostics_rate_hz')
 NON_NEGATIVE = ('real_time_factor', 'prestrain_ramp_s', 'dt')
 # fixed once the node runs (the simulation and the recorders are built from them): a change is
 # refused with this reason
-READ_ONLY = ('scene_file', 'model', 'integrator', 'dt', 'record_mcap', 'record_rerun')
+READ_ONLY = ('scene_file', 'model', 'integrator', 'dt', 'record_mcap', 'record_rerun',
+             'start_paused', 'autostart')
 RESTART = 'is fixed while the node runs; restart the node with the new value'
 # ranges the parameter descriptors show (FloatingPointRange; the upper ends are generous limits)
 RANGES = {'publish_rate_hz': (1e-3, 10000.0), 'marker_rate_hz': (1e-3, 10000.0),

@@ -116,3 +116,35 @@ def test_unknown_start_up_parameter_exits_2_naming_it():
         code, out = stop_process(proc)
     assert code == 2
     assert 'publish_rate' in out and 'publish_rate_hz' in out and 'Traceback' not in out
+
+
+def test_start_paused_waits_for_set_running_and_applies_commands_meanwhile():
+    from tensegrity_ros.commander import Commander
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=DOMAIN)
+    node = TensegritySim(context=ctx, parameter_overrides=[
+        Parameter('scene_file', value=SCENE), Parameter('real_time_factor', value=0.0),
+        Parameter('start_paused', value=True)])
+    cmd = Commander(context=ctx)
+    ex = SingleThreadedExecutor(context=ctx)
+    ex.add_node(node)
+    ex.add_node(cmd)
+    try:
+        assert spin_until(ex, lambda: cmd.connected(paused=True), 30)
+        frames = node.counts['frames']
+        cmd.impact([0.1])
+        assert spin_until(ex, lambda: node.counts['accepted'] == 1, 10)
+        spin_until(ex, lambda: False, 0.5)
+        assert node.sim.t == 0.0 and node.counts['frames'] == frames      # paused: no steps
+        assert node.sim.frame().energy > 0                                # the impact is in
+        assert node.last_command_t == 0.0
+        assert not node.running
+        res = cmd.set_running(ex, True)
+        assert res.success and res.message == 'running'
+        assert spin_until(ex, lambda: node.sim.t > 0.01 and cmd.strain, 30)
+    finally:
+        ex.shutdown()
+        node.close()
+        cmd.destroy_node()
+        node.destroy_node()
+        rclpy.shutdown(context=ctx)
