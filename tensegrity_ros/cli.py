@@ -188,12 +188,16 @@ def cmd_replay(args):
 def cmd_paper(args):
     """``tensegrity paper``: the paper's table under every modelling variant (solver.paper)."""
     from solver import paper
-    models = ('sym3d',) if args.no_chain else ('sym3d', 'chain1d')
+    models = ('sym3d',) if args.no_chain or args.set else ('sym3d', 'chain1d')
+    sets = list(args.set or [])
+    if sets:                 # checked on the FB scene before anything runs
+        from solver.scene import Scene
+        Scene.load(paper.SCENES / 'fb_column.yaml').with_overrides(sets)
     v0s = paper.V0S[:1] if args.quick else paper.V0S
     update, close = _progress(paper.n_runs(v0s, models), 'paper')
     try:
         result = paper.paper_table(v0s=v0s, t_end=0.6 if args.quick else 1.2, models=models,
-                                   progress=update, quick=args.quick)
+                                   progress=update, quick=args.quick, sets=sets)
     finally:
         close()
     if args.json:
@@ -423,6 +427,10 @@ def build_parser():
     p.add_argument('--markdown', action='store_true', help='print the table as Markdown')
     p.add_argument('--quick', action='store_true', help='v0 = 0.1 only, 0.6 s (smoke run)')
     p.add_argument('--no-chain', action='store_true', help='skip the chain1d rows')
+    p.add_argument('--set', action='append', metavar='KEY=VALUE',
+                   help='a modelling option for every variant, e.g. structure.mass_placement='
+                        'unit_bases, materials.bar_mass_fraction=0.3, loading.impact.mode='
+                        'striker, contact.lock=penalty (repeatable; skips the chain1d rows)')
     p.set_defaults(func=cmd_paper)
     p = sub.add_parser('lens', help='focus the pulses of an array into a host medium: one '
                        'prestrain per column on the delay law of a focus, checked by simulation')

@@ -81,3 +81,24 @@ def test_the_table_marks_the_speed_and_explains_every_column():
             assert any(column in line.split(': ', 1)[0] for line in legend), column
         for key in paper.SPEED_NOTES:             # and every mark
             assert f'({key})' in text.split('speed m/s: ', 1)[1]
+
+
+def test_paper_set_applies_an_option_to_every_variant_and_names_it(monkeypatch):
+    """``tensegrity paper --set KEY=VALUE``: the option reaches every variant's scene (the
+    identified scenes excepted), is checked before anything runs, and the table says so."""
+    from solver import paper
+    seen = []
+
+    def fake_run(variant, v0, t_end=1.2, output_dt=0.005, sets=()):
+        seen.append((variant.scene, list(sets)))
+        from dataclasses import asdict
+        return paper.Row(variant=asdict(variant), label=variant.label(), v0=v0, status='ok')
+    monkeypatch.setattr(paper, 'run_variant', fake_run)
+    monkeypatch.setattr(paper, 'speed_ratio', lambda **kw: {})
+    result = paper.paper_table(v0s=(0.1,), models=('sym3d',),
+                               sets=['structure.mass_placement=unit_bases'])
+    assert seen and all(s == ['structure.mass_placement=unit_bases'] for _, s in seen)
+    text = paper.format_table(result)
+    assert text.splitlines()[0].endswith('structure.mass_placement=unit_bases')
+    from tensegrity_ros.cli import main
+    assert main(['paper', '--set', 'structure.nope=1']) == 2
