@@ -43,7 +43,8 @@ V0, PRESTRAIN, OUTPUT_DT = 0.1, 0.002, 0.01
 LADDER = (1, 2, 3, 4, 5, 7, 10, 14, 20, 28, 40, 56, 80)   # steps per 10 ms output interval
 RTOLS = (1e-3, 3e-4, 1e-4, 3e-5, 1e-5, 3e-6, 1e-6, 3e-7, 1e-7, 1e-8, 1e-9)
 EXCLUDED_MODELS = ('chain1d',)  # not the same physics (no base rotation)
-BAR_TOL = 1e-9                # physics.md check 3: rigid members hold to 1e-9 (relative)
+# docs/physics.md section 7, check 3: rigid members hold to 1e-9 (relative)
+BAR_TOL = 1e-9
 
 
 # The solver's divergence guard (energy growth 1e-3, constraint error 1e-6 by default) stops runs

@@ -19,9 +19,9 @@ How the pin-jointed network maps onto MuJoCo (the same physics, not an approxima
 - No gravity, no damping, no contacts, no constraints (``<flag contact/constraint="disable">``),
   MuJoCo's RK4.
 
-The impact is the same impulse as the solver's (physics.md 3.1): node momenta ``m (0, 0, -v0)``
-on the free-end nodes mapped to generalized velocities ``qvel = M^-1 J^T p``, which is the
-mass-weighted projection onto the constraint tangent space.
+The impact is the same impulse as the solver's (docs/physics.md section 3.1): node momenta
+``m (0, 0, -v0)`` on the free-end nodes mapped to generalized velocities
+``qvel = M^-1 J^T p``, which is the mass-weighted projection onto the constraint tangent space.
 
 Networks with rigid base edges (RB columns), massive bars, or any bar graph that is not a forest
 rooted at clamped nodes are not trees: :func:`build_mjcf` refuses them with a clear error.
@@ -189,7 +189,7 @@ class MujocoColumn:
 
     def impact(self, v0):
         """Axial impulse ``m (0, 0, -v0)`` on the free-end level of every column:
-        ``qvel = M^-1 J^T p`` (the mass-weighted projection of physics.md 3.1)."""
+        ``qvel = M^-1 J^T p`` (the mass-weighted projection of docs/physics.md section 3.1)."""
         mj, m, d = self.mujoco, self.model, self.data
         mj.mj_forward(m, d)
         net = self.network

@@ -1,7 +1,7 @@
 """The plain SciPy baseline of ``tensegrity bench --peers``: the code a Python user writes first.
 
-The same model as the solver (physics.md 1.1: node masses, rigid massless bars as constraints,
-tension-only cables), as a NumPy right-hand side for ``scipy.integrate.solve_ivp``:
+The same model as the solver (docs/physics.md section 1.1: node masses, rigid massless bars as
+constraints, tension-only cables), as a NumPy right-hand side for ``scipy.integrate.solve_ivp``:
 
 - state ``y = [x_free (n_free * 3), v_free (n_free * 3)]`` (m, m/s), clamped nodes fixed at ``x0``;
 - cable forces vectorised with ``np.add.at``;

@@ -37,13 +37,10 @@ def wants_array(scene):
 
 
 def _copy_arrays(value):
-    """A copy of ``value``: arrays copied, tuples (nested, as the workspaces' scratch of the
-    mass-matrix system) copied element by element, anything else as it is."""
-    if isinstance(value, np.ndarray):
-        return value.copy()
+    """A copy of a (nested) tuple of arrays: the kernels' ``act`` and ``ws`` tuples."""
     if isinstance(value, tuple):
         return tuple(_copy_arrays(v) for v in value)
-    return value
+    return np.array(value)
 
 
 def _clone(sim):
@@ -52,7 +49,7 @@ def _clone(sim):
     new = copy.copy(sim)
     m = new.model = copy.copy(sim.model)
     m.x, m.v = sim.model.x.copy(), sim.model.v.copy()
-    m.act = tuple(np.array(a) for a in sim.model.act)
+    m.act = _copy_arrays(sim.model.act)
     m.ws = _copy_arrays(sim.model.ws)
     integ = new.integrator = copy.copy(sim.integrator)
     integ.set_state(copy.deepcopy(sim.integrator.get_state()))

@@ -1,5 +1,5 @@
 """The 1D lumped-mass chain ``chain1d`` with the quasi-static prism force law F(h)
-(physics.md section 6).
+(docs/physics.md section 6).
 
 State: axial displacements ``u_j`` (n_levels,) m and velocities ``w_j`` m/s of the base levels;
 level mass ``M_j`` = the sum of its node masses; prism heights ``h_i = h0 + u_{i+1} - u_i``;

@@ -1,4 +1,4 @@
-"""Numba kernels of the constrained dynamics (physics.md section 1.1).
+"""Numba kernels of the constrained dynamics (docs/physics.md section 1.1).
 
 Two levels, as everywhere in the solver: :func:`pack` (Python) validates and allocates, the
 ``@jit`` kernels take arrays and tuples of arrays only and write into ``out`` arrays.
@@ -22,7 +22,11 @@ node-local inverse mass path unchanged.
 
 ``act`` tuple (actuation, mutable by commands)::
 
-    (cable_rest_length (n_cables,) m, cable_EA (n_cables,) N, f_ext (n_nodes, 3) N)
+    (cable_rest_length (n_cables,) m, cable_EA (n_cables,) N, f_ext (n_nodes, 3) N, extras)
+
+``extras``: cable damping, strikers and prism stops (:mod:`solver.contact`); all empty
+(:data:`solver.contact.NO_EXTRAS`) unless a scene asks for them, and then the kernels take the code
+path they take without them.
 
 ``ws`` workspace tuple (scratch, preallocated once): see :func:`workspace`.
 
@@ -36,6 +40,7 @@ import numpy as np
 
 from . import massmatrix as mm
 from ._jit import jit, jit_inline
+from .contact import NO_EXTRAS, axial_contacts, cable_forces_damped, extra_energy
 from .rotated import (ROT_C, ROT_S, add_constraint_forces_rot, assemble_band_rot,  # noqa: F401
                       cable_forces_rot, member_vectors_rot)
 
@@ -64,7 +69,7 @@ def pack(network, cable_rest_length=None, cable_EA=None, f_ext=None):
                     dtype=np.float64)
     EA = np.array(network.cable_EA if cable_EA is None else cable_EA, dtype=np.float64)
     f = np.zeros((network.n_nodes, 3)) if f_ext is None else np.array(f_ext, dtype=np.float64)
-    return net, (rest, EA, f)
+    return net, (rest, EA, f, NO_EXTRAS)
 
 
 def workspace(n_nodes, n_con, bandwidth, kkt_dims=None):
@@ -267,13 +272,17 @@ def accelerations(x, v, net, act, ws, out):
     (bar force densities, > 0 in compression) are left in ``ws[4]``. Returns a status code."""
     w_diag, partner, w_off, tail, head = net[0], net[1], net[2], net[3], net[4]
     coef, cable_a, cable_b, rot, coef3 = net[6], net[7], net[8], net[9], net[11]
-    rest, EA, f_ext = act
+    rest, EA, f_ext, ex = act[0], act[1], act[2], act[3]
     f, wf, bvec, band, lam = ws[0], ws[1], ws[2], ws[3], ws[4]
     f[:, :] = f_ext
-    if net[10].shape[0] == 0:
+    if ex[0].shape[0] != 0:                 # damped cables (solver.contact)
+        cable_forces_damped(x, v, cable_a, cable_b, net[10], rest, EA, ex[0], f)
+    elif net[10].shape[0] == 0:
         cable_forces(x, cable_a, cable_b, rest, EA, f)
     else:
         cable_forces_rot(x, cable_a, cable_b, net[10], rest, EA, f)
+    if ex[2].shape[0] != 0 or ex[3].shape[0] != 0:      # prism stops, strikers
+        axial_contacts(x, ex, f)
     if net[12][0].shape[0] != 0:        # massive bars sharing nodes: the banded KKT system
         return mm.accelerations(x, v, f, tail, head, rot, net[12], ws[11], bvec, lam, out)
     apply_w(f, w_diag, partner, w_off, wf)
@@ -528,6 +537,9 @@ def state_summary(x, v, net, act, summ, heights):
     e = (_node_energy(x, v, x0, act[2], node_mass, clamped, node_mult)
          + _bar_kinetic_energy(v, bar_a, bar_b, bar_mass)
          + _cable_energy(x, net[7], net[8], net[10], act[0], act[1], cable_mult))
+    ex = act[3]
+    if ex[2].shape[0] != 0 or ex[3].shape[0] != 0:      # strikers, prism stops
+        e += extra_energy(x, v, ex)
     return (all_finite(x) and all_finite(v), e,
             constraint_error_arrays(x, net[3], net[4], net[5], net[9]),
             level_heights(x, levels, heights))

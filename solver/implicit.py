@@ -185,7 +185,7 @@ def dg_forces(x0, x1, net, act, f):
     the configurations ``x0`` and ``x1`` (their work over the step equals the change of the
     cable energy exactly)."""
     cable_a, cable_b, cable_rot = net[7], net[8], net[10]
-    rest, EA, f_ext = act
+    rest, EA, f_ext = act[0], act[1], act[2]
     f[:, :] = f_ext
     for c in range(cable_a.shape[0]):
         a = cable_a[c]

@@ -12,7 +12,7 @@ one):
 - ``rk4_projected`` (default): classical RK4, then mass-weighted projection of positions and
   velocities; steps land on cable slack/taut kinks. Order 4, four force evaluations per step.
 - ``rk4``: the same RK4 without projection. Bar lengths drift (the failure mode of section 1.2 of
-  physics.md, kept to show it).
+  docs/physics.md, kept to show it).
 - ``rattle``: velocity Verlet with RATTLE constraints. Order 2, one force evaluation per step,
   symmetric and (to the projection tolerance) symplectic: energy stays bounded over long runs.
 - ``dopri54_projected``: adaptive Dormand-Prince 5(4) with error control (``integrator.rtol``,
@@ -40,6 +40,7 @@ import numpy as np
 
 from . import dynamics as dyn
 from ._jit import jit
+from .contact import contact_kink
 
 
 @jit
@@ -127,6 +128,9 @@ def next_kink(x, v, acc, net, act, h, ignore):
                 t = g / q if q != 0.0 else -1.0
             if ignore < t < t_best:
                 t_best = t
+    ex = act[3]
+    if ex[2].shape[0] != 0 or ex[3].shape[0] != 0:      # stops and strikers (solver.contact)
+        t_best = contact_kink(x, v, acc, ex, t_best, ignore)
     return t_best
 
 
@@ -304,7 +308,7 @@ class Integrator:
 
 class RK4Projected(Integrator):
     """Classical RK4, then mass-weighted projection of positions and velocities after every step
-    (physics.md section 1.2). Four force evaluations per step; steps land on cable kinks."""
+    (docs/physics.md section 1.2). Four force evaluations per step; steps land on cable kinks."""
     name = 'rk4_projected'
     order = 4
     projected = True
@@ -429,12 +433,24 @@ class ImplicitMidpoint(Integrator):
                 self.scratch('xm', x.shape), self.scratch('f', x.shape),
                 self.scratch('acc', (n, 3)), self.nstate)
 
+    @staticmethod
+    def _refuse_extras(act):
+        """The step has no cable damping, prism stops or strikers (``act[3]``): refuse them
+        rather than run without them."""
+        ex = act[3] if len(act) > 3 else ()
+        if any(np.asarray(ex[i]).size for i in (0, 2, 3) if i < len(ex)):
+            raise ValueError('implicit_midpoint: cable damping, prism stops (contact.lock) and '
+                             'strikers are not part of its step; use rk4_projected or '
+                             'dopri54_projected')
+
     def run(self, x, v, dt, n_steps, net, act, ws, tol=1e-12, max_iter=3, kinks=True):
+        self._refuse_extras(act)
         steps, status = self.kernel(x, v, float(dt), int(n_steps), net, act, ws, float(tol),
                                     int(max_iter), *self._args(x, net))
         return int(steps), int(status)
 
     def checked_args(self, x, net, act, ws, tol, max_iter, kinks, keep, summ):
+        self._refuse_extras(act)
         return (net, act, ws, float(tol), int(max_iter)) + self._args(x, net) + (keep, summ)
 
 

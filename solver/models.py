@@ -43,7 +43,7 @@ class Model:
 
 
 class Full3D(Model):
-    """Every node in 3D with every rigid member as a constraint (physics.md section 1.1)."""
+    """Every node in 3D with every rigid member as a constraint (docs/physics.md section 1.1)."""
     name = 'full3d'
 
     def __init__(self, network, f_ext=None):
@@ -62,15 +62,19 @@ class Full3D(Model):
     def cable_EA(self):
         return self.act[1]
 
+    # the state arrays may carry rows beyond the network's nodes (strikers, solver.contact)
     def positions(self):
-        return self.x
+        n = self.network.n_nodes
+        return self.x if self.x.shape[0] == n else self.x[:n]
 
     def velocities(self):
-        return self.v
+        n = self.network.n_nodes
+        return self.v if self.v.shape[0] == n else self.v[:n]
 
     def set_state(self, x, v):
-        self.x[:] = x
-        self.v[:] = v
+        n = self.network.n_nodes
+        self.x[:n] = x
+        self.v[:n] = v
 
     def set_cables(self, rest, EA):
         """Load (n_cables,) rest lengths m and EA N."""

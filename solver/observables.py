@@ -1,4 +1,4 @@
-"""Observables: strains, tensions, energy, constraint error, and the pulse tracker (physics.md
+"""Observables: strains, tensions, energy, constraint error, and the pulse tracker (docs/physics.md
 section 4).
 
 All functions take plain arrays; shapes and units are in each docstring.
@@ -68,7 +68,7 @@ def constraint_error(x, network):
 
 @dataclass
 class Pulse:
-    """Leading-pulse figures of one column (physics.md section 4).
+    """Leading-pulse figures of one column (docs/physics.md section 4).
 
     Every figure comes from the interpolated peak of each output frame (:func:`leading_peak`: a
     parabola through the three prisms around the extreme gives its position and value between
@@ -230,6 +230,12 @@ def track_pulse(times, strains, h0, window=(10, 40), t_ref=0.5):
         pos[k], e = leading_peak(eps)
         amp[k] = abs(e)
     inside = (pos >= window[0]) & (pos <= window[1])
+    # only the first passage through the window: once the peak has left it at the far end, a
+    # peak found inside again is the wave reflected from the clamped end (a peak that stops
+    # just short of the end never triggers the cut of first_passage)
+    beyond = np.nonzero(pos > window[1])[0]
+    if beyond.size:
+        inside[beyond[0]:] = False
     nan = float('nan')
     if inside.sum() >= 2:
         speed = float(np.polyfit(times[inside], pos[inside], 1)[0] * h0)

@@ -1,4 +1,4 @@
-"""The quasi-static force law of one tensegrity prism, F(h) = -dE/dh (physics.md section 6).
+"""The quasi-static force law of one tensegrity prism, F(h) = -dE/dh (docs/physics.md section 6).
 
 The prism energy ``E(h)`` at height h, minimised over what a 1D chain does not carry (twist, base
 radius) with the bar length fixed: closed form for rigid bases (:func:`rigid_force`), tabulated
@@ -55,7 +55,7 @@ def prism_energy(h, r, phi, cross, bases):
 
 
 def rigid_force(h, r, b, L_s, k_s, n_cross=3):
-    """Closed-form F(h) N of a rigid-base prism (physics.md section 6); inf at and below the
+    """Closed-form F(h) N of a rigid-base prism (docs/physics.md section 6); inf at and below the
     lock."""
     h = np.asarray(h, dtype=np.float64)
     phi = twist(h, r, b)

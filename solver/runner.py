@@ -84,7 +84,7 @@ def json_safe(value):
 
 
 def summary(scene: Scene, sim: Simulation, rec: RunRecord, outputs=None):
-    """The JSON summary of ``tensegrity run`` (interfaces.md section 2); non-finite figures (a
+    """The JSON summary of ``tensegrity run`` (docs/interfaces.md section 2); non-finite figures (a
     pulse not found, a run too short to time) are None."""
     t_end = float(rec.times[-1] - rec.times[0])
     e0 = rec.energy[0]
@@ -102,6 +102,10 @@ def summary(scene: Scene, sim: Simulation, rec: RunRecord, outputs=None):
         'pulse': rec.pulses[0].as_dict() if rec.pulses else None,
         'pulses': [p.as_dict() for p in rec.pulses],
         'base': support.base_summary(rec.times, rec.base_force),
+        # loading.impact.mode: striker: each column's striker at the end (face height m, axial
+        # velocity m/s, > 0 away from the column)
+        'striker': None if sim.striker() is None else [
+            {'z_m': float(z), 'v_m_s': float(v)} for z, v in sim.striker()],
         'outputs': dict({'mcap': None, 'rerun': None, 'plot': None}, **(outputs or {})),
     }
     return json_safe(out)

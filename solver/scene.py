@@ -49,13 +49,18 @@ DEFAULTS = {
     'description': '',
     'structure': COLUMN_DEFAULTS,
     'materials': {'cable_E': 5.48e6, 'cable_radius': 1.4e-4, 'unit_mass': 0.0249, 'bar_mass': 0.0,
-                  'bar_mass_fraction': 0.0, 'end_mass': 0.0},
+                  'bar_mass_fraction': 0.0, 'end_mass': 0.0, 'cable_damping': 0.0,
+                  'cable_damping_ratio': 0.0},
     'prestrain': 0.002,
-    'loading': {'impact': {'v0': 0.1, 'mode': 'impulse', 'columns': None}, 'gravity': 0.0},
+    'loading': {'impact': {'v0': 0.1, 'mode': 'impulse', 'columns': None,
+                           'striker_mass': 0.0249, 'contact': 'linear',
+                           'contact_stiffness': 1.0e4},
+                'gravity': 0.0},
     'model': 'auto',
     'integrator': {'method': 'rk4_projected', 'dt': 5e-4, 'projection_tol': 1e-12,
                    'projection_max_iter': 3, 'land_on_kinks': True, 'rtol': 1e-8, 'atol': 1e-10},
     'run': {'t_end': 1.2, 'output_dt': 0.005},
+    'contact': {'lock': 'none', 'stiffness': 1.0e5, 'tolerance': 0.05},
     'divergence': {'energy_growth': 1e-3, 'constraint_error': 1e-6, 'bar_crossing': 'rigid'},
     'outputs': {'dir': None},
     # the focusing design (solver/lens.py): the prestrain range it may use, the grid of its map
@@ -70,7 +75,11 @@ CHOICES = {
     'structure.handedness': ('right', 'left'),
     # where the lumped part of each prism's mass sits: one unit per level, or half on each base
     'structure.mass_placement': ('level', 'unit_bases'),
-    'loading.impact.mode': ('impulse', 'energy'),
+    'loading.impact.mode': ('impulse', 'energy', 'striker'),
+    'loading.impact.contact': ('linear', 'hertz'),
+    # a penalty stop between the two levels of each prism, at the rigid-base lock (flexible
+    # bases: where the bases meet) plus contact.tolerance * h0
+    'contact.lock': ('none', 'penalty'),
     'model': ('auto', 'full3d', 'sym3d', 'chain1d'),
     # stop when a prism twists through 180 deg (its bars cross): in rigid-base columns only (the
     # lock), in every column, or never
@@ -91,6 +100,12 @@ RANGES = {
     'materials.unit_mass': (0.0, math.inf, False),
     'materials.bar_mass': (0.0, math.inf, True),
     'materials.end_mass': (0.0, math.inf, True),
+    'materials.cable_damping': (0.0, math.inf, True),
+    'materials.cable_damping_ratio': (0.0, 100.0, True),
+    'loading.impact.striker_mass': (0.0, math.inf, False),
+    'loading.impact.contact_stiffness': (0.0, math.inf, False),
+    'contact.stiffness': (0.0, math.inf, False),
+    'contact.tolerance': (0.0, 1.0, False),
     'prestrain': (0.0, 0.5, False),
     'loading.impact.v0': (-10.0, 10.0, True),
     'integrator.dt': (0.0, 0.1, False),
@@ -228,6 +243,9 @@ def validate(raw):
             if mat[key] != 0.0:
                 raise SceneError(f'materials.{key}: only for structure.builder column (give '
                                  'node_mass and materials.bar_mass instead)')
+    if mat['cable_damping'] > 0 and mat['cable_damping_ratio'] > 0:
+        raise SceneError('materials.cable_damping_ratio: give either materials.cable_damping '
+                         '(N s/m) or materials.cable_damping_ratio, not both')
     if data['run']['output_dt'] < data['integrator']['dt']:
         raise SceneError('run.output_dt: must not be smaller than integrator.dt')
     return data

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import dynamics as dyn
-from . import integrators, models, observables, structures
+from . import contact, integrators, models, observables, structures
 from .scene import RANGES, Scene
 
 PRESTRAIN_RANGE = RANGES['prestrain']     # (lower, upper, lower inclusive): 0 < p <= 0.5
@@ -32,8 +32,11 @@ HINT_ENERGY = 'try a smaller integrator.dt or another method (rattle, dopri54_pr
 HINT_SLACK = ('cables went slack and the prism collapsed: raise the prestrain or lower the impact '
               'velocity')
 HINT_LOCK = ('the bars of the prism crossed (past the rigid-base lock at 180 deg, or fully '
-             'untwisted): lower the impact velocity (divergence.bar_crossing=none lets bars pass '
-             'through each other)')
+             'untwisted): lower the impact velocity, or stop the prisms at the lock with '
+             'contact.lock=penalty (divergence.bar_crossing=none lets bars pass through each '
+             'other)')
+HINT_LOCK_CONTACT = ('the bars of the prism crossed although contact.lock is on: raise '
+                     'contact.stiffness or contact.tolerance (and lower integrator.dt)')
 STATUS_DIAGNOSIS = {
     dyn.SINGULAR: ('rigid members', 'rigid members became degenerate (e.g. a rigid-base prism '
                    'driven through its lock by a fast impact): lower the impact velocity or try a '
@@ -72,9 +75,11 @@ class SimulationDiverged(RuntimeError):
 @dataclass
 class Frame:
     """A copied snapshot. ``positions`` (n_nodes, 3) m, ``strain`` (n_columns, n_prisms),
-    ``tension`` (n_cables,) N, ``energy`` J, ``constraint_error`` (relative), ``t`` s,
-    ``base_force`` (n_columns,) N: the axial reaction at each column's clamped base, positive
-    compressive (:mod:`solver.support`; empty when not given)."""
+    ``tension`` (n_cables,) N (elastic part), ``energy`` J (striker and contacts included),
+    ``constraint_error`` (relative), ``t`` s, ``base_force`` (n_columns,) N: the axial
+    reaction at each column's clamped base, positive compressive (:mod:`solver.support`;
+    empty when not given); ``striker`` (n_columns, 2): each column's striker face height m
+    and axial velocity m/s (``loading.impact.mode: striker``), else None."""
     t: float
     step: int
     positions: np.ndarray
@@ -83,6 +88,7 @@ class Frame:
     energy: float
     constraint_error: float
     base_force: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    striker: np.ndarray | None = None
 
 
 def build_network(scene):
@@ -131,7 +137,11 @@ class Simulation:
         self.f_ext = f_ext
         self._f_ext_or_none = f_ext if np.any(f_ext) else None
         self._model_cls = models.choose(scene['model'], self.network, scene.data)
-        self.model = self._model_cls(self.network, f_ext=f_ext)
+        self._extras = contact.scene_extras(scene.data, self.network)
+        if self._model_cls is models.Chain1D and contact.active_spec(self._extras):
+            raise ValueError('model chain1d: has no strikers, prism stops or cable damping; use '
+                             'model full3d or sym3d')
+        self.model = contact.attach(self._model_cls(self.network, f_ext=f_ext), self._extras)
         self.expanded = None            # why a sym3d run was expanded to full3d, if it was
         it = scene['integrator']
         self.integrator = integrators.get(it['method'], rtol=it['rtol'], atol=it['atol'])
@@ -151,9 +161,13 @@ class Simulation:
         """Back to the reference geometry at rest, t = 0, rest lengths of the scene."""
         net = self.network
         if not isinstance(self.model, self._model_cls):     # undo an expansion to full3d
-            self.model = self._model_cls(net, f_ext=self.f_ext)
+            self.model = contact.attach(self._model_cls(net, f_ext=self.f_ext), self._extras)
             self.expanded = None
         self.model.set_state(net.x0, np.zeros((net.n_nodes, 3)))
+        ns = getattr(self.model, 'n_strikers', 0)
+        if ns:                                  # strikers back on the free ends, at rest
+            self.model.x[-ns:, 2] = np.asarray(net.x0)[net.levels[:, -1], 2].mean(axis=1)
+            self.model.v[-ns:] = 0.0
         self.model.set_cables(net.cable_rest_length, net.cable_EA)
         self._cache = {}
         self._plan = (None, None)
@@ -196,7 +210,12 @@ class Simulation:
             finite, e, cerr, h_min = dyn.state_summary(m.x, m.v, m.net, m.act, summ, h)
             return finite, e, h, cerr, h_min
         x, v = self._full_state()
-        if hasattr(m, 'advance'):               # chain1d: its own energy
+        if len(m.act) > 3 and contact.active(m.act[3]):     # striker, contact energies
+            finite, e, h, cerr = observables.state_summary(x, v, net, m.cable_rest_length,
+                                                           m.cable_EA, self._f_ext_or_none)
+            e += contact.extra_energy(m.x, m.v, m.act[3])
+            finite = finite and dyn.all_finite(m.x) and dyn.all_finite(m.v)
+        elif hasattr(m, 'advance'):               # chain1d: its own energy
             finite, e, h, cerr = (dyn.all_finite(x) and dyn.all_finite(v), m.energy(),
                                   observables.prism_heights(x, net.levels), m.constraint_error())
         else:
@@ -223,7 +242,9 @@ class Simulation:
     def expand_to_full3d(self, reason):
         """Continue a ``sym3d`` run with ``full3d`` from the same (expanded) state: no jump."""
         if isinstance(self.model, models.Sym3D):
-            self.model = models.expand(self.model, f_ext=self.f_ext)
+            strikers = contact.striker_state(self.model)
+            self.model = contact.attach(models.expand(self.model, f_ext=self.f_ext),
+                                        self._extras, strikers if len(strikers) else None)
             if hasattr(self.integrator, 'reset'):      # forget step-size history of sym3d
                 self.integrator.reset()
             self.expanded = reason
@@ -276,6 +297,8 @@ class Simulation:
         if not np.all(np.isfinite(v0)):
             raise ValueError('impact: velocity is not finite')
         mode = mode or self.scene['loading.impact.mode']
+        if mode == 'striker':
+            raise ValueError('impact: a striker impact sets no node velocities (use apply_impact)')
         v = np.array(self.model.velocities())
         x = np.array(self.model.positions())
         kick = np.zeros_like(v)
@@ -293,11 +316,54 @@ class Simulation:
                 kick *= math.sqrt(ke_target / ke)
         return v + kick
 
+    def _end_heights(self):
+        """Mean height m of each column's free-end level (n_columns,)."""
+        lev = self.network.levels
+        return np.asarray(self._full_state()[0])[lev[:, -1], 2].mean(axis=1)
+
+    def striker(self):
+        """(n_columns, 2) striker face height m and axial velocity m/s, or None without
+        strikers."""
+        st = contact.striker_state(self.model)
+        return st if len(st) else None
+
+    def _strike(self, v0, columns):
+        """Striker impact: each addressed column's striker gets the axial velocity ``-v0``
+        (towards the column); a striker out of contact is first placed on the free end (touching,
+        no overlap, so no energy changes)."""
+        m, net = self.model, self.network
+        ns = getattr(m, 'n_strikers', 0)
+        if not ns:
+            raise ValueError('impact: mode striker needs loading.impact.mode: striker in the '
+                             'scene (the strikers are built with the model)')
+        cols = list(range(net.n_columns)) if columns is None else list(columns)
+        if any(not 0 <= c < net.n_columns for c in cols):
+            raise ValueError(f'impact: columns must be indices 0..{net.n_columns - 1}')
+        v0 = np.broadcast_to(np.asarray(v0, dtype=np.float64), (len(cols),)) if np.ndim(v0) == 0 \
+            else np.asarray(v0, dtype=np.float64)
+        if v0.shape != (len(cols),):
+            raise ValueError(f'impact: expected 1 or {len(cols)} values, got {v0.size}')
+        if not np.all(np.isfinite(v0)):
+            raise ValueError('impact: velocity is not finite')
+        z_end = self._end_heights()
+        rows = m.x.shape[0] - ns
+        for c, vc in zip(cols, v0):
+            if m.x[rows + c, 2] >= z_end[c]:
+                m.x[rows + c, 2] = z_end[c]
+            m.v[rows + c, 2] = -vc
+        self._changed()
+
     def apply_impact(self, v0, columns=None, mode=None):
         """Impact the free end(s): the velocity jump is projected on the constraints (impulse, the
         default) or, with ``mode='energy'``, also rescaled to the kinetic energy ``3 m v0^2 / 2``
-        per column. Returns the kinetic energy added, J."""
+        per column; with ``mode='striker'`` (the scene's ``loading.impact.mode: striker``) each
+        column's striker is launched at ``v0`` against the free end instead. Returns the kinetic
+        energy added, J."""
         before = self.energy()
+        if (mode or self.scene['loading.impact.mode']) == 'striker':
+            self._strike(v0, columns)
+            self._energy_ref = self.energy()
+            return self._energy_ref - before
         if hasattr(self.model, 'impact'):           # chain1d: axial velocity on the end level
             if columns not in (None, [0], (0,)):
                 raise ValueError('impact: chain1d has one column (0)')
@@ -496,7 +562,8 @@ class Simulation:
             if bad is not None and np.any(bad):
                 c, i = np.argwhere(bad)[0]
                 return ('prism twist', f'prism {i} of column {c} twisted through 0 or 180 deg '
-                                       f'({math.degrees(twist[c, i]):.1f} deg)', HINT_LOCK)
+                                       f'({math.degrees(twist[c, i]):.1f} deg)',
+                        HINT_LOCK if self._extras['stop_h'] is None else HINT_LOCK_CONTACT)
         return None
 
     def _locate(self, n, keep, problem):
@@ -530,7 +597,7 @@ class Simulation:
                 return np.zeros(net.n_columns)
             if getattr(self, '_base_force', None) is None:
                 from .support import BaseForce
-                self._base_force = BaseForce(net)
+                self._base_force = BaseForce(net, self._extras)
             x, v = self._full_state()
             return self._base_force(x, v, self.model.cable_rest_length, self.model.cable_EA,
                                     self.f_ext)
@@ -549,4 +616,4 @@ class Simulation:
                      tension=observables.cable_tensions(x, net, self.model.cable_rest_length,
                                                         self.model.cable_EA),
                      energy=self.energy(), constraint_error=self.constraint_error(),
-                     base_force=np.array(self.base_force()))
+                     base_force=np.array(self.base_force()), striker=self.striker())

@@ -1,4 +1,4 @@
-"""Builders: networks from a few parameters (physics.md sections 2 and 3).
+"""Builders: networks from a few parameters (docs/physics.md sections 2 and 3).
 
 - :func:`column`: ``n_columns`` columns of ``n_prisms`` right-handed minimal triangular prisms
 stacked on
@@ -6,8 +6,8 @@ stacked on
 - :func:`explicit`: any network given as nodes, bars, cables (and optional rigid edges).
 
 To add a structure: write a function returning a :class:`~solver.network.Network` whose cable rest
-lengths put it at rest (check 1 of physics.md section 7), register it in :data:`BUILDERS`, and list
-its parameters with their defaults in :data:`solver.scene.STRUCTURE_DEFAULTS`.
+lengths put it at rest (check 1 of docs/physics.md section 7), register it in :data:`BUILDERS`,
+and list its parameters with their defaults in :data:`solver.scene.STRUCTURE_DEFAULTS`.
 """
 from __future__ import annotations
 
@@ -35,7 +35,7 @@ def column(n_prisms=50, radius=0.005, h0=0.0062, cable_E=5.48e6, cable_radius=1.
            rigid_bases_as='edges', kappa=100.0, n_columns=1, column_spacing=0.03,
            clamped_levels=(0,), handedness='right', bar_mass_fraction=0.0,
            mass_placement='level', end_mass=0.0):
-    """Columns of tensegrity prisms along z (physics.md section 3).
+    """Columns of tensegrity prisms along z (docs/physics.md section 3).
 
     Level j of column c (j = 0..n_prisms) holds nodes ``3 j + k`` (+ ``c * 3 (n_prisms + 1)``) at
     ``(r cos(j phi0 + 2 pi k / 3) + c * spacing, r sin(...), j h0)``. Bars ``(j, k) -> (j+1, k)``,
@@ -192,9 +192,9 @@ class PrestrainMap:
     prestrain ``p``, so per-prism values superpose: a cross cable of prism i carries prism i's
     self-stress, an interior shared base cable at level j carries ``t_l(p_{j-1}) + t_l(p_j)``
     (``stacking='parallel'``: the first cable of a side carries prism j-1, the second prism j),
-    with ``t_l(p) = gamma_s(p) r`` and ``gamma_s(p) = EA_s p / s`` (physics.md section 2). Rigid
-    base edges carry any base force as constraint forces. Prism index: ``column * n_prisms +
-    prism``.
+    with ``t_l(p) = gamma_s(p) r`` and ``gamma_s(p) = EA_s p / s`` (docs/physics.md section 2).
+    Rigid base edges carry any base force as constraint forces. Prism index: ``column *
+    n_prisms + prism``.
 
     Arrays: ``cross`` (n_cross,) cable indices in cable order (the per-cable command order),
     ``cross_prism`` (n_cross,), ``base`` (n_base,) cable indices, ``base_prisms`` (n_base, 2) prism

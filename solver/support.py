@@ -43,22 +43,26 @@ def base_levels(network):
 class BaseForce:
     """Base force per column of a full state of ``network`` (see the module text)."""
 
-    def __init__(self, network):
+    def __init__(self, network, extras=None):
+        from .contact import network_extras
         self.network = network
         self.base = base_levels(network)
         self.net, _ = dyn.pack(network)
-        self.ws = dyn.workspace(network.n_nodes, network.n_constraints, network.bandwidth)
+        self.ws = dyn.workspace_for(network)
+        self.extras = network_extras(extras, network)   # cable damping and prism stops
         self._acc = np.zeros((network.n_nodes, 3))
         self._zero = np.zeros((network.n_nodes, 3))
 
     def member_forces(self, x, v, rest, EA, f_ext=None):
-        """Resultant member force (n_nodes, 3) N on every node (cables and bar multipliers) of
+        """Resultant member force (n_nodes, 3) N on every node (cables with their damping, prism
+        stops and bar multipliers; ``extras``: the :func:`solver.contact.scene_extras` of the
+        scene, or None) of
         the state ``x``, ``v`` (n_nodes, 3) with rest lengths ``rest`` and ``EA`` (n_cables,);
         ``f_ext`` (n_nodes, 3) N enters the multipliers. Raises ValueError if the constraint
         matrix is singular."""
         f_ext = self._zero if f_ext is None else np.ascontiguousarray(f_ext, dtype=np.float64)
         act = (np.ascontiguousarray(rest, dtype=np.float64),
-               np.ascontiguousarray(EA, dtype=np.float64), f_ext)
+               np.ascontiguousarray(EA, dtype=np.float64), f_ext, self.extras)
         status = dyn.accelerations(np.ascontiguousarray(x, dtype=np.float64),
                                    np.ascontiguousarray(v, dtype=np.float64), self.net, act,
                                    self.ws, self._acc)

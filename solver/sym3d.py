@@ -1,4 +1,4 @@
-"""The exact 3-fold symmetric reduction ``sym3d`` (physics.md section 6).
+"""The exact 3-fold symmetric reduction ``sym3d`` (docs/physics.md section 6).
 
 A network that is mapped onto itself by the rotation ``R`` by 2 pi / 3 about the z axis (nodes,
 members, rest lengths, stiffnesses, masses and supports), loaded symmetrically, keeps that
@@ -254,7 +254,7 @@ def reduce_network(network, tol=1e-9):
 
 
 class Sym3D:
-    """One node per orbit of three (physics.md section 6); state ``x``, ``v`` (n_orbits, 3).
+    """One node per orbit of three (docs/physics.md section 6); state ``x``, ``v`` (n_orbits, 3).
 
     ``positions()``/``velocities()`` expand to the full network; :meth:`set_state` and
     :meth:`set_cables` take full arrays and raise :class:`NotSymmetric` (changing nothing) when
@@ -322,8 +322,8 @@ class Sym3D:
         """Load full positions and velocities (n_nodes, 3); :class:`NotSymmetric` if asymmetric."""
         xr = self._reduce(x, 'positions')
         vr = self._reduce(v, 'velocities')
-        self.x[:] = xr
-        self.v[:] = vr
+        self.x[:len(xr)] = xr          # rows beyond the orbits: strikers (solver.contact)
+        self.v[:len(vr)] = vr
 
     @property
     def cable_rest_length(self):

@@ -1,4 +1,6 @@
-"""The ``tensegrity`` command (interfaces.md section 2).
+"""Impact waves in tensegrity columns: run, sweep, fit, lens, node, demo, replay, paper, bench.
+
+The command line of docs/interfaces.md section 2.
 
 User errors (bad scene, bad option, diverged simulation) print one line on stderr and exit 2 (1 for
 a diverged run), never a traceback.
@@ -186,12 +188,16 @@ def cmd_replay(args):
 def cmd_paper(args):
     """``tensegrity paper``: the paper's table under every modelling variant (solver.paper)."""
     from solver import paper
-    models = ('sym3d',) if args.no_chain else ('sym3d', 'chain1d')
+    models = ('sym3d',) if args.no_chain or args.set else ('sym3d', 'chain1d')
+    sets = list(args.set or [])
+    if sets:                 # checked on the FB scene before anything runs
+        from solver.scene import Scene
+        Scene.load(paper.SCENES / 'fb_column.yaml').with_overrides(sets)
     v0s = paper.V0S[:1] if args.quick else paper.V0S
     update, close = _progress(paper.n_runs(v0s, models), 'paper')
     try:
         result = paper.paper_table(v0s=v0s, t_end=0.6 if args.quick else 1.2, models=models,
-                                   progress=update, quick=args.quick)
+                                   progress=update, quick=args.quick, sets=sets)
     finally:
         close()
     if args.json:
@@ -343,7 +349,7 @@ def build_parser():
     p.add_argument('--mcap', action='store_true',
                    help='record the run to OUT/run.mcap (ROS 2 profile, the node\'s topics)')
     p.add_argument('--rerun', action='store_true',
-                   help='record the run to OUT/run.rrd (Rerun; open with `rerun OUT/run.rrd`)')
+                   help='record the run to OUT/run.rrd (Rerun; open it with: rerun OUT/run.rrd)')
     p.add_argument('--rerun-connect', nargs='?', metavar='URL',
                    const='rerun+http://127.0.0.1:9876/proxy',
                    help='stream the run to a running Rerun viewer (default URL %(const)s)')
@@ -421,6 +427,10 @@ def build_parser():
     p.add_argument('--markdown', action='store_true', help='print the table as Markdown')
     p.add_argument('--quick', action='store_true', help='v0 = 0.1 only, 0.6 s (smoke run)')
     p.add_argument('--no-chain', action='store_true', help='skip the chain1d rows')
+    p.add_argument('--set', action='append', metavar='KEY=VALUE',
+                   help='a modelling option for every variant, e.g. structure.mass_placement='
+                        'unit_bases, materials.bar_mass_fraction=0.3, loading.impact.mode='
+                        'striker, contact.lock=penalty (repeatable; skips the chain1d rows)')
     p.set_defaults(func=cmd_paper)
     p = sub.add_parser('lens', help='focus the pulses of an array into a host medium: one '
                        'prestrain per column on the delay law of a focus, checked by simulation')

@@ -1,4 +1,5 @@
-"""Validation of the node's command messages (interfaces.md section 4): pure functions, no ROS I/O.
+"""Validation of the node's command messages (docs/interfaces.md section 4): pure functions, no
+ROS I/O.
 
 Each parser takes the data and layout of a ``std_msgs/Float64MultiArray`` and returns values ready
 for :class:`solver.simulation.Simulation`, or raises :class:`CommandError` whose message names the

@@ -14,7 +14,7 @@ import numpy as np
 from . import cdr
 from . import messages as M
 
-MARKER_RATE_HZ = 20.0       # the node's default marker_rate_hz (interfaces.md section 4)
+MARKER_RATE_HZ = 20.0       # the node's default marker_rate_hz (docs/interfaces.md section 4)
 
 
 NETWORK_METADATA = 'tensegrity_network'
@@ -80,6 +80,7 @@ class FrameLog:
         self.accepted = 0
         self.last_command = ('none', 'none', '')
         qos = topic_qos()
+        self._optional = set()          # optional topics declared on their first message
         for key in M.PUBLISHED + M.COMMANDS:
             if key == '/clock' and not clock:
                 continue
@@ -96,6 +97,9 @@ class FrameLog:
         msgs = cdr.frame_messages_cdr(frame, self.net, stamp=stamp, markers=extra,
                                       clock=self.clock)
         for key, data in msgs.items():          # the node's bytes (cdr.py), checked finite
+            if key in M.OPTIONAL and key not in self._optional:
+                self._optional.add(key)
+                self.rec.declare(self.topic(key), M.MSG_CLASSES[key], topic_qos())
             self.rec.write_serialized(self.topic(key), data, ns)
         self.n_frames += 1
         if extra:

@@ -39,6 +39,7 @@ TYPES = {
     '~/cable_tension': 'std_msgs/msg/Float64MultiArray',
     '~/markers': 'visualization_msgs/msg/MarkerArray',
     '~/base_force': 'std_msgs/msg/Float64MultiArray',
+    '~/striker': 'std_msgs/msg/Float64MultiArray',
     '/clock': 'rosgraph_msgs/msg/Clock',
     '/diagnostics': 'diagnostic_msgs/msg/DiagnosticArray',
     '~/cmd/prestrain': 'std_msgs/msg/Float64MultiArray',
@@ -48,13 +49,14 @@ TYPES = {
 }
 MSG_CLASSES = {
     '~/nodes': PointCloud2, '~/strain': Float64MultiArray, '~/cable_tension': Float64MultiArray,
-    '~/markers': MarkerArray, '~/base_force': Float64MultiArray, '/clock': Clock,
-    '/diagnostics': DiagnosticArray,
+    '~/markers': MarkerArray, '~/base_force': Float64MultiArray,
+    '~/striker': Float64MultiArray, '/clock': Clock, '/diagnostics': DiagnosticArray,
     '~/cmd/prestrain': Float64MultiArray, '~/cmd/impact': Float64MultiArray,
     '~/structure': String, '~/cmd/focus': PointStamped,
 }
 PUBLISHED = ('~/nodes', '~/strain', '~/cable_tension', '~/markers', '/clock', '/diagnostics',
              '~/base_force')
+OPTIONAL = ('~/striker',)      # published only by scenes that have strikers
 COMMANDS = ('~/cmd/prestrain', '~/cmd/impact')
 
 BAR_COLOR = (0.55, 0.55, 0.6, 1.0)
@@ -208,8 +210,9 @@ def reference_tension_scale(network):
 
 def check_finite(frame):
     """``ValueError`` if a frame holds a non-finite value (nothing NaN is ever published)."""
-    for name in ('positions', 'strain', 'tension', 'base_force'):
-        if not np.all(np.isfinite(getattr(frame, name, ()))):
+    for name in ('positions', 'strain', 'tension', 'base_force', 'striker'):
+        value = getattr(frame, name, None)
+        if value is not None and not np.all(np.isfinite(value)):
             raise ValueError(f'frame at t = {frame.t:.6g} s: {name} is not finite')
 
 
@@ -219,8 +222,10 @@ def frame_messages(frame, network, stamp=None, markers=True, clock=False, t_max=
 
     Always ``'~/nodes'`` (PointCloud2), ``'~/strain'`` (dims ``column``, ``prism``) and
     ``'~/cable_tension'`` (dim ``cable``, N); ``'~/base_force'`` (dim ``column``, N, positive
-    compressive) when the frame has one value per column; ``'~/markers'`` when ``markers``;
-    ``'/clock'`` when ``clock``. ``stamp`` defaults to :func:`sim_stamp` of ``frame.t``. With
+    compressive) when the frame has one value per column; ``'~/striker'`` (dims ``column``,
+    ``state``: face height m, axial velocity m/s) when the frame has strikers;
+    ``'~/markers'`` when ``markers``; ``'/clock'`` when ``clock``. ``stamp`` defaults to
+    :func:`sim_stamp` of ``frame.t``. With
     ``serialized`` the values are the CDR bytes of the same messages written from the arrays
     (:mod:`tensegrity_ros.cdr`, for ``Publisher.publish(bytes)``). Raises ``ValueError`` if the
     frame holds a non-finite value (nothing NaN is ever published)."""
@@ -245,6 +250,8 @@ def frame_messages(frame, network, stamp=None, markers=True, clock=False, t_max=
     base = np.asarray(getattr(frame, 'base_force', ()))
     if base.shape == (network.n_columns,) and base.size:
         out['~/base_force'] = multi(base, ('column',))
+    if getattr(frame, 'striker', None) is not None:
+        out['~/striker'] = multi(np.ascontiguousarray(frame.striker), ('column', 'state'))
     if markers:
         out['~/markers'] = marker(frame, network, stamp, t_max)
     if clock:

@@ -1,4 +1,5 @@
-"""The ROS 2 node ``tensegrity_sim`` (interfaces.md section 4): one node class and :func:`main`.
+"""The ROS 2 node ``tensegrity_sim`` (docs/interfaces.md section 4): one node class and
+:func:`main`.
 
     tensegrity_node [--ros-args -p real_time_factor:=0.0 --params-file config/node.yaml]
 
@@ -212,7 +213,9 @@ class TensegritySim(LifecycleNode):
         self._cross_prism = (self.sim.prestrain_map.cross_prism
                              if self.sim.prestrain is not None else None)
         self._t_max = 2.0 * messages.reference_tension_scale(net)
-        self._pubs = {key: self._publisher(key) for key in messages.PUBLISHED
+        self._pubs = {key: self._publisher(key)
+                      for key in messages.PUBLISHED + (
+                          messages.OPTIONAL if self.sim.striker() is not None else ())
                       if key != '/clock' or self.params['use_sim_clock']}
         self._pubs[STRUCTURE_TOPIC] = self._publisher(STRUCTURE_TOPIC, String, STRUCTURE_QOS)
         self._topics = {key: self.resolve_topic_name(key) for key in messages.TYPES}

@@ -1,4 +1,4 @@
-"""MCAP recording in the ROS 2 profile (interfaces.md section 5).
+"""MCAP recording in the ROS 2 profile (docs/interfaces.md section 5).
 
 :class:`McapRecorder` takes rclpy message objects, serializes them to CDR with
 ``rclpy.serialization.serialize_message`` and writes them the way rosbag2's MCAP storage does:

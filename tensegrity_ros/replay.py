@@ -222,9 +222,9 @@ def to_rerun(path, out, application_id='tensegrity_ros', recording_id=None, stat
 
     A log that carries its network (``tensegrity_network`` metadata, written by the node and by
     ``tensegrity run --mcap``) goes through :class:`~tensegrity_ros.rerun_log.RerunRecorder`, so
-    the result has the layout of a live recording (interfaces.md section 6); energy and constraint
-    error come from ``/diagnostics``, held from the latest one (the first one before it). Other
-    logs get a generic conversion (:func:`to_rerun_generic`)."""
+    the result has the layout of a live recording (docs/interfaces.md section 6); energy and
+    constraint error come from ``/diagnostics``, held from the latest one (the first one before
+    it). Other logs get a generic conversion (:func:`to_rerun_generic`)."""
     first = McapLog(path)
     diag = [(m.log_time_ns, _diag_values(first.decode(m))) for m in first.messages()
             if m.type_name == 'diagnostic_msgs/msg/DiagnosticArray']

@@ -1,4 +1,4 @@
-"""Headless Rerun recordings of a run (interfaces.md section 6).
+"""Headless Rerun recordings of a run (docs/interfaces.md section 6).
 
     with RerunRecorder(sim.network, path='run.rrd') as rec:     # or connect='rerun+http://...'
         runner.run(sim, t_end, output_dt, on_frame=rec.frame)

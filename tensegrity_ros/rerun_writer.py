@@ -135,7 +135,9 @@ def _pack(rows, n_t, n_x, n_p, n_s, n_c, bar_index, cable_index, scale):
     bars = nodes.take(bar_index, axis=1).reshape(-1)        # gathered from float32: 2x fewer bytes
     cables = nodes.take(cable_index, axis=1).reshape(-1)
     colors = tension_colors(r[:, n_x + n_s:n_x + n_s + n_c], scale).reshape(-1)
-    strain = r[:, n_x:n_x + n_s].reshape(n_t, -1, max(n_p, 1)).transpose(1, 0, 2).reshape(-1)
+    # copied in every case (a reshape alone views the buffer when there is one prism)
+    strain = r[:, n_x:n_x + n_s].reshape(n_t, -1, max(n_p, 1)).transpose(1, 0, 2).copy()
+    strain = strain.reshape(-1)
     times = _ns(r[:, -3])
     return (nodes.reshape(-1), bars, cables, colors, strain, r[:, -2].copy(), r[:, -1].copy(),
             times)
@@ -208,14 +210,36 @@ def tensor_data(image, dim_names):
     ``image``, wrapped without a further one) as the ``F64`` member of the buffer union
     (``rr.Tensor`` converts in Python, 1.3 ms for a 50 x 241 image)."""
     image = np.array(image, dtype=np.float64, order='C')        # a copy: Arrow keeps viewing it
-    values = pa.Array.from_buffers(pa.float64(), image.size, [None, pa.py_buffer(image)])
-    children = list(_UNION_EMPTY)
-    children[_F64] = pa.ListArray.from_arrays(_i32(np.array([0, image.size], np.int32)), values,
-                                              type=_UNION[_F64].type)
-    buffer = pa.UnionArray.from_buffers(      # keeps the union's exact type (field nullability)
-        _UNION, 1, [None, _UNION_TAG, _UNION_OFFSET], children=children)
     shape = pa.array([list(image.shape)], _TENSOR_TYPE.field('shape').type)
     names = pa.array([list(dim_names)], _TENSOR_TYPE.field('names').type)
+    return _tensors(image.reshape(-1), np.array([0, image.size], np.int32), shape, names)
+
+
+def vectors_data(values, n_rows):
+    """``n_rows`` 1-D ``TensorData`` of equal length (what ``rr.BarChart(row)`` logs as
+    ``BarChart:values``, row after row), built directly as Arrow around ``values`` (float64,
+    ``n_rows * k`` values, row after row; viewed, not copied)."""
+    k = len(values) // max(n_rows, 1)
+    offsets = np.arange(n_rows + 1, dtype=np.int32) * k
+    shape = pa.ListArray.from_arrays(_i32(offsets // max(k, 1)),
+                                     pa.array(np.full(n_rows, k, np.uint64)),
+                                     type=_TENSOR_TYPE.field('shape').type)
+    names = pa.nulls(n_rows, _TENSOR_TYPE.field('names').type)
+    return _tensors(values, offsets, shape, names)
+
+
+def _tensors(values, offsets, shape, names):
+    """TensorData rows: the F64 lists ``values[offsets[i]:offsets[i + 1]]``."""
+    n = len(offsets) - 1
+    children = list(_UNION_EMPTY)
+    children[_F64] = pa.ListArray.from_arrays(
+        _i32(offsets), pa.Array.from_buffers(pa.float64(), len(values),
+                                             [None, pa.py_buffer(values)]),
+        type=_UNION[_F64].type)
+    tags = _UNION_TAG if n == 1 else pa.py_buffer(np.full(n, _UNION.type_codes[_F64], np.int8))
+    index = _UNION_OFFSET if n == 1 else pa.py_buffer(np.arange(n, dtype=np.int32))
+    buffer = pa.UnionArray.from_buffers(      # keeps the union's exact type (field nullability)
+        _UNION, n, [None, tags, index], children=children)
     return pa.StructArray.from_arrays([shape, names, buffer], fields=list(_TENSOR_TYPE))
 
 
@@ -225,6 +249,7 @@ _POSITIONS = rr.Points3D.descriptor_positions()
 _STRIPS = rr.LineStrips3D.descriptor_strips()
 _COLORS = rr.LineStrips3D.descriptor_colors()
 _SCALARS = rr.Scalars.descriptor_scalars()
+_BAR_VALUES = rr.BarChart.descriptor_values()
 
 
 def _threads():
@@ -236,31 +261,64 @@ def _threads():
 
 
 def blueprint(n_columns=1):
-    """The default layout: the 3D column beside the strain plots (series per prism, prism-by-time
-    wave), with energy, constraint error and the command log below."""
-    waves = [rrb.TensorView(origin=f'wave/column_{c}', name=f'strain wave, column {c}',
-                            slice_selection=rrb.archetypes.TensorSliceSelection(
-                                width=rr.TensorDimensionSelection(1),
-                                height=rr.TensorDimensionSelection(0)),
-                            scalar_mapping=rrb.archetypes.TensorScalarMapping(
-                                colormap='Spectral'))
-             for c in range(n_columns)]
-    wave = waves[0] if len(waves) == 1 else rrb.Tabs(*waves)
+    """The default layout, as the paper's figures: on the left the 3D column (cables coloured by
+    tension) above the colour legend; on the right the strain along the column at the time cursor
+    (a bar chart per prism), the prism-by-``sim_time`` heat map of the wave from the impact with
+    its colour scale, energy and constraint error side by side, and the command log. Several
+    columns: one tab per column for the bar chart and for the heat map (the columns' scales
+    stay comparable: each heat map is symmetric about zero at its own largest strain)."""
+    bars = [rrb.BarChartView(origin=f'strain_profile/column_{c}',
+                             name=f'strain per prism at the time cursor, column {c} '
+                                  f'(prism 0: clamped end)',
+                             plot_legend=rrb.archetypes.PlotLegend(visible=False))
+            for c in range(n_columns)]
+    waves = [rrb.Vertical(
+        rrb.TensorView(origin=f'wave/column_{c}',
+                       name=f'strain, prism x sim_time from the impact, column {c}',
+                       slice_selection=rrb.archetypes.TensorSliceSelection(
+                           width=rr.TensorDimensionSelection(1),
+                           height=rr.TensorDimensionSelection(0)),
+                       scalar_mapping=rrb.archetypes.TensorScalarMapping(colormap=COLORMAP),
+                       view_fit='fill'),
+        rrb.TensorView(origin=f'wave_scale/column_{c}', name='colour scale: strain',
+                       scalar_mapping=rrb.archetypes.TensorScalarMapping(colormap=COLORMAP),
+                       view_fit='fill'),
+        row_shares=[5, 1], name=f'column {c}')
+        for c in range(n_columns)]
+
+    def one_or_tabs(views):
+        return views[0] if len(views) == 1 else rrb.Tabs(*views)
     return rrb.Blueprint(
         rrb.Horizontal(
-            rrb.Spatial3DView(origin='world', name='column'),
             rrb.Vertical(
-                rrb.TimeSeriesView(origin='strain', name='strain per prism',
-                                   plot_legend=rrb.archetypes.PlotLegend(visible=False)),
-                wave,
+                rrb.Spatial3DView(origin='world', name='column, cables coloured by tension'),
+                rrb.TextDocumentView(origin='legend', name='colours'),
+                row_shares=[6, 1]),
+            rrb.Vertical(
+                one_or_tabs(bars),
+                one_or_tabs(waves),
                 rrb.Horizontal(rrb.TimeSeriesView(origin='base_force', name='base force, N'),
                                rrb.TimeSeriesView(origin='energy', name='energy, J'),
                                rrb.TimeSeriesView(origin='constraint_error',
                                                   name='constraint error')),
                 rrb.TextLogView(origin='commands', name='commands'),
-                row_shares=[3, 3, 1.2, 1]),
+                row_shares=[3, 4, 1.5, 1]),
             column_shares=[2, 3]),
-        collapse_panels=True)
+        rrb.BlueprintPanel(state='collapsed'),
+        rrb.SelectionPanel(state='collapsed'),
+        rrb.TimePanel(timeline=TIMELINE, state='collapsed'))
+
+
+COLORMAP = 'Spectral'
+PRISM_AXIS = 'prism (0: clamped end)'
+
+
+def legend_markdown(tension_scale):
+    """The text of the ``legend`` entity: what the colours of the 3D view mean."""
+    return (f'**Cables**: tension T from blue (0 N) to red (T >= {tension_scale:.3g} N, twice '
+            f'the largest prestress tension); slack cables grey and translucent. '
+            f'**Bars** light grey, **nodes** orange. Heat map and bar chart: axial strain, '
+            f'negative in compression.')
 
 
 def _topology_arrays(net):
@@ -274,10 +332,11 @@ def _topology_arrays(net):
             'x0': np.asarray(net.x0, np.float64).ravel()}
 
 
-def _style_archetypes():
+def _style_archetypes(tension_scale=1.0):
     """The static entities that do not depend on the network: view coordinates, colours and
-    radii, the names of the energy and constraint-error series."""
+    radii, the colour legend, the names of the energy and constraint-error series."""
     return [
+        ('legend', rr.TextDocument(legend_markdown(tension_scale), media_type='text/markdown')),
         ('world', rr.ViewCoordinates.RIGHT_HAND_Z_UP),                  # column axis: z
         ('world/nodes', rr.Points3D.from_fields(colors=[_NODE_RGBA],
                                                 radii=rr.Radius.ui_points(3.0))),
@@ -288,14 +347,14 @@ def _style_archetypes():
         ('constraint_error', rr.SeriesLines(names=['constraint error']))]
 
 
-def static_archetypes(net):
+def static_archetypes(net, tension_scale=1.0):
     """The static entities of a recording of ``net`` as rerun archetypes: (entity path,
     archetype) pairs. The recorder logs the same components, the network's arrays built
     directly (see ``RerunRecorder._log_static``); this is the reference it is tested against."""
     topo = _topology_arrays(net)
     topo['cable_kind'] = list(topo['cable_kind'])
     names = [f'prism {p}' for p in range(net.n_prisms)]
-    return ([('topology', rr.AnyValues(**topo))] + _style_archetypes()
+    return ([('topology', rr.AnyValues(**topo))] + _style_archetypes(tension_scale)
             + [(f'strain/column_{c}', rr.SeriesLines(names=names))
                for c in range(net.n_columns if net.n_prisms else 0)])
 
@@ -433,7 +492,10 @@ class _Writer:
             except OSError:                     # a thread that has ended
                 pass
         if self._stream is not None:
-            self._do(self._send, index, n_t, True, False)
+            self._do(self._send, index, n_t, False, False)
+            if self._wave is not None and self._wave_n:
+                self._do(self._log_wave, True)
+            self._do(self._log_bar_range)
             try:
                 self._finish()
             except Exception as exc:
@@ -457,8 +519,8 @@ class _Writer:
         stream.set_sinks(*sinks)
         self._stream = stream
         self._tids = (_threads() - before) | {threading.get_native_id()}   # Rerun's and ours
-        if send_blueprint:                      # what set_sinks(default_blueprint=...) sends
-            stream.send_blueprint(blueprint(max(net.n_columns, 1)), make_active=False,
+        if send_blueprint:                      # applied however the file is opened
+            stream.send_blueprint(blueprint(max(net.n_columns, 1)), make_active=True,
                                   make_default=True)
         self._log_static()
         self._bars = _Strips(trails(net.bar_a, net.bar_b, net.n_nodes), self.flush_every)
@@ -468,6 +530,9 @@ class _Writer:
                            self._bars.index, self._cables.index, self.tension_scale)
         self._offsets = {}                      # (n_t, k) -> row offsets, as Arrow
         self._wave = None                       # (n_columns, n_prisms, wave_window) ring
+        self._wave_times = np.empty(self.wave_window)   # the ring's frame times, s
+        self._impact_t = None                   # time of the last impact command, s
+        self._lo = self._hi = None              # strain extremes per column so far
         self._wave_n = 0                        # frames in the wave (since the last restart)
         self._wave_t = 0.0                      # time of its last frame
         self._wave_pending = False
@@ -485,13 +550,15 @@ class _Writer:
         static = [('topology', topology)] + [
             (path, [(b.component_descriptor(), b.as_arrow_array())
                     for b in archetype.as_component_batches()])
-            for path, archetype in _style_archetypes()]
+            for path, archetype in _style_archetypes(self.tension_scale)]
         static += [(f'strain/column_{c}', [(_SERIES_NAMES, names)])
                    for c in range(net.n_columns if net.n_prisms else 0)]
         rr.send_chunks([Chunk.from_columns(path, [], [_Column(d, _one_row(a)) for d, a in batches])
                         for path, batches in static], recording=self._stream)
 
     def _log_command(self, t, text, level):
+        if text.startswith('impact') or ': impact ' in text:   # the heat map starts here
+            self._impact_t = t
         rr.send_chunks(_row_chunk('commands', rr.TextLog(text, level=level), t),
                        recording=self._stream)
 
@@ -517,8 +584,12 @@ class _Writer:
                     _COLORS, pa.array(colors), n_t, net.n_cables)))
             n_p = net.n_prisms
             for c in range(len(strain) // (n_t * n_p) if n_p else 0):
+                part = strain[c * n_t * n_p:(c + 1) * n_t * n_p]
                 chunks.append(Chunk.from_columns(f'strain/column_{c}', index, self._per_row(
-                    _SCALARS, pa.array(strain[c * n_t * n_p:(c + 1) * n_t * n_p]), n_t, n_p)))
+                    _SCALARS, pa.array(part), n_t, n_p)))
+                chunks.append(Chunk.from_columns(f'strain_profile/column_{c}', index,
+                                                 self._per_row(_BAR_VALUES,
+                                                               vectors_data(part, n_t), n_t, 1)))
             chunks.append(Chunk.from_columns('energy', index, self._per_row(
                 _SCALARS, pa.array(energy), n_t, 1)))
             chunks.append(Chunk.from_columns('constraint_error', index, self._per_row(
@@ -526,7 +597,11 @@ class _Writer:
             chunks += self._base_chunks(rows, n_t, index)
             rr.send_chunks(chunks, recording=s)                 # one call for the batch
             if n_p:
-                self._wave_add(strain.reshape(-1, n_t, n_p).transpose(1, 0, 2), rows[n_t - 1, -3])
+                per_column = strain.reshape(-1, n_t * n_p)
+                lo, hi = per_column.min(axis=1), per_column.max(axis=1)
+                self._lo = lo if self._lo is None else np.minimum(self._lo, lo)
+                self._hi = hi if self._hi is None else np.maximum(self._hi, hi)
+                self._wave_add(strain.reshape(-1, n_t, n_p).transpose(1, 0, 2), rows[:n_t, -3])
         if self._wave_pending and (wave or restart or time.monotonic() - self._last_wave
                                    >= self.wave_period_s):
             self._log_wave()
@@ -549,34 +624,63 @@ class _Writer:
             offsets = self._offsets[n_t, k] = _i32(np.arange(n_t + 1, dtype=np.int32) * k)
         return [_Column(descriptor, pa.ListArray.from_arrays(offsets, values))]
 
-    def _wave_add(self, strain, t_last):
-        """Append the strain of a batch (n_t, n_columns, n_prisms) to the wave ring."""
+    def _wave_add(self, strain, times):
+        """Append the strain of a batch (n_t, n_columns, n_prisms) at ``times`` (n_t,) s to the
+        wave ring."""
         w = self.wave_window
         if self._wave is None:
             self._wave = np.empty(strain.shape[1:] + (w,))
         keep = strain[-w:]                      # more frames than the window: the last ones
         at = (self._wave_n + len(strain) - len(keep) + np.arange(len(keep))) % w
         self._wave[:, :, at] = keep.transpose(1, 2, 0)
+        self._wave_times[at] = times[-w:]
         self._wave_n += len(strain)
-        self._wave_t = float(t_last)
+        self._wave_t = float(times[-1])
         self._wave_pending = True
 
-    def _log_wave(self):
+    def _log_wave(self, static=False):
+        """The heat map and its colour scale of every column: at the time of the last frame, or
+        (``static``, when the recording closes) at every time, so that the whole wave shows
+        wherever the time cursor is."""
         self._wave_pending = False
         self._last_wave = time.monotonic()
         n, w = self._wave_n, self.wave_window
         if n <= w:
-            wave = self._wave[:, :, :n]                 # (n_columns, n_prisms, n_frames)
+            wave, times = self._wave[:, :, :n], self._wave_times[:n]
         else:                                           # oldest first
-            wave = np.concatenate((self._wave[:, :, n % w:], self._wave[:, :, :n % w]), axis=2)
+            order = np.r_[n % w:w, 0:n % w]
+            wave, times = self._wave[:, :, order], self._wave_times[order]
+        image_times, pick = heat_map_grid(times, self._impact_t)
+        label = (f'sim_time {image_times[0]:.3f} to {image_times[-1]:.3f} s'
+                 + (f', {1e3 * (image_times[1] - image_times[0]):.3g} ms per column'
+                    if len(image_times) > 1 else ''))
+        t = [] if static else [_Times(_ns([self._wave_t]))]
         chunks = []
         for c in range(wave.shape[0]):
-            image = wave[c]                         # tensor_data copies it
+            image = wave[c][:, pick]                    # (n_prisms, n_times); tensor_data copies
             lim = float(max(image.max(initial=0.0), -image.min(initial=0.0))) or 1.0
-            chunks.append(Chunk.from_columns(f'wave/column_{c}', [_Times(_ns([self._wave_t]))], [
-                _Column(_TENSOR_DATA, _one_row(tensor_data(image, ('prism', 'frame')))),
-                _Column(_TENSOR_RANGE, _one_row(pa.FixedSizeListArray.from_arrays(
-                    pa.array([-lim, lim]), type=_RANGE_TYPE)))]))
+            value_range = _one_row(pa.FixedSizeListArray.from_arrays(pa.array([-lim, lim]),
+                                                                     type=_RANGE_TYPE))
+            chunks.append(Chunk.from_columns(f'wave/column_{c}', t, [
+                _Column(_TENSOR_DATA, _one_row(tensor_data(image, (PRISM_AXIS, label)))),
+                _Column(_TENSOR_RANGE, value_range)]))
+            scale = np.linspace(-lim, lim, _SCALE_STEPS)[None, :]
+            chunks.append(Chunk.from_columns(f'wave_scale/column_{c}', t, [
+                _Column(_TENSOR_DATA, _one_row(tensor_data(
+                    scale, ('', f'strain {-lim:+.3g} (left) to {lim:+.3g} (right)')))),
+                _Column(_TENSOR_RANGE, value_range)]))
+        rr.send_chunks(chunks, recording=self._stream)
+
+    def _log_bar_range(self):
+        """Two invisible bars of zero width at the run's strain extremes per column (static):
+        the bar chart's y range then spans the whole run at every time."""
+        if self._lo is None:
+            return
+        chunks = []
+        for c, (lo, hi) in enumerate(zip(self._lo, self._hi)):
+            chunks.append(_row_chunk(f'strain_profile/column_{c}/range', rr.BarChart(
+                [float(lo), float(hi)], abscissa=[0.0, 0.0], widths=[0.0, 0.0],
+                color=(0, 0, 0, 0))))
         rr.send_chunks(chunks, recording=self._stream)
 
     def _finish(self):
@@ -591,6 +695,32 @@ class _Writer:
         finally:
             stream.disconnect()
             del stream
+
+
+_SCALE_STEPS = 101
+
+
+def heat_map_grid(times, impact_t=None):
+    """The columns of the heat map: ``(grid, pick)``, a uniform time grid s from the impact
+    (``impact_t``, the last impact command's time; the first frame when None or when no frame
+    is that late) to the last frame, one step the median frame interval, and the index of the
+    frame shown at each grid time (the last frame at or before it). ``times`` (n,) s,
+    increasing."""
+    times = np.asarray(times, dtype=np.float64)
+    start = 0
+    if impact_t is not None:
+        start = int(np.searchsorted(times, impact_t - 1e-9))
+        if start >= len(times):
+            start = 0
+    t = times[start:]
+    if len(t) < 2:
+        return t.copy(), np.arange(start, len(times))
+    dt = float(np.median(np.diff(t)))
+    if not dt > 0:
+        return t.copy(), np.arange(start, len(times))
+    grid = t[0] + dt * np.arange(int(np.floor((t[-1] - t[0]) / dt + 1e-6)) + 1)
+    pick = np.searchsorted(times, grid + 1e-6 * dt, side='right') - 1
+    return grid, pick
 
 
 def _message(exc):

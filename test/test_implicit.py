@@ -202,3 +202,15 @@ def test_stable_step_at_least_10x_that_of_rk4_projected_on_the_stiff_column():
     assert _survives('rk4_projected', 2e-4)
     assert not _survives('rk4_projected', 4e-4)
     assert _survives('implicit_midpoint', 4e-3)
+
+
+@pytest.mark.parametrize('sets', [['materials.cable_damping=0.01'], ['contact.lock=penalty'],
+                                  ['loading.impact.mode=striker']])
+def test_forces_outside_the_midpoint_step_are_refused(sets):
+    """Cable damping, prism stops and strikers are not part of the midpoint step: refused with
+    a clear error instead of being silently left out."""
+    scene = Scene.load(ROOT / 'config' / 'scenes' / 'fb_column.yaml').with_overrides(
+        ['structure.n_prisms=3', 'model=full3d', 'integrator=implicit_midpoint', *sets])
+    sim = Simulation(scene)
+    with pytest.raises(ValueError, match='not part of its step'):
+        sim.advance(sim.dt)

@@ -1,5 +1,5 @@
-"""MCAP logs (interfaces.md section 5): round trip, decoding by two independent decoders, the ROS 2
-profile records, truncated files, and Rerun's own MCAP loader."""
+"""MCAP logs (docs/interfaces.md section 5): round trip, decoding by two independent decoders, the
+ROS 2 profile records, truncated files, and Rerun's own MCAP loader."""
 import json
 
 import numpy as np

@@ -154,13 +154,13 @@ def _rigid_energy(chain, h):
 def test_rigid_law_is_the_derivative_of_the_prism_energy():
     chain = Chain1D(build_network(_scene('rb_column', 'model=chain1d')))
     h0 = chain.h0
-    assert (chain.h_lock - h0) / chain.h_lock == pytest.approx(-0.1005, abs=5e-4)  # physics.md
+    assert (chain.h_lock - h0) / chain.h_lock == pytest.approx(-0.1005, abs=5e-4)  # physics
     assert abs(chain.force(np.array([h0]))[0]) < 1e-12
     d = 1e-7 * h0
     for h in np.linspace(chain.h_lock + 0.01 * h0, 1.3 * h0, 25):
         numeric = -(_rigid_energy(chain, h + d) - _rigid_energy(chain, h - d)) / (2 * d)
         assert chain.force(np.array([h]))[0] == pytest.approx(numeric, rel=1e-5, abs=1e-9)
-    # small-strain stiffness (physics.md section 6: 3.21 N/m), infinite at the lock
+    # small-strain stiffness (docs/physics.md section 6: 3.21 N/m), infinite at the lock
     k = -(chain.force(np.array([h0 + d]))[0] - chain.force(np.array([h0 - d]))[0]) / (2 * d)
     assert k == pytest.approx(3.21, abs=0.01)
     assert np.isinf(chain.force(np.array([chain.h_lock * (1 - 1e-9)]))[0])

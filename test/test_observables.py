@@ -112,3 +112,22 @@ def test_peak_between_prisms_is_interpolated_along_the_column():
     eps = -np.maximum(0.0, 0.04 - 0.002 * (k - 7.3) ** 2)
     pos, e = leading_peak(eps)
     assert pos == pytest.approx(7.3, abs=1e-12) and e == pytest.approx(-0.04, rel=1e-12)
+
+
+def test_a_peak_reflected_short_of_the_end_does_not_enter_the_speed_fit():
+    """A pulse at 90 prisms/s whose tracked peak turns back at 47.5 prisms from the impact (the
+    clamped end reflects it before the tracker sees it reach n - 2) and comes back through the
+    10-40 window: only the first passage is fitted, so the slope is the forward speed; counting
+    the way back too would give about half of it."""
+    from solver.observables import first_passage
+    h0, n, c, turn = 0.0062, 50, 90.0, 47.5
+    times = np.arange(0, 1.0 + 1e-9, 0.005)
+    k = np.arange(n)[::-1]                                  # distance from the impacted end
+    strain = np.zeros((len(times), n))
+    for i, t in enumerate(times):
+        d = c * t
+        centre = d if d <= turn else 2 * turn - d           # there and back
+        strain[i] = -0.05 * np.exp(-0.5 * ((k - centre) / 1.5) ** 2)
+    p = first_passage(times, strain, h0)
+    assert p.speed_m_s == pytest.approx(c * h0, rel=0.01)
+    assert p.speed_snapshot_m_s == pytest.approx(c * h0, rel=0.01)

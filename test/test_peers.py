@@ -98,7 +98,8 @@ def test_mujoco_column_nodes_masses_and_rest():
     # tendon lengths are the cable lengths, and the springs sit at the prestress
     s = np.linalg.norm(net.x0[net.cable_b] - net.x0[net.cable_a], axis=1)
     assert np.allclose(mc.data.ten_length, s, rtol=1e-14)
-    # at rest: node accelerations below 1e-10 m/s^2 (physics.md check 1), and it stays put
+    # at rest: node accelerations below 1e-10 m/s^2 (docs/physics.md section 7, check 1), and it
+    # stays put
     assert np.max(np.abs(mc.node_accelerations())) < 1e-10
     mc.advance(200)
     assert np.max(np.abs(mc.positions() - net.x0)) < 1e-12

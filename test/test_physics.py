@@ -1,4 +1,4 @@
-"""The checks of physics.md section 7 (1, 2, 3, 5, 6), each against an independent reference:
+"""The checks of docs/physics.md section 7 (1, 2, 3, 5, 6), each against an independent reference:
 analytic values of section 2-3, invariants (energy, bar lengths, the lock), and convergence
 studies."""
 import math
@@ -41,8 +41,8 @@ def test_column_is_at_rest_before_the_impact(kw):
 def test_prism_geometry_and_self_stress_match_the_analytic_values():
     net = structures.column(n_prisms=1)
     m = net.meta
-    # physics.md section 2: b^2 = 2 r^2 (1 - cos phi) + h^2, s^2 = 2 r^2 (1 - cos(phi - 2 pi/3)) +
-    # h^2
+    # docs/physics.md section 2: b^2 = 2 r^2 (1 - cos phi) + h^2, s^2 =
+    # 2 r^2 (1 - cos(phi - 2 pi/3)) + h^2
     phi = 5 * math.pi / 6
     b = math.sqrt(2 * R ** 2 * (1 - math.cos(phi)) + H0 ** 2)
     s = math.sqrt(2 * R ** 2 * (1 - math.cos(phi - 2 * math.pi / 3)) + H0 ** 2)

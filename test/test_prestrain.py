@@ -20,7 +20,7 @@ def make(name='fb_column.yaml', *sets):
 
 def analytic_tensions(net, p):
     """Cross cable: T = EA p. Base cable at level j (shared bases): gamma_s r per adjacent prism,
-    gamma_s = EA p / s (physics.md section 2), r = base circumradius."""
+    gamma_s = EA p / s (docs/physics.md section 2), r = base circumradius."""
     r, s, EA = net.meta['radius'], net.meta['cross_length'], net.meta['EA']
     T = np.zeros(net.n_cables)
     lev = {}
@@ -49,7 +49,7 @@ def test_graded_prestrain_keeps_reference_equilibrium(scene, sets):
     sim.apply_prestrain(p)
     rest, EA = sim.model.cable_rest_length, sim.model.cable_EA
     a, _, _ = accelerations(np.array(net.x0), np.zeros_like(net.x0), net, rest, EA)
-    assert np.abs(a).max() < 1e-10                     # physics.md section 7, check 1
+    assert np.abs(a).max() < 1e-10                     # docs/physics.md section 7, check 1
     if scene == 'fb_column.yaml' and not sets:
         assert np.allclose(sim.frame().tension, analytic_tensions(net, p), rtol=1e-12, atol=0)
 

@@ -79,9 +79,11 @@ def strips_at(ent, t):
             for strip in rows[0]['LineStrips3D:strips'].flatten().to_pylist()]
 
 
-def tensor(ent, row=-1):
-    """(shape, float64 values) of the Tensor logged in row ``row``."""
-    data = ent['rows'][row][1]['Tensor:data'].flatten().to_pylist()
+def tensor(ent, row=None):
+    """(shape, float64 values) of the Tensor logged in row ``row``; by default the static one
+    (the whole wave, written when the recording closes)."""
+    data = (ent['static'] if row is None else ent['rows'][row][1])['Tensor:data'] \
+        .flatten().to_pylist()
     assert len(data) == 1
     return tuple(data[0]['shape']), np.array(data[0]['buffer'], dtype=np.float64)
 
@@ -173,7 +175,7 @@ def test_topology_is_static_and_matches_the_network(recorded):
 def test_wave_image_is_the_strain_of_every_frame(recorded):
     sim, frames, data, _ = recorded
     wave = data['/wave/column_0']
-    assert wave['rows'][-1][0] == round(frames[-1].t * 1e9)
+    assert 'Tensor:data' in wave['static']      # the whole wave, at every time
     shape, values = tensor(wave)
     assert shape == (sim.network.n_prisms, len(frames))
     np.testing.assert_array_equal(values.reshape(shape),
@@ -373,7 +375,7 @@ def test_static_entities_equal_what_rerun_archetypes_log(recorded):
     built directly; every static component equals what rerun's own archetypes log."""
     from tensegrity_ros.rerun_writer import static_archetypes
     sim, _, data, _ = recorded
-    for path, archetype in static_archetypes(sim.network):
+    for path, archetype in static_archetypes(sim.network, reference_tension_scale(sim.network)):
         got = data['/' + path]['static']
         for batch in archetype.as_component_batches():
             name = batch.component_descriptor().component
@@ -593,3 +595,105 @@ def test_base_force_series_per_column(recorded):
     got = np.array([at(ent, f.t, 'Scalars:scalars')[0] for f in frames])
     want = np.array([f.base_force[0] for f in frames])
     np.testing.assert_array_equal(got, want)
+
+
+# -- the layout --------------------------------------------------------------------------------
+def blueprint_views(path):
+    """{(view class, origin)} of the blueprint stored in the recording file ``path``."""
+    reader = RrdReader(path)
+    (store,) = reader.blueprints()
+    views = set()
+    for chunk in reader.stream(store=store):
+        rb = chunk.to_record_batch()
+        if 'ViewBlueprint:class_identifier' in rb.schema.names:
+            for cls, origin in zip(rb.column('ViewBlueprint:class_identifier').to_pylist(),
+                                   rb.column('ViewBlueprint:space_origin').to_pylist()):
+                views.add((cls[0], origin[0]))
+    return views
+
+
+def test_the_stored_blueprint_holds_the_paper_style_views(recorded):
+    _, _, _, path = recorded
+    assert blueprint_views(path) == {
+        ('3D', 'world'), ('TextDocument', 'legend'), ('BarChart', 'strain_profile/column_0'),
+        ('Tensor', 'wave/column_0'), ('Tensor', 'wave_scale/column_0'),
+        ('TimeSeries', 'base_force'), ('TimeSeries', 'energy'),
+        ('TimeSeries', 'constraint_error'), ('TextLog', 'commands')}
+
+
+def test_bar_chart_is_the_strain_per_prism_of_each_frame(recorded):
+    sim, frames, data, _ = recorded
+    ent = data['/strain_profile/column_0']
+    assert [t for t, _ in ent['rows']] == [round(f.t * 1e9) for f in frames]
+    for f in (frames[0], frames[7], frames[-1]):
+        (tensor,), = [r['BarChart:values'].flatten().to_pylist() for t, r in ent['rows']
+                      if t == round(f.t * 1e9)]
+        assert tensor['shape'] == [sim.network.n_prisms]
+        np.testing.assert_array_equal(tensor['buffer'], f.strain[0])
+    # the y range: invisible zero-width bars at the run's strain extremes (static)
+    (bars,) = [t['buffer'] for t in data['/strain_profile/column_0/range']['static']
+               ['BarChart:values'].flatten().to_pylist()]
+    all_strain = np.stack([f.strain[0] for f in frames])
+    assert list(bars) == [all_strain.min(), all_strain.max()]
+
+
+def test_heat_map_starts_at_the_impact_on_a_sim_time_axis(tmp_path):
+    """Idle frames before the impact command are left out; the heat map's columns are the
+    frames on a uniform sim_time grid (5 ms here) from the impact, and its time axis says so."""
+    scene = Scene.load(FB).with_overrides(['structure.n_prisms=6', 'model=full3d'])
+    sim = Simulation(scene)
+    frames = []
+    path = tmp_path / 'idle.rrd'
+    with RerunRecorder(sim.network, path, flush_every=8) as rec:
+        for k in range(18):
+            if k == 10:                                    # 10 idle frames, then the impact
+                t_impact = sim.t
+                sim.apply_impact(0.1)
+                rec.command(t_impact, 'impact v0 = 0.1 m/s')
+            frames.append(sim.frame())
+            rec.frame(frames[-1])
+            sim.advance(0.005)
+    data = read(path)
+    after = [f for f in frames if f.t >= t_impact - 1e-12]
+    assert len(after) < len(frames)
+    shape, values = tensor(data['/wave/column_0'])
+    assert shape == (6, len(after))                        # n_prisms rows, frames from impact
+    np.testing.assert_array_equal(values.reshape(shape),
+                                  np.stack([f.strain[0] for f in after], axis=1))
+    names = data['/wave/column_0']['static']['Tensor:data'].flatten().to_pylist()[0]['names']
+    assert names[0].startswith('prism')
+    assert names[1] == (f'sim_time {after[0].t:.3f} to {after[-1].t:.3f} s, '
+                        f'{1e3 * (after[1].t - after[0].t):.3g} ms per column')
+    # the colour scale: the heat map's symmetric range as a gradient strip
+    lo, hi = flat(data['/wave_scale/column_0']['static']['Tensor:value_range'])
+    lim = np.abs(values).max()
+    assert (lo, hi) == (-lim, lim)
+    _, scale = tensor(data['/wave_scale/column_0'])
+    assert scale[0] == -lim and scale[-1] == lim and np.all(np.diff(scale) > 0)
+
+
+def test_heat_map_grid_resamples_uneven_frames_on_time():
+    from tensegrity_ros.rerun_writer import heat_map_grid
+    times = np.array([0.0, 0.1, 0.2, 0.21, 0.3, 0.5, 0.6])   # median step 0.1 s
+    grid, pick = heat_map_grid(times, impact_t=0.1)
+    np.testing.assert_allclose(grid, [0.1, 0.2, 0.3, 0.4, 0.5, 0.6])
+    # the last frame at or before each grid time
+    assert list(pick) == [1, 2, 4, 4, 5, 6]
+    grid, pick = heat_map_grid(times, impact_t=5.0)           # no frame that late: all frames
+    assert grid[0] == 0.0 and pick[0] == 0
+
+
+def test_a_single_prism_records_its_bar_chart(tmp_path):
+    """One prism: the strain of a batch is a strided view of the batch buffer unless copied."""
+    sim = Simulation(Scene.load(ROOT / 'config' / 'scenes' / 'prism.yaml'))
+    sim.apply_impact(0.05)
+    frames = []
+    path = tmp_path / 'prism.rrd'
+    with RerunRecorder(sim.network, path, flush_every=4) as rec:
+        for _ in range(9):
+            frames.append(sim.frame())
+            rec.frame(frames[-1])
+            sim.advance(0.005)
+    ent = read(path)['/strain_profile/column_0']
+    got = [r['BarChart:values'].flatten().to_pylist()[0]['buffer'] for _, r in ent['rows']]
+    assert got == [list(f.strain[0]) for f in frames]

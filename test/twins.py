@@ -1,7 +1,7 @@
 """Slow, obvious NumPy twins of the solver kernels: dense matrices, no bands, no operators.
 
 They share nothing with the kernels but the network's member lists and masses, so agreement is
-evidence that the fast path computes the physics of physics.md section 1.1.
+evidence that the fast path computes the physics of docs/physics.md section 1.1.
 """
 import numpy as np
 

@@ -1,0 +1,211 @@
+"""Strikers, prism stops and cable damping (solver/contact.py), each against an independent
+reference: the analytic two-mass collision, the analytic damped oscillator, the exact symmetric
+reduction, and invariants (energy, momentum, bar lengths, the lock)."""
+import hashlib
+import math
+
+import numpy as np
+import pytest
+
+from solver import contact, integrators, models, structures
+from solver.runner import run
+from solver.scene import Scene, SceneError
+from solver.simulation import Simulation, prism_twists
+
+SCENES = 'config/scenes'
+
+
+def _scene(name, *sets):
+    return Scene.load(f'{SCENES}/{name}.yaml').with_overrides(list(sets))
+
+
+# -- striker -----------------------------------------------------------------------------------
+
+@pytest.mark.parametrize('ratio', [1.0, 3.0, 0.25])
+def test_striker_on_a_free_mass_is_the_two_mass_collision(ratio):
+    """A striker m_s at v0 on a free mass m through a linear spring k: contact lasts
+    pi sqrt(mu / k), mu = m m_s / (m + m_s); afterwards v_s = (m_s - m) / (m_s + m) v0 and
+    v_m = 2 m_s / (m_s + m) v0 (elastic 1D collision; equal masses: the striker stops)."""
+    m, k, v0 = 0.0083, 1.0e4, 0.1
+    m_s = ratio * m
+    net = structures.explicit([[0.0, 0.0, 0.0]], [], [], m, 1.0, cable_rest_length=[])
+    model = models.Full3D(net)
+    spec = {'damp': None, 'stop_h': None, 'strikers': True, 'levels': np.array([[[0]]]),
+            'par': np.array([0.0, k, 1.0, 1.0, m_s, 0.0])}
+    contact.attach(model, spec)
+    model.v[1, 2] = -v0                     # the striker (row 1) moves down onto the mass
+    mu = m * m_s / (m + m_s)
+    duration = math.pi * math.sqrt(mu / k)
+    dt = duration / 400
+    integ = integrators.get('rk4_projected')
+    t, d_prev, t_end_contact = 0.0, 0.0, None
+    for _ in range(800):
+        steps, status = integ.run(model.x, model.v, dt, 1, model.net, model.act, model.ws)
+        assert status == 0
+        t += dt
+        d = model.x[0, 2] - model.x[1, 2]           # overlap of mass and striker face
+        if d <= 0.0 < d_prev:
+            t_end_contact = t - dt * d / (d - d_prev)    # linear interpolation of the zero
+            break
+        d_prev = d
+    assert t_end_contact == pytest.approx(duration, rel=1e-5)
+    for _ in range(5):                               # out of contact: free flight
+        integ.run(model.x, model.v, dt, 1, model.net, model.act, model.ws)
+    v_s = -(m_s - m) / (m_s + m) * v0
+    v_m = -2.0 * m_s / (m_s + m) * v0
+    assert model.v[1, 2] == pytest.approx(v_s, abs=1e-7 * v0)
+    assert model.v[0, 2] == pytest.approx(v_m, rel=1e-7)
+    assert m * model.v[0, 2] + m_s * model.v[1, 2] == pytest.approx(-m_s * v0, rel=1e-12)
+    assert np.all(model.v[:, :2] == 0.0)
+
+
+def test_striker_sym3d_equals_full3d_and_conserves_energy():
+    """The striker keeps the 3-fold symmetry: the reduced model reproduces the full one, and the
+    total energy (column + striker kinetic + contact) is conserved at a fine step."""
+    sets = ('loading.impact.mode=striker', 'integrator.dt=1e-4', 'structure.n_prisms=10')
+    runs = {}
+    for model in ('sym3d', 'full3d'):
+        sim = Simulation(_scene('fb_column', *sets, f'model={model}'))
+        assert sim.model.name == model
+        added = sim.apply_impact(0.1)
+        assert added == pytest.approx(0.5 * 0.0249 * 0.1 ** 2, rel=1e-12)
+        e0 = sim.energy()
+        energies, strikers = [], []
+        for _ in range(40):
+            sim.advance(1e-3)
+            f = sim.frame()
+            energies.append(f.energy)
+            strikers.append(f.striker.copy())
+        runs[model] = (f.positions, np.array(strikers))
+        assert np.max(np.abs(np.array(energies) - e0)) / e0 < 1e-6
+    assert np.max(np.abs(runs['sym3d'][0] - runs['full3d'][0])) < 1e-11
+    assert np.max(np.abs(runs['sym3d'][1] - runs['full3d'][1])) < 1e-11
+    # the column took most of the striker's momentum within 40 ms
+    assert runs['sym3d'][1][-1, 0, 1] > -0.05
+
+
+def test_striker_energy_balance_right_after_the_impact():
+    sim = Simulation(_scene('fb_column', 'loading.impact.mode=striker',
+                            'loading.impact.striker_mass=0.0747'))
+    before = sim.energy()
+    assert sim.striker()[0, 1] == 0.0
+    sim.apply_impact(0.15)
+    st = sim.striker()
+    assert st[0, 1] == -0.15
+    assert sim.energy() - before == pytest.approx(0.5 * 0.0747 * 0.15 ** 2, rel=1e-12)
+
+
+# -- cable damping ---------------------------------------------------------------------------
+
+# sha256 of the strain history (11 frames x 1 x 50, float64) of this FB run computed by the code
+# without strikers, stops and damping (same machine, numba without fastmath): zero damping must
+# reproduce it bit for bit
+UNDAMPED_FB_STRAIN_SHA256 = 'e831a64b46a6044f3618cdb31b6da9ea89e866bc12b231f96b2cf019e750e37f'
+
+
+def _fb_strain(*sets):
+    sim = Simulation(_scene('fb_column', *sets))
+    sim.apply_impact(0.1)
+    return run(sim, 0.05, 0.005).strain
+
+
+def test_zero_damping_is_bit_for_bit_the_undamped_code():
+    plain = _fb_strain()
+    for sets in (('materials.cable_damping=0.0',), ('materials.cable_damping_ratio=0.0',),
+                 ('contact.lock=none',)):
+        assert np.array_equal(_fb_strain(*sets), plain)
+    assert hashlib.sha256(np.ascontiguousarray(plain).tobytes()).hexdigest() == \
+        UNDAMPED_FB_STRAIN_SHA256
+
+
+def test_damped_column_loses_energy_monotonically():
+    sim = Simulation(_scene('fb_column', 'materials.cable_damping_ratio=0.05'))
+    sim.apply_impact(0.1)
+    rec = run(sim, 0.2, 0.005)
+    assert np.all(np.diff(rec.energy) < 0.0)
+    assert rec.energy[-1] < 0.9 * rec.energy[0]
+
+
+def test_damped_cable_mass_oscillator_matches_the_analytic_one():
+    """A mass hanging on one damped cable (gravity keeps it taut): z - z_eq = a e^(-zeta w t)
+    (cos w_d t + zeta / sqrt(1 - zeta^2) sin w_d t), w = sqrt(k / m), zeta = c / (2 sqrt(k m))."""
+    m, L, EA, g, c = 0.01, 0.1, 10.0, 9.81, 0.2
+    k = EA / L
+    stretch = m * g / k                     # static stretch 0.98 mm
+    a = 0.5 * stretch                       # start 0.49 mm below the equilibrium, at rest
+    scene = Scene({'structure': {'builder': 'explicit',
+                                 'nodes': [[0.0, 0.0, 0.0], [0.0, 0.0, -(L + stretch + a)]],
+                                 'cables': [[0, 1]], 'clamped': [0], 'node_mass': m,
+                                 'cable_rest_length': [L]},
+                   'materials': {'cable_E': EA / (math.pi * 1.4e-4 ** 2), 'cable_damping': c},
+                   'loading': {'gravity': g}, 'model': 'full3d',
+                   'integrator': {'dt': 1e-4}, 'run': {'output_dt': 1e-3}})
+    sim = Simulation(scene)
+    w = math.sqrt(k / m)
+    zeta = c / (2.0 * math.sqrt(k * m))
+    wd = w * math.sqrt(1.0 - zeta ** 2)
+    z_eq = -(L + stretch)
+    err = 0.0
+    energies = [sim.energy()]
+    for _ in range(300):
+        sim.advance(1e-3)
+        t = sim.t
+        ref = z_eq - a * math.exp(-zeta * w * t) * (math.cos(wd * t) + zeta / math.sqrt(
+            1.0 - zeta ** 2) * math.sin(wd * t))
+        err = max(err, abs(sim.frame().positions[1, 2] - ref))
+        energies.append(sim.energy())
+    assert 0.05 < zeta < 0.5
+    assert err < 1e-6 * a
+    assert np.all(np.diff(energies) < 0.0)
+
+
+# -- prism stops (contact.lock) ----------------------------------------------------------------
+
+def test_rigid_base_column_at_1_m_s_runs_through_the_lock_with_stops():
+    sim = Simulation(_scene('rb_column', 'contact.lock=penalty', 'integrator.dt=2e-4'))
+    assert sim.model.name == 'sym3d'
+    sim.apply_impact(1.0)
+    e0 = sim.energy()
+    net = sim.network
+    sign = np.sign(prism_twists(np.asarray(net.x0), net.levels))
+    growth, cerr, worst = 0.0, 0.0, 0.0
+    while sim.t < 1.0 - 1e-9:
+        sim.advance(0.005)
+        f = sim.frame()
+        tw = prism_twists(f.positions, net.levels)
+        assert np.all(tw * sign > 0.0)              # no prism twisted through 180 deg (or 0)
+        worst = max(worst, float(np.max(np.abs(tw))))
+        growth = max(growth, (f.energy - e0) / e0)
+        cerr = max(cerr, f.constraint_error)
+    assert growth < 1e-6
+    assert cerr < 1e-9
+    assert worst < math.pi
+    # without the stops the same impact ends with the bars crossing
+    plain = Simulation(_scene('rb_column', 'integrator.dt=2e-4'))
+    plain.apply_impact(1.0)
+    with pytest.raises(Exception, match='prism twist'):
+        plain.advance(0.05)
+
+
+# -- bad input ------------------------------------------------------------------------------
+
+@pytest.mark.parametrize('sets, key', [
+    (('materials.cable_damping=0.1', 'materials.cable_damping_ratio=0.1'),
+     'materials.cable_damping_ratio'),
+    (('materials.cable_damping=-1',), 'materials.cable_damping'),
+    (('loading.impact.mode=hammer',), 'loading.impact.mode'),
+    (('loading.impact.contact=soft',), 'loading.impact.contact'),
+    (('loading.impact.striker_mass=0',), 'loading.impact.striker_mass'),
+    (('contact.lock=wall',), 'contact.lock'),
+    (('contact.stiffness=0',), 'contact.stiffness'),
+])
+def test_bad_contact_keys_name_the_key(sets, key):
+    with pytest.raises(SceneError, match=key.replace('.', r'\.')):
+        _scene('fb_column', *sets)
+
+
+def test_stop_above_the_rest_height_and_chain1d_are_refused():
+    with pytest.raises(ValueError, match='contact.tolerance'):
+        Simulation(_scene('rb_column', 'contact.lock=penalty', 'contact.tolerance=0.2'))
+    with pytest.raises(ValueError, match='chain1d'):
+        Simulation(_scene('fb_column', 'loading.impact.mode=striker', 'model=chain1d'))
