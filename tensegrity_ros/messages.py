@@ -23,7 +23,7 @@ import math
 import numpy as np
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from geometry_msgs.msg import Point
+from geometry_msgs.msg import Point, PointStamped
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import PointCloud2, PointField
 from std_msgs.msg import ColorRGBA, Float64MultiArray, MultiArrayDimension, String
@@ -45,13 +45,14 @@ TYPES = {
     '~/cmd/prestrain': 'std_msgs/msg/Float64MultiArray',
     '~/cmd/impact': 'std_msgs/msg/Float64MultiArray',
     '~/structure': 'std_msgs/msg/String',     # JSON, transient-local, once per activation
+    '~/cmd/focus': 'geometry_msgs/msg/PointStamped',
 }
 MSG_CLASSES = {
     '~/nodes': PointCloud2, '~/strain': Float64MultiArray, '~/cable_tension': Float64MultiArray,
     '~/markers': MarkerArray, '~/base_force': Float64MultiArray,
     '~/striker': Float64MultiArray, '/clock': Clock, '/diagnostics': DiagnosticArray,
     '~/cmd/prestrain': Float64MultiArray, '~/cmd/impact': Float64MultiArray,
-    '~/structure': String,
+    '~/structure': String, '~/cmd/focus': PointStamped,
 }
 PUBLISHED = ('~/nodes', '~/strain', '~/cable_tension', '~/markers', '/clock', '/diagnostics',
              '~/base_force')

@@ -27,6 +27,7 @@ import math
 import sys
 import time
 
+import numpy as np
 import rclpy
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, SetParametersResult
 from rclpy.event_handler import PublisherEventCallbacks
@@ -36,6 +37,7 @@ from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSPolicyKind, QoSProfile,
                        ReliabilityPolicy)
 from rclpy.qos_overriding_options import QoSOverridingOptions
+from geometry_msgs.msg import PointStamped
 from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import SetBool, Trigger
 
@@ -222,6 +224,11 @@ class TensegritySim(LifecycleNode):
                                       qos_overriding_options=QOS_OVERRIDES), handler)
             for key, handler in (('~/cmd/impact', self._on_impact),
                                  ('~/cmd/prestrain', self._on_prestrain))]
+        self._cmd_subs.append((self.create_subscription(
+            PointStamped, '~/cmd/focus', self._on_focus, _qos(),
+            qos_overriding_options=QOS_OVERRIDES), self._on_focus))
+        self.focus = None              # the last focus plan (dict) and its state
+        self._focus_impact_at = None   # sim time of the planned impact, while it is ahead
         self._srvs = [self.create_service(Trigger, '~/reset', self._on_reset),
                           self.create_service(SetBool, '~/set_running', self._on_set_running)]
         self.running = not self.params['start_paused']
@@ -375,6 +382,11 @@ class TensegritySim(LifecycleNode):
         self._apply_pending()
         if self.running:
             n = self.steps_this_tick(now)
+            if self._focus_impact_at is not None:      # land exactly on the planned impact
+                n = min(n, max(0, round((self._focus_impact_at - self.sim.t) / self.sim.dt)))
+                if n == 0:
+                    self._focus_impact()
+                    n = self.steps_this_tick(now)
             if n > 0:
                 t0 = time.perf_counter()
                 try:
@@ -451,6 +463,7 @@ class TensegritySim(LifecycleNode):
             'last_command_topic': topic, 'last_command': verdict, 'last_command_detail': detail,
             'last_command_sim_time_s': (float(self.last_command_t)
                                         if math.isfinite(self.last_command_t) else -1.0),
+            **self._focus_values(),
         }
 
     def _publish_diagnostics(self, now, level=None, message=None):
@@ -557,9 +570,81 @@ class TensegritySim(LifecycleNode):
             return apply
         return self._command('~/cmd/prestrain', msg, check)
 
+    def _on_focus(self, msg):
+        """``~/cmd/focus``: plan one prestrain per column (solver.lens.design) for the focus
+        (point.x along the array, point.z the depth below the bases, m) in a medium of speed
+        ``medium_speed_m_s``, ramp the prestrains over ``prestrain_ramp_s``, then impact every
+        column at once with the scene's v0. The first plan for a scene and v0 computes the
+        arrival map (the node waits for it; kept on disk for the next time)."""
+        def check():
+            from solver import lens
+            x, z = float(msg.point.x), float(msg.point.z)
+            if not (math.isfinite(x) and math.isfinite(z) and math.isfinite(msg.point.y)):
+                raise commands.CommandError(f'~/cmd/focus: the point must be finite, got '
+                                            f'({msg.point.x!r}, {msg.point.y!r}, {msg.point.z!r})')
+            if self.sim.model.name == 'chain1d':
+                raise commands.CommandError('~/cmd/focus: the chain1d model cannot change its '
+                                            'prestrain; use model auto, full3d or sym3d')
+            scene = self.sim.scene
+            v0 = float(scene['loading.impact.v0'])
+            if not v0 > 0:
+                raise commands.CommandError('~/cmd/focus: the scene has no impact velocity '
+                                            '(loading.impact.v0 > 0) to plan for')
+            speed = self.params['medium_speed_m_s']
+            try:
+                plan = lens.design(scene, (x, z), speed, v0)
+            except (lens.LensError, KeyError) as exc:
+                raise commands.CommandError(f'~/cmd/focus: {exc}') from None
+            p = [c['prestrain'] for c in plan.columns]
+
+            def apply():
+                ramp = self.params['prestrain_ramp_s']
+                self.sim.apply_prestrain(p, ramp_s=ramp)
+                self._focus_impact_at = self.sim.t + ramp
+                self.focus = {'plan': plan.as_dict(), 'state': 'ramping',
+                              'impact_sim_time_s': self._focus_impact_at}
+                if ramp == 0:
+                    self._focus_impact()
+                return (f'focus ({x:g}, {z:g}) m at C = {speed:g} m/s: prestrain per column '
+                        f'{commands.describe(np.array(p))} over {ramp:g} s, then impact '
+                        f'v0 = {v0:g} m/s on every column')
+            return apply
+        return self._command('~/cmd/focus', msg, check)
+
+    def _focus_impact(self):
+        """The planned impact of a focus: every column at once."""
+        self._focus_impact_at = None
+        v0 = self.focus['plan']['v0']
+        added = self.sim.apply_impact(v0)
+        self.focus['state'] = 'impacted'
+        self.focus['impact_sim_time_s'] = float(self.sim.t)
+        detail = f'focus impact v0 = {v0:g} m/s on every column, kinetic energy +{added:.3g} J'
+        self.get_logger().info(f'~/cmd/focus: {detail}', throttle_duration_sec=LOG_THROTTLE_S)
+        self._emit(self._event_sinks, self.sim.t, f'~/cmd/focus: {detail}')
+
+    def _focus_values(self):
+        """The focus plan as /diagnostics values (texts; JSON lists per column)."""
+        import json
+        f = self.focus
+        if f is None:
+            return {'focus': 'none'}
+        plan = f['plan']
+        cols = plan['columns']
+        return {'focus': f['state'], 'focus_x_m': float(plan['focus_m'][0]),
+                'focus_z_m': float(plan['focus_m'][1]),
+                'focus_medium_speed_m_s': float(plan['medium_speed_m_s']),
+                'focus_v0': float(plan['v0']), 'focus_t0_s': float(plan['t0_s']),
+                'focus_impact_sim_time_s': float(f['impact_sim_time_s']),
+                'focus_prestrain': json.dumps([c['prestrain'] for c in cols]),
+                'focus_arrival_target_s': json.dumps([c['target_s'] for c in cols]),
+                'focus_arrival_predicted_s': json.dumps([c['predicted_s'] for c in cols])}
+
     def _on_reset(self, request, response):
         self._apply_pending()          # commands that came before the reset, then the reset
         self.sim.reset()
+        self._focus_impact_at = None
+        if self.focus is not None and self.focus['state'] == 'ramping':
+            self.focus['state'] = 'cancelled by reset'
         self.problem = ''
         self._anchor()
         self._rtf_window = (time.monotonic(), self.sim.t, self.counts['frames'])

@@ -27,6 +27,7 @@ DEFAULTS = {
     'diagnostics_rate_hz': 2.0,
     'start_paused': False,       # start with the clock stopped; ~/set_running starts it
     'autostart': True,           # configure and activate at start-up (else: ~/change_state)
+    'medium_speed_m_s': 2.0,     # wave speed of the host medium for ~/cmd/focus
 }
 DESCRIPTIONS = {
     'scene_file': 'scene YAML (absolute, relative to the working directory, or to the package)',
@@ -46,8 +47,10 @@ DESCRIPTIONS = {
                     '~/set_running true starts the clock',
     'autostart': 'configure and activate the managed node at start-up; false: it waits '
                  'unconfigured for ~/change_state',
+    'medium_speed_m_s': 'wave speed of the host medium below the bases (z > 0) for ~/cmd/focus, '
+                        'm/s',
 }
-POSITIVE = ('publish_rate_hz', 'marker_rate_hz', 'diagnostics_rate_hz')
+POSITIVE = ('publish_rate_hz', 'marker_rate_hz', 'diagnostics_rate_hz', 'medium_speed_m_s')
 NON_NEGATIVE = ('real_time_factor', 'prestrain_ramp_s', 'dt')
 # fixed once the node runs (the simulation and the recorders are built from them): a change is
 # refused with this reason
@@ -57,7 +60,7 @@ RESTART = 'is fixed while the node runs; restart the node with the new value'
 # ranges the parameter descriptors show (FloatingPointRange; the upper ends are generous limits)
 RANGES = {'publish_rate_hz': (1e-3, 10000.0), 'marker_rate_hz': (1e-3, 10000.0),
           'diagnostics_rate_hz': (1e-3, 1000.0), 'real_time_factor': (0.0, 1e6),
-          'prestrain_ramp_s': (0.0, 1e3), 'dt': (0.0, 1.0)}
+          'prestrain_ramp_s': (0.0, 1e3), 'dt': (0.0, 1.0), 'medium_speed_m_s': (1e-6, 1e5)}
 # names the node accepts besides its own (rclpy's)
 ROS_NAMES = ('use_sim_time', 'start_type_description_service')
 

@@ -1,0 +1,109 @@
+"""``~/cmd/focus`` on a small lens array in a real rclpy context (own domain id): the node plans
+the prestrains with the focusing design, ramps them, impacts every column at once at the end of
+the ramp and reports the plan on ``/diagnostics``; an unreachable focus and a bad point are
+rejected naming the problem, changing nothing."""
+import json
+import os
+
+import numpy as np
+import pytest
+import yaml
+
+rclpy = pytest.importorskip('rclpy')
+from geometry_msgs.msg import PointStamped  # noqa: E402
+from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from rclpy.parameter import Parameter  # noqa: E402
+
+from solver import lens  # noqa: E402
+from solver.scene import Scene  # noqa: E402
+from tensegrity_ros.commander import Commander, spin_until  # noqa: E402
+from tensegrity_ros.node import TensegritySim  # noqa: E402
+
+DOMAIN = 0 + os.getpid() % 10
+SETS = ['structure.n_prisms=10', 'structure.n_columns=3', 'lens.grid=5', 'run.t_end=0.3']
+SPEED = 2.0
+RAMP = 0.02
+
+
+@pytest.fixture
+def focused(tmp_path, monkeypatch):
+    monkeypatch.setenv('TENSEGRITY_CACHE', str(tmp_path / 'cache'))
+    scene = Scene.load('config/scenes/lens_focus.yaml').with_overrides(SETS)
+    path = tmp_path / 'small_lens.yaml'
+    path.write_text(yaml.safe_dump(scene.data))
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=DOMAIN)
+    node = TensegritySim(context=ctx, parameter_overrides=[
+        Parameter('scene_file', value=str(path)), Parameter('real_time_factor', value=0.0),
+        Parameter('medium_speed_m_s', value=SPEED), Parameter('prestrain_ramp_s', value=RAMP),
+        Parameter('diagnostics_rate_hz', value=20.0)])
+    cmd = Commander(context=ctx)
+    pub = cmd.create_publisher(PointStamped, f'{cmd.base}/cmd/focus', 10)
+    ex = SingleThreadedExecutor(context=ctx)
+    ex.add_node(node)
+    ex.add_node(cmd)
+    assert spin_until(ex, lambda: cmd.connected() and pub.get_subscription_count() > 0, 60)
+
+    def focus(x, z, y=0.0):
+        msg = PointStamped()
+        msg.point.x, msg.point.y, msg.point.z = float(x), float(y), float(z)
+        pub.publish(msg)
+    yield node, ex, cmd, focus, Scene.load(path)
+    ex.shutdown()
+    node.close()
+    cmd.destroy_node()
+    node.destroy_node()
+    rclpy.shutdown(context=ctx)
+
+
+def test_focus_plans_ramps_and_impacts_every_column_at_once(focused):
+    node, ex, cmd, focus, scene = focused
+    t_cmd = node.sim.t
+    focus(0.02, 0.1)
+    assert spin_until(ex, lambda: node.focus is not None and node.focus['state'] == 'impacted',
+                      600)
+    # the plan is the focusing design's for this scene, focus, speed and the scene's v0
+    ref = lens.design(scene, (0.02, 0.1), SPEED, scene['loading.impact.v0'])
+    got = node.focus['plan']
+    p_ref = [c['prestrain'] for c in ref.columns]
+    assert [c['prestrain'] for c in got['columns']] == pytest.approx(p_ref, rel=1e-12)
+    # the delay law of the plan: targets follow -|F - X_i| / C
+    xs = np.arange(3) * scene['structure.column_spacing']
+    target = np.array([c['target_s'] for c in got['columns']])
+    np.testing.assert_allclose(target - target[1],
+                               -(np.hypot(xs - 0.02, 0.1) - 0.1) / SPEED, atol=1e-12)
+    # the outer columns are symmetric about the focus: the same prestrain
+    assert p_ref[0] == pytest.approx(p_ref[2], rel=1e-9) and p_ref[0] != p_ref[1]
+    # ramped to the plan, impacted at the end of the ramp, every column moving
+    np.testing.assert_allclose(node.sim.prestrain.mean(axis=1), p_ref, rtol=1e-9)
+    t_imp = node.focus['impact_sim_time_s']
+    assert t_imp - t_cmd == pytest.approx(RAMP, abs=2 * node.sim.dt + 0.05)
+    assert t_imp >= t_cmd + RAMP - 1e-9
+    assert spin_until(ex, lambda: node.sim.t > t_imp + 0.03, 60)
+    s = node.sim.frame().strain
+    assert np.all(s.min(axis=1) < -1e-3)                          # a pulse in every column
+    # the plan on /diagnostics
+    n = len(cmd.diagnostics)
+    assert spin_until(ex, lambda: any(d[2].get('focus') == 'impacted'
+                                      for d in cmd.diagnostics[n:]), 30)
+    d = next(d[2] for d in cmd.diagnostics[n:] if d[2].get('focus') == 'impacted')
+    assert json.loads(d['focus_prestrain']) == pytest.approx(p_ref, rel=1e-9)
+    assert float(d['focus_z_m']) == 0.1 and float(d['focus_medium_speed_m_s']) == SPEED
+    assert all('nan' not in v.lower() for v in d.values())
+
+
+def test_unreachable_focus_and_bad_points_are_rejected_changing_nothing(focused):
+    node, ex, cmd, focus, scene = focused
+    p0 = node.sim.prestrain.copy()
+    # a slow medium: the delay law spans 3.9 s across the array, far beyond what the prestrain
+    # range can shift the arrivals by
+    assert node.set_parameters([Parameter('medium_speed_m_s', value=0.01)])[0].successful
+    for args, words in (((0.0, 0.001), ('out of reach', 'column')),
+                        ((0.02, float('nan')), ('finite',)),
+                        ((0.02, -0.1), ('Z > 0',))):
+        k = node.counts['rejected']
+        focus(*args)
+        assert spin_until(ex, lambda: node.counts['rejected'] == k + 1, 120), args
+        text = node.last_command[2]
+        assert text.startswith('~/cmd/focus') and all(w in text for w in words), text
+    assert node.focus is None and np.array_equal(node.sim.prestrain, p0)
