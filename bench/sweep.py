@@ -4,8 +4,10 @@ column (v0 x prestrain, 8 x 8), once serially in this process and once on a 2-wo
 
 Efficiency = (serial wall time / cluster wall time) / workers. Where the rest goes: the cluster's
 start (scheduler and worker processes, their imports), each worker's first task (numba cache
-load), and the scheduling overhead per task (cluster wall time minus the busiest worker's task
-time, per task). Written to ``sweep.json``.
+load; the serial side pays the same load once, in its untimed first point, reported as
+``serial_first_point_s``), and the scheduling overhead per point (cluster wall time minus the
+busiest worker's task time, per point). The cluster runs the points in batches
+(:func:`tensegrity_ros.sweep.chunks`). Written to ``sweep.json``.
 """
 from __future__ import annotations
 
@@ -32,7 +34,9 @@ def main(out, quick=False, log=print, workers=2):
         serial = sw.build(COLUMNS['FB'], grid, out=Path(tmp) / 'serial', t_end=t_end)
         n = len(serial.points)
         log(f'sweep bench: {n} points of {t_end:g} s, serial')
+        t0 = time.perf_counter()
         sw.run_point(serial.scene, serial.overrides(serial.points[0]))      # kernels warm
+        first_point_s = time.perf_counter() - t0
         t0 = time.perf_counter()
         rows_s, _ = sw.execute(serial)
         serial_s = time.perf_counter() - t0
@@ -43,6 +47,7 @@ def main(out, quick=False, log=print, workers=2):
         try:
             par = sw.build(COLUMNS['FB'], grid, out=Path(tmp) / 'cluster', t_end=t_end)
             t1 = time.perf_counter()
+            batches = [len(b) for b in sw.chunks(par.points, cluster.n_workers)]
             rows_p, _ = sw.execute(par, cluster)
             run_s = time.perf_counter() - t1
         finally:
@@ -70,6 +75,8 @@ def main(out, quick=False, log=print, workers=2):
         'speedup': serial_s / total_p, 'efficiency': serial_s / total_p / workers,
         'efficiency_excluding_start': serial_s / run_s / workers,
         'cluster_start_s': t_start, 'cluster_close_s': t_close,
+        'serial_first_point_s': first_point_s,
+        'tasks': len(batches), 'points_per_task': batches,
         'serial_task_mean_s': serial_task, 'cluster_task_mean_s': task_s / n,
         'worker_first_task_extra_s': first_extra,
         'scheduling_overhead_per_task_s': max(0.0, run_s - busiest) / n,

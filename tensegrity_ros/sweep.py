@@ -241,6 +241,10 @@ def write_table(out_dir, rows, columns):
     os.replace(tmp, out_dir / CSV)
 
 
+GUIDED_SHARE = 3                 # a batch takes 1/(3 x workers) of the points still to run,
+MAX_BATCH = 8                    # at most this many (Ctrl-C loses the rows of running batches)
+
+
 # -- the cluster ----------------------------------------------------------------------------------
 class Cluster:
     """A Dask client: on ``address`` (an existing scheduler) or on a ``LocalCluster`` of
@@ -316,9 +320,31 @@ def validate_points(scene, sweep_points, extra):
             raise SweepError(str(exc)) from None
 
 
-def execute(sweep, cluster=None, progress=None, task=run_point, on_row=None):
+def chunks(todo, workers, size=None):
+    """``todo`` cut into consecutive batches, one Dask task each. With ``size`` every batch has
+    ``size`` points; by default the batches shrink as the sweep goes (guided self-scheduling):
+    each takes a third of the remaining points divided among the workers, at least one and at most
+    :data:`MAX_BATCH`, so the early tasks are long (few round trips to the scheduler) and the last
+    ones short (the workers finish together)."""
+    todo = list(todo)
+    out = []
+    i = 0
+    while i < len(todo):
+        n = size or min(MAX_BATCH, max(1, (len(todo) - i) // (GUIDED_SHARE * max(workers, 1))))
+        out.append(todo[i:i + n])
+        i += n
+    return out
+
+
+def run_batch(task, scene, items):
+    """The rows of ``items`` (``(point_id, overrides)`` pairs), one :func:`run_point` each."""
+    return [task(scene, overrides, pid) for pid, overrides in items]
+
+
+def execute(sweep, cluster=None, progress=None, task=run_point, on_row=None, chunk=None):
     """Run the points of ``sweep`` not yet in its ``out_dir``; serially in this process when
-    ``cluster`` is None, else as one Dask task per point. Each finished row is appended to
+    ``cluster`` is None, else as Dask tasks of a few points each (:func:`chunks`; ``chunk`` fixes
+    the number of points per task). Each finished row is appended to
     ``rows.jsonl`` at once; the table is rewritten every few seconds and at the end (also after
     Ctrl-C or an error). Returns ``(rows of every point in order, number run now)``."""
     out = Path(sweep.out_dir)
@@ -354,20 +380,22 @@ def execute(sweep, cluster=None, progress=None, task=run_point, on_row=None):
             elif todo:
                 from distributed import as_completed
                 scene = cluster.client.scatter(sweep.scene, broadcast=True)
-                futures = [cluster.client.submit(task, scene, sweep.overrides(p), pid,
-                                                 key=f'point-{pid}', pure=False)
-                           for pid, p in todo]
+                batches = chunks(todo, cluster.n_workers, chunk)
+                futures = {cluster.client.submit(run_batch, task, scene,
+                                                 [(pid, sweep.overrides(p)) for pid, p in b],
+                                                 key=f'points-{b[0][0]}-{len(b)}', pure=False): b
+                           for b in batches}
                 try:
                     for fut in as_completed(futures):
                         try:
-                            row = fut.result()
+                            rows = fut.result()
                         except Exception as exc:    # noqa: BLE001 - e.g. KilledWorker
-                            pid = fut.key.split('-', 1)[1]
-                            p = dict(todo)[pid]
-                            row = {'point_id': pid, **sweep.overrides(p), **empty_figures(),
-                                   'status': 'error',
-                                   'reason': f'{type(exc).__name__}: {exc}'.splitlines()[0]}
-                        finish(row, fh)
+                            reason = f'{type(exc).__name__}: {exc}'.splitlines()[0]
+                            rows = [{'point_id': pid, **sweep.overrides(p), **empty_figures(),
+                                     'status': 'error', 'reason': reason}
+                                    for pid, p in futures[fut]]
+                        for row in rows:
+                            finish(row, fh)
                 finally:
                     for fut in futures:
                         if not fut.done():

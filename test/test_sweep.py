@@ -62,9 +62,11 @@ def test_a_sweep_row_equals_the_run_summary_of_the_same_point(serial_rows, capsy
                if k not in ('speed_arrival_m_s', 'arrival_end_s'))
 
 
-def test_the_cluster_sweep_returns_the_rows_of_the_serial_sweep(cluster, serial_rows, tmp_path):
+@pytest.mark.parametrize('chunk', [None, 3])
+def test_the_cluster_sweep_returns_the_rows_of_the_serial_sweep(cluster, serial_rows, tmp_path,
+                                                               chunk):
     sweep = sw.build(FB, GRID, out=tmp_path, t_end=T_END)
-    rows, n = sw.execute(sweep, cluster)
+    rows, n = sw.execute(sweep, cluster, chunk=chunk)          # 3: a task of 3 points, one of 1
     assert n == 4
     assert [_figures(r) for r in rows] == [_figures(r) for r in serial_rows]
     assert len({r['worker_pid'] for r in rows} - {os.getpid()}) >= 1     # ran on the workers
@@ -144,6 +146,21 @@ def test_a_worker_killed_during_a_sweep_loses_no_row(cluster, tmp_path):
     assert marker.exists()                             # a worker did die
     assert n == 3 and [r['status'] for r in rows] == ['ok'] * 3
     assert int(marker.read_text()) not in {r['worker_pid'] for r in rows}
+
+
+@pytest.mark.parametrize('n, workers', [(1, 2), (7, 2), (64, 2), (1000, 2), (500, 7)])
+def test_batches_cover_every_point_once_in_order_and_shrink_to_single_points(n, workers):
+    batches = sw.chunks(range(n), workers)
+    assert [i for b in batches for i in b] == list(range(n))
+    sizes = [len(b) for b in batches]
+    assert all(1 <= k <= sw.MAX_BATCH for k in sizes)
+    assert sizes == sorted(sizes, reverse=True)
+    # the points left after a batch keep at least GUIDED_SHARE batches of that size per worker
+    for i, k in enumerate(sizes):
+        left = sum(sizes[i:])
+        assert k == 1 or k * sw.GUIDED_SHARE * workers <= left
+    assert sizes[-min(n, workers):] == [1] * min(n, workers)   # the last tasks are single points
+    assert [len(b) for b in sw.chunks(range(10), 2, size=4)] == [4, 4, 2]
 
 
 def test_latin_hypercube_points_are_seeded_and_stratified():
