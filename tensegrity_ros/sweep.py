@@ -9,6 +9,7 @@ of the same command runs only the points that are missing.
 """
 from __future__ import annotations
 
+import functools
 import hashlib
 import itertools
 import json
@@ -147,10 +148,27 @@ def canonical(value):
     return value
 
 
-def point_id(scene_data, overrides):
-    """A key of the point: a hash of the scene's validated data and the overrides in canonical
-    form (sorted keys, JSON), so that the same point gets the same key in any order of options."""
-    blob = json.dumps({'scene': scene_data,
+@functools.lru_cache(maxsize=1)
+def code_version():
+    """A hash of the solver's source (every ``solver/*.py``): a resumed sweep reruns its points
+    after the solver changed instead of mixing rows of two versions."""
+    import solver
+    return source_hash(Path(solver.__file__).parent)
+
+
+def source_hash(directory):
+    """sha256 (12 hex digits) of the names and contents of the ``*.py`` files in ``directory``."""
+    h = hashlib.sha256()
+    for path in sorted(Path(directory).glob('*.py')):
+        h.update(path.name.encode() + b'\0' + path.read_bytes() + b'\0')
+    return h.hexdigest()[:12]
+
+
+def point_id(scene_data, overrides, code=None):
+    """A key of the point: a hash of the scene's validated data, the overrides in canonical
+    form (sorted keys, JSON) and the solver's :func:`code_version`, so that the same point gets
+    the same key in any order of options, and a new key when the solver changes."""
+    blob = json.dumps({'scene': scene_data, 'code': code or code_version(),
                        'set': sorted([k, canonical(v)] for k, v in overrides.items())},
                       sort_keys=True, default=repr)
     return hashlib.sha256(blob.encode()).hexdigest()[:16]

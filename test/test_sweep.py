@@ -163,6 +163,22 @@ def test_batches_cover_every_point_once_in_order_and_shrink_to_single_points(n, 
     assert [len(b) for b in sw.chunks(range(10), 2, size=4)] == [4, 4, 2]
 
 
+def test_a_point_gets_a_new_id_when_the_solver_source_changes(tmp_path):
+    import shutil
+    import solver
+    src = tmp_path / 'solver'
+    shutil.copytree(Path(solver.__file__).parent, src, ignore=shutil.ignore_patterns('__pycache__'))
+    before = sw.source_hash(src)
+    assert before == sw.code_version()                  # the same files, the same hash
+    path = src / 'dynamics.py'
+    path.write_text(path.read_text() + '\n# changed\n')
+    after = sw.source_hash(src)
+    assert after != before
+    data, point = {'a': 1}, {'prestrain': 0.003}
+    assert sw.point_id(data, point, code=before) == sw.point_id(data, point, code=before)
+    assert sw.point_id(data, point, code=before) != sw.point_id(data, point, code=after)
+
+
 def test_latin_hypercube_points_are_seeded_and_stratified():
     axes = [sw.parse_axis('prestrain=0.002:0.004'), sw.parse_axis('structure.radius=0.004:0.005'),
             sw.parse_axis('structure.stacking=shared,parallel')]
