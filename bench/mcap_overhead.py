@@ -1,6 +1,7 @@
 """Cost of an MCAP log: a run with and without ``tensegrity run --mcap``'s recorder, side by side.
 
     python -m bench.mcap_overhead [--scene config/scenes/fb_column.yaml] [--repeats 3]
+                                  [--out bench/results/mcap_overhead.json]
 
 The same simulation runs from its impact to ``run.t_end`` at ``run.output_dt``, alternately plain
 and recording (recorder opened, the impact command, every frame's messages built by
@@ -8,11 +9,14 @@ and recording (recorder opened, the impact command, every frame's messages built
 warm-up pair. Reports the overhead ``recorded / plain - 1`` of wall and process CPU time (all
 threads) as the median over pairs, the file size per simulated second and per frame, and the time
 :func:`~tensegrity_ros.loader.load_run` takes relative to the plain run. Only ratios measured in
-the same process are reported: the machine may be busy.
+the same process are reported: the machine may be busy. The figures go to ``--out`` (JSON) with
+the host's load average at the start.
 """
 from __future__ import annotations
 
 import argparse
+import json
+import os
 import statistics
 import sys
 import tempfile
@@ -83,8 +87,14 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('--scene', default='config/scenes/fb_column.yaml')
     ap.add_argument('--repeats', type=int, default=3)
+    ap.add_argument('--out', default='bench/results/mcap_overhead.json')
     args = ap.parse_args(argv)
-    measure(args.scene, args.repeats)
+    load_avg = os.getloadavg()[0]
+    out = measure(args.scene, args.repeats)
+    out.update(repeats=args.repeats, load_average_1min_at_start=load_avg)
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    Path(args.out).write_text(json.dumps(out, indent=2))
+    print(f'wrote {args.out}')
     return 0
 
 
