@@ -20,9 +20,12 @@ Timings: the fastest of 3 to 7 runs; ``cost_vs_default`` = wall time divided by 
 machine may be busy: read ratios).
 
 Stiff scenes (:data:`bench.stability.STIFF_SCENES`): the same error and cost for the explicit
-methods and ``implicit_midpoint`` over a window of ``STIFF_T_END`` s at v0 = 0.1 m/s, against an
-``rk4_projected`` reference at ``STIFF_REF_DT`` (checked against ``implicit_midpoint`` at
-``STIFF_CHECK_DT``, an independent method), into ``work_precision_stiff.csv`` and
+methods and ``implicit_midpoint`` (where the scene admits it: not with a striker,
+:func:`bench.stability.stiff_methods`) over a window of ``STIFF_T_END`` s at v0 = 0.1 m/s,
+against an ``rk4_projected`` reference at ``STIFF_REF_DT``, checked against an independent method
+(``implicit_midpoint`` at ``STIFF_CHECK_DT``, or ``dopri54_projected`` at rtol 1e-10 where the
+implicit method is refused) and against ``rk4_projected`` at twice its step, into
+``work_precision_stiff.csv``, ``work_precision_stiff_reference.csv`` and
 ``work_precision_stiff.png``.
 """
 from __future__ import annotations
@@ -128,39 +131,52 @@ def run(out, quick=False, log=print):
     return rows, spreads
 
 
-def _stiff_grid(quick):
+def _stiff_grid(quick, methods=None):
+    """(label, method, kinks, [(dt, rtol)...]) series of the stiff scenes, for the methods of
+    ``methods`` (None: all)."""
     imp = [6.4e-3 / 2 ** k for k in range(0, 8)]             # 6.4 ms ... 50 us
     rk4 = [4e-4 / 2 ** k for k in range(0, 4)]               # 0.4 ms ... 50 us
     tols = [10.0 ** -k for k in range(4, 11, 2)]
     if quick:
         imp, rk4, tols = imp[1::3], rk4[1:2], tols[:1]
-    return [('rk4_projected', 'rk4_projected', True, [(dt, None) for dt in rk4]),
-            ('rattle', 'rattle', True, [(dt, None) for dt in rk4]),
-            ('dopri54_projected', 'dopri54_projected', True, [(1e-3, t) for t in tols]),
-            ('implicit_midpoint', 'implicit_midpoint', True, [(dt, None) for dt in imp])]
+    series = [('rk4_projected', 'rk4_projected', True, [(dt, None) for dt in rk4]),
+              ('rattle', 'rattle', True, [(dt, None) for dt in rk4]),
+              ('dopri54_projected', 'dopri54_projected', True, [(1e-3, t) for t in tols]),
+              ('implicit_midpoint', 'implicit_midpoint', True, [(dt, None) for dt in imp])]
+    return [s for s in series if methods is None or s[1] in methods]
 
 
 def stiff_run(quick=False, log=print):
     """Error against cost on the stiff scenes; returns (rows, spreads)."""
-    from .stability import STIFF_SCENES
+    from .stability import STIFF_SCENES, stiff_methods
     model = common.available_models()[0]
     t_end = STIFF_T_END / 4 if quick else STIFF_T_END
-    scenes = list(STIFF_SCENES.items())[:1] if quick else list(STIFF_SCENES.items())
+    scenes = list(STIFF_SCENES.items())
+    scenes = [scenes[0], scenes[-1]] if quick else scenes
     rows, spreads = [], {}
     for name, (column, over) in scenes:
         def sc(method, dt, rtol=None, kinks=True):
             return common.scene(column, model, method, dt, STIFF_OUTPUT_DT, t_end, rtol=rtol,
                                 atol=None if rtol is None else rtol * 1e-3,
                                 kinks=kinks).with_overrides(list(over))
+        methods = stiff_methods(over)
         ref = common.record(sc('rk4_projected', STIFF_REF_DT))
         if ref.diverged:
             raise RuntimeError(f'stiff reference diverged: {ref.diverged}')
-        check = common.record(sc('implicit_midpoint', STIFF_CHECK_DT))
-        spreads[name] = {f'independent: implicit_midpoint dt={STIFF_CHECK_DT:g}':
-                         common.strain_error(check, ref)}
-        log(f'  {name}: reference vs implicit_midpoint dt={STIFF_CHECK_DT:g}: '
-            f'{spreads[name]}')
-        for label, method, kinks, points in _stiff_grid(quick):
+        checks = {f'bound: rk4_projected dt={2 * STIFF_REF_DT:g}':
+                  sc('rk4_projected', 2 * STIFF_REF_DT)}
+        if 'implicit_midpoint' in methods:
+            checks[f'independent: implicit_midpoint dt={STIFF_CHECK_DT:g}'] = sc(
+                'implicit_midpoint', STIFF_CHECK_DT)
+        else:
+            checks['independent: dopri54_projected rtol=1e-10'] = sc('dopri54_projected', 1e-3,
+                                                                     1e-10)
+        spreads[name] = {}
+        for key, check in checks.items():
+            spreads[name][key] = common.strain_error(common.record(check), ref)
+            log(f'  {name}: reference vs {key}: relative strain difference '
+                f'{spreads[name][key]:.2e}')
+        for label, method, kinks, points in _stiff_grid(quick, methods):
             for dt, rtol in points:
                 h = common.record(sc(method, dt, rtol, kinks), repeats=1 if quick else 3)
                 err = common.strain_error(h, ref) if not h.diverged else float('nan')
@@ -179,7 +195,10 @@ def stiff_run(quick=False, log=print):
     return rows, spreads
 
 
-def stiff_plot(rows, path):
+def stiff_plot(rows, path, spreads=None):
+    """Error against wall time (top) and steps (bottom) per stiff scene; ``spreads`` ({scene:
+    {check: difference}}) shades the reference spread (``bound`` checks) and marks the
+    independent check by a dashed line."""
     import matplotlib
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
@@ -200,6 +219,15 @@ def stiff_plot(rows, path):
                     ax.loglog([max(r['strain_error_rel'], 1e-16) for r in sel],
                               [r[key] for r in sel], marker='o', ms=3.5,
                               color=colours[label], label=label)
+            checks = (spreads or {}).get(name, {})
+            floor = max((v for k, v in checks.items() if k.startswith('bound')), default=np.nan)
+            if np.isfinite(floor):
+                ax.axvspan(1e-16, max(floor, 1e-16), color='0.85', zorder=0,
+                           label='reference spread (rk4_projected at 2x its step)')
+            for k, v in checks.items():
+                if k.startswith('independent') and np.isfinite(v):
+                    ax.axvline(v, color='0.4', ls='--', lw=1,
+                               label=f'reference vs {k.split(": ", 1)[1]}')
             failed = sorted({f'{r["method"]} {r["dt"] * 1e3:g} ms' for r in rows
                              if r['scene'] == name and r['status'] != 'ok'})
             ax.set_title(f'{name}\ndiverged: {", ".join(failed) or "none"}', fontsize=8)
@@ -207,7 +235,8 @@ def stiff_plot(rows, path):
             ax.set_ylabel(ylabel)
             ax.grid(True, which='both', alpha=0.3)
             ax.legend(fontsize=7)
-    fig.suptitle('Work-precision on stiff scenes (v0 = 0.1 m/s, sym3d)')
+    fig.suptitle('Work-precision on stiff scenes (v0 = 0.1 m/s, sym3d; implicit_midpoint '
+                 'refuses the striker scene)')
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return str(path)
@@ -218,8 +247,11 @@ def stiff_main(out, quick=False, log=print):
     out = Path(out)
     tag = '_quick' if quick else ''
     rows, spreads = stiff_run(quick, log)
+    ref_rows = [{'scene': n, 'check': k, 'strain_difference_rel': v}
+                for n, d in spreads.items() for k, v in d.items()]
     return [common.write_csv(out / f'work_precision_stiff{tag}.csv', rows),
-            stiff_plot(rows, out / f'work_precision_stiff{tag}.png')]
+            common.write_csv(out / f'work_precision_stiff_reference{tag}.csv', ref_rows),
+            stiff_plot(rows, out / f'work_precision_stiff{tag}.png', spreads)]
 
 
 def fastest(rows, levels=LEVELS, cost='wall_s', exclude=()):
