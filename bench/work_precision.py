@@ -26,7 +26,9 @@ against an ``rk4_projected`` reference at ``STIFF_REF_DT``, checked against an i
 (``implicit_midpoint`` at ``STIFF_CHECK_DT``, or ``dopri54_projected`` at rtol 1e-10 where the
 implicit method is refused) and against ``rk4_projected`` at twice its step, into
 ``work_precision_stiff.csv``, ``work_precision_stiff_reference.csv`` and
-``work_precision_stiff.png``.
+``work_precision_stiff.png``. The stiff scenes have no converged strain history (their stiff base
+cables switch slack/taut on nanometre stretches), so the chart's second row and
+``work_precision_stiff_fastest.csv`` rank by the energy drift, which needs no reference.
 """
 from __future__ import annotations
 
@@ -195,48 +197,101 @@ def stiff_run(quick=False, log=print):
     return rows, spreads
 
 
+ENERGY_LEVELS = (1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8)   # energy-drift levels, stiff scenes
+
+
+def stiff_fastest(rows, levels=ENERGY_LEVELS):
+    """Per stiff scene and energy-drift level: the cheapest run (wall time) that finished with
+    ``energy_drift_rel`` at most the level, its runner-up method and their cost ratio. The energy
+    drift needs no reference, which the stiff scenes lack (their strain histories do not
+    converge). Returns a list of dicts."""
+    out = []
+    for name in dict.fromkeys(r['scene'] for r in rows):
+        sel = [r for r in rows if r['scene'] == name and r['status'] == 'ok'
+               and np.isfinite(r['energy_drift_rel'])]
+        for level in levels:
+            best = {}
+            for r in sel:
+                if r['energy_drift_rel'] <= level and (
+                        r['method'] not in best or r['wall_s'] < best[r['method']]['wall_s']):
+                    best[r['method']] = r
+            ranked = sorted(best.values(), key=lambda r: r['wall_s'])
+            b = ranked[0] if ranked else None
+            second = ranked[1] if len(ranked) > 1 else None
+            out.append({'scene': name, 'energy_level': level,
+                        'method': b['method'] if b else 'none', 'dt': b['dt'] if b else '',
+                        'rtol': b['rtol'] if b else '',
+                        'wall_per_sim_s': b['wall_per_sim_s'] if b else float('nan'),
+                        'energy_drift_rel': b['energy_drift_rel'] if b else float('nan'),
+                        'runner_up': second['method'] if second else '',
+                        'runner_up_ratio': (second['wall_s'] / b['wall_s'] if second
+                                            else float('nan'))})
+    return out
+
+
+def load_stiff_rows(path):
+    """The rows of a ``work_precision_stiff.csv`` with numbers parsed (to redraw the chart)."""
+    import csv
+    text = ('scene', 'column', 'model', 'method', 'status', 'rtol')
+    rows = []
+    with open(path) as fh:
+        for r in csv.DictReader(fh):
+            rows.append({k: (v if k in text or v == '' else float(v)) for k, v in r.items()})
+            if rows[-1]['rtol'] != '':
+                rows[-1]['rtol'] = float(rows[-1]['rtol'])
+    return rows
+
+
 def stiff_plot(rows, path, spreads=None):
-    """Error against wall time (top) and steps (bottom) per stiff scene; ``spreads`` ({scene:
-    {check: difference}}) shades the reference spread (``bound`` checks) and marks the
-    independent check by a dashed line."""
+    """Wall time per simulated second against the strain-history error (top) and against the
+    energy drift (bottom), per stiff scene; ``spreads`` ({scene: {check: difference}}) shades
+    the reference spread (``bound`` checks) and marks the independent check by a dashed line."""
     import matplotlib
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
 
     scenes = list(dict.fromkeys(r['scene'] for r in rows))
-    fig, axes = plt.subplots(2, len(scenes), figsize=(6.5 * len(scenes), 9), squeeze=False,
+    fig, axes = plt.subplots(2, len(scenes), figsize=(6.0 * len(scenes), 9), squeeze=False,
                              constrained_layout=True)
     colours = {'rk4_projected': 'C0', 'rattle': 'C2', 'dopri54_projected': 'C1',
                'implicit_midpoint': 'C4'}
-    for i, (key, ylabel) in enumerate((('wall_per_sim_s', 'wall time per simulated second, s'),
-                                       ('steps', 'steps in the window'))):
+    for i, (key, xlabel) in enumerate((
+            ('strain_error_rel', 'strain-history error / peak strain (reference not converged)'),
+            ('energy_drift_rel', 'energy drift, max |E - E0| / E0 (no reference needed)'))):
         for ax, name in zip(axes[i], scenes):
+            xs = []
             for label in colours:
                 sel = sorted((r for r in rows if (r['scene'], r['method']) == (name, label)
-                              and r['status'] == 'ok' and np.isfinite(r['strain_error_rel'])),
-                             key=lambda r: r['strain_error_rel'])
+                              and r['status'] == 'ok' and np.isfinite(r[key])),
+                             key=lambda r: r[key])
                 if sel:
-                    ax.loglog([max(r['strain_error_rel'], 1e-16) for r in sel],
-                              [r[key] for r in sel], marker='o', ms=3.5,
+                    xs += [max(r[key], 1e-16) for r in sel]
+                    ax.loglog([max(r[key], 1e-16) for r in sel],
+                              [r['wall_per_sim_s'] for r in sel], marker='o', ms=3.5,
                               color=colours[label], label=label)
-            checks = (spreads or {}).get(name, {})
-            floor = max((v for k, v in checks.items() if k.startswith('bound')), default=np.nan)
-            if np.isfinite(floor):
-                ax.axvspan(1e-16, max(floor, 1e-16), color='0.85', zorder=0,
-                           label='reference spread (rk4_projected at 2x its step)')
-            for k, v in checks.items():
-                if k.startswith('independent') and np.isfinite(v):
-                    ax.axvline(v, color='0.4', ls='--', lw=1,
-                               label=f'reference vs {k.split(": ", 1)[1]}')
+            if i == 0:
+                checks = (spreads or {}).get(name, {})
+                floor = max((v for k, v in checks.items() if k.startswith('bound')),
+                            default=np.nan)
+                if np.isfinite(floor):
+                    ax.axvspan(1e-16, max(floor, 1e-16), color='0.85', zorder=0,
+                               label='reference spread (rk4_projected at 2x its step)')
+                    xs.append(floor)
+                for k, v in checks.items():
+                    if k.startswith('independent') and np.isfinite(v):
+                        ax.axvline(v, color='0.4', ls='--', lw=1,
+                                   label=f'reference vs {k.split(": ", 1)[1]}')
+                if xs:
+                    ax.set_xlim(min(xs) / 3, max(xs) * 3)
             failed = sorted({f'{r["method"]} {r["dt"] * 1e3:g} ms' for r in rows
                              if r['scene'] == name and r['status'] != 'ok'})
             ax.set_title(f'{name}\ndiverged: {", ".join(failed) or "none"}', fontsize=8)
-            ax.set_xlabel('strain-history error / peak strain')
-            ax.set_ylabel(ylabel)
+            ax.set_xlabel(xlabel)
+            ax.set_ylabel('wall time per simulated second, s')
             ax.grid(True, which='both', alpha=0.3)
             ax.legend(fontsize=7)
-    fig.suptitle('Work-precision on stiff scenes (v0 = 0.1 m/s, sym3d; implicit_midpoint '
-                 'refuses the striker scene)')
+    fig.suptitle('Work-precision on stiff scenes (v0 = 0.1 m/s, sym3d, 0.128 s; '
+                 'implicit_midpoint refuses the striker scene)')
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return str(path)
@@ -249,8 +304,14 @@ def stiff_main(out, quick=False, log=print):
     rows, spreads = stiff_run(quick, log)
     ref_rows = [{'scene': n, 'check': k, 'strain_difference_rel': v}
                 for n, d in spreads.items() for k, v in d.items()]
+    best = stiff_fastest(rows)
+    for b in best:
+        log(f'  fastest at energy drift <= {b["energy_level"]:g}: {b["scene"]}: {b["method"]} '
+            f'(dt {b["dt"]}, rtol {b["rtol"]}), {b["wall_per_sim_s"]:.3g} s per simulated s, '
+            f'runner-up {b["runner_up"]} x{b["runner_up_ratio"]:.2f}')
     return [common.write_csv(out / f'work_precision_stiff{tag}.csv', rows),
             common.write_csv(out / f'work_precision_stiff_reference{tag}.csv', ref_rows),
+            common.write_csv(out / f'work_precision_stiff_fastest{tag}.csv', best),
             stiff_plot(rows, out / f'work_precision_stiff{tag}.png', spreads)]
 
 
