@@ -29,6 +29,8 @@ implicit method is refused) and against ``rk4_projected`` at twice its step, int
 ``work_precision_stiff.png``. The stiff scenes have no converged strain history (their stiff base
 cables switch slack/taut on nanometre stretches), so the chart's second row and
 ``work_precision_stiff_fastest.csv`` rank by the energy drift, which needs no reference.
+``tensegrity bench --only stiff`` (these and the stiff scenes of :mod:`bench.stability`) takes
+about 80 s on a shared 2-core machine, ``--quick`` about 12 s.
 """
 from __future__ import annotations
 
