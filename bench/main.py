@@ -7,7 +7,8 @@ from pathlib import Path
 
 def main(out_dir='bench/results', quick=False, peers=False, only=None, log=print):
     """Run the benchmarks into ``out_dir``; ``only`` is None or a subset of
-    ``{'work_precision', 'stability', 'peers', 'rerun', 'sweep', 'soak'}`` (``peers=True`` adds
+    ``{'work_precision', 'stability', 'stiff', 'peers', 'rerun', 'sweep', 'soak'}`` (``stiff``: the
+    stiff scenes of both, which ``work_precision`` and ``stability`` also run; ``peers=True`` adds
     the peer comparison, which :mod:`bench.peers` provides; ``rerun``, only on request, the cost of
     a Rerun recording, :mod:`bench.rerun_overhead`; ``sweep``, only on request, the parallel
     efficiency of a sweep, :mod:`bench.sweep`; ``soak``, only on request, the node under a command
@@ -21,6 +22,10 @@ def main(out_dir='bench/results', quick=False, peers=False, only=None, log=print
     if only is None or 'stability' in only:
         from . import stability
         written += stability.main(out, quick=quick, log=log)
+    if only is not None and 'stiff' in only and not {'work_precision', 'stability'} & only:
+        from . import stability, work_precision
+        written += stability.stiff_main(out, quick=quick, log=log)
+        written += work_precision.stiff_main(out, quick=quick, log=log)
     if peers or (only is not None and 'peers' in only):
         from . import peers as peer_bench  # lazy: optional dependencies
         result = peer_bench.main(out, quick)

@@ -17,10 +17,29 @@ The reference of each (column, v0, prestrain) is ``dopri54_projected`` with rtol
 (dt <= 1e-3). Where the reference itself diverges (a physical failure) a run that finishes is
 ``inaccurate``. ``dopri54_projected`` is placed by its largest step dt (rtol 1e-6).
 
+Two maps. The first (``stability.csv``, ``stability.png``, ``stability_limits.csv``) runs the
+scenes as shipped, without contact: above 0.2-0.3 m/s every run, the reference included, ends in
+a physical failure. The second (``stability_contact.csv``, ``stability_contact.png``) runs the
+same grid with the prism stops of :mod:`solver.contact` (:data:`CONTACT`: ``contact.lock:
+penalty`` at its documented stiffness 1e5 N/m and tolerance 0.05 h0) on a dt grid that starts
+lower (:data:`CONTACT_DTS`, the stop is a stiff spring), for the methods that run stops
+(``implicit_midpoint`` refuses them). ``stability_contact_limits.csv`` gives, per column,
+prestrain, v0 and method, the largest stable, conserving (within the default limits) and
+accurate dt of both maps side by side.
+
 Stiff scenes (:data:`STIFF_SCENES`, one entry per scene: a column and its scene overrides): the
-same classification for every method, ``implicit_midpoint`` included, on a finer dt grid
-(:data:`STIFF_DTS`) at v0 = 0.1 m/s, written to ``stability_stiff.csv`` and, per scene and method,
-the largest stable and accurate dt to ``stability_stiff_limits.csv``.
+same classification for every method of :data:`STIFF_METHODS` that the scene admits
+(``implicit_midpoint`` refuses strikers, stops and damping, :func:`stiff_methods`), on a finer dt
+grid (:data:`STIFF_DTS`) at v0 = 0.1 m/s, written to ``stability_stiff.csv`` (with the mean step
+actually taken: kink landing shortens the steps of ``rk4_projected``, ``rk4`` and
+``dopri54_projected`` on the slack/taut switching of stiff cables) and, per scene and method, the
+largest stable, conserving and accurate dt and the ratios to ``rk4_projected`` to
+``stability_stiff_limits.csv``.
+
+Cost: the no-contact map is 1470 runs and 42 references, the contact map 1512 and 42, the stiff
+scenes 153 and 3. ``tensegrity bench --only stability`` (all three) takes about 3 min of one core
+on a shared 2-core machine, ``--quick`` about 15 s; the grids are the full ones (no shrinking
+was needed).
 """
 from __future__ import annotations
 
@@ -44,71 +63,116 @@ SHORT = {'prism height': 'S', 'prism twist': 'L', 'energy': 'E', 'constraint err
          'state': 'N', 'rigid members': 'R', 'constraint projection': 'P', 'step size': 'H'}
 
 
+# the contact map: the prism stops at their documented stiffness and tolerance (solver/contact.py)
+CONTACT = ('contact.lock=penalty', 'contact.stiffness=100000.0', 'contact.tolerance=0.05')
+CONTACT_LABEL = 'prism stops: contact.lock penalty, stiffness 1e5 N/m, tolerance 0.05 h0'
+CONTACT_METHODS = ('rk4_projected', 'rk4', 'rattle', 'dopri54_projected')  # implicit refuses stops
+CONTACT_DTS = (1.25e-4, 2.5e-4) + DTS
+CONTACT_V0S = (0.05, 0.1, 0.15, 0.2, 0.3, 0.5, 1.0)
+
 # stiff scenes: name -> (column, scene overrides); add a scene with one entry
 STIFF_SCENES = {
     'RB, stiff-cable bases, kappa 1e4': ('RB', ('structure.rigid_bases_as=stiff_cables',
                                                  'structure.kappa=1e4')),
     'RB, stiff-cable bases, kappa 1e3': ('RB', ('structure.rigid_bases_as=stiff_cables',
                                                  'structure.kappa=1e3')),
+    'RB, stiff-cable bases, kappa 1e3, striker 1e6 N/m': (
+        'RB', ('structure.rigid_bases_as=stiff_cables', 'structure.kappa=1e3',
+               'loading.impact.mode=striker', 'loading.impact.contact=linear',
+               'loading.impact.contact_stiffness=1e6')),
 }
-STIFF_DTS = (1e-4, 2e-4, 4e-4, 8e-4, 1.6e-3, 3.2e-3, 6.4e-3)   # all divide STIFF_OUTPUT_DT
+STIFF_DTS = (2.5e-5, 5e-5, 1e-4, 2e-4, 4e-4, 8e-4, 1.6e-3, 3.2e-3, 6.4e-3)  # divide the output dt
 STIFF_OUTPUT_DT = 6.4e-3
-STIFF_METHODS = ('rk4_projected', 'rk4', 'rattle', 'dopri54_projected', 'implicit_midpoint')
+STIFF_METHODS = ('rk4_projected', 'rk4_projected (no kink landing)', 'rk4', 'rattle',
+                 'dopri54_projected', 'implicit_midpoint')
+# labels that are not method names: label -> (method, land on kinks)
+VARIANTS = {'rk4_projected (no kink landing)': ('rk4_projected', False)}
+# scene keys whose physics implicit_midpoint's step does not have (it refuses them)
+NOT_IMPLICIT = ('loading.impact.mode=striker', 'contact.lock=penalty', 'materials.cable_damping')
 
 
-def _grid(quick):
+def stiff_methods(over, methods=STIFF_METHODS):
+    """The methods of ``methods`` that run a scene with overrides ``over``: without
+    ``implicit_midpoint`` when the scene has a striker, prism stops or cable damping."""
+    refused = any(o.replace(' ', '').startswith(key) and not o.endswith(('=0', '=0.0', '=none'))
+                  for o in over for key in NOT_IMPLICIT)
+    return tuple(m for m in methods if not (refused and VARIANTS.get(m, (m,))[0]
+                                            == 'implicit_midpoint'))
+
+
+def _grid(quick, contact=False):
     if quick:
-        return ('rk4_projected', 'rattle', 'dopri54_projected'), (1e-3, 8e-3), (0.1, 1.0), (0.002,)
+        methods = ('rk4_projected', 'rattle', 'dopri54_projected')
+        return methods, ((2.5e-4, 1e-3, 8e-3) if contact else (1e-3, 8e-3)), (0.1, 1.0), (0.002,)
+    if contact:
+        return CONTACT_METHODS, CONTACT_DTS, CONTACT_V0S, PRESTRAINS
     return METHODS, DTS, V0S, PRESTRAINS
 
 
 def stiff_run(quick=False, log=print, v0=0.1):
-    """The stiff scenes: every method of :data:`STIFF_METHODS` at every dt of
-    :data:`STIFF_DTS` (quick: three of them, one scene), classified against a
-    ``dopri54_projected`` reference at rtol 1e-10. Returns rows."""
+    """The stiff scenes: every method of :data:`STIFF_METHODS` the scene admits
+    (:func:`stiff_methods`) at every dt of :data:`STIFF_DTS` (quick: four of them, the first and
+    the last scene, a quarter of the window), classified against a ``dopri54_projected``
+    reference at rtol 1e-10. Returns rows."""
     model = common.available_models(('sym3d', 'full3d'))[0]
     t_end = T_END / 4 if quick else T_END
-    scenes = list(STIFF_SCENES.items())[:1] if quick else list(STIFF_SCENES.items())
+    scenes = list(STIFF_SCENES.items())
+    scenes = [scenes[0], scenes[-1]] if quick else scenes
     dts = STIFF_DTS[1::2] if quick else STIFF_DTS
     rows = []
     for name, (column, over) in scenes:
-        def sc(method, dt, rtol=None, atol=None):
+        def sc(method, dt, rtol=None, atol=None, kinks=True):
             return common.scene(column, model, method, dt, STIFF_OUTPUT_DT, t_end, v0=v0,
-                                rtol=rtol, atol=atol, divergence=LOOSE).with_overrides(list(over))
+                                rtol=rtol, atol=atol, kinks=kinks,
+                                divergence=LOOSE).with_overrides(list(over))
         ref = common.record(sc('dopri54_projected', 1e-3, 1e-10, 1e-13))
         ref_state = 'ok' if not ref.diverged else f'diverged: {ref.quantity}'
-        for method in STIFF_METHODS:
+        for label in stiff_methods(over):
+            method, kinks = VARIANTS.get(label, (label, True))
             for dt in dts:
                 rtol = 1e-6 if method == 'dopri54_projected' else None
-                h = common.record(sc(method, dt, rtol, None if rtol is None else 1e-9))
+                h = common.record(sc(method, dt, rtol, None if rtol is None else 1e-9, kinks))
                 cls, err, drift, cerr = classify(h, ref)
-                rows.append({'scene': name, 'column': column, 'model': model, 'method': method,
+                span = float(h.times[-1] - h.times[0])
+                rows.append({'scene': name, 'column': column, 'model': model, 'method': label,
                              'dt': dt, 'v0': v0, 't_end': t_end, 'class': cls,
                              'quantity': h.quantity or '', 't_fail': h.t_fail,
                              'strain_error_rel': err, 'energy_drift_rel': drift,
                              'constraint_error': cerr, 'steps': h.steps,
+                             'mean_step': (span / h.steps if h.steps and not h.diverged
+                                           else float('nan')),
                              'evaluations': h.evaluations, 'wall_s': h.wall_s,
                              'reference': ref_state})
-            log(f'stability (stiff): {name}: {method}: ' + ' '.join(
+            log(f'stability (stiff): {name}: {label}: ' + ' '.join(
                 f'{r["dt"]:g}:{r["class"][:3]}' for r in rows
-                if (r['scene'], r['method']) == (name, method)))
+                if (r['scene'], r['method']) == (name, label)))
     return rows
 
 
 def stiff_limits(rows):
-    """Per stiff scene and method: the largest dt below which no run diverged, the largest
-    below which every run is accurate, and the stable-step ratio to ``rk4_projected``."""
+    """Per stiff scene and method: the largest dt below which no run diverged (stable), below
+    which every run stayed within the default limits (conserving), and below which every run is
+    accurate; the mean step taken at the largest stable dt; the stable and conserving dt as
+    ratios to those of ``rk4_projected`` (NaN where either is missing)."""
     out = []
     for name in dict.fromkeys(r['scene'] for r in rows):
         sel = [dict(r, column=name, prestrain=0.002, v0=0.1) for r in rows if r['scene'] == name]
-        lim = largest_stable(sel, name, v0s=(0.1,))
-        base = lim.get('rk4_projected', (None, None))[0]
-        for method, (stable, accurate) in lim.items():
+        lim = largest_steps(sel, name, v0s=(0.1,))
+        base = lim.get('rk4_projected', {})
+        for method, got in lim.items():
+            at = [r for r in sel if r['method'] == method and r['dt'] == got['stable']]
+            ratios = {}
+            for key in ('stable', 'conserving'):
+                b = base.get(key)
+                ratios[key] = got[key] / b if got[key] and b else float('nan')
             out.append({'scene': name, 'method': method,
-                        'largest_stable_dt': stable if stable else '',
-                        'largest_accurate_dt': accurate if accurate else '',
-                        'stable_dt_vs_rk4_projected': (stable / base if stable and base
-                                                       else float('nan'))})
+                        'largest_stable_dt': got['stable'] or '',
+                        'largest_conserving_dt': got['conserving'] or '',
+                        'largest_accurate_dt': got['accurate'] or '',
+                        'mean_step_at_stable_dt': (at[0].get('mean_step', float('nan')) if at
+                                                   else float('nan')),
+                        'stable_dt_vs_rk4_projected': ratios['stable'],
+                        'conserving_dt_vs_rk4_projected': ratios['conserving']})
     return out
 
 
@@ -127,59 +191,99 @@ def classify(hist, ref):
     return ('accurate' if err <= ACCURATE else 'inaccurate'), err, drift, cerr
 
 
-def run(quick=False, log=print):
-    methods, dts, v0s, prestrains = _grid(quick)
+def run(quick=False, log=print, contact=False):
+    """The map without contact, or (``contact``) with the prism stops of :data:`CONTACT`, on
+    its own grid (:func:`_grid`). Returns rows; their ``contact`` column names the setting."""
+    methods, dts, v0s, prestrains = _grid(quick, contact)
     model = common.available_models(('sym3d', 'full3d'))[0]
     t_end = T_END / 2 if quick else T_END
+    extra = list(CONTACT) if contact else []
+    label = CONTACT_LABEL if contact else 'none'
     rows = []
     for column in common.COLUMNS:
         for p in prestrains:
             for v0 in v0s:
                 ref = common.record(common.scene(column, model, 'dopri54_projected', 1e-3,
                                                  OUTPUT_DT, t_end, prestrain=p, v0=v0, rtol=1e-10,
-                                                 atol=1e-13, divergence=LOOSE))
+                                                 atol=1e-13, divergence=LOOSE
+                                                 ).with_overrides(extra))
                 ref_state = 'ok' if not ref.diverged else f'diverged: {ref.quantity}'
                 for method in methods:
                     for dt in dts:
                         rtol = 1e-6 if method == 'dopri54_projected' else None
                         h = common.record(common.scene(
                             column, model, method, dt, OUTPUT_DT, t_end, prestrain=p, v0=v0,
-                            rtol=rtol, atol=None if rtol is None else 1e-9, divergence=LOOSE))
+                            rtol=rtol, atol=None if rtol is None else 1e-9, divergence=LOOSE
+                        ).with_overrides(extra))
                         cls, err, drift, cerr = classify(h, ref)
-                        rows.append({'column': column, 'model': model, 'method': method,
-                                     'dt': dt, 'v0': v0, 'prestrain': p, 't_end': t_end,
-                                     'class': cls, 'quantity': h.quantity or '',
+                        rows.append({'column': column, 'model': model, 'contact': label,
+                                     'method': method, 'dt': dt, 'v0': v0, 'prestrain': p,
+                                     't_end': t_end, 'class': cls, 'quantity': h.quantity or '',
                                      't_fail': h.t_fail, 'strain_error_rel': err,
                                      'energy_drift_rel': drift, 'constraint_error': cerr,
                                      'reference': ref_state})
                 cells = [r for r in rows if (r['column'], r['prestrain'], r['v0']) ==
                          (column, p, v0)]
-                log(f'stability: {column} p={p:g} v0={v0:g} (reference {ref_state}): '
+                log(f'stability{" (contact)" if contact else ""}: {column} p={p:g} v0={v0:g} '
+                    f'(reference {ref_state}): '
                     + ' '.join(m + ' ' + ''.join(r['class'][:2] + ',' for r in cells
                                                  if r['method'] == m) for m in methods))
     return rows
 
 
-def largest_stable(rows, column, prestrain=0.002, v0s=(0.1, 0.15)):
-    """Per method: the largest dt of the grid below which no cell (v0 in ``v0s``) diverged, and the
-    largest below which every cell is accurate. Returns {method: (stable_dt, accurate_dt)}."""
+def largest_steps(rows, column, prestrain=0.002, v0s=(0.1, 0.15)):
+    """Per method: the largest dt of the grid below which no cell (v0 in ``v0s``) diverged
+    (``stable``), below which every cell finished within the default limits, i.e. is accurate or
+    inaccurate (``conserving``), and below which every cell is accurate (``accurate``); None
+    where even the smallest dt fails. Returns {method: {'stable', 'conserving', 'accurate'}}."""
+    tests = {'stable': lambda c: c != 'diverged',
+             'conserving': lambda c: c in ('accurate', 'inaccurate'),
+             'accurate': lambda c: c == 'accurate'}
     out = {}
     for method in sorted({r['method'] for r in rows}):
         sel = [r for r in rows if r['column'] == column and r['method'] == method
                and r['prestrain'] == prestrain and r['v0'] in v0s]
-        stable = accurate = None
-        still_stable = still_accurate = True
+        got = dict.fromkeys(tests)
+        still = dict.fromkeys(tests, True)
         for dt in sorted({r['dt'] for r in sel}):
-            cells = [r for r in sel if r['dt'] == dt]
-            still_stable = still_stable and all(c['class'] != 'diverged' for c in cells)
-            still_accurate = still_accurate and all(c['class'] == 'accurate' for c in cells)
-            stable = dt if still_stable else stable
-            accurate = dt if still_accurate else accurate
-        out[method] = (stable, accurate)
+            cells = [r['class'] for r in sel if r['dt'] == dt]
+            for key, ok in tests.items():
+                still[key] = still[key] and all(ok(c) for c in cells)
+                got[key] = dt if still[key] else got[key]
+        out[method] = got
     return out
 
 
-def plot(rows, path):
+def largest_stable(rows, column, prestrain=0.002, v0s=(0.1, 0.15)):
+    """Per method: the largest dt of the grid below which no cell (v0 in ``v0s``) diverged, and the
+    largest below which every cell is accurate. Returns {method: (stable_dt, accurate_dt)}."""
+    return {m: (g['stable'], g['accurate'])
+            for m, g in largest_steps(rows, column, prestrain, v0s).items()}
+
+
+def contact_limits(maps):
+    """``maps``: {contact label: rows}. Per column, prestrain, v0 and method, the largest stable,
+    conserving and accurate dt of each map, one row per map (methods of the map only)."""
+    out = []
+    for label, rows in maps.items():
+        for column in dict.fromkeys(r['column'] for r in rows):
+            for p in sorted({r['prestrain'] for r in rows}):
+                for v0 in sorted({r['v0'] for r in rows}):
+                    ref = {r['reference'] for r in rows if (r['column'], r['prestrain'],
+                                                            r['v0']) == (column, p, v0)}
+                    for method, got in largest_steps(rows, column, p, (v0,)).items():
+                        out.append({'column': column, 'prestrain': p, 'v0': v0,
+                                    'contact': label, 'method': method,
+                                    'largest_stable_dt': got['stable'] or '',
+                                    'largest_conserving_dt': got['conserving'] or '',
+                                    'largest_accurate_dt': got['accurate'] or '',
+                                    'reference': ' / '.join(sorted(ref))})
+    return out
+
+
+def plot(rows, path, setting=None):
+    """The map as one panel per method and (column, prestrain); ``setting`` names the contact
+    setting in the title (None: without contact)."""
     import matplotlib
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
@@ -216,18 +320,22 @@ def plot(rows, path):
                 ax.set_xlabel('dt, ms', fontsize=8)
     handles = [plt.Rectangle((0, 0), 1, 1, color=cmap(k)) for k in range(4)]
     fig.legend(handles, CLASSES, loc='outside lower center', ncol=4, fontsize=8)
-    fig.suptitle('Stability map, 50-prism columns (sym3d), accurate = strain history within '
-                 f'{ACCURATE:g} of the peak strain\ndiverged because: S prism collapsed (slack '
-                 'cables), L bars crossed (rigid-base lock),\nE energy, C constraint error, '
-                 'P projection failed, N non-finite', fontsize=9)
+    fig.suptitle('Stability map, 50-prism columns (sym3d), '
+                 + (f'with {setting}' if setting else 'without contact (contact.lock none)')
+                 + f'\naccurate = strain history within {ACCURATE:g} of the peak strain; '
+                 'diverged because: S prism collapsed (slack cables),\nL bars crossed '
+                 '(rigid-base lock), E energy, C constraint error, P projection failed, '
+                 'N non-finite', fontsize=9)
     fig.savefig(path, dpi=100)
     plt.close(fig)
     return str(path)
 
 
 def main(out, quick=False, log=print):
-    """Run, write ``stability.csv``, ``stability_limits.csv`` and ``stability.png``; returns the
-    paths."""
+    """Run both maps and the stiff scenes; write ``stability.csv``, ``stability_limits.csv``,
+    ``stability.png`` (without contact), ``stability_contact.csv``, ``stability_contact.png``,
+    ``stability_contact_limits.csv`` (with the prism stops, limits of both maps) and the files of
+    :func:`stiff_main`; returns the paths."""
     out = Path(out)
     tag = '_quick' if quick else ''
     rows = run(quick, log)
@@ -242,7 +350,27 @@ def main(out, quick=False, log=print):
     written = [common.write_csv(out / f'stability{tag}.csv', rows),
                common.write_csv(out / f'stability_limits{tag}.csv', limits),
                plot(rows, out / f'stability{tag}.png')]
+    written += contact_main(out, quick, log, rows)
     return written + stiff_main(out, quick, log)
+
+
+def contact_main(out, quick=False, log=print, plain=None):
+    """The map with the prism stops: ``stability_contact.csv``, ``stability_contact.png`` and
+    ``stability_contact_limits.csv`` (with the rows of the map without contact, ``plain``, when
+    given)."""
+    out = Path(out)
+    tag = '_quick' if quick else ''
+    rows = run(quick, log, contact=True)
+    maps = ({'none': plain} if plain else {}) | {CONTACT_LABEL: rows}
+    limits = contact_limits(maps)
+    for r in limits:
+        if r['prestrain'] == 0.002 and r['v0'] >= 0.3:
+            log(f'  {r["column"]} v0={r["v0"]:g} {r["contact"][:12]}: {r["method"]}: stable '
+                f'{r["largest_stable_dt"]}, conserving {r["largest_conserving_dt"]}, accurate '
+                f'{r["largest_accurate_dt"]} (reference {r["reference"]})')
+    return [common.write_csv(out / f'stability_contact{tag}.csv', rows),
+            common.write_csv(out / f'stability_contact_limits{tag}.csv', limits),
+            plot(rows, out / f'stability_contact{tag}.png', setting=CONTACT_LABEL)]
 
 
 def stiff_main(out, quick=False, log=print):
@@ -252,8 +380,9 @@ def stiff_main(out, quick=False, log=print):
     rows = stiff_run(quick, log)
     limits = stiff_limits(rows)
     for r in limits:
-        log(f'  {r["scene"]}: {r["method"]}: largest stable dt {r["largest_stable_dt"]}, '
+        log(f'  {r["scene"]}: {r["method"]}: largest stable dt {r["largest_stable_dt"]} (mean '
+            f'step {r["mean_step_at_stable_dt"]:.3g}), conserving {r["largest_conserving_dt"]}, '
             f'accurate {r["largest_accurate_dt"]}, x{r["stable_dt_vs_rk4_projected"]:.3g} '
-            'rk4_projected')
+            f'(conserving x{r["conserving_dt_vs_rk4_projected"]:.3g}) rk4_projected')
     return [common.write_csv(out / f'stability_stiff{tag}.csv', rows),
             common.write_csv(out / f'stability_stiff_limits{tag}.csv', limits)]

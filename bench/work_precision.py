@@ -20,10 +20,17 @@ Timings: the fastest of 3 to 7 runs; ``cost_vs_default`` = wall time divided by 
 machine may be busy: read ratios).
 
 Stiff scenes (:data:`bench.stability.STIFF_SCENES`): the same error and cost for the explicit
-methods and ``implicit_midpoint`` over a window of ``STIFF_T_END`` s at v0 = 0.1 m/s, against an
-``rk4_projected`` reference at ``STIFF_REF_DT`` (checked against ``implicit_midpoint`` at
-``STIFF_CHECK_DT``, an independent method), into ``work_precision_stiff.csv`` and
-``work_precision_stiff.png``.
+methods and ``implicit_midpoint`` (where the scene admits it: not with a striker,
+:func:`bench.stability.stiff_methods`) over a window of ``STIFF_T_END`` s at v0 = 0.1 m/s,
+against an ``rk4_projected`` reference at ``STIFF_REF_DT``, checked against an independent method
+(``implicit_midpoint`` at ``STIFF_CHECK_DT``, or ``dopri54_projected`` at rtol 1e-10 where the
+implicit method is refused) and against ``rk4_projected`` at twice its step, into
+``work_precision_stiff.csv``, ``work_precision_stiff_reference.csv`` and
+``work_precision_stiff.png``. The stiff scenes have no converged strain history (their stiff base
+cables switch slack/taut on nanometre stretches), so the chart's second row and
+``work_precision_stiff_fastest.csv`` rank by the energy drift, which needs no reference.
+``tensegrity bench --only stiff`` (these and the stiff scenes of :mod:`bench.stability`) takes
+about 80 s on a shared 2-core machine, ``--quick`` about 12 s.
 """
 from __future__ import annotations
 
@@ -128,39 +135,52 @@ def run(out, quick=False, log=print):
     return rows, spreads
 
 
-def _stiff_grid(quick):
+def _stiff_grid(quick, methods=None):
+    """(label, method, kinks, [(dt, rtol)...]) series of the stiff scenes, for the methods of
+    ``methods`` (None: all)."""
     imp = [6.4e-3 / 2 ** k for k in range(0, 8)]             # 6.4 ms ... 50 us
     rk4 = [4e-4 / 2 ** k for k in range(0, 4)]               # 0.4 ms ... 50 us
     tols = [10.0 ** -k for k in range(4, 11, 2)]
     if quick:
         imp, rk4, tols = imp[1::3], rk4[1:2], tols[:1]
-    return [('rk4_projected', 'rk4_projected', True, [(dt, None) for dt in rk4]),
-            ('rattle', 'rattle', True, [(dt, None) for dt in rk4]),
-            ('dopri54_projected', 'dopri54_projected', True, [(1e-3, t) for t in tols]),
-            ('implicit_midpoint', 'implicit_midpoint', True, [(dt, None) for dt in imp])]
+    series = [('rk4_projected', 'rk4_projected', True, [(dt, None) for dt in rk4]),
+              ('rattle', 'rattle', True, [(dt, None) for dt in rk4]),
+              ('dopri54_projected', 'dopri54_projected', True, [(1e-3, t) for t in tols]),
+              ('implicit_midpoint', 'implicit_midpoint', True, [(dt, None) for dt in imp])]
+    return [s for s in series if methods is None or s[1] in methods]
 
 
 def stiff_run(quick=False, log=print):
     """Error against cost on the stiff scenes; returns (rows, spreads)."""
-    from .stability import STIFF_SCENES
+    from .stability import STIFF_SCENES, stiff_methods
     model = common.available_models()[0]
     t_end = STIFF_T_END / 4 if quick else STIFF_T_END
-    scenes = list(STIFF_SCENES.items())[:1] if quick else list(STIFF_SCENES.items())
+    scenes = list(STIFF_SCENES.items())
+    scenes = [scenes[0], scenes[-1]] if quick else scenes
     rows, spreads = [], {}
     for name, (column, over) in scenes:
         def sc(method, dt, rtol=None, kinks=True):
             return common.scene(column, model, method, dt, STIFF_OUTPUT_DT, t_end, rtol=rtol,
                                 atol=None if rtol is None else rtol * 1e-3,
                                 kinks=kinks).with_overrides(list(over))
+        methods = stiff_methods(over)
         ref = common.record(sc('rk4_projected', STIFF_REF_DT))
         if ref.diverged:
             raise RuntimeError(f'stiff reference diverged: {ref.diverged}')
-        check = common.record(sc('implicit_midpoint', STIFF_CHECK_DT))
-        spreads[name] = {f'independent: implicit_midpoint dt={STIFF_CHECK_DT:g}':
-                         common.strain_error(check, ref)}
-        log(f'  {name}: reference vs implicit_midpoint dt={STIFF_CHECK_DT:g}: '
-            f'{spreads[name]}')
-        for label, method, kinks, points in _stiff_grid(quick):
+        checks = {f'bound: rk4_projected dt={2 * STIFF_REF_DT:g}':
+                  sc('rk4_projected', 2 * STIFF_REF_DT)}
+        if 'implicit_midpoint' in methods:
+            checks[f'independent: implicit_midpoint dt={STIFF_CHECK_DT:g}'] = sc(
+                'implicit_midpoint', STIFF_CHECK_DT)
+        else:
+            checks['independent: dopri54_projected rtol=1e-10'] = sc('dopri54_projected', 1e-3,
+                                                                     1e-10)
+        spreads[name] = {}
+        for key, check in checks.items():
+            spreads[name][key] = common.strain_error(common.record(check), ref)
+            log(f'  {name}: reference vs {key}: relative strain difference '
+                f'{spreads[name][key]:.2e}')
+        for label, method, kinks, points in _stiff_grid(quick, methods):
             for dt, rtol in points:
                 h = common.record(sc(method, dt, rtol, kinks), repeats=1 if quick else 3)
                 err = common.strain_error(h, ref) if not h.diverged else float('nan')
@@ -179,35 +199,101 @@ def stiff_run(quick=False, log=print):
     return rows, spreads
 
 
-def stiff_plot(rows, path):
+ENERGY_LEVELS = (1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8)   # energy-drift levels, stiff scenes
+
+
+def stiff_fastest(rows, levels=ENERGY_LEVELS):
+    """Per stiff scene and energy-drift level: the cheapest run (wall time) that finished with
+    ``energy_drift_rel`` at most the level, its runner-up method and their cost ratio. The energy
+    drift needs no reference, which the stiff scenes lack (their strain histories do not
+    converge). Returns a list of dicts."""
+    out = []
+    for name in dict.fromkeys(r['scene'] for r in rows):
+        sel = [r for r in rows if r['scene'] == name and r['status'] == 'ok'
+               and np.isfinite(r['energy_drift_rel'])]
+        for level in levels:
+            best = {}
+            for r in sel:
+                if r['energy_drift_rel'] <= level and (
+                        r['method'] not in best or r['wall_s'] < best[r['method']]['wall_s']):
+                    best[r['method']] = r
+            ranked = sorted(best.values(), key=lambda r: r['wall_s'])
+            b = ranked[0] if ranked else None
+            second = ranked[1] if len(ranked) > 1 else None
+            out.append({'scene': name, 'energy_level': level,
+                        'method': b['method'] if b else 'none', 'dt': b['dt'] if b else '',
+                        'rtol': b['rtol'] if b else '',
+                        'wall_per_sim_s': b['wall_per_sim_s'] if b else float('nan'),
+                        'energy_drift_rel': b['energy_drift_rel'] if b else float('nan'),
+                        'runner_up': second['method'] if second else '',
+                        'runner_up_ratio': (second['wall_s'] / b['wall_s'] if second
+                                            else float('nan'))})
+    return out
+
+
+def load_stiff_rows(path):
+    """The rows of a ``work_precision_stiff.csv`` with numbers parsed (to redraw the chart)."""
+    import csv
+    text = ('scene', 'column', 'model', 'method', 'status', 'rtol')
+    rows = []
+    with open(path) as fh:
+        for r in csv.DictReader(fh):
+            rows.append({k: (v if k in text or v == '' else float(v)) for k, v in r.items()})
+            if rows[-1]['rtol'] != '':
+                rows[-1]['rtol'] = float(rows[-1]['rtol'])
+    return rows
+
+
+def stiff_plot(rows, path, spreads=None):
+    """Wall time per simulated second against the strain-history error (top) and against the
+    energy drift (bottom), per stiff scene; ``spreads`` ({scene: {check: difference}}) shades
+    the reference spread (``bound`` checks) and marks the independent check by a dashed line."""
     import matplotlib
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
 
     scenes = list(dict.fromkeys(r['scene'] for r in rows))
-    fig, axes = plt.subplots(2, len(scenes), figsize=(6.5 * len(scenes), 9), squeeze=False,
+    fig, axes = plt.subplots(2, len(scenes), figsize=(6.0 * len(scenes), 9), squeeze=False,
                              constrained_layout=True)
     colours = {'rk4_projected': 'C0', 'rattle': 'C2', 'dopri54_projected': 'C1',
                'implicit_midpoint': 'C4'}
-    for i, (key, ylabel) in enumerate((('wall_per_sim_s', 'wall time per simulated second, s'),
-                                       ('steps', 'steps in the window'))):
+    for i, (key, xlabel) in enumerate((
+            ('strain_error_rel', 'strain-history error / peak strain (reference not converged)'),
+            ('energy_drift_rel', 'energy drift, max |E - E0| / E0 (no reference needed)'))):
         for ax, name in zip(axes[i], scenes):
+            xs = []
             for label in colours:
                 sel = sorted((r for r in rows if (r['scene'], r['method']) == (name, label)
-                              and r['status'] == 'ok' and np.isfinite(r['strain_error_rel'])),
-                             key=lambda r: r['strain_error_rel'])
+                              and r['status'] == 'ok' and np.isfinite(r[key])),
+                             key=lambda r: r[key])
                 if sel:
-                    ax.loglog([max(r['strain_error_rel'], 1e-16) for r in sel],
-                              [r[key] for r in sel], marker='o', ms=3.5,
+                    xs += [max(r[key], 1e-16) for r in sel]
+                    ax.loglog([max(r[key], 1e-16) for r in sel],
+                              [r['wall_per_sim_s'] for r in sel], marker='o', ms=3.5,
                               color=colours[label], label=label)
+            if i == 0:
+                checks = (spreads or {}).get(name, {})
+                floor = max((v for k, v in checks.items() if k.startswith('bound')),
+                            default=np.nan)
+                if np.isfinite(floor):
+                    ax.axvspan(1e-16, max(floor, 1e-16), color='0.85', zorder=0,
+                               label='reference spread (rk4_projected at 2x its step)')
+                    xs.append(floor)
+                for k, v in checks.items():
+                    if k.startswith('independent') and np.isfinite(v):
+                        ax.axvline(v, color='0.4', ls='--', lw=1,
+                                   label=f'reference vs {k.split(": ", 1)[1]}')
+                if xs:
+                    ax.set_xlim(min(xs) / 3, max(xs) * 3)
             failed = sorted({f'{r["method"]} {r["dt"] * 1e3:g} ms' for r in rows
                              if r['scene'] == name and r['status'] != 'ok'})
             ax.set_title(f'{name}\ndiverged: {", ".join(failed) or "none"}', fontsize=8)
-            ax.set_xlabel('strain-history error / peak strain')
-            ax.set_ylabel(ylabel)
+            ax.set_xlabel(xlabel)
+            ax.set_ylabel('wall time per simulated second, s')
             ax.grid(True, which='both', alpha=0.3)
             ax.legend(fontsize=7)
-    fig.suptitle('Work-precision on stiff scenes (v0 = 0.1 m/s, sym3d)')
+    fig.suptitle('Work-precision on stiff scenes (v0 = 0.1 m/s, sym3d, 0.128 s; '
+                 'implicit_midpoint refuses the striker scene)')
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return str(path)
@@ -218,8 +304,17 @@ def stiff_main(out, quick=False, log=print):
     out = Path(out)
     tag = '_quick' if quick else ''
     rows, spreads = stiff_run(quick, log)
+    ref_rows = [{'scene': n, 'check': k, 'strain_difference_rel': v}
+                for n, d in spreads.items() for k, v in d.items()]
+    best = stiff_fastest(rows)
+    for b in best:
+        log(f'  fastest at energy drift <= {b["energy_level"]:g}: {b["scene"]}: {b["method"]} '
+            f'(dt {b["dt"]}, rtol {b["rtol"]}), {b["wall_per_sim_s"]:.3g} s per simulated s, '
+            f'runner-up {b["runner_up"]} x{b["runner_up_ratio"]:.2f}')
     return [common.write_csv(out / f'work_precision_stiff{tag}.csv', rows),
-            stiff_plot(rows, out / f'work_precision_stiff{tag}.png')]
+            common.write_csv(out / f'work_precision_stiff_reference{tag}.csv', ref_rows),
+            common.write_csv(out / f'work_precision_stiff_fastest{tag}.csv', best),
+            stiff_plot(rows, out / f'work_precision_stiff{tag}.png', spreads)]
 
 
 def fastest(rows, levels=LEVELS, cost='wall_s', exclude=()):

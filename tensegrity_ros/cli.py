@@ -414,11 +414,13 @@ def build_parser():
     p.add_argument('--out', default='bench/results', help='output directory (CSV and PNG)')
     p.add_argument('--peers', action='store_true', help='also run the peer comparison')
     p.add_argument('--only', action='append',
-                   choices=('work_precision', 'stability', 'peers', 'rerun', 'sweep', 'soak',
-                            'array'),
-                   help='run only this benchmark (repeatable); rerun: the cost of a Rerun '
-                        'recording, sweep: the parallel efficiency of a 64-point sweep, soak: '
-                        'the node under a command flood for 10 minutes, array: arrays of columns '
+                   choices=('work_precision', 'stability', 'stiff', 'peers', 'rerun', 'sweep',
+                            'soak', 'array'),
+                   help='run only this benchmark (repeatable); stiff: the stiff scenes of '
+                        'work_precision and stability (both also run them); rerun: the cost of '
+                        'a Rerun recording, sweep: the parallel efficiency of a 64-point sweep, '
+                        'soak: the node under a command flood for 10 minutes, array: arrays of '
+                        'columns '
                         'per column (these four only on request)')
     p.set_defaults(func=cmd_bench)
     p = sub.add_parser('paper', help="the paper's table (FB and RB, v0 = 0.1, 0.125, 0.15) "
