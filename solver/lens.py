@@ -29,7 +29,7 @@ from .scene import Scene
 from .simulation import Simulation
 from .support import first_arrival
 
-CACHE_VERSION = 2
+CACHE_VERSION = 3
 
 
 class LensError(ValueError):
@@ -57,26 +57,35 @@ def base_x(scene):
 SAMPLE_S = 1e-3          # base forces are sampled every this many seconds (whole steps)
 
 
-def record_base(sim, t_end):
+def record_base(sim, t_end, on_frame=None, frame_dt=None):
     """Base force of every column every :data:`SAMPLE_S` (whole integrator steps) from now to
-    ``t_end`` s: ``(times (n_t,), forces (n_t, n_columns))``."""
+    ``t_end`` s: ``(times (n_t,), forces (n_t, n_columns))``. ``on_frame(frame)``: called with
+    :meth:`~solver.simulation.Simulation.frame` now and every ``frame_dt`` s (a whole number of
+    samples)."""
     t, b = [sim.t], [sim.base_force()]
     every = max(1, int(round(SAMPLE_S / sim.dt)))
     n = int(round((t_end - sim.t) / (every * sim.dt)))
-    for _ in range(n):
+    frame_every = (max(1, int(round(frame_dt / (every * sim.dt)))) if on_frame is not None
+                   and frame_dt else 0)
+    if frame_every:
+        on_frame(sim.frame())
+    for k in range(1, n + 1):
         sim.advance(every * sim.dt)
         t.append(sim.t)
         b.append(sim.base_force())
+        if frame_every and k % frame_every == 0:
+            on_frame(sim.frame())
     return np.array(t), np.array(b)
 
 
-def simulate(scene, prestrain, v0):
+def simulate(scene, prestrain, v0, on_frame=None, frame_dt=None):
     """Run the array of ``scene`` with per-column ``prestrain`` (set at once) and an impact of
-    ``v0`` m/s on every column at t = 0, to ``run.t_end``: ``(times, base forces, arrivals)``."""
+    ``v0`` m/s on every column at t = 0, to ``run.t_end``: ``(times, base forces, arrivals)``.
+    ``on_frame``, ``frame_dt``: as :func:`record_base`."""
     sim = Simulation(scene)
     sim.apply_prestrain(np.asarray(prestrain, dtype=np.float64))
     sim.apply_impact(v0)
-    t, b = record_base(sim, scene['run.t_end'])
+    t, b = record_base(sim, scene['run.t_end'], on_frame, frame_dt)
     arrivals = np.array([first_arrival(t, b[:, c]).time_s for c in range(b.shape[1])])
     return t, b, arrivals
 
@@ -200,17 +209,21 @@ def design(scene, focus, speed, v0, directory=None):
         cols.append({'column': i, 'x_m': float(x), 'prestrain': p, 'target_s': float(T),
                      'predicted_s': pred, 'simulated_s': None, 'residual_s': None})
     return Plan((X, Z), float(speed), float(v0), float(t0), cols, amap.prestrain.tolist(),
-                amap.arrival_s.tolist(), cached=amap.cached)
+                amap.arrival_s.tolist(), cached=amap.cached,
+                extra={'law_span_s': float(d.max() - d.min()), 'map_span_s': t_hi - t_lo})
 
 
-def check(scene, plan):
+def check(scene, plan, on_frame=None, frame_dt=None):
     """Simulate the plan (prestrains, one impact on every column) and fill in the simulated
-    arrival times and residuals; returns ``(times, base forces)`` of the run."""
+    arrival times, residuals and the rise widths of the pulses (``rise_s``, see
+    :class:`solver.support.Arrival`); returns ``(times, base forces)`` of the run.
+    ``on_frame``, ``frame_dt``: as :func:`record_base`."""
     p = [c['prestrain'] for c in plan.columns]
-    t, b, arrival = simulate(scene, p, plan.v0)
-    for c, a in zip(plan.columns, arrival):
+    t, b, arrival = simulate(scene, p, plan.v0, on_frame, frame_dt)
+    for i, (c, a) in enumerate(zip(plan.columns, arrival)):
         c['simulated_s'] = float(a)
         c['residual_s'] = float(a - c['target_s'])
+        c['rise_s'] = first_arrival(t, b[:, i]).rise_s
     return t, b
 
 

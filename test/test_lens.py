@@ -1,5 +1,6 @@
 """The focusing design: simulated arrival times on the delay law, the field's peak at the focal
-depth under the focus, an unreachable focus named by column and range, bad input rejected."""
+depth within one column spacing of the focus (on and off the array's axis), an unreachable focus
+named by column and range, bad input rejected."""
 import numpy as np
 import pytest
 
@@ -58,6 +59,62 @@ def test_reachable_focus_meets_the_delay_law(scene, amap):
     pk, _ = field.peak_map(xg, [focus[1]], t, field.source_rates(t, b), xs, speed)
     spacing = scene['structure.column_spacing']
     assert abs(xg[int(np.argmax(pk[0]))] - focus[0]) <= spacing
+
+
+def test_arrival_map_is_monotone_and_times_the_compressive_rise(scene, amap):
+    """A stiffer column carries the pulse faster: the arrival falls as the prestrain grows, over
+    the whole range, also where a column first pulls on its support (low prestrain); at each
+    arrival the base force pushes (it is on its compressive rise, not on the pull)."""
+    assert np.all(np.diff(amap.arrival_s) < 0)
+    t, b, arrival = lens.simulate(scene, amap.prestrain[:5], 0.1)
+    for c, a in enumerate(arrival):
+        assert np.interp(a, t, b[:, c]) - b[0, c] > 0
+    assert b[:, 0].min() - b[0, 0] < 0                 # the softest column pulls first
+
+
+OFF_AXIS = (0.13, 0.12)     # m: off the array's axis (x = 0.08 m), 1 spacing from its end
+OFF_AXIS_SPEED = 1.5        # m/s: the delay law spans 37.7 ms of the 42.9 ms the range gives
+
+
+@pytest.fixture(scope='module')
+def off_axis(scene):
+    """The scene's nine columns focused off their axis: the plan, its check, the field's figures
+    and those of the same array at the mean prestrain."""
+    full = Scene.load('config/scenes/lens_focus.yaml')
+    plan = lens.design(full, OFF_AXIS, OFF_AXIS_SPEED, 0.1)
+    t, b = lens.check(full, plan)
+    p_u = np.mean([c['prestrain'] for c in plan.columns])
+    tu, bu, _ = lens.simulate(full, np.full(9, p_u), 0.1)
+    xs = lens.base_x(full)
+    spacing = full['structure.column_spacing']
+    return (full, plan, field.focus_report(t, b, xs, OFF_AXIS, OFF_AXIS_SPEED, spacing),
+            field.focus_report(tu, bu, xs, OFF_AXIS, OFF_AXIS_SPEED, spacing))
+
+
+def test_off_axis_focus_meets_the_delay_law(off_axis):
+    full, plan, _, _ = off_axis
+    xs = lens.base_x(full)
+    law = plan.t0 - np.hypot(xs - OFF_AXIS[0], OFF_AXIS[1]) / OFF_AXIS_SPEED
+    sim = np.array([c['simulated_s'] for c in plan.columns])
+    assert np.max(np.abs(sim - law)) <= 1e-3               # stated: 1 ms
+    assert plan.extra['law_span_s'] == pytest.approx(np.ptp(law), rel=1e-12)
+
+
+def test_off_axis_field_peaks_within_one_spacing_of_the_focus(off_axis):
+    """Across the focal depth the designed array's peak pressure is largest within one column
+    spacing of X, and at F it beats the same array at one uniform prestrain."""
+    full, _, designed, uniform = off_axis
+    spacing = full['structure.column_spacing']
+    x = designed['lateral_x_m']
+    assert x[0] < lens.base_x(full)[0] and x[-1] > lens.base_x(full)[-1]    # the whole array
+    x_peak = x[int(np.argmax(designed['lateral_peak']))]
+    assert abs(x_peak - OFF_AXIS[0]) <= spacing
+    assert designed['p_focus'] > 1.1 * uniform['p_focus']
+    # the uniform array's field is symmetric about the middle of the array (x = 0.08 m)
+    mid = lens.base_x(full).mean()
+    inside = (2 * mid - x >= x[0]) & (2 * mid - x <= x[-1])
+    mirrored = np.interp(2 * mid - x[inside], x, uniform['lateral_peak'])
+    np.testing.assert_allclose(mirrored, uniform['lateral_peak'][inside], rtol=2e-3)
 
 
 def test_unreachable_focus_names_a_column_and_the_range(scene, amap):
