@@ -220,7 +220,16 @@ def cmd_lens(args):
     v0 = scene['loading.impact.v0'] if args.v0 is None else args.v0
     if not (-10.0 <= v0 <= 10.0) or v0 == 0:
         raise UserError(f'--v0: {v0!r} m/s must be nonzero and within [-10, 10]')
-    result = lens_result(scene, focus, args.medium_speed, v0, args.dims)
+    recorder = None
+    if args.rerun:
+        recorder = lens_recorder(scene, args.rerun)
+    try:
+        result = lens_result(scene, focus, args.medium_speed, v0, args.dims, recorder)
+    finally:
+        if recorder is not None:
+            recorder.close()
+    if recorder is not None:
+        result['rerun'] = str(args.rerun)
     out_dir = Path(args.out) if args.out else Path('runs') / f'{scene.name}_lens'
     if args.plot:
         from .plots import lens_field
@@ -236,30 +245,101 @@ def cmd_lens(args):
     return 0
 
 
-def lens_result(scene, focus, speed, v0, dims=2):
-    """The plan, its check, the field maps and the focal gain of a focus (a dict)."""
+RERUN_FIELD_SHAPE = (48, 64)           # (depth, x) pixels of the field images of tensegrity lens
+
+
+def lens_recorder(scene, path):
+    """A Rerun recorder of the lens array with the field grid of :func:`lens_field_grid`."""
+    from solver import lens
+    from solver.simulation import build_network
+
+    from .rerun_log import RerunRecorder
+    xs, zs = lens_field_grid(lens.base_x(scene))
+    try:
+        return RerunRecorder(build_network(scene), path, field_grid=_extent(xs, zs))
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
+
+
+def lens_field_grid(base_x):
+    from solver import field
+    return field.image_grid(base_x, n_x=RERUN_FIELD_SHAPE[1], n_z=RERUN_FIELD_SHAPE[0])
+
+
+def _extent(xs, zs):
+    """(x0, x1, z0, z1) m: the outer cell edges of a grid of cell centres."""
+    dx, dz = xs[1] - xs[0], zs[1] - zs[0]
+    return (xs[0] - dx / 2, xs[-1] + dx / 2, zs[0] - dz / 2, zs[-1] + dz / 2)
+
+
+def lens_result(scene, focus, speed, v0, dims=2, recorder=None):
+    """The plan, its check, the field's figures at the focus (solver.field.focus_report) and the
+    focal gain of a focus, the maps for the plot (a dict). ``recorder``: a RerunRecorder of the
+    array (:func:`lens_recorder`) that gets the check run's frames and the field over time."""
     import numpy as np
 
     from solver import field, lens
     plan = lens.design(scene, focus, speed, v0)
-    t, b = lens.check(scene, plan)
+    frame_dt = scene['run.output_dt']
+    t, b = lens.check(scene, plan, None if recorder is None else recorder.frame, frame_dt)
     p_uniform = float(np.mean([c['prestrain'] for c in plan.columns]))
     tu, bu, _ = lens.simulate(scene, np.full(len(plan.columns), p_uniform), v0)
     xs_b = lens.base_x(scene)
+    spacing = scene['structure.column_spacing']
+    rep = field.focus_report(t, b, xs_b, focus, speed, spacing, dims)
+    rep_u = field.focus_report(tu, bu, xs_b, focus, speed, spacing, dims)
     X, Z = focus
-    span = xs_b[-1] - xs_b[0]
-    xs = np.linspace(min(xs_b[0], X) - 0.3 * span, max(xs_b[-1], X) + 0.3 * span, 81)
-    zs = np.linspace(0.05 * Z, 2.0 * Z, 61)
+    span = max(xs_b[-1] - xs_b[0], spacing)
+    xs = np.linspace(min(xs_b[0] - 0.25 * span, X - 0.1 * span),
+                     max(xs_b[-1] + 0.25 * span, X + 0.1 * span), 121)
+    zs = np.linspace(0.0, max(1.5 * span, 1.5 * Z), 91)[1:]
     pk, _ = field.peak_map(xs, zs, t, field.source_rates(t, b), xs_b, speed, dims)
     pu, _ = field.peak_map(xs, zs, tu, field.source_rates(tu, bu), xs_b, speed, dims)
-    iz, ix = int(np.argmin(np.abs(zs - Z))), int(np.argmin(np.abs(xs - X)))
-    lateral = float(xs[int(np.argmax(pk[iz]))])
+    if recorder is not None:
+        _record_field(recorder, t, b, xs_b, speed, dims, frame_dt)
+        recorder.command(0.0, f'focus ({X:g}, {Z:g}) m at C = {speed:g} m/s: impact v0 = '
+                              f'{v0:g} m/s on every column at once')
+    rise = np.array([c['rise_s'] for c in plan.columns])
     result = plan.as_dict()
     result.update(dims=dims, uniform_prestrain=p_uniform,
-                  focal_gain=float(pk[iz, ix] / pu[iz, ix]) if pu[iz, ix] > 0 else None,
-                  lateral_peak_x_m=lateral, cached_map=plan.cached,
-                  _field={'x': xs, 'z': zs, 'peak': pk, 'uniform': pu, 'bases': xs_b})
+                  focal_gain=rep['p_focus'] / rep_u['p_focus'] if rep_u['p_focus'] > 0
+                  else None,
+                  p_focus=rep['p_focus'], p_focus_uniform=rep_u['p_focus'],
+                  lateral_peak_x_m=rep['lateral_peak_x_m'],
+                  lateral_offset_spacings=rep['lateral_offset_spacings'],
+                  axial_peak_z_m=rep['axial_peak_z_m'], rise_mean_s=float(np.mean(rise)),
+                  cached_map=plan.cached,
+                  _field={'x': xs, 'z': zs, 'peak': pk, 'uniform': pu, 'bases': xs_b,
+                          'lateral_x': rep['lateral_x_m'], 'lateral': rep['lateral_peak'],
+                          'lateral_uniform': rep_u['lateral_peak'], 'spacing': spacing})
     return result
+
+
+def _record_field(recorder, t, b, base_x, speed, dims, frame_dt):
+    """The field over ``sim_time`` into ``recorder``: at every frame time the peak pressure up to
+    then (solver.field.PeakMap on the recorded base forces) and the pressure then, both over the
+    largest peak pressure of the run."""
+    import numpy as np
+
+    from solver import field
+    xs, zs = lens_field_grid(base_x)
+    X, Z = np.meshgrid(xs, zs)
+    pts = np.stack([X.ravel(), Z.ravel()], axis=1)
+    dt = float(t[1] - t[0])
+    every = max(1, int(round(frame_dt / dt)))
+    stops = list(range(0, len(t), every))
+    peaks = []
+    pm = field.PeakMap(pts, base_x, speed, dt, dims)
+    done = 0
+    for k in stops:
+        pm.extend(b[done:k + 1])
+        done = k + 1
+        peaks.append(np.maximum(pm.peak, 0.0).reshape(X.shape))
+    scale = float(max(p.max() for p in peaks)) or 1.0
+    rates = field.source_rates(t, b)
+    now = field.frames(xs, zs, t, rates, base_x, speed, t[stops], dims)
+    for k, peak, p in zip(stops, peaks, now):
+        recorder.field(float(t[k]), peak, p, scale)
 
 
 def format_lens(r):
@@ -272,13 +352,18 @@ def format_lens(r):
         lines.append(f"  {c['column']:6d} {c['x_m']:6.3f} {c['prestrain']:11.5f} "
                      f"{c['target_s']:10.4f} {c['predicted_s']:13.4f} {c['simulated_s']:13.4f} "
                      f"{1e3 * c['residual_s']:13.3f}")
+    lines.append(f"  the delay law spans {1e3 * r['law_span_s']:.1f} ms of the "
+                 f"{1e3 * r['map_span_s']:.1f} ms the prestrain range gives; the pulses rise "
+                 f"over {1e3 * r['rise_mean_s']:.0f} ms (rate width at half height)")
     gain = r['focal_gain']
-    lines.append(f"  field ({r['dims']}D): peak at depth {Z:g} m lies at x = "
-                 f"{r['lateral_peak_x_m']:.3f} m; focal gain "
-                 f"{'n/a' if gain is None else f'{gain:.3f}'} (against uniform prestrain "
-                 f"{r['uniform_prestrain']:.5f})")
-    if r.get('plot'):
-        lines.append(f"  plot: {r['plot']}")
+    lines.append(f"  field ({r['dims']}D): across depth {Z:g} m the peak lies at x = "
+                 f"{r['lateral_peak_x_m']:.3f} m ({r['lateral_offset_spacings']:.2f} column "
+                 f"spacings from X); along x = {X:g} m at depth {r['axial_peak_z_m']:.3f} m")
+    lines.append(f"  focal gain {'n/a' if gain is None else f'{gain:.3f}'} (peak at F against "
+                 f"the same array at uniform prestrain {r['uniform_prestrain']:.5f})")
+    for key in ('plot', 'rerun'):
+        if r.get(key):
+            lines.append(f"  {key}: {r[key]}")
     return lines
 
 
@@ -443,6 +528,8 @@ def build_parser():
     p.add_argument('--dims', type=int, choices=(2, 3), default=2,
                    help='geometric spreading of the field: 2 (line sources) or 3 (points)')
     p.add_argument('--plot', action='store_true', help='write OUT/lens_field.png')
+    p.add_argument('--rerun', metavar='OUT.rrd',
+                   help='record the check run and the field over sim_time to a Rerun file')
     p.add_argument('--out', help='output directory (default runs/<scene>_lens)')
     p.add_argument('--json', action='store_true', help='print one JSON object')
     p.set_defaults(func=cmd_lens)
