@@ -23,7 +23,9 @@ import numpy as np
 from . import dynamics as dyn
 
 ARRIVAL_FRACTION = 0.5        # arrival: the rise to the first compressive peak crosses this share
-PEAK_FLOOR = 0.1              # the first peak: the first local maximum above this share of the top
+PEAK_FLOOR = 0.02             # the first peak: a local maximum above this share of the top ...
+PEAK_DROP = 0.1               # ... after which the force falls by this share of it before rising
+                              # above it again (a wiggle on a rising flank is no peak)
 
 
 def base_levels(network):
@@ -121,11 +123,14 @@ def first_arrival(times, force, rest=None, floor=1e-12):
     """The :class:`Arrival` of a base-force history ``force`` (n_t,) N at ``times`` (n_t,) s.
     ``rest``: the rest value (default the first sample). With ``c = force - rest`` (compressive
     positive), the first peak is the first local maximum of ``c`` above :data:`PEAK_FLOOR` of the
-    largest compression over the history; the arrival is where the rise that ends at that peak
-    (the samples before it at or above the level, back to the last one below) crosses
-    :data:`ARRIVAL_FRACTION` of the peak. Pulls on the support (a tensile precursor) are not
-    pulses here: they are reported as ``precursor_N``. ``floor`` N: a largest compression below
-    it is no pulse."""
+    largest compression over the history after which ``c`` falls by :data:`PEAK_DROP` of it
+    before it exceeds it (the largest compression if none does); the arrival is where the rise
+    that ends at that peak (the samples before it at or above the level, back to the last one
+    below) crosses :data:`ARRIVAL_FRACTION` of the peak. So a small first pulse stays the first
+    when a larger one follows (on a short column the pulse that comes back from the impacted
+    end is several times the first). Pulls on the support (a tensile precursor) are not pulses
+    here: they are reported as ``precursor_N``. ``floor`` N: a largest compression below it is
+    no pulse."""
     t = np.asarray(times, dtype=np.float64)
     f = np.asarray(force, dtype=np.float64)
     rest = float(f[0]) if rest is None else float(rest)
@@ -134,11 +139,7 @@ def first_arrival(times, force, rest=None, floor=1e-12):
     top = float(c.max(initial=0.0))
     if not top > floor:
         return Arrival(nan, nan, nan, rest, nan, float(min(c.min(initial=0.0), 0.0)))
-    k = len(c) - 1
-    for i in range(len(c) - 1):
-        if c[i] >= PEAK_FLOOR * top and c[i] >= c[i + 1]:
-            k = i
-            break
+    k = _first_peak(c, PEAK_FLOOR * top)
     level = ARRIVAL_FRACTION * c[k]
     i = k
     while i > 0 and c[i - 1] >= level:
@@ -150,6 +151,24 @@ def first_arrival(times, force, rest=None, floor=1e-12):
         arrival = float(t[i - 1] + u * (t[i] - t[i - 1]))
     return Arrival(arrival, float(t[k]), float(c[k]), rest, _rise_width(t, c, k),
                    float(min(c[:i + 1].min(), 0.0)))
+
+
+def _first_peak(c, floor):
+    """Index of the first local maximum of ``c`` at or above ``floor`` after which ``c`` falls by
+    :data:`PEAK_DROP` of it before exceeding it; the largest value's if there is none."""
+    n = len(c)
+    i = 0
+    while i < n - 1:
+        if c[i] >= floor and c[i] >= c[i + 1]:
+            j = i + 1
+            while j < n and c[j] <= c[i]:
+                if c[j] <= (1.0 - PEAK_DROP) * c[i]:
+                    return i
+                j += 1
+            i = j                 # c rose above c[i] at j (or the history ended)
+            continue
+        i += 1
+    return int(np.argmax(c))
 
 
 def _rise_width(t, c, k):

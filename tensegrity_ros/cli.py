@@ -245,31 +245,26 @@ def cmd_lens(args):
     return 0
 
 
-RERUN_FIELD_SHAPE = (48, 64)           # (depth, x) pixels of the field images of tensegrity lens
-
-
 def lens_recorder(scene, path):
     """A Rerun recorder of the lens array with the field grid of :func:`lens_field_grid`."""
     from solver import lens
     from solver.simulation import build_network
 
+    from .lens_record import grid_extent
     from .rerun_log import RerunRecorder
     xs, zs = lens_field_grid(lens.base_x(scene))
     try:
-        return RerunRecorder(build_network(scene), path, field_grid=_extent(xs, zs))
+        return RerunRecorder(build_network(scene), path, field_grid=grid_extent(xs, zs))
     except ValueError as exc:
         raise UserError(str(exc)) from None
 
 
 def lens_field_grid(base_x):
+    """The grid of the field images: that of the node's ``~/field`` (lens_record.IMAGE_SHAPE)."""
     from solver import field
-    return field.image_grid(base_x, n_x=RERUN_FIELD_SHAPE[1], n_z=RERUN_FIELD_SHAPE[0])
 
-
-def _extent(xs, zs):
-    """(x0, x1, z0, z1) m: the outer cell edges of a grid of cell centres."""
-    dx, dz = xs[1] - xs[0], zs[1] - zs[0]
-    return (xs[0] - dx / 2, xs[-1] + dx / 2, zs[0] - dz / 2, zs[-1] + dz / 2)
+    from .lens_record import IMAGE_SHAPE
+    return field.image_grid(base_x, n_x=IMAGE_SHAPE[1], n_z=IMAGE_SHAPE[0])
 
 
 def lens_result(scene, focus, speed, v0, dims=2, recorder=None):

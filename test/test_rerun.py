@@ -744,7 +744,8 @@ def test_lens_cli_records_the_field_over_sim_time(tmp_path, capsys, monkeypatch)
     pressure so far, finite and growing, on the stated grid (48 x 64), largest at the end."""
     import yaml
 
-    from tensegrity_ros.cli import RERUN_FIELD_SHAPE, main
+    from tensegrity_ros.cli import main
+    from tensegrity_ros.lens_record import IMAGE_SHAPE
     monkeypatch.setenv('TENSEGRITY_CACHE', str(tmp_path / 'cache'))
     small = Scene.load(ROOT / 'config' / 'scenes' / 'lens_focus.yaml').with_overrides(
         ['structure.n_prisms=10', 'structure.n_columns=3', 'lens.grid=5', 'run.t_end=0.3'])
@@ -759,7 +760,7 @@ def test_lens_cli_records_the_field_over_sim_time(tmp_path, capsys, monkeypatch)
     frames = [t for t, _ in data['/world/nodes']['rows']]
     assert [t for t, _ in peaks] == frames and len(frames) == 61        # 0.3 s every 5 ms
     stack = np.array([img for _, img in peaks])
-    assert stack.shape[1:] == RERUN_FIELD_SHAPE and np.isfinite(stack).all()
+    assert stack.shape[1:] == IMAGE_SHAPE and np.isfinite(stack).all()
     assert np.all(np.diff(stack, axis=0) >= 0)                 # a peak so far only grows
     assert stack[0].max() == 0 and stack[-1].max() == pytest.approx(1.0)
     assert len(data['/field/pressure']['rows']) == len(frames)

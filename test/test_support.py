@@ -76,7 +76,8 @@ def test_arrival_of_a_gaussian_pulse():
     its rise width is that of the rate's positive lobe at half its height (the roots of
     x exp(-x^2 / 2) = exp(-1/2) / 2, times sigma). A pull on the support before it (a tensile
     precursor) is no arrival: it is reported as the precursor; a smaller compressive bump before
-    it is the first peak when above 10 % of the largest."""
+    it is the first peak when above 2 % of the largest (below, it is not), however much larger
+    the later one."""
     t = np.linspace(0, 1, 2001)
     t0, sig = 0.5, 0.03
     bump = 2.0 * np.exp(-0.5 * ((t - t0) / sig) ** 2)
@@ -93,9 +94,17 @@ def test_arrival_of_a_gaussian_pulse():
     b = first_arrival(t, bump + pull)
     assert b.time_s == pytest.approx(a.time_s, abs=1e-6) and b.peak_N == pytest.approx(2.0, 1e-6)
     assert b.precursor_N == pytest.approx(-0.5, rel=1e-3)
-    early = 0.5 * np.exp(-0.5 * ((t - 0.3) / sig) ** 2)
-    c = first_arrival(t, bump + early)
-    assert c.time_s == pytest.approx(0.3 - math.sqrt(2 * math.log(2)) * sig, abs=1e-4)
-    assert c.peak_N == pytest.approx(0.5, rel=1e-3)
+    for height in (0.5, 0.05):                   # 25 % and 2.5 % of the later bump
+        early = height * np.exp(-0.5 * ((t - 0.3) / sig) ** 2)
+        c = first_arrival(t, bump + early)
+        assert c.time_s == pytest.approx(0.3 - math.sqrt(2 * math.log(2)) * sig, abs=1e-4)
+        assert c.peak_N == pytest.approx(height, rel=1e-3)
+    tiny = 0.02 * np.exp(-0.5 * ((t - 0.3) / sig) ** 2)              # 1 % of the later bump
+    assert first_arrival(t, bump + tiny).time_s == pytest.approx(a.time_s, abs=1e-6)
+    # a step with a wiggle on its rising flank: the peak is the top of the step
+    step = 1.0 / (1.0 + np.exp(-(t - 0.5) / 0.01))
+    wiggle = step + 0.05 * np.exp(-0.5 * ((t - 0.48) / 0.002) ** 2)      # dips 2 % after it
+    w = first_arrival(t, wiggle)
+    assert w.time_s == pytest.approx(0.5, abs=1e-3) and w.peak_N == pytest.approx(1.0, 1e-3)
     assert math.isnan(first_arrival(t, np.zeros_like(t)).time_s)
     assert math.isnan(first_arrival(t, pull).time_s)              # only a pull: no pulse
