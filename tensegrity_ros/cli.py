@@ -370,9 +370,14 @@ def cmd_node(args):
 
 
 def cmd_demo(args):
-    """``tensegrity demo``: the node in a second process, an impact over the topic, a summary."""
+    """``tensegrity demo``: the node in a second process, an impact over the topic, a summary;
+    with ``--focus X,Z`` a focus of the lens array instead (the plan, the arrivals the node
+    measures, the focal gain)."""
     import os
-
+    domain = args.domain_id if args.domain_id is not None else (
+        int(os.environ['ROS_DOMAIN_ID']) if os.environ.get('ROS_DOMAIN_ID') else None)
+    if args.focus is not None:
+        return _demo_focus(args, domain)
     from .commander import format_summary, run_demo
     try:
         v0 = [float(v) for v in args.v0.split(',')]
@@ -380,18 +385,46 @@ def cmd_demo(args):
                                                          args.prestrain.split(',')]
     except ValueError:
         raise UserError('--v0 and --prestrain take numbers separated by commas') from None
-    domain = args.domain_id if args.domain_id is not None else (
-        int(os.environ['ROS_DOMAIN_ID']) if os.environ.get('ROS_DOMAIN_ID') else None)
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     try:
-        summary = run_demo(args.scene, v0=v0, duration_s=args.duration, rtf=args.rtf,
-                           out_dir=args.out, domain_id=domain, record=not args.no_record,
-                           prestrain=prestrain)
+        summary = run_demo(args.scene or DEMO_SCENE, v0=v0, duration_s=args.duration,
+                           rtf=args.rtf, out_dir=args.out or 'runs/demo', domain_id=domain,
+                           record=not args.no_record, prestrain=prestrain)
     except RuntimeError as exc:
         raise UserError(f'demo: {exc}') from None
     for line in format_summary(summary):
         print(line)
-    print(f'  summary: {args.out}/summary.json')
+    print(f'  summary: {args.out or "runs/demo"}/summary.json')
+    return 0 if summary['node_exit_code'] == 0 else 1
+
+
+DEMO_SCENE = 'config/scenes/fb_column.yaml'
+FOCUS_SCENE = 'config/scenes/lens_focus.yaml'
+
+
+def _demo_focus(args, domain):
+    import os
+
+    from solver import lens
+
+    from .commander import format_focus_summary, run_focus_demo
+    focus = lens.parse_focus(args.focus)
+    if not focus[1] > 0:
+        raise UserError(f'--focus: the depth Z must be > 0, got {focus[1]:g}')
+    if not (0 < args.medium_speed < float('inf')):
+        raise UserError(f'--medium-speed: must be a positive number of m/s, got '
+                        f'{args.medium_speed!r}')
+    out = args.out or 'runs/demo_focus'
+    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    try:
+        summary = run_focus_demo(focus, args.scene or FOCUS_SCENE, speed=args.medium_speed,
+                                 rtf=args.rtf, out_dir=out, domain_id=domain,
+                                 record=not args.no_record)
+    except RuntimeError as exc:
+        raise UserError(f'demo: {exc}') from None
+    for line in format_focus_summary(summary):
+        print(line)
+    print(f'  summary: {out}/summary.json')
     return 0 if summary['node_exit_code'] == 0 else 1
 
 
@@ -533,14 +566,22 @@ def build_parser():
                    help='ROS arguments: --ros-args -p NAME:=VALUE --params-file config/node.yaml')
     p.set_defaults(func=cmd_node)
     p = sub.add_parser('demo', help='start the node, command an impact over ROS 2, summarise')
-    p.add_argument('--scene', default='config/scenes/fb_column.yaml', help='scene YAML')
+    p.add_argument('--scene', help='scene YAML (default config/scenes/fb_column.yaml; with '
+                   '--focus config/scenes/lens_focus.yaml)')
     p.add_argument('--v0', default='0.1', help='impact velocity m/s, or one per column: 0.1,0.12')
+    p.add_argument('--focus', metavar='X,Z',
+                   help='focus the lens array at X,Z m (x along the array, depth z > 0) with '
+                        '~/cmd/focus instead of an impact: prints the plan, the arrivals the '
+                        'node measures and the focal gain')
+    p.add_argument('--medium-speed', type=float, default=1.5, metavar='C',
+                   help='wave speed of the host medium for --focus, m/s (default 1.5)')
     p.add_argument('--prestrain', help='prestrain before the impact, or one per column')
     p.add_argument('--duration', type=float, default=1.2,
                    help='simulated seconds collected after the impact (default 1.2)')
     p.add_argument('--rtf', type=float, default=1.0,
                    help='real-time factor (0 = fast as possible)')
-    p.add_argument('--out', default='runs/demo', help='output directory (default runs/demo)')
+    p.add_argument('--out', help='output directory (default runs/demo, with --focus '
+                   'runs/demo_focus)')
     p.add_argument('--domain-id', type=int,
                    help='ROS_DOMAIN_ID (default: env, else 100 + pid %% 50)')
     p.add_argument('--no-record', action='store_true', help='no MCAP / Rerun recording')
