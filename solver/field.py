@@ -44,7 +44,7 @@ def source_rates(times, forces):
 def pressure(points, times, sources, base_x, speed, dims=2, r_min=0.005):
     """``p(r, t)`` (n_points, n_t) at ``points`` (n_points, 2) = (x, z) m for the source
     histories ``sources`` (n_t, n_columns) N/s (:func:`source_rates`) sampled at ``times``
-    (n_t,) s (zero before the first sample), bases at ``x = base_x`` (n_columns,) m, ``z = 0``."""
+    (n_t,) s (zero outside the samples), bases at ``x = base_x`` (n_columns,) m, ``z = 0``."""
     points = np.asarray(points, dtype=np.float64)
     times = np.asarray(times, dtype=np.float64)
     sources = np.asarray(sources, dtype=np.float64)
@@ -54,16 +54,38 @@ def pressure(points, times, sources, base_x, speed, dims=2, r_min=0.005):
     for i, xb in enumerate(base_x):
         R = np.maximum(np.hypot(points[:, 0] - xb, points[:, 1]), r_min)
         shifted = times[None, :] - (R / speed)[:, None]
-        out += np.interp(shifted, times, sources[:, i], left=0.0, right=sources[-1, i]) \
+        out += np.interp(shifted, times, sources[:, i], left=0.0, right=0.0) \
             * (points[:, 1] / R / spreading(R, dims))[:, None]
     return out
 
 
+def extended(times, sources, points, base_x, speed, r_min=0.005):
+    """The record ``times`` (n_t,), ``sources`` (n_t, n_columns) continued with zero rates (the
+    forces hold) at its mean step until the last sample has reached the farthest of ``points``
+    (n, 2): the times over which a record's field lasts."""
+    times = np.asarray(times, dtype=np.float64)
+    sources = np.asarray(sources, dtype=np.float64)
+    pts = np.asarray(points, dtype=np.float64)
+    bx = np.asarray(base_x, dtype=np.float64)
+    if len(times) < 2 or not len(pts):
+        return times, sources
+    reach = float(np.max(np.maximum(np.hypot(pts[:, 0, None] - bx[None, :], pts[:, 1, None]),
+                                    r_min))) / speed
+    dt = (times[-1] - times[0]) / (len(times) - 1)
+    n = int(np.ceil(reach / dt)) + 1
+    return (np.concatenate([times, times[-1] + dt * np.arange(1, n + 1)]),
+            np.concatenate([sources, np.zeros((n, sources.shape[1]))]))
+
+
 def peak_map(xs, zs, times, sources, base_x, speed, dims=2, r_min=0.005, chunk=4096):
     """``max_t p`` on the grid ``xs`` x ``zs``: (n_z, n_x), and the time (n_z, n_x) s of the
-    peak."""
+    peak, over the record and after it until its end has passed every point
+    (:func:`extended`)."""
     X, Z = np.meshgrid(xs, zs)
     pts = np.stack([X.ravel(), Z.ravel()], axis=1)
+    if not (np.isfinite(speed) and speed > 0):
+        raise ValueError(f'field: medium speed must be a positive number, got {speed!r}')
+    times, sources = extended(times, sources, pts, base_x, speed, r_min)
     peak = np.empty(len(pts))
     when = np.empty(len(pts))
     for a in range(0, len(pts), chunk):
@@ -82,7 +104,7 @@ def frames(xs, zs, times, sources, base_x, speed, at, dims=2, r_min=0.005):
     for i, xb in enumerate(base_x):
         R = np.maximum(np.hypot(pts[:, 0] - xb, pts[:, 1]), r_min)
         for k, t in enumerate(at):
-            out[k] += np.interp(t - R / speed, times, sources[:, i], left=0.0) \
+            out[k] += np.interp(t - R / speed, times, sources[:, i], left=0.0, right=0.0) \
                 * pts[:, 1] / R / spreading(R, dims)
     return out.reshape((len(at),) + X.shape)
 
@@ -103,8 +125,10 @@ class PeakMap:
     """``max_t p(r, t)`` at ``points`` (n_points, 2) = (x, z) m of a record of base forces
     sampled every ``dt`` s (zero rate before its first sample), fed in pieces by :meth:`extend`:
     :func:`peak_map` at the sample times, with the rate of each sample as ``np.gradient`` takes it
-    (central differences; one-sided at the ends). A sample's pressure is taken once its rate is
-    final (the next sample is in), the last one on :meth:`finish`. ``count``: samples taken."""
+    (central differences; one-sided at the ends) and after the record until its end has passed
+    every point (as :func:`extended`). A sample's pressure is taken once its rate is final (the
+    next sample is in); the last one and the times after the record on :meth:`finish`.
+    ``count``: sample times taken (the record's and, after :meth:`finish`, those after it)."""
 
     def __init__(self, points, base_x, speed, dt, dims=2, r_min=0.005):
         pts = np.asarray(points, dtype=np.float64)
@@ -138,8 +162,9 @@ class PeakMap:
         self._take(self._n - 1)
 
     def finish(self):
-        """Take the last sample too (its one-sided rate)."""
-        self._take(self._n)
+        """Take the last sample (its one-sided rate) and the times after the record, with zero
+        rates, until the record's end has passed every point."""
+        self._take(self._n + int(self.shift.max(initial=0)) + 2)
 
     def _rates(self):
         b = self._forces[:self._n]
@@ -148,7 +173,7 @@ class PeakMap:
         return np.gradient(b, self.dt, axis=0)
 
     def _take(self, upto, chunk=2_000_000):
-        if upto <= self.count:
+        if upto <= self.count or self._n == 0:
             return
         s = self._rates()
         n_pts = self.weight.shape[1]
@@ -156,11 +181,12 @@ class PeakMap:
         for k0 in range(self.count, upto, step):
             k = np.arange(k0, min(upto, k0 + step))
             p = np.zeros((n_pts, len(k)))
+            n = len(s)
             for i in range(self.weight.shape[0]):
                 j = k[None, :] - self.shift[i][:, None]          # sample at or after t - R / C
                 u = self.frac[i][:, None]
-                a = np.where(j >= 0, s[np.clip(j, 0, None), i], 0.0)
-                b = np.where(j >= 1, s[np.clip(j - 1, 0, None), i], 0.0)
+                a = np.where((j >= 0) & (j < n), s[np.clip(j, 0, n - 1), i], 0.0)
+                b = np.where((j >= 1) & (j <= n), s[np.clip(j - 1, 0, n - 1), i], 0.0)
                 p += ((1.0 - u) * a + u * b) * self.weight[i][:, None]
             np.maximum(self.peak, p.max(axis=1), out=self.peak)
         self.count = upto

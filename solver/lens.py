@@ -2,14 +2,15 @@
 
 The bases of an array lie on the surface ``z = 0`` of a host medium of wave speed ``C``; column
 ``i`` has its base at ``X_i = (x_i, 0)``. Pulses that leave the bases at ``T_i = T0 - |F - X_i| /
-C`` meet at the focus ``F = (X, Z)`` at ``T0``. The arrival time of a column's pulse at its base
-(:func:`solver.support.first_arrival`) depends on its prestrain; :func:`arrival_map` measures it
-with the solver itself on a grid of prestrains over the scene's ``lens`` range, for the scene and
-the impact velocity, and keeps it on disk. :func:`design` picks ``T0`` in the middle of the
-interval where every target lies within the map's range (the most margin on both sides), then
-per column the prestrain whose interpolated arrival time is the target (the map need not be
-monotone: every grid segment that brackets the target is a candidate, the first is taken; the
-grid is geometric, denser at small prestrain where the arrival time changes fastest).
+C`` meet at the focus ``F = (X, Z)`` at ``T0``. The arrival time of a column's solitary pulse at
+its base (:func:`solver.support.pulse_arrival`: the largest compression of the record, which the
+scene's ``run.t_end`` must hold, and nothing larger after it) depends on its prestrain;
+:func:`arrival_map` measures it with the solver itself on a grid of prestrains over the scene's
+``lens`` range, for the scene and the impact velocity, and keeps it on disk. :func:`design`
+picks ``T0`` in the middle of the interval where every target lies within the map's range (the
+most margin on both sides), then per column the prestrain whose interpolated arrival time is
+the target (the map need not be monotone: every grid segment that brackets the target is a
+candidate, the first is taken; the grid is geometric, denser at small prestrain).
 :func:`simulate` runs the array with those prestrains and one impact on every column at once;
 the plan reports per column the prestrain, the predicted and the simulated arrival time and the
 residual.
@@ -27,9 +28,9 @@ import numpy as np
 
 from .scene import Scene
 from .simulation import Simulation
-from .support import first_arrival
+from .support import pulse_arrival
 
-CACHE_VERSION = 3
+CACHE_VERSION = 5         # the arrival definition of solver.support is part of the map
 
 
 class LensError(ValueError):
@@ -86,7 +87,7 @@ def simulate(scene, prestrain, v0, on_frame=None, frame_dt=None):
     sim.apply_prestrain(np.asarray(prestrain, dtype=np.float64))
     sim.apply_impact(v0)
     t, b = record_base(sim, scene['run.t_end'], on_frame, frame_dt)
-    arrivals = np.array([first_arrival(t, b[:, c]).time_s for c in range(b.shape[1])])
+    arrivals = np.array([pulse_arrival(t, b[:, c]).time_s for c in range(b.shape[1])])
     return t, b, arrivals
 
 
@@ -223,7 +224,7 @@ def check(scene, plan, on_frame=None, frame_dt=None):
     for i, (c, a) in enumerate(zip(plan.columns, arrival)):
         c['simulated_s'] = float(a)
         c['residual_s'] = float(a - c['target_s'])
-        c['rise_s'] = first_arrival(t, b[:, i]).rise_s
+        c['rise_s'] = pulse_arrival(t, b[:, i]).rise_s
     return t, b
 
 

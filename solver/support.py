@@ -11,7 +11,9 @@ Momentum balance of a column (what the tests check): the support is the only bod
 free nodes that members touch, so ``d P_z / dt = B + F_ext,z`` with ``P_z`` the column's axial
 momentum, and ``int B dt`` over an interval is the change of ``P_z`` minus the external impulse.
 
-:func:`first_arrival` times the first compressive pulse at the base from a base-force history.
+:func:`first_arrival` times the first compressive pulse at the base from a base-force history (on
+the paper's columns: a fast, small front), :func:`pulse_arrival` the largest one (the solitary
+pulse, which follows at about half that speed and pushes several times harder).
 """
 from __future__ import annotations
 
@@ -153,6 +155,33 @@ def first_arrival(times, force, rest=None, floor=1e-12):
                    float(min(c[:i + 1].min(), 0.0)))
 
 
+def pulse_arrival(times, force, rest=None, floor=1e-12):
+    """The :class:`Arrival` of the largest compression of a base-force history (the solitary
+    pulse, when the history holds its first passage and nothing larger): where the rise that ends
+    at the largest value of ``c = force - rest`` crosses :data:`ARRIVAL_FRACTION` of it, with
+    its ``rise_s`` and the largest pull before it (``precursor_N``). NaN without a compression
+    above ``floor`` N."""
+    t = np.asarray(times, dtype=np.float64)
+    f = np.asarray(force, dtype=np.float64)
+    rest = float(f[0]) if rest is None else float(rest)
+    c = f - rest
+    if not float(c.max(initial=0.0)) > floor:
+        return Arrival(math.nan, math.nan, math.nan, rest, math.nan,
+                       float(min(c.min(initial=0.0), 0.0)))
+    k = int(np.argmax(c))
+    level = ARRIVAL_FRACTION * c[k]
+    i = k
+    while i > 0 and c[i - 1] >= level:
+        i -= 1
+    if i == 0:
+        arrival = float(t[0])
+    else:
+        u = (level - c[i - 1]) / (c[i] - c[i - 1])
+        arrival = float(t[i - 1] + u * (t[i] - t[i - 1]))
+    return Arrival(arrival, float(t[k]), float(c[k]), rest, _rise_width(t, c, k),
+                   float(min(c[:i + 1].min(), 0.0)))
+
+
 def _first_peak(c, floor):
     """Index of the first local maximum of ``c`` at or above ``floor`` after which ``c`` falls by
     :data:`PEAK_DROP` of it before exceeding it; the largest value's if there is none."""
@@ -209,6 +238,9 @@ def base_summary(times, base_force):
     out = []
     for c in range(b.shape[1]):
         d = first_arrival(times, b[:, c]).as_dict()
-        d.update(column=c, max_N=float(b[:, c].max()), min_N=float(b[:, c].min()))
+        pulse = pulse_arrival(times, b[:, c])
+        d.update(column=c, max_N=float(b[:, c].max()), min_N=float(b[:, c].min()),
+                 pulse_arrival_time_s=pulse.time_s, pulse_peak_time_s=pulse.peak_time_s,
+                 pulse_rise_s=pulse.rise_s)
         out.append(d)
     return out

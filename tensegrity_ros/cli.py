@@ -312,8 +312,8 @@ def lens_result(scene, focus, speed, v0, dims=2, recorder=None):
 
 def _record_field(recorder, t, b, base_x, speed, dims, frame_dt):
     """The field over ``sim_time`` into ``recorder``: at every frame time the peak pressure up to
-    then (solver.field.PeakMap on the recorded base forces) and the pressure then, both over the
-    largest peak pressure of the run."""
+    then (solver.field.PeakMap on the recorded base forces) and the pressure then, and once more
+    when the record's end has passed the whole grid, all over the largest peak pressure."""
     import numpy as np
 
     from solver import field
@@ -330,11 +330,16 @@ def _record_field(recorder, t, b, base_x, speed, dims, frame_dt):
         pm.extend(b[done:k + 1])
         done = k + 1
         peaks.append(np.maximum(pm.peak, 0.0).reshape(X.shape))
+    pm.extend(b[done:])
+    pm.finish()                    # and after the record, until its end has passed the grid
+    t_last = float(t[0] + (pm.count - 1) * dt)
+    peaks.append(np.maximum(pm.peak, 0.0).reshape(X.shape))
     scale = float(max(p.max() for p in peaks)) or 1.0
     rates = field.source_rates(t, b)
-    now = field.frames(xs, zs, t, rates, base_x, speed, t[stops], dims)
-    for k, peak, p in zip(stops, peaks, now):
-        recorder.field(float(t[k]), peak, p, scale)
+    at = np.append(t[stops], t_last)
+    now = field.frames(xs, zs, t, rates, base_x, speed, at, dims)
+    for when, peak, p in zip(at, peaks, now):
+        recorder.field(float(when), peak, p, scale)
 
 
 def format_lens(r):

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from solver import field, lens
-from solver.support import first_arrival
+from solver.support import pulse_arrival
 
 IMAGE_SHAPE = (48, 64)          # (depth, x) pixels of ~/field (solver.field.image_grid)
 
@@ -87,22 +87,25 @@ class ImpactRecord:
 
     @property
     def peak_time(self):
-        """Simulation time s of the last sample in :meth:`peak_map`."""
-        return self.times[max(self._peak.count, 1) - 1]
+        """Simulation time s up to which :meth:`peak_map` holds the field (after the record's
+        end, once complete: until the end has passed the whole grid)."""
+        return self.t0 + (max(self._peak.count, 1) - 1) * self.dt
 
     def pressure_now(self):
-        """``p(r, t)`` (n_z, n_x) at the record's last sample."""
+        """``p(r, t)`` (n_z, n_x) at :attr:`peak_time`."""
         t, b = np.array(self.times), np.array(self.forces)
         rates = field.source_rates(t, b) if len(t) > 1 else np.zeros_like(b)
-        return field.frames(self.xs, self.zs, t, rates, self.base_x, self.speed, [t[-1]])[0]
+        return field.frames(self.xs, self.zs, t, rates, self.base_x, self.speed,
+                            [self.peak_time])[0]
 
     def measure(self, targets):
         """The figures of a complete record of a focus: per column the arrival at the base
-        (:func:`solver.support.first_arrival`, the record's first sample as rest) and its
+        (:func:`solver.support.pulse_arrival`, as the design times it; the record's first sample
+        as rest) and its
         residual against ``targets`` (s after the impact, the plan's delay law), and the peak
         pressure at the focus (``max_t p`` at F, model units)."""
         t, b = np.array(self.times) - self.t0, np.array(self.forces)
-        arrivals = [first_arrival(t, b[:, c]).time_s for c in range(b.shape[1])]
+        arrivals = [pulse_arrival(t, b[:, c]).time_s for c in range(b.shape[1])]
         X, Z = self.focus
         at, _ = field.peak_map([X], [Z], t, field.source_rates(t, b), self.base_x, self.speed)
         return {'simulated_s': [float(a) for a in arrivals],

@@ -511,6 +511,7 @@ class TensegritySim(LifecycleNode):
         self._record = ImpactRecord(self.sim, self.params['medium_speed_m_s'],
                                     float(self.sim.scene['run.t_end']), focus)
         self._last_field = -math.inf
+        self._field_sent_t = None
 
     def _field_wanted(self):
         return bool(self._sinks or self._field_sinks
@@ -546,9 +547,10 @@ class TensegritySim(LifecycleNode):
             return
         self._pubs[FIELD_TOPIC].publish(msg)
         self._emit(self._sinks, self._topics[FIELD_TOPIC], msg, messages.stamp_to_ns(stamp))
-        if self._field_sinks:
+        if self._field_sinks and rec.peak_time != self._field_sent_t:   # each time once
+            self._field_sent_t = rec.peak_time
             now = rec.pressure_now()
-            self._emit(self._field_sinks, float(rec.times[-1]), peak,
+            self._emit(self._field_sinks, float(rec.peak_time), peak,
                        now if np.isfinite(now).all() else None)
 
     # -- commands -------------------------------------------------------------------------------

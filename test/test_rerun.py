@@ -740,8 +740,9 @@ def test_field_images_are_the_given_maps_over_their_scale(tmp_path):
 
 
 def test_lens_cli_records_the_field_over_sim_time(tmp_path, capsys, monkeypatch):
-    """``tensegrity lens --rerun``: the check run's frames and, at every frame time, the peak
-    pressure so far, finite and growing, on the stated grid (48 x 64), largest at the end."""
+    """``tensegrity lens --rerun``: the check run's frames and, at every frame time and once
+    after the record, the peak pressure so far, finite and growing, on the stated grid
+    (48 x 64), largest at the end."""
     import yaml
 
     from tensegrity_ros.cli import main
@@ -758,9 +759,10 @@ def test_lens_cli_records_the_field_over_sim_time(tmp_path, capsys, monkeypatch)
     data = read(path)
     peaks = field_images(data['/field/peak_pressure'])
     frames = [t for t, _ in data['/world/nodes']['rows']]
-    assert [t for t, _ in peaks] == frames and len(frames) == 61        # 0.3 s every 5 ms
+    assert len(frames) == 61                                            # 0.3 s every 5 ms
+    assert [t for t, _ in peaks][:-1] == frames and peaks[-1][0] > frames[-1]   # and after
     stack = np.array([img for _, img in peaks])
     assert stack.shape[1:] == IMAGE_SHAPE and np.isfinite(stack).all()
     assert np.all(np.diff(stack, axis=0) >= 0)                 # a peak so far only grows
     assert stack[0].max() == 0 and stack[-1].max() == pytest.approx(1.0)
-    assert len(data['/field/pressure']['rows']) == len(frames)
+    assert len(data['/field/pressure']['rows']) == len(frames) + 1

@@ -8,7 +8,7 @@ import pytest
 
 from solver.scene import Scene
 from solver.simulation import Simulation
-from solver.support import axial_momentum, first_arrival
+from solver.support import axial_momentum, first_arrival, pulse_arrival
 
 SCENES = 'config/scenes/'
 
@@ -108,3 +108,21 @@ def test_arrival_of_a_gaussian_pulse():
     assert w.time_s == pytest.approx(0.5, abs=1e-3) and w.peak_N == pytest.approx(1.0, 1e-3)
     assert math.isnan(first_arrival(t, np.zeros_like(t)).time_s)
     assert math.isnan(first_arrival(t, pull).time_s)              # only a pull: no pulse
+
+
+def test_pulse_arrival_times_the_largest_compression():
+    """A small early bump and a larger late one: the first arrival is the early one's half-height
+    crossing, the pulse arrival the late one's; a pull before it is its precursor."""
+    t = np.linspace(0, 1, 2001)
+    sig = 0.02
+    early = 0.2 * np.exp(-0.5 * ((t - 0.3) / sig) ** 2)
+    late = 1.5 * np.exp(-0.5 * ((t - 0.7) / sig) ** 2)
+    pull = -0.1 * np.exp(-0.5 * ((t - 0.5) / sig) ** 2)
+    half = math.sqrt(2 * math.log(2)) * sig
+    f = early + late + pull
+    assert first_arrival(t, f).time_s == pytest.approx(0.3 - half, abs=1e-4)
+    a = pulse_arrival(t, f)
+    assert a.time_s == pytest.approx(0.7 - half, abs=1e-4)
+    assert a.peak_time_s == pytest.approx(0.7, abs=1e-3) and a.peak_N == pytest.approx(1.5, 1e-4)
+    assert a.precursor_N == pytest.approx(-0.1, rel=1e-3)
+    assert math.isnan(pulse_arrival(t, pull).time_s)
