@@ -503,10 +503,11 @@ class TensegritySim(LifecycleNode):
     def _start_record(self, focus=None):
         """After an impact of an array: record its base forces for the scene's ``run.t_end``
         (always for a focus, whose arrivals /diagnostics report; for another impact only while
-        ``field_rate_hz`` > 0)."""
+        ``field_rate_hz`` > 0 and someone listens to ``~/field`` or records)."""
         from .lens_record import ImpactRecord, is_array
         self._record = None
-        if not is_array(self.sim.scene) or (focus is None and self.params['field_rate_hz'] <= 0):
+        if not is_array(self.sim.scene) or (focus is None and (
+                self.params['field_rate_hz'] <= 0 or not self._field_wanted())):
             return
         self._record = ImpactRecord(self.sim, self.params['medium_speed_m_s'],
                                     float(self.sim.scene['run.t_end']), focus)

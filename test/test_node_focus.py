@@ -148,17 +148,24 @@ def test_field_image_after_a_focus(focused):
 
 
 def test_field_is_computed_only_when_someone_listens(focused):
-    """Without a subscriber or recorder nothing is computed; with field_rate_hz 0 nothing is
-    published even to a subscriber."""
+    """A focus records its base forces (its arrivals are reported) but, without a subscriber or
+    recorder, no field is computed; a plain impact records nothing then; with a subscriber it
+    does, and an image follows; with field_rate_hz 0 nothing is published."""
     node, ex, cmd, focus, scene = focused
-    cmd.impact([0.1])
-    assert spin_until(ex, lambda: node._record is not None and node._record.done, 120)
+    focus(0.02, 0.1)
+    assert spin_until(ex, lambda: node._record is not None and node._record.done, 600)
     assert node._record._peak.count == 0                      # nobody listened
-    assert node.set_parameters([Parameter('field_rate_hz', value=0.0)])[0].successful
+    cmd.impact([0.1])
+    t = node.sim.t
+    assert spin_until(ex, lambda: node.sim.t > t + 0.05, 60)
+    assert node._record is None
     images = []
     cmd.create_subscription(Image, f'{cmd.base}/field', images.append, 10)
     assert spin_until(ex, lambda: node._pubs['~/field'].get_subscription_count() > 0, 30)
     cmd.impact([0.1])
-    t = node.sim.t
+    assert spin_until(ex, lambda: bool(images), 60) and node._record is not None
+    assert node.set_parameters([Parameter('field_rate_hz', value=0.0)])[0].successful
+    cmd.impact([0.1])
+    t, n = node.sim.t, len(images)
     assert spin_until(ex, lambda: node.sim.t > t + 0.2, 60)
-    assert node._record is None and images == []
+    assert node._record is None and len(images) == n
