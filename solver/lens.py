@@ -2,14 +2,15 @@
 
 The bases of an array lie on the surface ``z = 0`` of a host medium of wave speed ``C``; column
 ``i`` has its base at ``X_i = (x_i, 0)``. Pulses that leave the bases at ``T_i = T0 - |F - X_i| /
-C`` meet at the focus ``F = (X, Z)`` at ``T0``. The arrival time of a column's pulse at its base
-(:func:`solver.support.first_arrival`) depends on its prestrain; :func:`arrival_map` measures it
-with the solver itself on a grid of prestrains over the scene's ``lens`` range, for the scene and
-the impact velocity, and keeps it on disk. :func:`design` picks ``T0`` in the middle of the
-interval where every target lies within the map's range (the most margin on both sides), then
-per column the prestrain whose interpolated arrival time is the target (the map need not be
-monotone: every grid segment that brackets the target is a candidate, the first is taken; the
-grid is geometric, denser at small prestrain where the arrival time changes fastest).
+C`` meet at the focus ``F = (X, Z)`` at ``T0``. The arrival time of a column's solitary pulse at
+its base (:func:`solver.support.pulse_arrival`: the largest compression of the record, which the
+scene's ``run.t_end`` must hold, and nothing larger after it) depends on its prestrain;
+:func:`arrival_map` measures it with the solver itself on a grid of prestrains over the scene's
+``lens`` range, for the scene and the impact velocity, and keeps it on disk. :func:`design`
+picks ``T0`` in the middle of the interval where every target lies within the map's range (the
+most margin on both sides), then per column the prestrain whose interpolated arrival time is
+the target (the map need not be monotone: every grid segment that brackets the target is a
+candidate, the first is taken; the grid is geometric, denser at small prestrain).
 :func:`simulate` runs the array with those prestrains and one impact on every column at once;
 the plan reports per column the prestrain, the predicted and the simulated arrival time and the
 residual.
@@ -27,9 +28,9 @@ import numpy as np
 
 from .scene import Scene
 from .simulation import Simulation
-from .support import first_arrival
+from .support import pulse_arrival
 
-CACHE_VERSION = 2
+CACHE_VERSION = 5         # the arrival definition of solver.support is part of the map
 
 
 class LensError(ValueError):
@@ -57,27 +58,36 @@ def base_x(scene):
 SAMPLE_S = 1e-3          # base forces are sampled every this many seconds (whole steps)
 
 
-def record_base(sim, t_end):
+def record_base(sim, t_end, on_frame=None, frame_dt=None):
     """Base force of every column every :data:`SAMPLE_S` (whole integrator steps) from now to
-    ``t_end`` s: ``(times (n_t,), forces (n_t, n_columns))``."""
+    ``t_end`` s: ``(times (n_t,), forces (n_t, n_columns))``. ``on_frame(frame)``: called with
+    :meth:`~solver.simulation.Simulation.frame` now and every ``frame_dt`` s (a whole number of
+    samples)."""
     t, b = [sim.t], [sim.base_force()]
     every = max(1, int(round(SAMPLE_S / sim.dt)))
     n = int(round((t_end - sim.t) / (every * sim.dt)))
-    for _ in range(n):
+    frame_every = (max(1, int(round(frame_dt / (every * sim.dt)))) if on_frame is not None
+                   and frame_dt else 0)
+    if frame_every:
+        on_frame(sim.frame())
+    for k in range(1, n + 1):
         sim.advance(every * sim.dt)
         t.append(sim.t)
         b.append(sim.base_force())
+        if frame_every and k % frame_every == 0:
+            on_frame(sim.frame())
     return np.array(t), np.array(b)
 
 
-def simulate(scene, prestrain, v0):
+def simulate(scene, prestrain, v0, on_frame=None, frame_dt=None):
     """Run the array of ``scene`` with per-column ``prestrain`` (set at once) and an impact of
-    ``v0`` m/s on every column at t = 0, to ``run.t_end``: ``(times, base forces, arrivals)``."""
+    ``v0`` m/s on every column at t = 0, to ``run.t_end``: ``(times, base forces, arrivals)``.
+    ``on_frame``, ``frame_dt``: as :func:`record_base`."""
     sim = Simulation(scene)
     sim.apply_prestrain(np.asarray(prestrain, dtype=np.float64))
     sim.apply_impact(v0)
-    t, b = record_base(sim, scene['run.t_end'])
-    arrivals = np.array([first_arrival(t, b[:, c]).time_s for c in range(b.shape[1])])
+    t, b = record_base(sim, scene['run.t_end'], on_frame, frame_dt)
+    arrivals = np.array([pulse_arrival(t, b[:, c]).time_s for c in range(b.shape[1])])
     return t, b, arrivals
 
 
@@ -200,17 +210,21 @@ def design(scene, focus, speed, v0, directory=None):
         cols.append({'column': i, 'x_m': float(x), 'prestrain': p, 'target_s': float(T),
                      'predicted_s': pred, 'simulated_s': None, 'residual_s': None})
     return Plan((X, Z), float(speed), float(v0), float(t0), cols, amap.prestrain.tolist(),
-                amap.arrival_s.tolist(), cached=amap.cached)
+                amap.arrival_s.tolist(), cached=amap.cached,
+                extra={'law_span_s': float(d.max() - d.min()), 'map_span_s': t_hi - t_lo})
 
 
-def check(scene, plan):
+def check(scene, plan, on_frame=None, frame_dt=None):
     """Simulate the plan (prestrains, one impact on every column) and fill in the simulated
-    arrival times and residuals; returns ``(times, base forces)`` of the run."""
+    arrival times, residuals and the rise widths of the pulses (``rise_s``, see
+    :class:`solver.support.Arrival`); returns ``(times, base forces)`` of the run.
+    ``on_frame``, ``frame_dt``: as :func:`record_base`."""
     p = [c['prestrain'] for c in plan.columns]
-    t, b, arrival = simulate(scene, p, plan.v0)
-    for c, a in zip(plan.columns, arrival):
+    t, b, arrival = simulate(scene, p, plan.v0, on_frame, frame_dt)
+    for i, (c, a) in enumerate(zip(plan.columns, arrival)):
         c['simulated_s'] = float(a)
         c['residual_s'] = float(a - c['target_s'])
+        c['rise_s'] = pulse_arrival(t, b[:, i]).rise_s
     return t, b
 
 

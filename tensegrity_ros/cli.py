@@ -220,7 +220,16 @@ def cmd_lens(args):
     v0 = scene['loading.impact.v0'] if args.v0 is None else args.v0
     if not (-10.0 <= v0 <= 10.0) or v0 == 0:
         raise UserError(f'--v0: {v0!r} m/s must be nonzero and within [-10, 10]')
-    result = lens_result(scene, focus, args.medium_speed, v0, args.dims)
+    recorder = None
+    if args.rerun:
+        recorder = lens_recorder(scene, args.rerun)
+    try:
+        result = lens_result(scene, focus, args.medium_speed, v0, args.dims, recorder)
+    finally:
+        if recorder is not None:
+            recorder.close()
+    if recorder is not None:
+        result['rerun'] = str(args.rerun)
     out_dir = Path(args.out) if args.out else Path('runs') / f'{scene.name}_lens'
     if args.plot:
         from .plots import lens_field
@@ -236,30 +245,101 @@ def cmd_lens(args):
     return 0
 
 
-def lens_result(scene, focus, speed, v0, dims=2):
-    """The plan, its check, the field maps and the focal gain of a focus (a dict)."""
+def lens_recorder(scene, path):
+    """A Rerun recorder of the lens array with the field grid of :func:`lens_field_grid`."""
+    from solver import lens
+    from solver.simulation import build_network
+
+    from .lens_record import grid_extent
+    from .rerun_log import RerunRecorder
+    xs, zs = lens_field_grid(lens.base_x(scene))
+    try:
+        return RerunRecorder(build_network(scene), path, field_grid=grid_extent(xs, zs))
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
+
+
+def lens_field_grid(base_x):
+    """The grid of the field images: that of the node's ``~/field`` (lens_record.IMAGE_SHAPE)."""
+    from solver import field
+
+    from .lens_record import IMAGE_SHAPE
+    return field.image_grid(base_x, n_x=IMAGE_SHAPE[1], n_z=IMAGE_SHAPE[0])
+
+
+def lens_result(scene, focus, speed, v0, dims=2, recorder=None):
+    """The plan, its check, the field's figures at the focus (solver.field.focus_report) and the
+    focal gain of a focus, the maps for the plot (a dict). ``recorder``: a RerunRecorder of the
+    array (:func:`lens_recorder`) that gets the check run's frames and the field over time."""
     import numpy as np
 
     from solver import field, lens
     plan = lens.design(scene, focus, speed, v0)
-    t, b = lens.check(scene, plan)
+    frame_dt = scene['run.output_dt']
+    t, b = lens.check(scene, plan, None if recorder is None else recorder.frame, frame_dt)
     p_uniform = float(np.mean([c['prestrain'] for c in plan.columns]))
     tu, bu, _ = lens.simulate(scene, np.full(len(plan.columns), p_uniform), v0)
     xs_b = lens.base_x(scene)
+    spacing = scene['structure.column_spacing']
+    rep = field.focus_report(t, b, xs_b, focus, speed, spacing, dims)
+    rep_u = field.focus_report(tu, bu, xs_b, focus, speed, spacing, dims)
     X, Z = focus
-    span = xs_b[-1] - xs_b[0]
-    xs = np.linspace(min(xs_b[0], X) - 0.3 * span, max(xs_b[-1], X) + 0.3 * span, 81)
-    zs = np.linspace(0.05 * Z, 2.0 * Z, 61)
+    span = max(xs_b[-1] - xs_b[0], spacing)
+    xs = np.linspace(min(xs_b[0] - 0.25 * span, X - 0.1 * span),
+                     max(xs_b[-1] + 0.25 * span, X + 0.1 * span), 121)
+    zs = np.linspace(0.0, max(1.5 * span, 1.5 * Z), 91)[1:]
     pk, _ = field.peak_map(xs, zs, t, field.source_rates(t, b), xs_b, speed, dims)
     pu, _ = field.peak_map(xs, zs, tu, field.source_rates(tu, bu), xs_b, speed, dims)
-    iz, ix = int(np.argmin(np.abs(zs - Z))), int(np.argmin(np.abs(xs - X)))
-    lateral = float(xs[int(np.argmax(pk[iz]))])
+    if recorder is not None:
+        _record_field(recorder, t, b, xs_b, speed, dims, frame_dt)
+        recorder.command(0.0, f'focus ({X:g}, {Z:g}) m at C = {speed:g} m/s: impact v0 = '
+                              f'{v0:g} m/s on every column at once')
+    rise = np.array([c['rise_s'] for c in plan.columns])
     result = plan.as_dict()
     result.update(dims=dims, uniform_prestrain=p_uniform,
-                  focal_gain=float(pk[iz, ix] / pu[iz, ix]) if pu[iz, ix] > 0 else None,
-                  lateral_peak_x_m=lateral, cached_map=plan.cached,
-                  _field={'x': xs, 'z': zs, 'peak': pk, 'uniform': pu, 'bases': xs_b})
+                  focal_gain=rep['p_focus'] / rep_u['p_focus'] if rep_u['p_focus'] > 0
+                  else None,
+                  p_focus=rep['p_focus'], p_focus_uniform=rep_u['p_focus'],
+                  lateral_peak_x_m=rep['lateral_peak_x_m'],
+                  lateral_offset_spacings=rep['lateral_offset_spacings'],
+                  axial_peak_z_m=rep['axial_peak_z_m'], rise_mean_s=float(np.mean(rise)),
+                  cached_map=plan.cached,
+                  _field={'x': xs, 'z': zs, 'peak': pk, 'uniform': pu, 'bases': xs_b,
+                          'lateral_x': rep['lateral_x_m'], 'lateral': rep['lateral_peak'],
+                          'lateral_uniform': rep_u['lateral_peak'], 'spacing': spacing})
     return result
+
+
+def _record_field(recorder, t, b, base_x, speed, dims, frame_dt):
+    """The field over ``sim_time`` into ``recorder``: at every frame time the peak pressure up to
+    then (solver.field.PeakMap on the recorded base forces) and the pressure then, and once more
+    when the record's end has passed the whole grid, all over the largest peak pressure."""
+    import numpy as np
+
+    from solver import field
+    xs, zs = lens_field_grid(base_x)
+    X, Z = np.meshgrid(xs, zs)
+    pts = np.stack([X.ravel(), Z.ravel()], axis=1)
+    dt = float(t[1] - t[0])
+    every = max(1, int(round(frame_dt / dt)))
+    stops = list(range(0, len(t), every))
+    peaks = []
+    pm = field.PeakMap(pts, base_x, speed, dt, dims)
+    done = 0
+    for k in stops:
+        pm.extend(b[done:k + 1])
+        done = k + 1
+        peaks.append(np.maximum(pm.peak, 0.0).reshape(X.shape))
+    pm.extend(b[done:])
+    pm.finish()                    # and after the record, until its end has passed the grid
+    t_last = float(t[0] + (pm.count - 1) * dt)
+    peaks.append(np.maximum(pm.peak, 0.0).reshape(X.shape))
+    scale = float(max(p.max() for p in peaks)) or 1.0
+    rates = field.source_rates(t, b)
+    at = np.append(t[stops], t_last)
+    now = field.frames(xs, zs, t, rates, base_x, speed, at, dims)
+    for when, peak, p in zip(at, peaks, now):
+        recorder.field(float(when), peak, p, scale)
 
 
 def format_lens(r):
@@ -272,13 +352,18 @@ def format_lens(r):
         lines.append(f"  {c['column']:6d} {c['x_m']:6.3f} {c['prestrain']:11.5f} "
                      f"{c['target_s']:10.4f} {c['predicted_s']:13.4f} {c['simulated_s']:13.4f} "
                      f"{1e3 * c['residual_s']:13.3f}")
+    lines.append(f"  the delay law spans {1e3 * r['law_span_s']:.1f} ms of the "
+                 f"{1e3 * r['map_span_s']:.1f} ms the prestrain range gives; the pulses rise "
+                 f"over {1e3 * r['rise_mean_s']:.0f} ms (rate width at half height)")
     gain = r['focal_gain']
-    lines.append(f"  field ({r['dims']}D): peak at depth {Z:g} m lies at x = "
-                 f"{r['lateral_peak_x_m']:.3f} m; focal gain "
-                 f"{'n/a' if gain is None else f'{gain:.3f}'} (against uniform prestrain "
-                 f"{r['uniform_prestrain']:.5f})")
-    if r.get('plot'):
-        lines.append(f"  plot: {r['plot']}")
+    lines.append(f"  field ({r['dims']}D): across depth {Z:g} m the peak lies at x = "
+                 f"{r['lateral_peak_x_m']:.3f} m ({r['lateral_offset_spacings']:.2f} column "
+                 f"spacings from X); along x = {X:g} m at depth {r['axial_peak_z_m']:.3f} m")
+    lines.append(f"  focal gain {'n/a' if gain is None else f'{gain:.3f}'} (peak at F against "
+                 f"the same array at uniform prestrain {r['uniform_prestrain']:.5f})")
+    for key in ('plot', 'rerun'):
+        if r.get(key):
+            lines.append(f"  {key}: {r[key]}")
     return lines
 
 
@@ -290,9 +375,14 @@ def cmd_node(args):
 
 
 def cmd_demo(args):
-    """``tensegrity demo``: the node in a second process, an impact over the topic, a summary."""
+    """``tensegrity demo``: the node in a second process, an impact over the topic, a summary;
+    with ``--focus X,Z`` a focus of the lens array instead (the plan, the arrivals the node
+    measures, the focal gain)."""
     import os
-
+    domain = args.domain_id if args.domain_id is not None else (
+        int(os.environ['ROS_DOMAIN_ID']) if os.environ.get('ROS_DOMAIN_ID') else None)
+    if args.focus is not None:
+        return _demo_focus(args, domain)
     from .commander import format_summary, run_demo
     try:
         v0 = [float(v) for v in args.v0.split(',')]
@@ -300,18 +390,46 @@ def cmd_demo(args):
                                                          args.prestrain.split(',')]
     except ValueError:
         raise UserError('--v0 and --prestrain take numbers separated by commas') from None
-    domain = args.domain_id if args.domain_id is not None else (
-        int(os.environ['ROS_DOMAIN_ID']) if os.environ.get('ROS_DOMAIN_ID') else None)
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     try:
-        summary = run_demo(args.scene, v0=v0, duration_s=args.duration, rtf=args.rtf,
-                           out_dir=args.out, domain_id=domain, record=not args.no_record,
-                           prestrain=prestrain)
+        summary = run_demo(args.scene or DEMO_SCENE, v0=v0, duration_s=args.duration,
+                           rtf=args.rtf, out_dir=args.out or 'runs/demo', domain_id=domain,
+                           record=not args.no_record, prestrain=prestrain)
     except RuntimeError as exc:
         raise UserError(f'demo: {exc}') from None
     for line in format_summary(summary):
         print(line)
-    print(f'  summary: {args.out}/summary.json')
+    print(f'  summary: {args.out or "runs/demo"}/summary.json')
+    return 0 if summary['node_exit_code'] == 0 else 1
+
+
+DEMO_SCENE = 'config/scenes/fb_column.yaml'
+FOCUS_SCENE = 'config/scenes/lens_focus.yaml'
+
+
+def _demo_focus(args, domain):
+    import os
+
+    from solver import lens
+
+    from .commander import format_focus_summary, run_focus_demo
+    focus = lens.parse_focus(args.focus)
+    if not focus[1] > 0:
+        raise UserError(f'--focus: the depth Z must be > 0, got {focus[1]:g}')
+    if not (0 < args.medium_speed < float('inf')):
+        raise UserError(f'--medium-speed: must be a positive number of m/s, got '
+                        f'{args.medium_speed!r}')
+    out = args.out or 'runs/demo_focus'
+    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    try:
+        summary = run_focus_demo(focus, args.scene or FOCUS_SCENE, speed=args.medium_speed,
+                                 rtf=args.rtf, out_dir=out, domain_id=domain,
+                                 record=not args.no_record)
+    except RuntimeError as exc:
+        raise UserError(f'demo: {exc}') from None
+    for line in format_focus_summary(summary):
+        print(line)
+    print(f'  summary: {out}/summary.json')
     return 0 if summary['node_exit_code'] == 0 else 1
 
 
@@ -445,6 +563,8 @@ def build_parser():
     p.add_argument('--dims', type=int, choices=(2, 3), default=2,
                    help='geometric spreading of the field: 2 (line sources) or 3 (points)')
     p.add_argument('--plot', action='store_true', help='write OUT/lens_field.png')
+    p.add_argument('--rerun', metavar='OUT.rrd',
+                   help='record the check run and the field over sim_time to a Rerun file')
     p.add_argument('--out', help='output directory (default runs/<scene>_lens)')
     p.add_argument('--json', action='store_true', help='print one JSON object')
     p.set_defaults(func=cmd_lens)
@@ -453,14 +573,22 @@ def build_parser():
                    help='ROS arguments: --ros-args -p NAME:=VALUE --params-file config/node.yaml')
     p.set_defaults(func=cmd_node)
     p = sub.add_parser('demo', help='start the node, command an impact over ROS 2, summarise')
-    p.add_argument('--scene', default='config/scenes/fb_column.yaml', help='scene YAML')
+    p.add_argument('--scene', help='scene YAML (default config/scenes/fb_column.yaml; with '
+                   '--focus config/scenes/lens_focus.yaml)')
     p.add_argument('--v0', default='0.1', help='impact velocity m/s, or one per column: 0.1,0.12')
+    p.add_argument('--focus', metavar='X,Z',
+                   help='focus the lens array at X,Z m (x along the array, depth z > 0) with '
+                        '~/cmd/focus instead of an impact: prints the plan, the arrivals the '
+                        'node measures and the focal gain')
+    p.add_argument('--medium-speed', type=float, default=1.5, metavar='C',
+                   help='wave speed of the host medium for --focus, m/s (default 1.5)')
     p.add_argument('--prestrain', help='prestrain before the impact, or one per column')
     p.add_argument('--duration', type=float, default=1.2,
                    help='simulated seconds collected after the impact (default 1.2)')
     p.add_argument('--rtf', type=float, default=1.0,
                    help='real-time factor (0 = fast as possible)')
-    p.add_argument('--out', default='runs/demo', help='output directory (default runs/demo)')
+    p.add_argument('--out', help='output directory (default runs/demo, with --focus '
+                   'runs/demo_focus)')
     p.add_argument('--domain-id', type=int,
                    help='ROS_DOMAIN_ID (default: env, else 100 + pid %% 50)')
     p.add_argument('--no-record', action='store_true', help='no MCAP / Rerun recording')

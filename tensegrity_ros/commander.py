@@ -1,10 +1,12 @@
 """A small commander for the ``tensegrity_sim`` node, and the demo (``tensegrity demo``).
 
-:class:`Commander` is an ordinary rclpy node: it publishes ``~/cmd/impact`` and ``~/cmd/prestrain``
-of the simulation node, listens to its ``~/strain`` and ``/diagnostics`` and calls its services.
-:func:`run_demo` starts the node paused in a second process, commands an impact over the topic,
-starts the node's clock, collects the strain wave for a while, stops the node with SIGINT and
-returns a summary dict whose figures come from the float64 ``~/strain`` topic.
+:class:`Commander` is an ordinary rclpy node: it publishes ``~/cmd/impact``, ``~/cmd/prestrain``
+and ``~/cmd/focus`` of the simulation node, listens to its ``~/strain``, ``~/field`` and
+``/diagnostics`` and calls its services. :func:`run_demo` starts the node paused in a second
+process, commands an impact over the topic, starts the node's clock, collects the strain wave for
+a while, stops the node with SIGINT and returns a summary dict whose figures come from the float64
+``~/strain`` topic. :func:`run_focus_demo` does the same with a focus on a lens array: the plan and
+the arrivals the node measures come from ``/diagnostics``, the field from ``~/field``.
 """
 from __future__ import annotations
 
@@ -18,9 +20,10 @@ from pathlib import Path
 import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PointStamped
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
-from sensor_msgs.msg import PointCloud2
+from sensor_msgs.msg import Image, PointCloud2
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import SetBool, Trigger
 
@@ -47,7 +50,9 @@ class Commander(Node):
         self.pub_impact = self.create_publisher(Float64MultiArray, f'{base}/cmd/impact', QOS)
         self.pub_prestrain = self.create_publisher(Float64MultiArray, f'{base}/cmd/prestrain',
                                                    QOS)
+        self.pub_focus = self.create_publisher(PointStamped, f'{base}/cmd/focus', QOS)
         self.clouds, self.strain, self.tension, self.diagnostics = [], [], [], []
+        self.fields = []                 # (t s, (height, width) float32) from ~/field, if asked
         self._frame_subs = [
             self.create_subscription(PointCloud2, f'{base}/nodes', self._on_cloud, QOS),
             self.create_subscription(Float64MultiArray, f'{base}/strain',
@@ -81,6 +86,18 @@ class Commander(Node):
                 self.cli_running.service_is_ready()
         return commands_matched and bool(self.clouds) and bool(self.strain) and \
             bool(self.tension)
+
+    def listen_to_field(self):
+        """Keep the ``~/field`` images (:attr:`fields`) from now on."""
+        self._field_sub = self.create_subscription(
+            Image, f'{self.base}/field', lambda m: self.fields.append(
+                (messages.stamp_to_ns(m.header.stamp) * 1e-9, messages.image_values(m))), QOS)
+
+    def focus(self, x, z):
+        """``~/cmd/focus`` at ``(x, z)`` m (x along the array, z the depth below the bases)."""
+        msg = PointStamped()
+        msg.point.x, msg.point.z = float(x), float(z)
+        self.pub_focus.publish(msg)
 
     def impact(self, v0, label='all'):
         self.pub_impact.publish(messages.command_array(v0, label))
@@ -290,6 +307,147 @@ def format_summary(s):
         lines.append(f"  node: energy {d.get('energy_J')} J, constraint error "
                      f"{d.get('constraint_error')}, commands accepted "
                      f"{d.get('commands_accepted')}, rejected {d.get('commands_rejected')}")
+    lines.append(f"  node stopped with exit code {s['node_exit_code']}")
+    for key, path in s['outputs'].items():
+        lines.append(f'  {key}: {path}' if path else f'  {key}: not recorded')
+    return lines
+
+
+def run_focus_demo(focus, scene_file='config/scenes/lens_focus.yaml', speed=1.5, rtf=1.0,
+                   out_dir='runs/demo_focus', domain_id=None, record=True, dims=2,
+                   connect_timeout_s=120.0, plan_timeout_s=600.0):
+    """The lens over ROS 2: start the node (second process) paused with ``medium_speed_m_s`` =
+    ``speed``, command ``~/cmd/focus`` at ``focus`` = (X, Z) m, start its clock, wait until the
+    node has measured the arrivals of its own run (``focus_measured`` on ``/diagnostics``, the
+    scene's ``run.t_end`` after the impact), keep the last ``~/field`` image, stop the node. The
+    focal gain is the node's peak pressure at F over that of the same array at the mean
+    prestrain, simulated here (solver.lens.simulate; the same field model, 2D). Returns the
+    summary dict (also ``out_dir/summary.json``)."""
+    import json
+
+    from solver import field, lens
+    from solver.scene import Scene
+
+    from .node import find_config
+
+    if domain_id is None:
+        domain_id = demo_domain_id()
+    scene_path = find_config(scene_file)
+    scene = Scene.load(scene_path)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    params = {'scene_file': str(scene_path), 'real_time_factor': float(rtf),
+              'start_paused': True, 'medium_speed_m_s': float(speed),
+              'diagnostics_rate_hz': 10.0}
+    outputs = {'mcap': None, 'rerun': None}
+    if record and _recorder_available('recording'):
+        outputs['mcap'] = params['record_mcap'] = str(out / 'run.mcap')
+    if record and _recorder_available('rerun_log'):
+        outputs['rerun'] = params['record_rerun'] = str(out / 'run.rrd')
+    proc = node_process(params, domain_id)
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=domain_id)
+    cmd = Commander(context=ctx)
+    cmd.listen_to_field()
+    ex = SingleThreadedExecutor(context=ctx)
+    ex.add_node(cmd)
+    info = {}
+    try:
+        w0 = time.monotonic()
+        spin_until(ex, lambda: (cmd.connected(paused=True)
+                                and cmd.pub_focus.get_subscription_count() > 0)
+                   or proc.poll() is not None, connect_timeout_s)
+        if not cmd.connected(paused=True):
+            raise RuntimeError('the node did not come up within '
+                               f'{connect_timeout_s:g} s (exit code {proc.poll()})')
+        info['startup_s'] = time.monotonic() - w0
+        n_diag = len(cmd.diagnostics)
+        cmd.focus(*focus)
+
+        def answered():
+            return [d for d in cmd.diagnostics[n_diag:]
+                    if d[2].get('last_command_topic') == '~/cmd/focus']
+        spin_until(ex, lambda: bool(answered()) or proc.poll() is not None, plan_timeout_s)
+        if not answered() or answered()[0][2]['last_command'] != 'accepted':
+            detail = answered()[0][2].get('last_command_detail') if answered() else \
+                f'no answer within {plan_timeout_s:g} s'
+            raise RuntimeError(f'focus not accepted: {detail}')
+        info['plan_s'] = time.monotonic() - w0 - info['startup_s']
+        cmd.set_running(ex, True)
+        w1 = time.monotonic()
+        window = float(scene['run.t_end']) + 0.5
+        spin_until(ex, lambda: any(d[2].get('focus_measured') == 'true'
+                                   for d in cmd.diagnostics[n_diag:]),
+                   window / max(rtf, 0.05) * 3.0 + 60.0)
+        info['wall_s'] = time.monotonic() - w1
+        measured = [d[2] for d in cmd.diagnostics[n_diag:] if d[2].get('focus_measured') == 'true']
+        if not measured:
+            raise RuntimeError('the node did not report the arrivals of the focus')
+        t_last = float(measured[0]['sim_time_s'])
+        spin_until(ex, lambda: bool(cmd.fields) and cmd.fields[-1][0] >= t_last - 1e-3, 10.0)
+    finally:
+        code, output = stop_process(proc)
+        ex.shutdown()
+        cmd.destroy_node()
+        rclpy.shutdown(context=ctx)
+    d = measured[0]
+    prestrain = json.loads(d['focus_prestrain'])
+    target = json.loads(d['focus_arrival_target_s'])
+    predicted = json.loads(d['focus_arrival_predicted_s'])
+    simulated = json.loads(d['focus_arrival_simulated_s'])
+    residual = json.loads(d['focus_residual_s'])
+    xs = lens.base_x(scene)
+    columns = [{'column': i, 'x_m': float(x), 'prestrain': p, 'target_s': T, 'predicted_s': P,
+                'simulated_s': S, 'residual_s': R}
+               for i, (x, p, T, P, S, R) in enumerate(zip(xs, prestrain, target, predicted,
+                                                          simulated, residual))]
+    v0 = float(d['focus_v0'])
+    p_u = float(np.mean(prestrain))
+    tu, bu, _ = lens.simulate(scene, np.full(len(xs), p_u), v0)
+    ref = field.focus_report(tu, bu, xs, focus, speed, scene['structure.column_spacing'], dims)
+    p_f = float(d['focus_peak_pressure'])
+    image = cmd.fields[-1][1] if cmd.fields else None
+    summary = {
+        'scene': str(scene_path), 'domain_id': domain_id, 'focus_m': [float(v) for v in focus],
+        'medium_speed_m_s': float(speed), 'v0': v0, 't0_s': float(d['focus_t0_s']),
+        'startup_s': info.get('startup_s'), 'plan_s': info.get('plan_s'),
+        'wall_s': info.get('wall_s'), 'columns': columns, 'uniform_prestrain': p_u,
+        'p_focus': p_f, 'p_focus_uniform': ref['p_focus'],
+        'focal_gain': p_f / ref['p_focus'] if ref['p_focus'] > 0 and p_f > 0 else None,
+        'field_images': len(cmd.fields),
+        'field_shape': list(image.shape) if image is not None else None,
+        'field_max': float(image.max()) if image is not None else None,
+        'node_exit_code': code, 'node_output_tail': output.strip().splitlines()[-5:],
+        'outputs': outputs,
+    }
+    (out / 'summary.json').write_text(json.dumps(summary, indent=2, default=str))
+    return summary
+
+
+def format_focus_summary(s):
+    """Human-readable lines of a :func:`run_focus_demo` summary."""
+    X, Z = s['focus_m']
+    lines = [f"demo: {Path(s['scene']).name} over ROS 2 (domain {s['domain_id']}): focus "
+             f"({X:g}, {Z:g}) m in a medium of {s['medium_speed_m_s']:g} m/s, v0 = {s['v0']:g} "
+             f"m/s; node up in {s['startup_s']:.1f} s, plan in {s['plan_s']:.1f} s, T0 = "
+             f"{s['t0_s']:.4f} s after the impact",
+             '  column   x m    prestrain   target s   predicted s   simulated s   residual ms']
+
+    def num(v, fmt):
+        return 'n/a' if v is None else format(v, fmt)
+    for c in s['columns']:
+        res = None if c['residual_s'] is None else 1e3 * c['residual_s']
+        lines.append(f"  {c['column']:6d} {c['x_m']:6.3f} {c['prestrain']:11.5f} "
+                     f"{c['target_s']:10.4f} {c['predicted_s']:13.4f} "
+                     f"{num(c['simulated_s'], '13.4f')} {num(res, '13.3f')}")
+    gain = s['focal_gain']
+    lines.append(f"  focal gain {num(gain, '.3f')}: peak pressure at F {s['p_focus']:.4g} (the "
+                 f"node's run) against {s['p_focus_uniform']:.4g} at uniform prestrain "
+                 f"{s['uniform_prestrain']:.5f} (model units, 2D)")
+    if s['field_shape']:
+        lines.append(f"  ~/field: {s['field_images']} images of {s['field_shape'][0]} x "
+                     f"{s['field_shape'][1]} (32FC1), largest peak pressure "
+                     f"{s['field_max']:.4g}")
     lines.append(f"  node stopped with exit code {s['node_exit_code']}")
     for key, path in s['outputs'].items():
         lines.append(f'  {key}: {path}' if path else f'  {key}: not recorded')

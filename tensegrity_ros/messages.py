@@ -13,7 +13,8 @@ Stable API (keep it so; the recorder depends on it):
 - :func:`frame_messages` ``(frame, network, stamp=None, markers=True, clock=False)``: dict topic
   key -> message for one publish frame (stamps from simulation time ``frame.t``).
 - :func:`diagnostics_message`, :func:`command_array`, :func:`sim_stamp`, :func:`stamp_to_ns`,
-  :func:`nodes_cloud` / :func:`cloud_positions`, :func:`multi_array`, :func:`marker_array`.
+  :func:`nodes_cloud` / :func:`cloud_positions`, :func:`multi_array`, :func:`marker_array`,
+  :func:`field_image` / :func:`image_values`.
 """
 from __future__ import annotations
 
@@ -25,7 +26,7 @@ from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Point, PointStamped
 from rosgraph_msgs.msg import Clock
-from sensor_msgs.msg import PointCloud2, PointField
+from sensor_msgs.msg import Image, PointCloud2, PointField
 from std_msgs.msg import ColorRGBA, Float64MultiArray, MultiArrayDimension, String
 from visualization_msgs.msg import Marker, MarkerArray
 
@@ -46,13 +47,14 @@ TYPES = {
     '~/cmd/impact': 'std_msgs/msg/Float64MultiArray',
     '~/structure': 'std_msgs/msg/String',     # JSON, transient-local, once per activation
     '~/cmd/focus': 'geometry_msgs/msg/PointStamped',
+    '~/field': 'sensor_msgs/msg/Image',       # 32FC1 peak pressure map, at field_rate_hz
 }
 MSG_CLASSES = {
     '~/nodes': PointCloud2, '~/strain': Float64MultiArray, '~/cable_tension': Float64MultiArray,
     '~/markers': MarkerArray, '~/base_force': Float64MultiArray,
     '~/striker': Float64MultiArray, '/clock': Clock, '/diagnostics': DiagnosticArray,
     '~/cmd/prestrain': Float64MultiArray, '~/cmd/impact': Float64MultiArray,
-    '~/structure': String, '~/cmd/focus': PointStamped,
+    '~/structure': String, '~/cmd/focus': PointStamped, '~/field': Image,
 }
 PUBLISHED = ('~/nodes', '~/strain', '~/cable_tension', '~/markers', '/clock', '/diagnostics',
              '~/base_force')
@@ -131,6 +133,33 @@ def nodes_cloud(positions, stamp):
     msg.is_dense = True
     msg.data = array.array('B', p.tobytes())
     return msg
+
+
+def field_image(values, stamp):
+    """``Image`` (encoding ``32FC1``, little endian) of a map ``values`` (height, width): row 0
+    at the surface, depth growing down the rows, x along the columns. Non-finite values raise
+    ValueError (never published)."""
+    a = np.ascontiguousarray(values, dtype='<f4')
+    if a.ndim != 2:
+        raise ValueError(f'field image: expected a 2-D map, got shape {a.shape}')
+    if not np.isfinite(a).all():
+        raise ValueError('field image: non-finite values')
+    msg = _header(Image(), stamp)
+    msg.height, msg.width = (int(n) for n in a.shape)
+    msg.encoding = '32FC1'
+    msg.is_bigendian = 0
+    msg.step = 4 * msg.width
+    msg.data = array.array('B', a.tobytes())
+    return msg
+
+
+def image_values(msg):
+    """Inverse of :func:`field_image`: the (height, width) float32 map of a ``32FC1`` image."""
+    if msg.encoding != '32FC1' or msg.step != 4 * msg.width:
+        raise ValueError(f'field image: expected dense 32FC1, got {msg.encoding!r}, step '
+                         f'{msg.step} for width {msg.width}')
+    dtype = '>f4' if msg.is_bigendian else '<f4'
+    return np.frombuffer(bytes(msg.data), dtype=dtype).reshape(msg.height, msg.width)
 
 
 def cloud_positions(msg):

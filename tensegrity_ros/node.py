@@ -55,6 +55,8 @@ STRUCTURE_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                            durability=DurabilityPolicy.TRANSIENT_LOCAL,
                            history=HistoryPolicy.KEEP_LAST)
 STRUCTURE_TOPIC = '~/structure'
+# the field in the medium of an array (sensor_msgs/Image, 32FC1): at field_rate_hz after an impact
+FIELD_TOPIC = '~/field'
 # every publisher and command subscription takes its QoS from parameters
 # qos_overrides.<topic>.<publisher|subscription>.<policy> (parameters file or -p), defaults above
 QOS_OVERRIDES = QoSOverridingOptions(policy_kinds=(
@@ -107,7 +109,7 @@ class TensegritySim(LifecycleNode):
         self.active = False
         self._pubs, self._cmd_subs, self._srvs = {}, [], []
         self._sinks, self._frame_sinks, self._event_sinks, self._closers = [], [], [], []
-        self._bytes_sinks = []
+        self._bytes_sinks, self._field_sinks = [], []
         if self.params['autostart']:
             self._setup()          # a bad scene raises here (the console script exits 2)
             for name, trigger in (('configure', self.trigger_configure),
@@ -175,7 +177,8 @@ class TensegritySim(LifecycleNode):
             self.destroy_service(srv)
         self._pubs, self._cmd_subs, self._srvs = {}, [], []
         self._sinks, self._frame_sinks, self._event_sinks, self._closers = [], [], [], []
-        self._bytes_sinks = []
+        self._bytes_sinks, self._field_sinks = [], []
+        self._record = None
         self.sim = None
 
     def _publisher(self, key, msg_class=None, qos=QOS):
@@ -218,6 +221,7 @@ class TensegritySim(LifecycleNode):
                           messages.OPTIONAL if self.sim.striker() is not None else ())
                       if key != '/clock' or self.params['use_sim_clock']}
         self._pubs[STRUCTURE_TOPIC] = self._publisher(STRUCTURE_TOPIC, String, STRUCTURE_QOS)
+        self._pubs[FIELD_TOPIC] = self._publisher(FIELD_TOPIC)
         self._topics = {key: self.resolve_topic_name(key) for key in messages.TYPES}
         self._cmd_subs = [
             (self.create_subscription(Float64MultiArray, key, handler, _qos(),
@@ -229,6 +233,8 @@ class TensegritySim(LifecycleNode):
             qos_overriding_options=QOS_OVERRIDES), self._on_focus))
         self.focus = None              # the last focus plan (dict) and its state
         self._focus_impact_at = None   # sim time of the planned impact, while it is ahead
+        self._record = None            # lens_record.ImpactRecord of the last impact of an array
+        self._last_field = -math.inf
         self._srvs = [self.create_service(Trigger, '~/reset', self._on_reset),
                           self.create_service(SetBool, '~/set_running', self._on_set_running)]
         self.running = not self.params['start_paused']
@@ -257,13 +263,17 @@ class TensegritySim(LifecycleNode):
             f'{self.params["real_time_factor"]:g}')
 
     # -- hooks for recorders --------------------------------------------------------------------
-    def add_sink(self, sink=None, frame_sink=None, event_sink=None, close=None, takes_bytes=False):
+    def add_sink(self, sink=None, frame_sink=None, event_sink=None, close=None, takes_bytes=False,
+                 field_sink=None):
         """Register recorder callbacks: ``sink(topic, msg, stamp_ns)`` (full topic names),
-        ``frame_sink(frame)``, ``event_sink(t, text)``, ``close()`` at shutdown. With
-        ``takes_bytes``, ``sink`` accepts the frame's messages as the CDR ``bytes`` that are
-        published (rclpy message objects are then built only if another sink needs them)."""
+        ``frame_sink(frame)``, ``event_sink(t, text)``, ``close()`` at shutdown,
+        ``field_sink(t, peak, pressure)`` (the field maps of ``~/field``, with the pressure at
+        ``t``). With ``takes_bytes``, ``sink`` accepts the frame's messages as the CDR ``bytes``
+        that are published (rclpy message objects are then built only if another sink needs
+        them)."""
         for lst, fn in ((self._sinks, sink), (self._frame_sinks, frame_sink),
-                        (self._event_sinks, event_sink), (self._closers, close)):
+                        (self._event_sinks, event_sink), (self._closers, close),
+                        (self._field_sinks, field_sink)):
             if fn is not None:
                 lst.append(fn)
         if sink is not None and takes_bytes:
@@ -281,10 +291,13 @@ class TensegritySim(LifecycleNode):
                             pub.qos_profile if pub is not None else QOS)
             self.add_sink(sink=rec.write, close=rec.close, takes_bytes=True)
         if self.params['record_rerun']:
+            from .lens_record import grid_extent, image_grid, is_array
             from .rerun_log import RerunRecorder
+            grid = grid_extent(*image_grid(self.sim.scene)) if is_array(self.sim.scene) else None
             rr = RerunRecorder(self.sim.network, self.params['record_rerun'],
-                               tension_scale=self._t_max)
-            self.add_sink(frame_sink=rr.frame, event_sink=rr.command, close=rr.close)
+                               tension_scale=self._t_max, field_grid=grid)
+            self.add_sink(frame_sink=rr.frame, event_sink=rr.command, close=rr.close,
+                          field_sink=rr.field if grid is not None else None)
 
     def _emit(self, sinks, *args):
         for fn in list(sinks):
@@ -390,13 +403,18 @@ class TensegritySim(LifecycleNode):
             if n > 0:
                 t0 = time.perf_counter()
                 try:
-                    self.sim.advance(n * self.sim.dt)
+                    if self._record is None:
+                        self.sim.advance(n * self.sim.dt)
+                    else:                   # sampling the base forces on the way
+                        self._record.advance(self.sim, n)
                 except SimulationDiverged as exc:
+                    self._record = None
                     self._pause(f'paused: {exc}')
                     return
                 cost = (time.perf_counter() - t0) / n
                 self._step_cost = 0.8 * self._step_cost + 0.2 * cost
                 self._publish_frame(now)
+                self._after_record(now)
         self._cmd_wall = 0.0
         if now - self._last_diag >= 1.0 / self.params['diagnostics_rate_hz']:
             self._publish_diagnostics(now)
@@ -481,6 +499,61 @@ class TensegritySim(LifecycleNode):
         if periodic:
             self.tick_max_s = 0.0          # tick_max_ms covers one diagnostics period
 
+    # -- the field in the medium ----------------------------------------------------------------
+    def _start_record(self, focus=None):
+        """After an impact of an array: record its base forces for the scene's ``run.t_end``
+        (always for a focus, whose arrivals /diagnostics report; for another impact only while
+        ``field_rate_hz`` > 0 and someone listens to ``~/field`` or records)."""
+        from .lens_record import ImpactRecord, is_array
+        self._record = None
+        if not is_array(self.sim.scene) or (focus is None and (
+                self.params['field_rate_hz'] <= 0 or not self._field_wanted())):
+            return
+        self._record = ImpactRecord(self.sim, self.params['medium_speed_m_s'],
+                                    float(self.sim.scene['run.t_end']), focus)
+        self._last_field = -math.inf
+        self._field_sent_t = None
+
+    def _field_wanted(self):
+        return bool(self._sinks or self._field_sinks
+                    or self._pubs[FIELD_TOPIC].get_subscription_count() > 0)
+
+    def _after_record(self, now):
+        """Once per stepping tick with a record: the focus figures when it is complete, the
+        field when it is due (``field_rate_hz``) and someone listens or records."""
+        rec = self._record
+        if rec is None:
+            return
+        if rec.focus is not None and rec.done and self.focus is not None \
+                and 'measured' not in self.focus:
+            plan = self.focus['plan']
+            self.focus['measured'] = rec.measure([c['target_s'] for c in plan['columns']])
+        rate = self.params['field_rate_hz']
+        if rate > 0 and now - self._last_field >= 1.0 / rate and self._field_wanted():
+            self._last_field = now
+            self._publish_field(rec)
+
+    def _publish_field(self, rec):
+        """``~/field``: the peak pressure map since the impact (model units, 32FC1); the field
+        sinks get it with the pressure now. A non-finite map is not published."""
+        peak = rec.peak_map()
+        if peak is None:
+            return
+        stamp = messages.sim_stamp(rec.peak_time)
+        try:
+            msg = messages.field_image(peak, stamp)
+        except ValueError as exc:
+            self.get_logger().error(f'~/field: {exc}; not published',
+                                    throttle_duration_sec=LOG_THROTTLE_S)
+            return
+        self._pubs[FIELD_TOPIC].publish(msg)
+        self._emit(self._sinks, self._topics[FIELD_TOPIC], msg, messages.stamp_to_ns(stamp))
+        if self._field_sinks and rec.peak_time != self._field_sent_t:   # each time once
+            self._field_sent_t = rec.peak_time
+            now = rec.pressure_now()
+            self._emit(self._field_sinks, float(rec.peak_time), peak,
+                       now if np.isfinite(now).all() else None)
+
     # -- commands -------------------------------------------------------------------------------
     def _command(self, key, msg, check):
         """A command received on ``key``: recorded, validated at once (``check()`` returns the
@@ -545,6 +618,7 @@ class TensegritySim(LifecycleNode):
 
             def apply():
                 added = self.sim.apply_impact(float(v0[0]) if v0.size == 1 else v0)
+                self._start_record()
                 return f'impact v0 = {commands.describe(v0)} m/s, kinetic energy +{added:.3g} J'
             return apply
         return self._command('~/cmd/impact', msg, check)
@@ -618,6 +692,7 @@ class TensegritySim(LifecycleNode):
         added = self.sim.apply_impact(v0)
         self.focus['state'] = 'impacted'
         self.focus['impact_sim_time_s'] = float(self.sim.t)
+        self._start_record(tuple(self.focus['plan']['focus_m']))
         detail = f'focus impact v0 = {v0:g} m/s on every column, kinetic energy +{added:.3g} J'
         self.get_logger().info(f'~/cmd/focus: {detail}', throttle_duration_sec=LOG_THROTTLE_S)
         self._emit(self._event_sinks, self.sim.t, f'~/cmd/focus: {detail}')
@@ -637,12 +712,31 @@ class TensegritySim(LifecycleNode):
                 'focus_impact_sim_time_s': float(f['impact_sim_time_s']),
                 'focus_prestrain': json.dumps([c['prestrain'] for c in cols]),
                 'focus_arrival_target_s': json.dumps([c['target_s'] for c in cols]),
-                'focus_arrival_predicted_s': json.dumps([c['predicted_s'] for c in cols])}
+                'focus_arrival_predicted_s': json.dumps([c['predicted_s'] for c in cols]),
+                **self._measured_values(f.get('measured'))}
+
+    @staticmethod
+    def _measured_values(m):
+        """The figures of a focus measured on the node's own run (``focus_measured`` true once
+        its record is complete): per column the simulated arrival and its residual (JSON lists,
+        s after the impact; a column without a pulse as null) and the peak pressure at F."""
+        import json
+        if m is None:
+            return {'focus_measured': 'false'}
+
+        def finite(v):
+            return [x if math.isfinite(x) else None for x in v]
+        return {'focus_measured': 'true',
+                'focus_arrival_simulated_s': json.dumps(finite(m['simulated_s'])),
+                'focus_residual_s': json.dumps(finite(m['residual_s'])),
+                'focus_peak_pressure': (float(m['peak_pressure'])
+                                        if math.isfinite(m['peak_pressure']) else -1.0)}
 
     def _on_reset(self, request, response):
         self._apply_pending()          # commands that came before the reset, then the reset
         self.sim.reset()
         self._focus_impact_at = None
+        self._record = None
         if self.focus is not None and self.focus['state'] == 'ramping':
             self.focus['state'] = 'cancelled by reset'
         self.problem = ''

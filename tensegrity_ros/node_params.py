@@ -28,6 +28,7 @@ DEFAULTS = {
     'start_paused': False,       # start with the clock stopped; ~/set_running starts it
     'autostart': True,           # configure and activate at start-up (else: ~/change_state)
     'medium_speed_m_s': 2.0,     # wave speed of the host medium for ~/cmd/focus
+    'field_rate_hz': 2.0,        # ~/field per wall second (arrays, after an impact); 0 = none
 }
 DESCRIPTIONS = {
     'scene_file': 'scene YAML (absolute, relative to the working directory, or to the package)',
@@ -49,9 +50,12 @@ DESCRIPTIONS = {
                  'unconfigured for ~/change_state',
     'medium_speed_m_s': 'wave speed of the host medium below the bases (z > 0) for ~/cmd/focus, '
                         'm/s',
+    'field_rate_hz': '~/field (32FC1 peak pressure map in the medium since the last impact of an '
+                     'array) per wall second, computed only when subscribed or recorded; 0 = '
+                     'none',
 }
 POSITIVE = ('publish_rate_hz', 'marker_rate_hz', 'diagnostics_rate_hz', 'medium_speed_m_s')
-NON_NEGATIVE = ('real_time_factor', 'prestrain_ramp_s', 'dt')
+NON_NEGATIVE = ('real_time_factor', 'prestrain_ramp_s', 'dt', 'field_rate_hz')
 # fixed once the node runs (the simulation and the recorders are built from them): a change is
 # refused with this reason
 READ_ONLY = ('scene_file', 'model', 'integrator', 'dt', 'record_mcap', 'record_rerun',
@@ -60,7 +64,8 @@ RESTART = 'is fixed while the node runs; restart the node with the new value'
 # ranges the parameter descriptors show (FloatingPointRange; the upper ends are generous limits)
 RANGES = {'publish_rate_hz': (1e-3, 10000.0), 'marker_rate_hz': (1e-3, 10000.0),
           'diagnostics_rate_hz': (1e-3, 1000.0), 'real_time_factor': (0.0, 1e6),
-          'prestrain_ramp_s': (0.0, 1e3), 'dt': (0.0, 1.0), 'medium_speed_m_s': (1e-6, 1e5)}
+          'prestrain_ramp_s': (0.0, 1e3), 'dt': (0.0, 1.0), 'medium_speed_m_s': (1e-6, 1e5),
+          'field_rate_hz': (0.0, 1000.0)}
 # names the node accepts besides its own (rclpy's)
 ROS_NAMES = ('use_sim_time', 'start_type_description_service')
 

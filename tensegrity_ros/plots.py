@@ -51,8 +51,10 @@ def strain_wave_figure(rec, title='', column=0, snapshots=(0.1, 0.3, 0.5, 0.7, 0
 
 def lens_field(result, path):
     """The peak pressure in the medium (the model of :mod:`solver.field`) of the designed array
-    next to the same array at uniform prestrain, the bases and the focus marked. ``result``: the
-    dict of ``tensegrity lens`` (with its ``_field`` maps). Writes a PNG; returns ``path``."""
+    next to the same array at uniform prestrain, the bases and the focus marked, and the peak
+    pressure of both across the focal depth with one column spacing either side of the focus
+    shaded. ``result``: the dict of ``tensegrity lens`` (with its ``_field`` maps). Writes a
+    PNG; returns ``path``."""
     import matplotlib
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
@@ -61,7 +63,8 @@ def lens_field(result, path):
     xs, zs = f['x'], f['z']
     X, Z = result['focus_m']
     top = float(max(f['peak'].max(), f['uniform'].max())) or 1.0
-    fig, axes = plt.subplots(1, 2, figsize=(12, 4.8), constrained_layout=True, sharey=True)
+    fig, axes = plt.subplots(1, 3, figsize=(16, 4.8), constrained_layout=True,
+                             gridspec_kw={'width_ratios': [1, 1, 0.9]})
     uniform = f"uniform prestrain {result['uniform_prestrain']:.4f}"
     for ax, key, name in ((axes[0], 'peak', 'designed prestrains'), (axes[1], 'uniform', uniform)):
         im = ax.imshow(f[key], origin='upper', aspect='auto', cmap='magma', vmin=0, vmax=top,
@@ -71,13 +74,26 @@ def lens_field(result, path):
         ax.plot([X], [Z], '+', color='lime', ms=14, mew=2, label='focus')
         ax.set_xlabel('x (m)')
         ax.set_title(name)
+    axes[1].sharey(axes[0])
     axes[0].set_ylabel('depth z (m)')
     axes[0].legend(loc='lower left', fontsize=8)
-    fig.colorbar(im, ax=axes, label='peak pressure (model units)')
+    fig.colorbar(im, ax=axes[:2], label='peak pressure (model units)')
+    ax = axes[2]
+    s = f['spacing']
+    ax.axvspan(X - s, X + s, color='lime', alpha=0.15, label='focus +- one spacing')
+    ax.plot(f['lateral_x'], f['lateral'], color='C3', label='designed')
+    ax.plot(f['lateral_x'], f['lateral_uniform'], color='C0', ls='--', label='uniform')
+    ax.axvline(X, color='green', lw=0.8)
+    ax.set_xlabel('x (m)')
+    ax.set_ylabel('peak pressure (model units)')
+    ax.set_title(f'across the focal depth z = {Z:g} m')
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
     gain = result['focal_gain']
     fig.suptitle(f"peak pressure in the medium ({result['dims']}D), C = "
                  f"{result['medium_speed_m_s']:g} m/s, focus ({X:g}, {Z:g}) m: focal gain "
-                 f"{'n/a' if gain is None else f'{gain:.2f}'}")
+                 f"{'n/a' if gain is None else f'{gain:.2f}'}, peak across the focal depth "
+                 f"{result['lateral_offset_spacings']:.2f} spacings from the focus")
     fig.savefig(path, dpi=100)
     plt.close(fig)
     return path

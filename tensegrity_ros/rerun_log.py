@@ -22,6 +22,11 @@ timeline ``sim_time`` (a duration, from the simulation clock; no wall-clock time
 - ``base_force/column_0`` Scalars: ``frame.base_force[0]`` N (the axial reaction at the clamped
   base, positive compressive); one entity per column.
 - ``energy`` (J) and ``constraint_error`` Scalars; ``commands`` TextLog events.
+- ``field/peak_pressure`` Image (float32, one channel, depth down the rows, x along the array
+  across the columns; given to :meth:`RerunRecorder.field`, with a ``field_grid``): the peak
+  pressure in the host medium so far (:mod:`solver.field`) over its scale, ``field/scale`` Scalars
+  (that scale, model units), and optionally ``field/pressure`` Image, the pressure at that time
+  mapped to ``0.5 + 0.5 p / scale`` (0.5: zero pressure).
 
 Frames are buffered and sent in column batches (one chunk per entity, ``Chunk.from_columns`` and
 one ``send_chunks`` call per batch) every ``flush_every`` frames and on :meth:`close`. The caller's
@@ -217,12 +222,19 @@ class RerunRecorder:
     def __init__(self, network, path=None, *, connect=None, tension_scale=None, flush_every=50,
                  max_latency_s=0.5, wave_window=1000, wave_period_s=2.0,
                  application_id='tensegrity_ros', recording_id=None, send_blueprint=True,
-                 spare_caller_cpu=True, expected_frames=None):
+                 spare_caller_cpu=True, expected_frames=None, field_grid=None):
         if path is None and not connect:
             raise ValueError('rerun: give a file path or a viewer URL (connect) to record to')
         if tension_scale is not None and not (np.isfinite(tension_scale) and tension_scale > 0):
             raise ValueError(f'rerun: tension_scale must be a positive number, got '
                              f'{tension_scale}')
+        if field_grid is not None:
+            field_grid = tuple(float(v) for v in field_grid)
+            if len(field_grid) != 4 or not all(math.isfinite(v) for v in field_grid):
+                raise ValueError(f'rerun: field_grid must be (x0, x1, z0, z1) m, got '
+                                 f'{field_grid!r}')
+        self.field_grid = field_grid
+        self.n_fields = 0
         if int(flush_every) < 1 or int(wave_window) < 1:
             raise ValueError('rerun: flush_every and wave_window must be at least 1')
         if not max_latency_s > 0:
@@ -289,7 +301,7 @@ class RerunRecorder:
             helper.conn.send(('open', net, self.path, self.url, self.tension_scale,
                               self.flush_every, int(wave_window), float(wave_period_s), shapes,
                               self._buffers.shape, cpus, application_id, recording_id,
-                              send_blueprint))
+                              send_blueprint, self.field_grid))
             send_handle(helper.conn, memfd, helper.proc.pid)
         except (OSError, EOFError, AttributeError) as exc:    # AttributeError: no memfd here
             raise ValueError(f'rerun: cannot start the recording helper process: {exc}') from None
@@ -431,6 +443,32 @@ class RerunRecorder:
             level = 'WARN' if text.startswith(('rejected', 'paused')) else 'INFO'
         self._post(('command', float(t), text, level))
         self.n_commands += 1
+
+    def field(self, t, peak, pressure=None, scale=None):
+        """The field in the medium at simulation time ``t`` s: ``peak`` (n_z, n_x), the peak
+        pressure so far on the recorder's ``field_grid`` (rows: depth from the surface down,
+        columns: x), and optionally ``pressure`` (n_z, n_x) at ``t``, shown over ``scale``
+        (default the largest value of ``peak``). Non-finite values raise ValueError and record
+        nothing."""
+        if self._closed:
+            raise ValueError('rerun: recorder is closed')
+        if self.field_grid is None:
+            raise ValueError('rerun: field images need a field_grid (x0, x1, z0, z1)')
+        self._receive()
+        self._check()
+        peak = np.array(peak, dtype=np.float64)
+        arrays = [peak] + ([] if pressure is None else [np.array(pressure, dtype=np.float64)])
+        if peak.ndim != 2 or any(a.shape != peak.shape for a in arrays):
+            raise ValueError(f'rerun: field images must be 2-D of one shape, got '
+                             f'{[a.shape for a in arrays]}')
+        if not (math.isfinite(t) and all(np.isfinite(a).all() for a in arrays)):
+            raise ValueError(f'rerun: field at t = {t:g} s is not finite; not recorded')
+        scale = float(peak.max(initial=0.0)) if scale is None else float(scale)
+        if not (math.isfinite(scale) and scale > 0):
+            scale = 1.0
+        self._post(('field', float(t), peak.astype(np.float32),
+                    None if pressure is None else arrays[1].astype(np.float32), scale))
+        self.n_fields += 1
 
     # -- batches --------------------------------------------------------------------------------
     def flush(self, wave=False):

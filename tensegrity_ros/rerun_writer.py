@@ -260,13 +260,15 @@ def _threads():
         return set()
 
 
-def blueprint(n_columns=1):
+def blueprint(n_columns=1, field_grid=None):
     """The default layout, as the paper's figures: on the left the 3D column (cables coloured by
-    tension) above the colour legend; on the right the strain along the column at the time cursor
-    (a bar chart per prism), the prism-by-``sim_time`` heat map of the wave from the impact with
-    its colour scale, energy and constraint error side by side, and the command log. Several
-    columns: one tab per column for the bar chart and for the heat map (the columns' scales
-    stay comparable: each heat map is symmetric about zero at its own largest strain)."""
+    tension) above the colour legend (with a ``field_grid``, the field in the medium between
+    them: the peak pressure so far and the pressure at the time cursor); on the right the strain
+    along the column at the time cursor (a bar chart per prism), the prism-by-``sim_time`` heat
+    map of the wave from the impact with its colour scale, energy and constraint error side by
+    side, and the command log. Several columns: one tab per column for the bar chart and for the
+    heat map (the columns' scales stay comparable: each heat map is symmetric about zero at its
+    own largest strain)."""
     bars = [rrb.BarChartView(origin=f'strain_profile/column_{c}',
                              name=f'strain per prism at the time cursor, column {c} '
                                   f'(prism 0: clamped end)',
@@ -288,12 +290,21 @@ def blueprint(n_columns=1):
 
     def one_or_tabs(views):
         return views[0] if len(views) == 1 else rrb.Tabs(*views)
+    left = [rrb.Spatial3DView(origin='world', name='column, cables coloured by tension')]
+    shares = [6]
+    if field_grid is not None:
+        x0, x1, z0, z1 = field_grid
+        where = f'x {x0:.3g} to {x1:.3g} m across, depth {z0:.3g} to {z1:.3g} m down'
+        left.append(rrb.Horizontal(
+            rrb.Spatial2DView(origin='field/peak_pressure',
+                              name=f'peak pressure in the medium so far, {where}'),
+            rrb.Spatial2DView(origin='field/pressure', name='pressure at the time cursor '
+                              '(grey: zero)')))
+        shares = [4, 3]
+    left.append(rrb.TextDocumentView(origin='legend', name='colours'))
     return rrb.Blueprint(
         rrb.Horizontal(
-            rrb.Vertical(
-                rrb.Spatial3DView(origin='world', name='column, cables coloured by tension'),
-                rrb.TextDocumentView(origin='legend', name='colours'),
-                row_shares=[6, 1]),
+            rrb.Vertical(*left, row_shares=shares + [1]),
             rrb.Vertical(
                 one_or_tabs(bars),
                 one_or_tabs(waves),
@@ -425,13 +436,14 @@ class _Writer:
 
     def __init__(self, conn, memfd, all_cpus, net, path, url, tension_scale, flush_every,
                  wave_window, wave_period_s, shapes, buffer_shape, cpus, application_id,
-                 recording_id, send_blueprint):
+                 recording_id, send_blueprint, field_grid=None):
         self._cpu0 = time.process_time()
         self.conn, self.all_cpus = conn, all_cpus
         self.net, self.path, self.url = net, path, url
         self.tension_scale, self.flush_every = tension_scale, flush_every
         self.wave_window, self.wave_period_s = wave_window, wave_period_s
         self._shapes = shapes
+        self.field_grid = field_grid
         try:
             self._mem = mmap.mmap(memfd, 8 * math.prod(buffer_shape))
         finally:
@@ -476,6 +488,8 @@ class _Writer:
                     conn.send(('free', index))
             elif kind == 'command':
                 self._do(self._log_command, *msg[1:])
+            elif kind == 'field':
+                self._do(self._log_field, *msg[1:])
             elif kind == 'sync':
                 conn.send(('synced',))
             elif kind == 'close':
@@ -520,7 +534,8 @@ class _Writer:
         self._stream = stream
         self._tids = (_threads() - before) | {threading.get_native_id()}   # Rerun's and ours
         if send_blueprint:                      # applied however the file is opened
-            stream.send_blueprint(blueprint(max(net.n_columns, 1)), make_active=True,
+            stream.send_blueprint(blueprint(max(net.n_columns, 1), self.field_grid),
+                                  make_active=True,
                                   make_default=True)
         self._log_static()
         self._bars = _Strips(trails(net.bar_a, net.bar_b, net.n_nodes), self.flush_every)
@@ -561,6 +576,17 @@ class _Writer:
             self._impact_t = t
         rr.send_chunks(_row_chunk('commands', rr.TextLog(text, level=level), t),
                        recording=self._stream)
+
+    def _log_field(self, t, peak, pressure, scale):
+        """``field/peak_pressure`` (and ``field/pressure``) Images and ``field/scale`` at ``t``."""
+        chunks = [_row_chunk('field/peak_pressure', rr.Image(
+            np.clip(peak / scale, 0.0, 1.0).astype(np.float32), color_model='L'), t),
+            _row_chunk('field/scale', rr.Scalars([scale]), t)]
+        if pressure is not None:
+            chunks.append(_row_chunk('field/pressure', rr.Image(
+                np.clip(0.5 + 0.5 * pressure / scale, 0.0, 1.0).astype(np.float32),
+                color_model='L'), t))
+        rr.send_chunks(chunks, recording=self._stream)
 
     def _send(self, index, n_t, wave, restart):
         """Send the first ``n_t`` rows of buffer ``index``; then the wave if due."""

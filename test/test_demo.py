@@ -71,3 +71,52 @@ def test_strain_stamps_come_from_the_matching_cloud():
 def test_demo_domain_ids_stay_in_their_range():
     ids = {demo_domain_id(pid) for pid in range(1000, 1100)}
     assert min(ids) == 100 and max(ids) == 149 and len(ids) == 50
+
+
+def test_demo_focus_prints_the_plan_measured_arrivals_and_gain(tmp_path, monkeypatch, capsys):
+    """``tensegrity demo --focus``: the node plans the design's prestrains, its own run meets
+    the delay law within 1 ms, the table and the focal gain are printed, the node's Rerun
+    recording holds the field images (finite) and its MCAP log the ~/field messages."""
+    import json
+
+    import yaml
+    from rerun.chunk import RrdReader
+
+    from mcap.reader import make_reader
+    from solver import lens
+    from tensegrity_ros.cli import main
+    monkeypatch.setenv('TENSEGRITY_CACHE', str(tmp_path / 'cache'))
+    small = Scene.load('config/scenes/lens_focus.yaml').with_overrides(
+        ['structure.n_prisms=10', 'structure.n_columns=3', 'lens.grid=9', 'run.t_end=0.3'])
+    path = tmp_path / 'small_lens.yaml'
+    path.write_text(yaml.safe_dump(small.data))
+    out = tmp_path / 'out'
+    code = main(['demo', '--focus', '0.02,0.1', '--medium-speed', '2', '--scene', str(path),
+                 '--rtf', '0', '--out', str(out), '--domain-id', str(230 + os.getpid() % 2)])
+    text = capsys.readouterr().out
+    assert code == 0, text
+    s = json.loads((out / 'summary.json').read_text())
+    plan = lens.design(small, (0.02, 0.1), 2.0, 0.1)
+    assert [c['prestrain'] for c in s['columns']] == pytest.approx(
+        [c['prestrain'] for c in plan.columns], rel=1e-9)
+    xs = np.arange(3) * small['structure.column_spacing']
+    law = s['t0_s'] - np.hypot(xs - 0.02, 0.1) / 2.0              # T_i = T0 - |F - X_i| / C
+    sim = np.array([c['simulated_s'] for c in s['columns']])
+    assert np.max(np.abs(sim - law)) <= 1e-3
+    for c in s['columns']:
+        assert f"{c['prestrain']:11.5f} " in text and f"{1e3 * c['residual_s']:13.3f}" in text
+    assert s['focal_gain'] == pytest.approx(s['p_focus'] / s['p_focus_uniform'])
+    assert f"focal gain {s['focal_gain']:.3f}" in text
+    assert s['field_shape'] == [48, 64] and np.isfinite(s['field_max'])
+    images = []
+    for chunk in RrdReader(s['outputs']['rerun']).stream():
+        if chunk.entity_path == '/field/peak_pressure':
+            rb = chunk.to_record_batch()
+            for row in rb.column('Image:buffer').to_pylist():
+                images.append(np.array(row[0], dtype=np.uint8).view(np.float32))
+    assert images and all(np.isfinite(v).all() and v.size == 48 * 64 for v in images)
+    assert images[-1].max() == pytest.approx(1.0)            # over the scale of the last map
+    with open(s['outputs']['mcap'], 'rb') as f:
+        fields = [m for _, channel, m in make_reader(f).iter_messages()
+                  if channel.topic.endswith('/field')]
+    assert len(fields) >= 1

@@ -1,5 +1,6 @@
 """The focusing design: simulated arrival times on the delay law, the field's peak at the focal
-depth under the focus, an unreachable focus named by column and range, bad input rejected."""
+depth within one column spacing of the focus (on and off the array's axis), an unreachable focus
+named by column and range, bad input rejected."""
 import numpy as np
 import pytest
 
@@ -60,6 +61,99 @@ def test_reachable_focus_meets_the_delay_law(scene, amap):
     assert abs(xg[int(np.argmax(pk[0]))] - focus[0]) <= spacing
 
 
+def test_arrival_map_is_monotone_and_times_the_compressive_rise(scene, amap):
+    """A stiffer column carries the pulse faster: the arrival falls as the prestrain grows, over
+    the whole range; at each arrival the base force pushes on its support."""
+    assert np.all(np.diff(amap.arrival_s) < 0)
+    t, b, arrival = lens.simulate(scene, amap.prestrain[:5], 0.1)
+    for c, a in enumerate(arrival):
+        assert np.interp(a, t, b[:, c]) - b[0, c] > 0
+
+
+@pytest.mark.parametrize('prestrain', [0.002, 0.008])
+def test_the_design_times_the_solitary_strain_pulse(scene, prestrain):
+    """The arrival the design uses is the strain pulse's: the base force peaks when the largest
+    compression of the clamped end's prism does (within two output steps), several times above
+    the first, faster front, which reaches the base in less than 60 % of the time."""
+    from solver.simulation import Simulation
+    from solver.support import first_arrival, pulse_arrival
+    one = scene.with_overrides(['structure.n_columns=1', f'prestrain={prestrain}'])
+    sim = Simulation(one)
+    sim.apply_impact(0.1)
+    t, b, strain = [0.0], [sim.base_force()[0]], [sim.frame().strain[0, 0]]
+    while sim.t < one['run.t_end'] - 1e-9:
+        sim.advance(0.005)
+        f = sim.frame()
+        t.append(f.t), b.append(f.base_force[0]), strain.append(f.strain[0, 0])
+    t, b, strain = map(np.array, (t, b, strain))
+    pulse, front = pulse_arrival(t, b), first_arrival(t, b)
+    assert abs(pulse.peak_time_s - t[int(np.argmin(strain))]) <= 0.0101
+    assert pulse.peak_N > 2.5 * front.peak_N and front.time_s < 0.6 * pulse.time_s
+
+
+def test_short_column_times_its_first_pulse_not_the_larger_one_after_it(scene):
+    """On 10 prisms the solitary pulse follows the first, faster front closely and pushes 25
+    times harder at low prestrain; the first arrival is still the front's: a third of the prisms
+    are crossed in less than half the time of 30, at every prestrain of the range."""
+    from solver.support import first_arrival
+    p = np.geomspace(scene['lens.prestrain_min'], scene['lens.prestrain_max'], 5)
+
+    def fronts(sc):
+        t, b, _ = lens.simulate(sc, p, 0.1)
+        return t, b, np.array([first_arrival(t, b[:, c]).time_s for c in range(len(p))])
+    _, _, long_ = fronts(scene.with_overrides(['run.t_end=0.6']))
+    t, b, short = fronts(scene.with_overrides(['structure.n_prisms=10', 'run.t_end=0.3']))
+    assert np.all(short < 0.5 * long_)
+    late = b[t > 0.2] - b[0]
+    first = np.array([np.interp(a + 0.03, t, b[:, c]) - b[0, c] for c, a in enumerate(short)])
+    assert late.max(axis=0)[0] > 5 * first[0]             # the larger pulse after the first
+
+
+OFF_AXIS = (0.13, 0.12)     # m: off the array's axis (x = 0.08 m), 1 spacing from its end
+OFF_AXIS_SPEED = 1.5        # m/s: the delay law spans 37.7 ms of the 49.4 ms the range gives
+
+
+@pytest.fixture(scope='module')
+def off_axis(scene):
+    """The scene's nine columns focused off their axis: the plan, its check, the field's figures
+    and those of the same array at the mean prestrain."""
+    full = Scene.load('config/scenes/lens_focus.yaml')
+    plan = lens.design(full, OFF_AXIS, OFF_AXIS_SPEED, 0.1)
+    t, b = lens.check(full, plan)
+    p_u = np.mean([c['prestrain'] for c in plan.columns])
+    tu, bu, _ = lens.simulate(full, np.full(9, p_u), 0.1)
+    xs = lens.base_x(full)
+    spacing = full['structure.column_spacing']
+    return (full, plan, field.focus_report(t, b, xs, OFF_AXIS, OFF_AXIS_SPEED, spacing),
+            field.focus_report(tu, bu, xs, OFF_AXIS, OFF_AXIS_SPEED, spacing))
+
+
+def test_off_axis_focus_meets_the_delay_law(off_axis):
+    full, plan, _, _ = off_axis
+    xs = lens.base_x(full)
+    law = plan.t0 - np.hypot(xs - OFF_AXIS[0], OFF_AXIS[1]) / OFF_AXIS_SPEED
+    sim = np.array([c['simulated_s'] for c in plan.columns])
+    assert np.max(np.abs(sim - law)) <= 1e-3               # stated: 1 ms
+    assert plan.extra['law_span_s'] == pytest.approx(np.ptp(law), rel=1e-12)
+
+
+def test_off_axis_field_peaks_within_one_spacing_of_the_focus(off_axis):
+    """Across the focal depth the designed array's peak pressure is largest within one column
+    spacing of X, and at F it beats the same array at one uniform prestrain."""
+    full, _, designed, uniform = off_axis
+    spacing = full['structure.column_spacing']
+    x = designed['lateral_x_m']
+    assert x[0] < lens.base_x(full)[0] and x[-1] > lens.base_x(full)[-1]    # the whole array
+    x_peak = x[int(np.argmax(designed['lateral_peak']))]
+    assert abs(x_peak - OFF_AXIS[0]) <= spacing
+    assert designed['p_focus'] > 1.1 * uniform['p_focus']
+    # the uniform array's field is symmetric about the middle of the array (x = 0.08 m)
+    mid = lens.base_x(full).mean()
+    inside = (2 * mid - x >= x[0]) & (2 * mid - x <= x[-1])
+    mirrored = np.interp(2 * mid - x[inside], x, uniform['lateral_peak'])
+    np.testing.assert_allclose(mirrored, uniform['lateral_peak'][inside], rtol=2e-3)
+
+
 def test_unreachable_focus_names_a_column_and_the_range(scene, amap):
     xs = lens.base_x(scene)
     with pytest.raises(lens.LensError) as err:
@@ -75,6 +169,32 @@ def test_unreachable_focus_names_a_column_and_the_range(scene, amap):
 def test_bad_focus_or_speed_is_rejected(scene, focus, speed):
     with pytest.raises(lens.LensError):
         lens.design(scene, focus, speed, 0.1)
+
+
+def test_peak_map_in_pieces_equals_the_whole_and_lasts_past_the_record():
+    """PeakMap fed a record in pieces equals peak_map of the whole; both follow the field after
+    the record's end: a rate pulse at its end reaches a far point later, with the analytic peak
+    (the rate's peak times z / R / sqrt(R), here below the base: z = R)."""
+    rng = np.random.default_rng(7)
+    dt = 1e-3
+    t = np.arange(400) * dt
+    b = np.cumsum(rng.standard_normal((400, 3)), axis=0) * 1e-3
+    b[-60:] += np.exp(-0.5 * ((t[-60:] - t[-30]) / 0.005) ** 2)[:, None] * [0.0, 1.0, 0.0]
+    bx = np.array([0.0, 0.02, 0.04])
+    xs, zs = np.linspace(-0.02, 0.06, 9), np.linspace(0.01, 0.3, 7)
+    whole, _ = field.peak_map(xs, zs, t, field.source_rates(t, b), bx, 1.5)
+    X, Z = np.meshgrid(xs, zs)
+    pm = field.PeakMap(np.stack([X.ravel(), Z.ravel()], axis=1), bx, 1.5, dt)
+    for a in range(0, 400, 57):
+        pm.extend(b[a:a + 57])
+    pm.finish()
+    np.testing.assert_allclose(pm.peak.reshape(whole.shape), whole, rtol=1e-12, atol=1e-12)
+    one = np.zeros((400, 1))
+    one[-60:, 0] = np.exp(-0.5 * ((t[-60:] - t[-30]) / 0.005) ** 2)
+    s = field.source_rates(t, one)
+    R = 0.3                                        # reached 0.2 s after the record's end
+    p, _ = field.peak_map([0.0], [R], t, s, [0.0], 1.5)
+    assert p[0, 0] == pytest.approx(s.max() / np.sqrt(R), rel=1e-3)           # z / R = 1
 
 
 def test_field_of_one_source_is_the_delayed_rate_with_spreading():

@@ -1,7 +1,8 @@
 """``~/cmd/focus`` on a small lens array in a real rclpy context (own domain id): the node plans
 the prestrains with the focusing design, ramps them, impacts every column at once at the end of
-the ramp and reports the plan on ``/diagnostics``; an unreachable focus and a bad point are
-rejected naming the problem, changing nothing."""
+the ramp and reports the plan on ``/diagnostics``, then the arrivals it measures on its own run;
+``~/field`` carries the peak pressure map (32FC1) only when someone listens; an unreachable focus
+and a bad point are rejected naming the problem, changing nothing."""
 import json
 import os
 
@@ -13,14 +14,17 @@ rclpy = pytest.importorskip('rclpy')
 from geometry_msgs.msg import PointStamped  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
+from sensor_msgs.msg import Image  # noqa: E402
 
 from solver import lens  # noqa: E402
 from solver.scene import Scene  # noqa: E402
+from tensegrity_ros import messages  # noqa: E402
 from tensegrity_ros.commander import Commander, spin_until  # noqa: E402
+from tensegrity_ros.lens_record import IMAGE_SHAPE  # noqa: E402
 from tensegrity_ros.node import TensegritySim  # noqa: E402
 
 DOMAIN = 0 + os.getpid() % 10
-SETS = ['structure.n_prisms=10', 'structure.n_columns=3', 'lens.grid=5', 'run.t_end=0.3']
+SETS = ['structure.n_prisms=10', 'structure.n_columns=3', 'lens.grid=9', 'run.t_end=0.3']
 SPEED = 2.0
 RAMP = 0.02
 
@@ -107,3 +111,61 @@ def test_unreachable_focus_and_bad_points_are_rejected_changing_nothing(focused)
         text = node.last_command[2]
         assert text.startswith('~/cmd/focus') and all(w in text for w in words), text
     assert node.focus is None and np.array_equal(node.sim.prestrain, p0)
+
+
+def test_field_image_after_a_focus(focused):
+    """A subscriber gets the peak pressure map: 32FC1, the stated 48 x 64 pixels, finite, stamped
+    after the impact; once the record is complete /diagnostics carry the arrivals measured on
+    the node's run, on the delay law within 1 ms."""
+    node, ex, cmd, focus, scene = focused
+    images = []
+    cmd.create_subscription(Image, f'{cmd.base}/field', images.append, 10)
+    assert spin_until(ex, lambda: node._pubs['~/field'].get_subscription_count() > 0, 30)
+    focus(0.02, 0.1)
+    assert spin_until(ex, lambda: node.focus is not None and node.focus['state'] == 'impacted',
+                      600)
+    t_imp = node.focus['impact_sim_time_s']
+    assert spin_until(ex, lambda: any(messages.stamp_to_ns(m.header.stamp) > t_imp * 1e9
+                                      for m in images), 60)
+    m = images[-1]
+    assert (m.encoding, m.height, m.width, m.step) == ('32FC1', *IMAGE_SHAPE, 4 * IMAGE_SHAPE[1])
+    v = messages.image_values(m)
+    assert np.isfinite(v).all() and v.max() > 0
+    n = len(cmd.diagnostics)
+    assert spin_until(ex, lambda: any(d[2].get('focus_measured') == 'true'
+                                      for d in cmd.diagnostics[n:]), 120)
+    d = next(d[2] for d in cmd.diagnostics[n:] if d[2].get('focus_measured') == 'true')
+    sim = np.array(json.loads(d['focus_arrival_simulated_s']))
+    xs = np.arange(3) * scene['structure.column_spacing']
+    law = float(d['focus_t0_s']) - np.hypot(xs - 0.02, 0.1) / SPEED      # T_i = T0 - |F - X_i| / C
+    assert np.max(np.abs(sim - law)) <= 1e-3                     # stated: 1 ms (grid 9: 0.5 ms)
+    assert np.allclose(json.loads(d['focus_residual_s']), sim - law, atol=1e-6)
+    # the same as the design's own check run (the ramp keeps the columns at rest)
+    plan = lens.design(scene, (0.02, 0.1), SPEED, scene['loading.impact.v0'])
+    lens.check(scene, plan)
+    assert sim == pytest.approx([c['simulated_s'] for c in plan.columns], abs=1e-6)
+    assert float(d['focus_peak_pressure']) > 0
+
+
+def test_field_is_computed_only_when_someone_listens(focused):
+    """A focus records its base forces (its arrivals are reported) but, without a subscriber or
+    recorder, no field is computed; a plain impact records nothing then; with a subscriber it
+    does, and an image follows; with field_rate_hz 0 nothing is published."""
+    node, ex, cmd, focus, scene = focused
+    focus(0.02, 0.1)
+    assert spin_until(ex, lambda: node._record is not None and node._record.done, 600)
+    assert node._record._peak.count == 0                      # nobody listened
+    cmd.impact([0.1])
+    t = node.sim.t
+    assert spin_until(ex, lambda: node.sim.t > t + 0.05, 60)
+    assert node._record is None
+    images = []
+    cmd.create_subscription(Image, f'{cmd.base}/field', images.append, 10)
+    assert spin_until(ex, lambda: node._pubs['~/field'].get_subscription_count() > 0, 30)
+    cmd.impact([0.1])
+    assert spin_until(ex, lambda: bool(images), 60) and node._record is not None
+    assert node.set_parameters([Parameter('field_rate_hz', value=0.0)])[0].successful
+    cmd.impact([0.1])
+    t, n = node.sim.t, len(images)
+    assert spin_until(ex, lambda: node.sim.t > t + 0.2, 60)
+    assert node._record is None and len(images) == n

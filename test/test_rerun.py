@@ -697,3 +697,72 @@ def test_a_single_prism_records_its_bar_chart(tmp_path):
     ent = read(path)['/strain_profile/column_0']
     got = [r['BarChart:values'].flatten().to_pylist()[0]['buffer'] for _, r in ent['rows']]
     assert got == [list(f.strain[0]) for f in frames]
+
+
+# -- the field in the medium -------------------------------------------------------------------
+def field_images(ent):
+    """[(t_ns, (height, width) float32 image)] of an Image entity."""
+    out = []
+    for t, row in ent['rows']:
+        fmt = row['Image:format'].flatten().to_pylist()[0]
+        assert fmt['color_model'] == 1                       # L: one channel
+        raw = np.array(row['Image:buffer'].flatten().flatten().to_pylist(), dtype=np.uint8)
+        out.append((t, raw.view(np.float32).reshape(fmt['height'], fmt['width'])))
+    return out
+
+
+def test_field_images_are_the_given_maps_over_their_scale(tmp_path):
+    """``field/peak_pressure`` holds the peak map over its scale, ``field/pressure`` the pressure
+    mapped to 0.5 + 0.5 p / scale, at the given times; non-finite maps are refused; the
+    blueprint gets the two views."""
+    scene = Scene.load(FB).with_overrides(['structure.n_prisms=3', 'model=full3d'])
+    sim = Simulation(scene)
+    path = tmp_path / 'field.rrd'
+    rng = np.random.default_rng(3)
+    maps = [(0.01 * k, rng.random((4, 6)) * k, rng.standard_normal((4, 6))) for k in (1, 2)]
+    with RerunRecorder(sim.network, path, field_grid=(-0.04, 0.2, 0.0, 0.24)) as rec:
+        rec.frame(sim.frame())
+        for t, peak, p in maps:
+            rec.field(t, peak, p, scale=2.0)
+        with pytest.raises(ValueError, match='not finite'):
+            rec.field(0.03, np.full((4, 6), np.nan))
+        with pytest.raises(ValueError, match='one shape'):
+            rec.field(0.03, np.ones((4, 6)), np.ones((3, 6)))
+    data = read(path)
+    peaks = field_images(data['/field/peak_pressure'])
+    assert [t for t, _ in peaks] == [round(t * 1e9) for t, _, _ in maps]
+    for (_, img), (_, peak, _) in zip(peaks, maps):
+        np.testing.assert_allclose(img, np.clip(peak / 2.0, 0, 1), rtol=1e-6)
+    for (_, img), (_, _, p) in zip(field_images(data['/field/pressure']), maps):
+        np.testing.assert_allclose(img, np.clip(0.5 + 0.25 * p, 0, 1), rtol=1e-6)
+    assert ('2D', 'field/peak_pressure') in blueprint_views(path)
+    assert ('2D', 'field/pressure') in blueprint_views(path)
+
+
+def test_lens_cli_records_the_field_over_sim_time(tmp_path, capsys, monkeypatch):
+    """``tensegrity lens --rerun``: the check run's frames and, at every frame time and once
+    after the record, the peak pressure so far, finite and growing, on the stated grid
+    (48 x 64), largest at the end."""
+    import yaml
+
+    from tensegrity_ros.cli import main
+    from tensegrity_ros.lens_record import IMAGE_SHAPE
+    monkeypatch.setenv('TENSEGRITY_CACHE', str(tmp_path / 'cache'))
+    small = Scene.load(ROOT / 'config' / 'scenes' / 'lens_focus.yaml').with_overrides(
+        ['structure.n_prisms=10', 'structure.n_columns=3', 'lens.grid=5', 'run.t_end=0.3'])
+    scene = tmp_path / 'small_lens.yaml'
+    scene.write_text(yaml.safe_dump(small.data))
+    path = tmp_path / 'lens.rrd'
+    assert main(['lens', str(scene), '--focus', '0.02,0.1', '--medium-speed', '2',
+                 '--rerun', str(path)]) == 0
+    assert str(path) in capsys.readouterr().out
+    data = read(path)
+    peaks = field_images(data['/field/peak_pressure'])
+    frames = [t for t, _ in data['/world/nodes']['rows']]
+    assert len(frames) == 61                                            # 0.3 s every 5 ms
+    assert [t for t, _ in peaks][:-1] == frames and peaks[-1][0] > frames[-1]   # and after
+    stack = np.array([img for _, img in peaks])
+    assert stack.shape[1:] == IMAGE_SHAPE and np.isfinite(stack).all()
+    assert np.all(np.diff(stack, axis=0) >= 0)                 # a peak so far only grows
+    assert stack[0].max() == 0 and stack[-1].max() == pytest.approx(1.0)
+    assert len(data['/field/pressure']['rows']) == len(frames) + 1

@@ -8,7 +8,7 @@ import pytest
 
 from solver.scene import Scene
 from solver.simulation import Simulation
-from solver.support import axial_momentum, first_arrival
+from solver.support import axial_momentum, first_arrival, pulse_arrival
 
 SCENES = 'config/scenes/'
 
@@ -73,7 +73,11 @@ def test_impulse_on_the_support_is_the_momentum_change(model, g):
 
 def test_arrival_of_a_gaussian_pulse():
     """Half-height crossing of a Gaussian bump at t0 with width sigma: t0 - sqrt(2 ln 2) sigma;
-    a smaller first bump (of either sign) is the first peak when above 10 % of the largest."""
+    its rise width is that of the rate's positive lobe at half its height (the roots of
+    x exp(-x^2 / 2) = exp(-1/2) / 2, times sigma). A pull on the support before it (a tensile
+    precursor) is no arrival: it is reported as the precursor; a smaller compressive bump before
+    it is the first peak when above 2 % of the largest (below, it is not), however much larger
+    the later one."""
     t = np.linspace(0, 1, 2001)
     t0, sig = 0.5, 0.03
     bump = 2.0 * np.exp(-0.5 * ((t - t0) / sig) ** 2)
@@ -81,8 +85,44 @@ def test_arrival_of_a_gaussian_pulse():
     assert a.rest_N == 1.0
     assert a.time_s == pytest.approx(t0 - math.sqrt(2 * math.log(2)) * sig, abs=1e-5)
     assert a.peak_time_s == pytest.approx(t0, abs=1e-3) and a.peak_N == pytest.approx(2.0, 1e-6)
-    early = -0.5 * np.exp(-0.5 * ((t - 0.3) / sig) ** 2)
-    b = first_arrival(t, bump + early)
-    assert b.time_s == pytest.approx(0.3 - math.sqrt(2 * math.log(2)) * sig, abs=1e-4)
-    assert b.peak_N == pytest.approx(-0.5, rel=1e-3)
+    from scipy.optimize import brentq
+    g = lambda x: x * math.exp(-0.5 * x * x) - 0.5 * math.exp(-0.5)      # noqa: E731
+    width = (brentq(g, 1.0, 5.0) - brentq(g, 0.0, 1.0)) * sig
+    assert a.rise_s == pytest.approx(width, rel=2e-3)
+    assert a.precursor_N == 0.0
+    pull = -0.5 * np.exp(-0.5 * ((t - 0.3) / sig) ** 2)
+    b = first_arrival(t, bump + pull)
+    assert b.time_s == pytest.approx(a.time_s, abs=1e-6) and b.peak_N == pytest.approx(2.0, 1e-6)
+    assert b.precursor_N == pytest.approx(-0.5, rel=1e-3)
+    for height in (0.5, 0.05):                   # 25 % and 2.5 % of the later bump
+        early = height * np.exp(-0.5 * ((t - 0.3) / sig) ** 2)
+        c = first_arrival(t, bump + early)
+        assert c.time_s == pytest.approx(0.3 - math.sqrt(2 * math.log(2)) * sig, abs=1e-4)
+        assert c.peak_N == pytest.approx(height, rel=1e-3)
+    tiny = 0.02 * np.exp(-0.5 * ((t - 0.3) / sig) ** 2)              # 1 % of the later bump
+    assert first_arrival(t, bump + tiny).time_s == pytest.approx(a.time_s, abs=1e-6)
+    # a step with a wiggle on its rising flank: the peak is the top of the step
+    step = 1.0 / (1.0 + np.exp(-(t - 0.5) / 0.01))
+    wiggle = step + 0.05 * np.exp(-0.5 * ((t - 0.48) / 0.002) ** 2)      # dips 2 % after it
+    w = first_arrival(t, wiggle)
+    assert w.time_s == pytest.approx(0.5, abs=1e-3) and w.peak_N == pytest.approx(1.0, 1e-3)
     assert math.isnan(first_arrival(t, np.zeros_like(t)).time_s)
+    assert math.isnan(first_arrival(t, pull).time_s)              # only a pull: no pulse
+
+
+def test_pulse_arrival_times_the_largest_compression():
+    """A small early bump and a larger late one: the first arrival is the early one's half-height
+    crossing, the pulse arrival the late one's; a pull before it is its precursor."""
+    t = np.linspace(0, 1, 2001)
+    sig = 0.02
+    early = 0.2 * np.exp(-0.5 * ((t - 0.3) / sig) ** 2)
+    late = 1.5 * np.exp(-0.5 * ((t - 0.7) / sig) ** 2)
+    pull = -0.1 * np.exp(-0.5 * ((t - 0.5) / sig) ** 2)
+    half = math.sqrt(2 * math.log(2)) * sig
+    f = early + late + pull
+    assert first_arrival(t, f).time_s == pytest.approx(0.3 - half, abs=1e-4)
+    a = pulse_arrival(t, f)
+    assert a.time_s == pytest.approx(0.7 - half, abs=1e-4)
+    assert a.peak_time_s == pytest.approx(0.7, abs=1e-3) and a.peak_N == pytest.approx(1.5, 1e-4)
+    assert a.precursor_N == pytest.approx(-0.1, rel=1e-3)
+    assert math.isnan(pulse_arrival(t, pull).time_s)
