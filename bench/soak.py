@@ -197,7 +197,9 @@ def soak(duration_s=600.0, rate=1000.0, out_dir=None, domain_id=None, warmup_s=5
             if now - last_stats >= 10.0:
                 last_stats = now
                 stats = _proc_stats(node_ps)
-                log(f'soak: {now - t0:5.0f} s, {n_sent} sent, node RSS {stats["rss_mb"]:.0f} MB')
+                helper = ''.join(f', helper RSS {m:.0f} MB' for _, m in stats['helpers'])
+                log(f'soak: {now - t0:5.0f} s, {n_sent} sent, node RSS {stats["rss_mb"]:.0f} MB'
+                    f'{helper}')
             ex.spin_once(timeout_sec=0.001)
             futures = [f for f in futures if not f.done()]
         wall = time.monotonic() - t0
