@@ -4,15 +4,16 @@
     tensegrity_node [--ros-args -p real_time_factor:=0.0 --params-file config/node.yaml]
 
 One timer drives everything: each tick applies the commands that arrived since the last one,
-advances the simulation towards the paced target time (or as far as fits in the tick with
-``real_time_factor`` 0), never working longer than one publish period less the time the command
-callbacks took, then publishes one frame (messages built once by :mod:`tensegrity_ros.messages`).
+advances the simulation towards the paced target time, never working longer than 90 % of a
+publish period less the time the command callbacks took (with ``real_time_factor`` 0: as far as
+fits until the next tick is due), then publishes one frame (built by :mod:`tensegrity_ros.cdr`,
+or :mod:`tensegrity_ros.messages` for a recorder that needs message objects).
 Commands arrive in the same single-threaded executor, so they never race a step: each one is
 validated (and counted, and handed to the recorders) on arrival, and of the valid ones of a tick
 the last one per topic is applied at the next tick (the others are counted as superseded), so a
 flood of commands cannot starve the simulation. ``/diagnostics`` go out at
 ``diagnostics_rate_hz`` with counters (and at once when the simulation pauses itself); repeated log
-lines are throttled. Stamps are simulation time.
+lines are throttled (:meth:`TensegritySim._log`). Stamps are simulation time.
 
 Recorders hook in through three lists (see :meth:`TensegritySim.add_sink`): ``_sinks`` get
 ``(topic, msg, stamp_ns)`` for every published message and every received command (the frame's
