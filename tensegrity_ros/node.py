@@ -8,10 +8,10 @@ advances the simulation towards the paced target time, never working longer than
 publish period less the time the command callbacks took (with ``real_time_factor`` 0: as far as
 fits until the next tick is due), then publishes one frame (built by :mod:`tensegrity_ros.cdr`,
 or :mod:`tensegrity_ros.messages` for a recorder that needs message objects).
-Commands arrive in the same single-threaded executor, so they never race a step: each one is
-validated (and counted, and handed to the recorders) on arrival, and of the valid ones of a tick
-the last one per topic is applied at the next tick (the others are counted as superseded), so a
-flood of commands cannot starve the simulation. ``/diagnostics`` go out at
+Commands are taken by the tick itself (the executor never runs their subscriptions), so they never
+race a step: each tick takes every command waiting, validates (and counts, and hands to the
+recorders) each one, and applies the last valid one per topic (the others are counted as
+superseded), so a flood of commands cannot starve the simulation. ``/diagnostics`` go out at
 ``diagnostics_rate_hz`` with counters (and at once when the simulation pauses itself); repeated log
 lines are throttled (:meth:`TensegritySim._log`). Stamps are simulation time.
 
@@ -33,6 +33,7 @@ import rclpy
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, SetParametersResult
 from rclpy.event_handler import PublisherEventCallbacks
 from rclpy._rclpy_pybind11 import RCLError
+from rclpy.callback_groups import CallbackGroup
 from rclpy.executors import ExternalShutdownException
 from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSPolicyKind, QoSProfile,
@@ -74,6 +75,22 @@ WORK_FRACTION = 0.9              # share of a publish period the stepping (and p
 FAST_WORK_FRACTION = 1.0         # at real_time_factor 0: share of the time left until the next
                                  # tick is due (no pace to keep, no margin)
 MIN_WORK_FRACTION = 0.2          # a tick steps at least this share of a period
+
+
+class TakenByTick(CallbackGroup):
+    """The callback group of the command subscriptions: the executor never waits on them or runs
+    their callbacks; each tick takes what is waiting (:meth:`TensegritySim._take_commands`). A
+    flood of commands then costs no executor cycle per message (the wait set rebuilt in Python,
+    a task per message) and never delays a tick."""
+
+    def can_execute(self, entity):
+        return False
+
+    def beginning_execution(self, entity):
+        return False
+
+    def ending_execution(self, entity):
+        pass
 
 
 class TensegritySim(LifecycleNode):
@@ -223,14 +240,14 @@ class TensegritySim(LifecycleNode):
                       if key != '/clock' or self.params['use_sim_clock']}
         self._pubs[STRUCTURE_TOPIC] = self._publisher(STRUCTURE_TOPIC, String, STRUCTURE_QOS)
         self._topics = {key: self.resolve_topic_name(key) for key in messages.TYPES}
+        by_tick = TakenByTick()
         self._cmd_subs = [
-            (self.create_subscription(Float64MultiArray, key, handler, _qos(),
+            (self.create_subscription(msg_class, key, handler, _qos(), callback_group=by_tick,
                                       qos_overriding_options=QOS_OVERRIDES), handler)
-            for key, handler in (('~/cmd/impact', self._on_impact),
-                                 ('~/cmd/prestrain', self._on_prestrain))]
-        self._cmd_subs.append((self.create_subscription(
-            PointStamped, '~/cmd/focus', self._on_focus, _qos(),
-            qos_overriding_options=QOS_OVERRIDES), self._on_focus))
+            for key, msg_class, handler in (
+                ('~/cmd/impact', Float64MultiArray, self._on_impact),
+                ('~/cmd/prestrain', Float64MultiArray, self._on_prestrain),
+                ('~/cmd/focus', PointStamped, self._on_focus))]
         self.focus = None              # the last focus plan (dict) and its state
         self._focus_impact_at = None   # sim time of the planned impact, while it is ahead
         self._srvs = [self.create_service(Trigger, '~/reset', self._on_reset),
@@ -511,7 +528,8 @@ class TensegritySim(LifecycleNode):
     def _command(self, key, msg, check):
         """A command received on ``key``: recorded, validated at once (``check()`` returns the
         ``apply()`` that changes the simulation, or raises), counted; a valid one replaces the
-        topic's pending command and is applied at the next tick. Returns whether it was valid."""
+        topic's pending command, applied by the tick (:meth:`_apply_pending`). Returns whether it
+        was valid."""
         w0 = time.perf_counter()
         stamp_ns = messages.stamp_to_ns(messages.sim_stamp(self.sim.t))
         self._emit(self._sinks, self._topics[key], msg, stamp_ns)
@@ -541,7 +559,9 @@ class TensegritySim(LifecycleNode):
 
     def _take_commands(self):
         """Take every command waiting in the subscriptions now (each through its callback), at
-        once: cheaper than one executor cycle per message, so that a flood is taken whole."""
+        once: the executor never takes them (:class:`TakenByTick`), so a flood costs no executor
+        cycle per message and is taken whole (what the subscriptions' QoS history keeps: the last
+        10 per topic by default)."""
         for sub, handler in self._cmd_subs:
             for _ in range(MAX_TAKE):
                 with sub.handle:
@@ -666,7 +686,8 @@ class TensegritySim(LifecycleNode):
                 'focus_arrival_predicted_s': json.dumps([c['predicted_s'] for c in cols])}
 
     def _on_reset(self, request, response):
-        self._apply_pending()          # commands that came before the reset, then the reset
+        self._take_commands()          # commands that came before the reset, then the reset
+        self._apply_pending()
         self.sim.reset()
         self._focus_impact_at = None
         if self.focus is not None and self.focus['state'] == 'ramping':

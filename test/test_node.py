@@ -371,3 +371,28 @@ def test_a_flood_within_one_tick_is_counted_whole_the_last_valid_one_applied_log
     assert [lv for lv, _ in lines].count('warning') == 1            # one 'rejected ...' line
     assert [lv for lv, _ in lines].count('info') == 1               # one accepted one
     assert lines[0][1].startswith('rejected ~/cmd/')
+
+
+def test_commands_are_taken_by_the_tick_or_a_reset_never_by_the_executor(ros):
+    """The command subscriptions are not the executor's (TakenByTick): with the timer stopped a
+    command waits in its subscription, validated by nobody; a reset takes what waits (applied,
+    then the reset), and ticks take the rest."""
+    node, sim = ros.node, ros.node.sim
+    before = dict(node.counts)
+    node.timer.cancel()
+    try:
+        ros.cmd.impact([float('nan')])
+        ros.cmd.impact([0.1])
+        ros.spin(lambda: False, 0.5)                    # delivered, not taken
+        assert node.counts == before
+        response = ros.call(ros.cmd.cli_reset, Trigger.Request())
+        assert response.success
+        assert node.counts['rejected'] == before['rejected'] + 1
+        assert node.counts['accepted'] == before['accepted'] + 1   # applied before the reset
+        assert sim.t == 0.0 and not np.any(sim.model.velocities())
+        ros.cmd.prestrain([0.004])
+        ros.spin(lambda: False, 0.3)
+        assert node.counts['accepted'] == before['accepted'] + 1
+    finally:
+        node.timer.reset()
+    assert ros.spin(lambda: node.counts['accepted'] == before['accepted'] + 2)
