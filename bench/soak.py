@@ -230,10 +230,15 @@ def soak(duration_s=600.0, rate=1000.0, out_dir=None, domain_id=None, warmup_s=5
         report['running_fraction'] = (span / (samples[-1][0] - samples[0][0])
                                       if len(samples) > 1 else 0.0)
         last = diag[-1][3] if diag else {}
+        # the longest tick of each diagnostics period (ms; the node's tick_max_ms)
+        ticks = [float(v['tick_max_ms']) for _, level, _, v in diag
+                 if v['running'] == 'true' and level != b'\x02']
         report['publish_rate'] = {
             'target_hz': PUBLISH_RATE_HZ, 'mean_hz': total_rate,
             'p05_hz': float(np.percentile(rates, 5)) if rates else None,
-            'min_hz': float(min(rates)) if rates else None}
+            'min_hz': float(min(rates)) if rates else None,
+            'tick_max_ms_median': float(np.median(ticks)) if ticks else None,
+            'tick_max_ms_max': float(max(ticks)) if ticks else None}
         report['commands'] = {k: int(last.get(f'commands_{k}', 0))
                               for k in ('accepted', 'superseded', 'rejected')}
         received = sum(report['commands'].values())
@@ -338,7 +343,9 @@ def table(r):
          f"{r['strain_non_finite_received']}"),
         (f"publish rate while running (target {pr['target_hz']:g} Hz)",
          f"mean {pr['mean_hz']:.1f} Hz, 5th percentile of diagnostics periods "
-         f"{pr['p05_hz'] or 0:.1f} Hz; running {100 * r['running_fraction']:.0f} % of the time"),
+         f"{pr['p05_hz'] or 0:.1f} Hz; running {100 * r['running_fraction']:.0f} % of the time; "
+         f"longest tick per period: median {pr.get('tick_max_ms_median') or 0:.1f} ms, "
+         f"max {pr.get('tick_max_ms_max') or 0:.1f} ms"),
         ('commands received: accepted / superseded / rejected; not taken (QoS keep last 10)',
          f"{c['accepted']} / {c['superseded']} / {c['rejected']}; {c['qos_dropped']}"),
         ('pauses (divergence), resumed by set_running', str(r['pauses'])),
