@@ -1,5 +1,6 @@
 """Soak of the node under a command flood: ``python -m bench.soak [--minutes 10] [--rate 1000]``
-(also ``tensegrity bench --only soak``).
+(also ``tensegrity bench --only soak``); ``--no-mcap``, ``--no-rerun`` leave a recording out (to
+compare), ``--rate 0`` the commands.
 
 The node runs in a second process at ``real_time_factor`` 0, recording MCAP and Rerun, on its
 own ROS domain (localhost only). This process floods it with ``--rate`` commands per second:
