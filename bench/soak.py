@@ -1,5 +1,6 @@
 """Soak of the node under a command flood: ``python -m bench.soak [--minutes 10] [--rate 1000]``
-(also ``tensegrity bench --only soak``).
+(also ``tensegrity bench --only soak``); ``--no-mcap``, ``--no-rerun`` leave a recording out (to
+compare), ``--rate 0`` the commands.
 
 The node runs in a second process at ``real_time_factor`` 0, recording MCAP and Rerun, on its
 own ROS domain (localhost only). This process floods it with ``--rate`` commands per second:
@@ -40,22 +41,27 @@ def _proc_stats(proc):
         rss = proc.memory_info().rss / 2**20
         fds = proc.num_fds()
         threads = proc.num_threads()
-    helpers = []
+        cpu = proc.cpu_times()
+    helpers, helper_cpu = [], 0.0
     for child in proc.children(recursive=True):
         try:
             if 'rerun_writer' in ' '.join(child.cmdline()):
                 helpers.append((child.pid, child.memory_info().rss / 2**20))
+                c = child.cpu_times()
+                helper_cpu += c.user + c.system
         except psutil.Error:
             pass
-    return {'rss_mb': rss, 'open_files': fds, 'threads': threads, 'helpers': helpers}
+    return {'rss_mb': rss, 'open_files': fds, 'threads': threads, 'helpers': helpers,
+            'cpu_s': cpu.user + cpu.system, 'helper_cpu_s': helper_cpu}
 
 
-def _start_node(out, domain_id):
+def _start_node(out, domain_id, mcap=True, rerun=True):
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
                PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get('PYTHONPATH', ''))
     params = {'scene_file': str(SCENE), 'real_time_factor': 0.0,
-              'publish_rate_hz': PUBLISH_RATE_HZ, 'record_mcap': str(out / 'soak.mcap'),
-              'record_rerun': str(out / 'soak.rrd')}
+              'publish_rate_hz': PUBLISH_RATE_HZ,
+              **({'record_mcap': str(out / 'soak.mcap')} if mcap else {}),
+              **({'record_rerun': str(out / 'soak.rrd')} if rerun else {})}
     cmd = [sys.executable, '-m', 'tensegrity_ros.node', '--ros-args']
     for k, v in params.items():
         cmd += ['-p', f'{k}:={v}']
@@ -77,32 +83,40 @@ def _flood_message(rng, n_columns):
 
 
 def soak(duration_s=600.0, rate=1000.0, out_dir=None, domain_id=None, warmup_s=5.0, log=print,
-         seed=0):
-    """Run the soak for ``duration_s`` s of flood; returns the report (dict)."""
+         seed=0, mcap=True, rerun=True):
+    """Run the soak for ``duration_s`` s of flood; returns the report (dict). ``mcap``,
+    ``rerun``: whether the node records each (both for the soak proper; off to compare)."""
     import psutil
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
     from rcl_interfaces.srv import SetParameters
+    from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.parameter import Parameter
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from std_msgs.msg import Float64MultiArray
     from std_srvs.srv import SetBool, Trigger
 
-    from tensegrity_ros import messages
+    from tensegrity_ros import cdr, messages
     from tensegrity_ros.commander import spin_until, stop_process
 
     out = Path(out_dir) if out_dir else Path(tempfile.mkdtemp(prefix='soak-'))
     out.mkdir(parents=True, exist_ok=True)
     domain_id = domain_id if domain_id is not None else 100 + os.getpid() % 100
-    proc, node_log = _start_node(out, domain_id)
+    proc, node_log = _start_node(out, domain_id, mcap, rerun)
     ctx = rclpy.Context()
     rclpy.init(context=ctx, domain_id=domain_id)
     client = rclpy.create_node('soak_client', context=ctx)
     qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
     base = messages.resolve_topic('~/').rstrip('/')
-    pubs = {'impact': client.create_publisher(Float64MultiArray, f'{base}/cmd/impact', qos),
-            'prestrain': client.create_publisher(Float64MultiArray, f'{base}/cmd/prestrain', qos)}
+    # the client spends as little CPU as it can (it shares the cores with the node): no QoS event
+    # handlers (each is polled on every executor cycle), commands published as CDR bytes
+    # (tensegrity_ros.cdr, the same message as messages.command_array)
+    quiet_pub = PublisherEventCallbacks(use_default_callbacks=False)
+    quiet_sub = SubscriptionEventCallbacks(use_default_callbacks=False)
+    pubs = {topic: client.create_publisher(Float64MultiArray, f'{base}/cmd/{topic}', qos,
+                                           event_callbacks=quiet_pub)
+            for topic in ('impact', 'prestrain')}
     seen = {'strain': 0, 'non_finite': 0, 'diag': []}
 
     def on_strain(msg):
@@ -115,14 +129,17 @@ def soak(duration_s=600.0, rate=1000.0, out_dir=None, domain_id=None, warmup_s=5
             if st.name == messages.NODE_NAME:
                 seen['diag'].append((time.monotonic(), st.level, st.message,
                                      {kv.key: kv.value for kv in st.values}))
-    client.create_subscription(Float64MultiArray, f'{base}/strain', on_strain, qos)
-    client.create_subscription(DiagnosticArray, '/diagnostics', on_diag, qos)
+    client.create_subscription(Float64MultiArray, f'{base}/strain', on_strain, qos,
+                               event_callbacks=quiet_sub)
+    client.create_subscription(DiagnosticArray, '/diagnostics', on_diag, qos,
+                               event_callbacks=quiet_sub)
     cli_running = client.create_client(SetBool, f'{base}/set_running')
     cli_reset = client.create_client(Trigger, f'{base}/reset')
     cli_params = client.create_client(SetParameters, f'{base}/set_parameters')
     ex = SingleThreadedExecutor(context=ctx)
     ex.add_node(client)
-    report = {'duration_s': duration_s, 'rate_target': rate, 'out_dir': str(out)}
+    report = {'duration_s': duration_s, 'rate_target': rate, 'out_dir': str(out),
+              'record': {'mcap': bool(mcap), 'rerun': bool(rerun)}}
     sent = {k: 0 for k in ('impact', 'strong', 'prestrain', 'bad_impact', 'bad_prestrain',
                            'set_running', 'reset', 'set_parameters')}
     futures = []
@@ -139,6 +156,7 @@ def soak(duration_s=600.0, rate=1000.0, out_dir=None, domain_id=None, warmup_s=5
         rng = np.random.default_rng(seed)
         n_columns = 1
         t0 = time.monotonic()
+        cpu0 = time.process_time()
         n_sent = 0
         next_running = next_reset = next_param = t0
         next_strong, quiet_until = t0 + 2.0, t0
@@ -158,7 +176,8 @@ def soak(duration_s=600.0, rate=1000.0, out_dir=None, domain_id=None, warmup_s=5
                     kind, values, next_strong = 'strong', [10.0], now + STRONG_EVERY_S
                     quiet_until = now + 0.05
                 topic = 'impact' if kind in ('impact', 'strong', 'bad_impact') else 'prestrain'
-                pubs[topic].publish(messages.command_array(values, 'all'))
+                pubs[topic].publish(cdr.multi_array_cdr(np.asarray(values, np.float64),
+                                                        ('all',)))
                 sent[kind] += 1
                 n_sent += 1
             if now >= next_running:                     # resumes a diverged (paused) node
@@ -179,12 +198,20 @@ def soak(duration_s=600.0, rate=1000.0, out_dir=None, domain_id=None, warmup_s=5
             if now - last_stats >= 10.0:
                 last_stats = now
                 stats = _proc_stats(node_ps)
-                log(f'soak: {now - t0:5.0f} s, {n_sent} sent, node RSS {stats["rss_mb"]:.0f} MB')
+                helper = ''.join(f', helper RSS {m:.0f} MB' for _, m in stats['helpers'])
+                log(f'soak: {now - t0:5.0f} s, {n_sent} sent, node RSS {stats["rss_mb"]:.0f} MB'
+                    f'{helper}')
             ex.spin_once(timeout_sec=0.001)
             futures = [f for f in futures if not f.done()]
         wall = time.monotonic() - t0
         report['sent'] = dict(sent, total=n_sent, per_s=n_sent / wall)
         report['node_alive'] = proc.poll() is None
+        if report['node_alive']:        # CPU seconds per wall second of the flood, each process
+            stats = _proc_stats(node_ps)
+            report['cpu_per_s'] = {
+                'node': (stats['cpu_s'] - report['start']['cpu_s']) / wall,
+                'rerun_helper': (stats['helper_cpu_s'] - report['start']['helper_cpu_s']) / wall,
+                'flood_client': (time.process_time() - cpu0) / wall}
         spin_until(ex, lambda: False, 1.5)           # the last periodic /diagnostics
         if report['node_alive']:
             report['end'] = _proc_stats(node_ps)
@@ -204,10 +231,15 @@ def soak(duration_s=600.0, rate=1000.0, out_dir=None, domain_id=None, warmup_s=5
         report['running_fraction'] = (span / (samples[-1][0] - samples[0][0])
                                       if len(samples) > 1 else 0.0)
         last = diag[-1][3] if diag else {}
+        # the longest tick of each diagnostics period (ms; the node's tick_max_ms)
+        ticks = [float(v['tick_max_ms']) for _, level, _, v in diag
+                 if v['running'] == 'true' and level != b'\x02']
         report['publish_rate'] = {
             'target_hz': PUBLISH_RATE_HZ, 'mean_hz': total_rate,
             'p05_hz': float(np.percentile(rates, 5)) if rates else None,
-            'min_hz': float(min(rates)) if rates else None}
+            'min_hz': float(min(rates)) if rates else None,
+            'tick_max_ms_median': float(np.median(ticks)) if ticks else None,
+            'tick_max_ms_max': float(max(ticks)) if ticks else None}
         report['commands'] = {k: int(last.get(f'commands_{k}', 0))
                               for k in ('accepted', 'superseded', 'rejected')}
         received = sum(report['commands'].values())
@@ -239,16 +271,22 @@ def soak(duration_s=600.0, rate=1000.0, out_dir=None, domain_id=None, warmup_s=5
     report['helpers_left'] = [p for p in helpers if psutil.pid_exists(p)
                               and psutil.Process(p).status() != psutil.STATUS_ZOMBIE]
     report['log_bytes'] = (out / 'node.log').stat().st_size
-    report['files'] = check_files(out / 'soak.mcap', out / 'soak.rrd')
+    report['files'] = check_files(out / 'soak.mcap' if mcap else None,
+                                  out / 'soak.rrd' if rerun else None)
+    report['load_average'] = os.getloadavg()
     return report
 
 
 def check_files(mcap, rrd):
     """Read both recordings back: complete (MCAP summary present, no Rerun reader warning), every
-    frame finite, frame counts, sizes."""
-    import pyarrow as pa
-    from rerun.chunk import RrdReader
+    frame finite, frame counts, sizes. A file given as None is not checked (``None`` in the
+    result)."""
+    out = {'mcap': _check_mcap(mcap) if mcap is not None else None,
+           'rerun': _check_rerun(rrd) if rrd is not None else None}
+    return out
 
+
+def _check_mcap(mcap):
     from tensegrity_ros.loader import McapLog, cloud_xyz, multi_array_values
     log = McapLog(mcap)
     frames = non_finite = diag = cmds = 0
@@ -263,8 +301,13 @@ def check_files(mcap, rrd):
             diag += 1
         elif '/cmd/' in m.topic:
             cmds += 1
-    out = {'mcap': {'complete': not log.truncated, 'frames': frames, 'non_finite': non_finite,
-                    'diagnostics': diag, 'commands': cmds, 'mb': mcap.stat().st_size / 2**20}}
+    return {'complete': not log.truncated, 'frames': frames, 'non_finite': non_finite,
+            'diagnostics': diag, 'commands': cmds, 'mb': mcap.stat().st_size / 2**20}
+
+
+def _check_rerun(rrd):
+    import pyarrow as pa
+    from rerun.chunk import RrdReader
     rows, bad, complete = 0, 0, True
     with warnings.catch_warnings():
         warnings.simplefilter('error')
@@ -281,9 +324,8 @@ def check_files(mcap, rrd):
                     bad += int(not np.all(np.isfinite(vals.to_numpy(zero_copy_only=False))))
         except Warning:
             complete = False
-    out['rerun'] = {'complete': complete, 'frames': rows, 'non_finite': bad,
-                    'mb': rrd.stat().st_size / 2**20}
-    return out
+    return {'complete': complete, 'frames': rows, 'non_finite': bad,
+            'mb': rrd.stat().st_size / 2**20}
 
 
 def table(r):
@@ -291,16 +333,20 @@ def table(r):
     s, e, f = r['start'], r.get('end', {}), r['files']
     pr = r['publish_rate']
     c = r['commands']
+    m, rr = f['mcap'], f['rerun']
+    cpu = r.get('cpu_per_s', {})
     rows = [
         ('duration, flood', f"{r['duration_s']:g} s, {r['sent']['per_s']:.0f} commands/s "
                             f"({r['sent']['total']} sent)"),
         ('node alive at the end', 'yes' if r['node_alive'] else 'NO'),
         ('non-finite frames (MCAP, Rerun, received)',
-         f"{f['mcap']['non_finite']}, {f['rerun']['non_finite']}, "
+         f"{m['non_finite'] if m else '-'}, {rr['non_finite'] if rr else '-'}, "
          f"{r['strain_non_finite_received']}"),
-        ('publish rate while running (target 200 Hz)',
+        (f"publish rate while running (target {pr['target_hz']:g} Hz)",
          f"mean {pr['mean_hz']:.1f} Hz, 5th percentile of diagnostics periods "
-         f"{pr['p05_hz'] or 0:.1f} Hz; running {100 * r['running_fraction']:.0f} % of the time"),
+         f"{pr['p05_hz'] or 0:.1f} Hz; running {100 * r['running_fraction']:.0f} % of the time; "
+         f"longest tick per period: median {pr.get('tick_max_ms_median') or 0:.1f} ms, "
+         f"max {pr.get('tick_max_ms_max') or 0:.1f} ms"),
         ('commands received: accepted / superseded / rejected; not taken (QoS keep last 10)',
          f"{c['accepted']} / {c['superseded']} / {c['rejected']}; {c['qos_dropped']}"),
         ('pauses (divergence), resumed by set_running', str(r['pauses'])),
@@ -311,24 +357,29 @@ def table(r):
         ('helper processes (RSS) during, after shutdown',
          f"{len(s['helpers'])} ({', '.join(f'{m:.0f} MB' for _, m in e.get('helpers', []))}), "
          f"{len(r['helpers_left'])}"),
-        ('MCAP', f"complete {f['mcap']['complete']}, {f['mcap']['frames']} frames, "
-                 f"{f['mcap']['commands']} commands, {f['mcap']['diagnostics']} diagnostics, "
-                 f"{f['mcap']['mb']:.0f} MB"),
-        ('Rerun', f"complete {f['rerun']['complete']}, {f['rerun']['frames']} frames, "
-                  f"{f['rerun']['mb']:.0f} MB"),
+        ('CPU s per s: node, Rerun helper, flood client',
+         ', '.join(f"{cpu[k]:.2f}" if k in cpu else '-'
+                   for k in ('node', 'rerun_helper', 'flood_client'))),
+        ('MCAP', f"complete {m['complete']}, {m['frames']} frames, {m['commands']} commands, "
+                 f"{m['diagnostics']} diagnostics, {m['mb']:.0f} MB" if m else 'not recorded'),
+        ('Rerun', f"complete {rr['complete']}, {rr['frames']} frames, {rr['mb']:.0f} MB"
+         if rr else 'not recorded'),
         ('node log', f"{r['log_bytes'] / 1024:.0f} KiB"),
         ('node exit code (SIGINT)', str(r['node_exit_code'])),
+        ('load average (1, 5, 15 min) at the end',
+         ', '.join(f'{x:.1f}' for x in r.get('load_average', ()))),
     ]
     return '\n'.join(['| | |', '|---|---|'] + [f'| {a} | {b} |' for a, b in rows])
 
 
-def main(out='bench/results', quick=False, log=print, minutes=None, rate=1000.0):
+def main(out='bench/results', quick=False, log=print, minutes=None, rate=1000.0, mcap=True,
+         rerun=True):
     """``tensegrity bench --only soak``: the soak (10 minutes; 20 s with ``quick``); writes
     ``soak.json`` and ``soak.md`` into ``out``; returns their paths."""
     out = Path(out)
     duration = 60.0 * minutes if minutes is not None else 20.0 if quick else 600.0
     with tempfile.TemporaryDirectory(prefix='soak-') as tmp:
-        r = soak(duration, rate, out_dir=tmp, log=log)
+        r = soak(duration, rate, out_dir=tmp, log=log, mcap=mcap, rerun=rerun)
     out.mkdir(parents=True, exist_ok=True)
     (out / 'soak.json').write_text(json.dumps(r, indent=2, default=str))
     (out / 'soak.md').write_text(table(r) + '\n')
@@ -341,7 +392,10 @@ if __name__ == '__main__':
     p.add_argument('--minutes', type=float, default=10.0)
     p.add_argument('--rate', type=float, default=1000.0, help='commands per second')
     p.add_argument('--out', default='bench/results')
+    p.add_argument('--no-mcap', action='store_true', help='the node records no MCAP (to compare)')
+    p.add_argument('--no-rerun', action='store_true', help='the node records no Rerun (to '
+                   'compare)')
     a = p.parse_args()
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     signal.signal(signal.SIGTERM, signal.default_int_handler)
-    main(a.out, minutes=a.minutes, rate=a.rate)
+    main(a.out, minutes=a.minutes, rate=a.rate, mcap=not a.no_mcap, rerun=not a.no_rerun)

@@ -218,6 +218,7 @@ class RerunRecorder:
     """
 
     n_buffers = 8                       # batch buffers in shared memory (backpressure beyond)
+    max_commands = 1000                 # commands handed over together, at most
 
     def __init__(self, network, path=None, *, connect=None, tension_scale=None, flush_every=50,
                  max_latency_s=0.5, wave_window=1000, wave_period_s=2.0,
@@ -262,6 +263,8 @@ class RerunRecorder:
         self._last_flush = time.monotonic()
         self.n_frames = 0
         self.n_commands = 0
+        self._commands = []                     # (t, text, level) not yet handed over
+        self._last_commands = self._last_flush
         self.n_restarts = 0
         # A batch buffer holds one float64 row per frame: positions (n_nodes * 3), strain
         # (n_columns * n_prisms), tension (n_cables), base force (n_columns, columns only), then
@@ -357,6 +360,7 @@ class RerunRecorder:
         batch buffer are not: see :meth:`flush`); raise its error if any."""
         if self._closed:
             raise ValueError('rerun: recorder is closed')
+        self._post_commands()
         self._post(('sync',))
         self._receive(until='synced')
         self._check()
@@ -441,8 +445,21 @@ class RerunRecorder:
         text = str(text)
         if level is None:
             level = 'WARN' if text.startswith(('rejected', 'paused')) else 'INFO'
-        self._post(('command', float(t), text, level))
+        self._commands.append((float(t), text, level))
         self.n_commands += 1
+        if len(self._commands) >= self.max_commands or \
+                time.monotonic() - self._last_commands > self.max_latency_s:
+            self._post_commands()
+
+    def _post_commands(self):
+        """Hand the commands given since the last time over in one message (the helper logs
+        them as one chunk): before every batch, sync and close, so that the helper sees them in
+        the same order relative to the frames as they were given; and at the latest after
+        ``max_latency_s`` or :attr:`max_commands` of them (a paused node publishes no frames)."""
+        self._last_commands = time.monotonic()
+        if self._commands:
+            entries, self._commands = self._commands, []
+            self._post(('commands', entries))
 
     def field(self, t, peak, pressure=None, scale=None):
         """The field in the medium at simulation time ``t`` s: ``peak`` (n_z, n_x), the peak
@@ -485,6 +502,7 @@ class RerunRecorder:
         self._last_flush = time.monotonic()
         self._batch = self.flush_every
         if n_t or wave or restart:
+            self._post_commands()
             self._post(('send', self._index if n_t else None, n_t, wave, restart))
         if n_t:
             self._new_buffer()
@@ -498,6 +516,7 @@ class RerunRecorder:
         self._closed = True
         n_t, self._n_buf = self._n_buf, 0
         try:
+            self._post_commands()
             self._post(('close', self._index if n_t else None, n_t))
             _, error, self.helper_cpu_s = self._receive(until='closed')
         finally:

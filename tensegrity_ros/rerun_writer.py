@@ -486,10 +486,15 @@ class _Writer:
                 self._do(self._send, index, n_t, wave, restart)
                 if index is not None:
                     conn.send(('free', index))
+<<<<<<< HEAD
             elif kind == 'command':
                 self._do(self._log_command, *msg[1:])
             elif kind == 'field':
                 self._do(self._log_field, *msg[1:])
+=======
+            elif kind == 'commands':
+                self._do(self._log_commands, msg[1])
+>>>>>>> flood
             elif kind == 'sync':
                 conn.send(('synced',))
             elif kind == 'close':
@@ -571,11 +576,16 @@ class _Writer:
         rr.send_chunks([Chunk.from_columns(path, [], [_Column(d, _one_row(a)) for d, a in batches])
                         for path, batches in static], recording=self._stream)
 
-    def _log_command(self, t, text, level):
-        if text.startswith('impact') or ': impact ' in text:   # the heat map starts here
-            self._impact_t = t
-        rr.send_chunks(_row_chunk('commands', rr.TextLog(text, level=level), t),
-                       recording=self._stream)
+    def _log_commands(self, entries):
+        """``entries``: (t s, text, level) of the commands given since the last ones, as one
+        chunk of ``commands`` (a row each)."""
+        for t, text, _ in entries:
+            if text.startswith('impact') or ': impact ' in text:   # the heat map starts here
+                self._impact_t = t
+        times, texts, levels = zip(*entries)
+        rr.send_columns('commands', [_Times(_ns(times))],
+                        rr.TextLog.columns(text=list(texts), level=list(levels)),
+                        recording=self._stream)
 
     def _log_field(self, t, peak, pressure, scale):
         """``field/peak_pressure`` (and ``field/pressure``) Images and ``field/scale`` at ``t``."""

@@ -14,8 +14,8 @@ from std_srvs.srv import SetBool, Trigger  # noqa: E402
 
 from solver.scene import Scene  # noqa: E402
 from tensegrity_ros.commander import Commander, spin_until  # noqa: E402
-from tensegrity_ros.node import (DEFAULTS, FAST_WORK_FRACTION, WORK_FRACTION,  # noqa: E402
-                                 ParameterError, TensegritySim, check_parameters)
+from tensegrity_ros.node import (DEFAULTS, FAST_WORK_FRACTION, MIN_WORK_FRACTION,  # noqa: E402
+                                 WORK_FRACTION, ParameterError, TensegritySim, check_parameters)
 
 DOMAIN = 10 + os.getpid() % 20
 N_PRISMS = 10
@@ -256,6 +256,15 @@ def test_pacing_logic(ros):
     assert node.steps_this_tick(100.01) == round(0.025 / sim.dt)
     node.params['real_time_factor'] = 0.0                     # as fast as possible: no margin
     assert node.steps_this_tick(100.01) == int(FAST_WORK_FRACTION * 0.005 / 1e-6)
+    # ... until the next tick is due: a tick that starts late (or spent time on commands) steps
+    # less, so that the next one starts on time; one past its due time still steps a little
+    left = 100.002 - 100.0
+    assert node.steps_this_tick(100.0, deadline=100.002) == int(FAST_WORK_FRACTION * left / 1e-6)
+    node._publish_cost = 0.0005
+    assert node.steps_this_tick(100.0, deadline=100.002) == int(
+        (FAST_WORK_FRACTION * left - 0.0005) / 1e-6)
+    assert node.steps_this_tick(100.0, deadline=99.0) == int(MIN_WORK_FRACTION * 0.005 / 1e-6)
+    node._publish_cost = 0.0
     # a solver too slow for the requested factor: the tick does what fits in 90 % of a period
     node.params['real_time_factor'] = 1.0
     node._step_cost = 1e-3
@@ -308,3 +317,82 @@ def test_commands_of_one_tick_are_validated_counted_and_the_last_one_applied(ros
     added = fresh.apply_impact(0.03)
     np.testing.assert_allclose(node.sim.model.velocities(), fresh.model.velocities(), atol=1e-12)
     assert f'+{added:.3g} J' in node.last_command[2]
+
+
+def test_a_flood_within_one_tick_is_counted_whole_the_last_valid_one_applied_logged_once(
+        ros, monkeypatch):
+    """500 commands (valid impacts and prestrains, malformed ones of both) before the next tick:
+    each one is counted once (accepted + superseded + rejected == 500), the last valid one per
+    topic is what the simulation gets, and the log has one line per kind (rejected, accepted)
+    instead of one per command."""
+    from solver.simulation import Simulation
+    from tensegrity_ros import messages
+    node, sim = ros.node, ros.node.sim
+    ros.call(ros.cmd.cli_running, SetBool.Request(data=False))
+    node.params['prestrain_ramp_s'] = 0.0               # applied at once: checked at once
+    lines = []
+
+    class Log:                                          # what the node hands to rclpy's logger
+        def __getattr__(self, level):
+            return lambda text, **kw: lines.append((level, text))
+    monkeypatch.setattr(node, 'get_logger', lambda: Log())
+    node._logged.clear()
+    before = dict(node.counts)
+    rng = np.random.default_rng(19)
+    n, last, n_bad = 500, {}, 0
+    for _ in range(n):
+        u = rng.random()
+        if u < 0.4:
+            v = float(rng.uniform(-0.01, 0.01))
+            assert node._on_impact(messages.command_array([v], 'all'))
+            last['~/cmd/impact'] = v
+        elif u < 0.8:
+            p = float(rng.uniform(0.001, 0.01))
+            assert node._on_prestrain(messages.command_array([p], 'all'))
+            last['~/cmd/prestrain'] = p
+        else:
+            bad = [[float('nan')], [float('inf')], [11.0], [0.1, 0.1]][rng.integers(4)]
+            handler = node._on_impact if rng.random() < 0.5 else node._on_prestrain
+            assert not handler(messages.command_array(bad, 'all'))
+            n_bad += 1
+    order = list(node._pending)                         # applied in this order at the tick
+    assert sorted(order) == sorted(last)
+    assert ros.spin(lambda: node.counts['accepted'] == before['accepted'] + 2)
+    d = {k: node.counts[k] - before[k] for k in ('accepted', 'superseded', 'rejected')}
+    assert d['rejected'] == n_bad and sum(d.values()) == n
+    fresh = Simulation(sim.scene)                       # the last ones on a fresh column
+    for key in order:
+        if key == '~/cmd/impact':
+            fresh.apply_impact(last[key])
+        else:
+            fresh.apply_prestrain(last[key])
+    np.testing.assert_array_equal(sim.prestrain, fresh.prestrain)
+    np.testing.assert_allclose(sim.model.velocities(), fresh.model.velocities(), atol=1e-12)
+    assert [lv for lv, _ in lines].count('warning') == 1            # one 'rejected ...' line
+    assert [lv for lv, _ in lines].count('info') == 1               # one accepted one
+    assert lines[0][1].startswith('rejected ~/cmd/')
+
+
+def test_commands_are_taken_by_the_tick_or_a_reset_never_by_the_executor(ros):
+    """The command subscriptions are not the executor's (TakenByTick): with the timer stopped a
+    command waits in its subscription, validated by nobody; a reset takes what waits (applied,
+    then the reset), and ticks take the rest."""
+    node, sim = ros.node, ros.node.sim
+    before = dict(node.counts)
+    node.timer.cancel()
+    try:
+        ros.cmd.impact([float('nan')])
+        ros.cmd.impact([0.1])
+        ros.spin(lambda: False, 0.5)                    # delivered, not taken
+        assert node.counts == before
+        response = ros.call(ros.cmd.cli_reset, Trigger.Request())
+        assert response.success
+        assert node.counts['rejected'] == before['rejected'] + 1
+        assert node.counts['accepted'] == before['accepted'] + 1   # applied before the reset
+        assert sim.t == 0.0 and not np.any(sim.model.velocities())
+        ros.cmd.prestrain([0.004])
+        ros.spin(lambda: False, 0.3)
+        assert node.counts['accepted'] == before['accepted'] + 1
+    finally:
+        node.timer.reset()
+    assert ros.spin(lambda: node.counts['accepted'] == before['accepted'] + 2)

@@ -766,3 +766,35 @@ def test_lens_cli_records_the_field_over_sim_time(tmp_path, capsys, monkeypatch)
     assert np.all(np.diff(stack, axis=0) >= 0)                 # a peak so far only grows
     assert stack[0].max() == 0 and stack[-1].max() == pytest.approx(1.0)
     assert len(data['/field/pressure']['rows']) == len(frames) + 1
+
+
+def test_commands_are_handed_over_together_and_all_recorded_in_order(tmp_path):
+    """Commands go to the helper together (one message and one chunk before each batch of
+    frames, at most ``max_commands`` at a time, and after ``max_latency_s`` when no frame comes,
+    as on a paused node): 2,500 of them between the frames of a run and more while no frame
+    comes are all in the file, in order, with their times, texts and levels."""
+    scene = Scene.load(FB).with_overrides(['structure.n_prisms=3'])
+    sim = Simulation(scene)
+    path = tmp_path / 'flood.rrd'
+    sent = []
+    with RerunRecorder(sim.network, path, flush_every=4, max_latency_s=0.2) as rec:
+        for k in range(10):
+            rec.frame(sim.frame())
+            for j in range(250):
+                text = f'impact v0 = {k}.{j:03d} m/s' if j % 5 else f'rejected {k}.{j:03d}'
+                rec.command(sim.t, text)
+                sent.append((round(sim.t * 1e9), text, 'WARN' if j % 5 == 0 else 'INFO'))
+            sim.advance(0.005)
+        assert len(rec._commands) < RerunRecorder.max_commands
+        for j in range(3):                      # paused: no frames come
+            rec.command(sim.t, f'reset {j}')
+            sent.append((round(sim.t * 1e9), f'reset {j}', 'INFO'))
+        time.sleep(0.3)
+        rec.command(sim.t, 'reset 3')           # later than max_latency_s: handed over now
+        sent.append((round(sim.t * 1e9), 'reset 3', 'INFO'))
+        assert rec._commands == []
+        assert rec.n_commands == len(sent)
+    rows = read(path)['/commands']['rows']
+    got = [(t, str(flat(r['TextLog:text'])[0]), str(flat(r['TextLog:level'])[0]))
+           for t, r in rows]
+    assert got == sent
