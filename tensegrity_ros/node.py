@@ -129,12 +129,8 @@ class TensegritySim(LifecycleNode):
         self.active = False
         self._pubs, self._cmd_subs, self._srvs = {}, [], []
         self._sinks, self._frame_sinks, self._event_sinks, self._closers = [], [], [], []
-<<<<<<< HEAD
         self._bytes_sinks, self._field_sinks = [], []
-=======
-        self._bytes_sinks = []
         self._logged = {}              # throttled log line -> wall time it last went out
->>>>>>> flood
         if self.params['autostart']:
             self._setup()          # a bad scene raises here (the console script exits 2)
             for name, trigger in (('configure', self.trigger_configure),

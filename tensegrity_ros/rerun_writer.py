@@ -486,15 +486,10 @@ class _Writer:
                 self._do(self._send, index, n_t, wave, restart)
                 if index is not None:
                     conn.send(('free', index))
-<<<<<<< HEAD
-            elif kind == 'command':
-                self._do(self._log_command, *msg[1:])
-            elif kind == 'field':
-                self._do(self._log_field, *msg[1:])
-=======
             elif kind == 'commands':
                 self._do(self._log_commands, msg[1])
->>>>>>> flood
+            elif kind == 'field':
+                self._do(self._log_field, *msg[1:])
             elif kind == 'sync':
                 conn.send(('synced',))
             elif kind == 'close':
