@@ -167,7 +167,8 @@ def test_a_point_gets_a_new_id_when_the_solver_source_changes(tmp_path):
     import shutil
     import solver
     src = tmp_path / 'solver'
-    shutil.copytree(Path(solver.__file__).parent, src, ignore=shutil.ignore_patterns('__pycache__'))
+    shutil.copytree(Path(solver.__file__).parent, src,
+                    ignore=shutil.ignore_patterns('__pycache__'))
     before = sw.source_hash(src)
     assert before == sw.code_version()                  # the same files, the same hash
     path = src / 'dynamics.py'
