@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import gc
 import math
+import signal
 import sys
 import time
 
@@ -34,11 +35,12 @@ from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, SetParam
 from rclpy.event_handler import PublisherEventCallbacks
 from rclpy._rclpy_pybind11 import RCLError
 from rclpy.callback_groups import CallbackGroup
-from rclpy.executors import ExternalShutdownException
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSPolicyKind, QoSProfile,
                        ReliabilityPolicy)
 from rclpy.qos_overriding_options import QoSOverridingOptions
+from rclpy.signals import SignalHandlerOptions
 from geometry_msgs.msg import PointStamped
 from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import SetBool, Trigger
@@ -806,25 +808,44 @@ class TensegritySim(LifecycleNode):
         return response
 
 
+def _stop_on_signals():
+    """SIGINT and SIGTERM ask the spin loop to stop (a list that gets the signal number): the tick
+    that is running finishes, so that both recordings end on the same frame; a second signal
+    interrupts at once (KeyboardInterrupt)."""
+    stop = []
+
+    def handler(signum, frame):
+        if stop:
+            raise KeyboardInterrupt
+        stop.append(signum)
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, handler)
+    return stop
+
+
 def main(args=None):
-    """Console script ``tensegrity_node``: spin the node until Ctrl-C / SIGTERM; exit 2 with one
-    line on stderr for a bad parameter or scene."""
+    """Console script ``tensegrity_node``: spin the node until Ctrl-C / SIGTERM (the current tick
+    finishes first); exit 2 with one line on stderr for a bad parameter or scene."""
     from solver.network import NetworkError
     from solver.scene import SceneError
-    rclpy.init(args=args)
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    stop = _stop_on_signals()
     node = None
     code = 0
     try:
         node = TensegritySim()
         gc.freeze()             # see cli.cmd_run: the start-up's objects are not scanned again
-        rclpy.spin(node)
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        while not stop and rclpy.ok():
+            executor.spin_once(timeout_sec=0.1)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except (ParameterError, SceneError, NetworkError, ValueError) as exc:
         print(f'tensegrity_node: {exc}', file=sys.stderr)
         code = 2
     except RCLError:
-        if rclpy.ok():      # not a shutdown (SIGINT/SIGTERM) caught in the middle of a publish
+        if rclpy.ok():      # not a shutdown caught in the middle of a publish
             raise
     finally:
         if node is not None:
