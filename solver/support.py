@@ -142,17 +142,7 @@ def first_arrival(times, force, rest=None, floor=1e-12):
     if not top > floor:
         return Arrival(nan, nan, nan, rest, nan, float(min(c.min(initial=0.0), 0.0)))
     k = _first_peak(c, PEAK_FLOOR * top)
-    level = ARRIVAL_FRACTION * c[k]
-    i = k
-    while i > 0 and c[i - 1] >= level:
-        i -= 1
-    if i == 0:
-        arrival = float(t[0])
-    else:
-        u = (level - c[i - 1]) / (c[i] - c[i - 1])
-        arrival = float(t[i - 1] + u * (t[i] - t[i - 1]))
-    return Arrival(arrival, float(t[k]), float(c[k]), rest, _rise_width(t, c, k),
-                   float(min(c[:i + 1].min(), 0.0)))
+    return _arrival_at(t, c, k, rest)
 
 
 def pulse_arrival(times, force, rest=None, floor=1e-12):
@@ -169,6 +159,14 @@ def pulse_arrival(times, force, rest=None, floor=1e-12):
         return Arrival(math.nan, math.nan, math.nan, rest, math.nan,
                        float(min(c.min(initial=0.0), 0.0)))
     k = int(np.argmax(c))
+    return _arrival_at(t, c, k, rest)
+
+
+def _arrival_at(t, c, k, rest):
+    """The :class:`Arrival` of the peak ``c[k]``: where the rise that ends at it (the samples
+    before it at or above the level, back to the last one below) crosses
+    :data:`ARRIVAL_FRACTION` of it (linear interpolation), its ``rise_s`` and the largest pull
+    before it."""
     level = ARRIVAL_FRACTION * c[k]
     i = k
     while i > 0 and c[i - 1] >= level:

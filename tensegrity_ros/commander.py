@@ -307,10 +307,7 @@ def format_summary(s):
         lines.append(f"  node: energy {d.get('energy_J')} J, constraint error "
                      f"{d.get('constraint_error')}, commands accepted "
                      f"{d.get('commands_accepted')}, rejected {d.get('commands_rejected')}")
-    lines.append(f"  node stopped with exit code {s['node_exit_code']}")
-    for key, path in s['outputs'].items():
-        lines.append(f'  {key}: {path}' if path else f'  {key}: not recorded')
-    return lines
+    return lines + _exit_and_outputs(s)
 
 
 def run_focus_demo(focus, scene_file='config/scenes/lens_focus.yaml', speed=1.5, rtf=1.0,
@@ -448,7 +445,12 @@ def format_focus_summary(s):
         lines.append(f"  ~/field: {s['field_images']} images of {s['field_shape'][0]} x "
                      f"{s['field_shape'][1]} (32FC1), largest peak pressure "
                      f"{s['field_max']:.4g}")
-    lines.append(f"  node stopped with exit code {s['node_exit_code']}")
+    return lines + _exit_and_outputs(s)
+
+
+def _exit_and_outputs(s):
+    """The last lines of a demo summary: the node's exit code and the files written."""
+    lines = [f"  node stopped with exit code {s['node_exit_code']}"]
     for key, path in s['outputs'].items():
         lines.append(f'  {key}: {path}' if path else f'  {key}: not recorded')
     return lines
