@@ -452,6 +452,7 @@ class _Writer:
         self._stream = None
         self._error = None
         self._tids = set()
+        self._wave, self._wave_n = None, 0      # set again by _open (which may fail before)
         if cpus:                                # inherited by the threads Rerun starts
             try:
                 os.sched_setaffinity(0, cpus)
