@@ -107,7 +107,14 @@ class Replayer:
 
     ``rate`` > 0 scales the recorded timing (2 = twice as fast). ``clock`` publishes ``/clock``.
     ``wait_s`` > 0 first waits (up to that long) until some subscriber matches one of the
-    publishers, then ``delay_s`` more, so that subscribers can match them."""
+    publishers, then ``delay_s`` more, so that subscribers can match them.
+
+    Each publisher keeps the recorded reliability, durability and history kind; its history is
+    at least ``MIN_DEPTH`` deep (depth plays no part in matching), so that a reliable subscriber
+    that falls behind for a moment is not overtaken. :meth:`flush` waits for reliable
+    subscribers to acknowledge everything published."""
+
+    MIN_DEPTH = 100
 
     def __init__(self, node, path, rate=1.0, clock=True, delay_s=0.0, wait_s=0.0):
         check_options(rate, delay_s, wait_s)
@@ -121,8 +128,9 @@ class Replayer:
         for topic, (type_name, qos_text) in self.channels.items():
             if topic == CLOCK_TOPIC:
                 continue
-            self.publishers[topic] = node.create_publisher(message_class(type_name), topic,
-                                                           qos_from_yaml(qos_text))
+            qos = qos_from_yaml(qos_text)
+            qos.depth = max(qos.depth, self.MIN_DEPTH)
+            self.publishers[topic] = node.create_publisher(message_class(type_name), topic, qos)
         self._clock_cls = Clock
         self.clock_pub = node.create_publisher(Clock, CLOCK_TOPIC, 10) if clock else None
         self.published = 0
@@ -169,6 +177,21 @@ class Replayer:
         self.published += n
         return n
 
+    def flush(self, timeout_s=2.0):
+        """Wait (up to ``timeout_s`` in all) until reliable subscribers have acknowledged every
+        message published, so that leaving right after the last one loses nothing in flight.
+        Returns whether everything was acknowledged."""
+        from rclpy.duration import Duration
+        end = time.monotonic() + timeout_s
+        pubs = list(self.publishers.values())
+        if self.clock_pub is not None:
+            pubs.append(self.clock_pub)
+        ok = True
+        for pub in pubs:
+            left = max(0.0, end - time.monotonic())
+            ok = pub.wait_for_all_acked(Duration(nanoseconds=int(left * 1e9))) and ok
+        return ok
+
     def play(self, loop=False, should_stop=lambda: False):
         """Play once, or forever with ``loop`` (until ``should_stop()``)."""
         total = self.play_once(should_stop)
@@ -190,6 +213,8 @@ def replay_main(path, rate=1.0, loop=False, delay_s=0.5, clock=True, args=None, 
         node = rclpy.create_node('tensegrity_replay')
         player = Replayer(node, path, rate=rate, clock=clock, delay_s=delay_s, wait_s=wait_s)
         player.play(loop=loop, should_stop=lambda: not rclpy.ok())
+        if rclpy.ok():
+            player.flush()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
