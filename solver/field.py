@@ -192,13 +192,17 @@ class PeakMap:
         self.count = upto
 
 
-def focus_report(times, forces, base_x, focus, speed, spacing, dims=2, r_min=0.005):
+def focus_report(times, forces, base_x, focus, speed, spacing, dims=2, r_min=0.005, plane=True):
     """The field of a record at a focus ``(X, Z)`` m: ``p_focus`` (``max_t p`` at F), the lateral
     profile across the focal depth (``lateral_x_m``, ``lateral_peak``; x every ``spacing / 20``
     over the :func:`image_grid` range) with its peak ``lateral_peak_x_m`` and the offset
     ``lateral_offset_spacings`` = ``|x_peak - X| / spacing``, and ``axial_peak_z_m``, the depth
     of the largest ``max_t p`` along ``x = X`` (z every ``spacing / 20`` from the surface down to
-    ``2 Z``). ``times`` (n_t,), ``forces`` (n_t, n_columns) N: the base-force record."""
+    ``2 Z``), and the field's peak: ``peak_xz_m``, the point of the largest ``max_t p`` on the
+    plane from the lateral profile's x range and from the surface down to ``2 Z`` (every
+    ``spacing / 10``; left out with ``plane=False``), with ``peak_offset_spacings`` =
+    ``|peak - F| / spacing``. ``times``
+    (n_t,), ``forces`` (n_t, n_columns) N: the base-force record."""
     X, Z = (float(v) for v in focus)
     rates = source_rates(times, forces)
     xs, _ = image_grid(base_x)
@@ -209,7 +213,17 @@ def focus_report(times, forces, base_x, focus, speed, spacing, dims=2, r_min=0.0
     ax, _ = peak_map([X], zl, times, rates, base_x, speed, dims, r_min)
     at, _ = peak_map([X], [Z], times, rates, base_x, speed, dims, r_min)
     k = int(np.argmax(lat[0]))
-    return {'p_focus': float(at[0, 0]), 'lateral_x_m': xl, 'lateral_peak': lat[0],
+    out = {}
+    if plane:
+        g = spacing / 10.0
+        xp = np.arange(xl[0], xl[-1] + 0.5 * g, g)
+        zp = np.arange(g, 2.0 * Z + 0.5 * g, g)
+        pm, _ = peak_map(xp, zp, times, rates, base_x, speed, dims, r_min)
+        iz, ix = np.unravel_index(int(np.argmax(pm)), pm.shape)
+        peak = (float(xp[ix]), float(zp[iz]))
+        out = {'peak_xz_m': peak,
+               'peak_offset_spacings': float(np.hypot(peak[0] - X, peak[1] - Z) / spacing)}
+    return {**out, 'p_focus': float(at[0, 0]), 'lateral_x_m': xl, 'lateral_peak': lat[0],
             'lateral_peak_x_m': float(xl[k]),
             'lateral_offset_spacings': float(abs(xl[k] - X) / spacing),
             'axial_peak_z_m': float(zl[int(np.argmax(ax[:, 0]))])}

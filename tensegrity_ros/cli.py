@@ -302,7 +302,9 @@ def lens_result(scene, focus, speed, v0, dims=2, recorder=None):
                   p_focus=rep['p_focus'], p_focus_uniform=rep_u['p_focus'],
                   lateral_peak_x_m=rep['lateral_peak_x_m'],
                   lateral_offset_spacings=rep['lateral_offset_spacings'],
-                  axial_peak_z_m=rep['axial_peak_z_m'], rise_mean_s=float(np.mean(rise)),
+                  axial_peak_z_m=rep['axial_peak_z_m'], peak_xz_m=list(rep['peak_xz_m']),
+                  peak_offset_spacings=rep['peak_offset_spacings'],
+                  rise_mean_s=float(np.mean(rise)),
                   cached_map=plan.cached,
                   _field={'x': xs, 'z': zs, 'peak': pk, 'uniform': pu, 'bases': xs_b,
                           'lateral_x': rep['lateral_x_m'], 'lateral': rep['lateral_peak'],
@@ -359,6 +361,9 @@ def format_lens(r):
     lines.append(f"  field ({r['dims']}D): across depth {Z:g} m the peak lies at x = "
                  f"{r['lateral_peak_x_m']:.3f} m ({r['lateral_offset_spacings']:.2f} column "
                  f"spacings from X); along x = {X:g} m at depth {r['axial_peak_z_m']:.3f} m")
+    px, pz = r['peak_xz_m']
+    lines.append(f"  the field's peak down to depth {2 * Z:g} m: ({px:.3f}, {pz:.3f}) m, "
+                 f"{r['peak_offset_spacings']:.2f} column spacings from F")
     lines.append(f"  focal gain {'n/a' if gain is None else f'{gain:.3f}'} (peak at F against "
                  f"the same array at uniform prestrain {r['uniform_prestrain']:.5f})")
     for key in ('plot', 'rerun'):
@@ -580,8 +585,8 @@ def build_parser():
                    help='focus the lens array at X,Z m (x along the array, depth z > 0) with '
                         '~/cmd/focus instead of an impact: prints the plan, the arrivals the '
                         'node measures and the focal gain')
-    p.add_argument('--medium-speed', type=float, default=1.5, metavar='C',
-                   help='wave speed of the host medium for --focus, m/s (default 1.5)')
+    p.add_argument('--medium-speed', type=float, default=1.0, metavar='C',
+                   help='wave speed of the host medium for --focus, m/s (default 1.0)')
     p.add_argument('--prestrain', help='prestrain before the impact, or one per column')
     p.add_argument('--duration', type=float, default=1.2,
                    help='simulated seconds collected after the impact (default 1.2)')

@@ -401,7 +401,8 @@ def run_focus_demo(focus, scene_file='config/scenes/lens_focus.yaml', speed=1.5,
     v0 = float(d['focus_v0'])
     p_u = float(np.mean(prestrain))
     tu, bu, _ = lens.simulate(scene, np.full(len(xs), p_u), v0)
-    ref = field.focus_report(tu, bu, xs, focus, speed, scene['structure.column_spacing'], dims)
+    ref = field.focus_report(tu, bu, xs, focus, speed, scene['structure.column_spacing'], dims,
+                             plane=False)
     p_f = float(d['focus_peak_pressure'])
     image = cmd.fields[-1][1] if cmd.fields else None
     summary = {

@@ -27,7 +27,7 @@ DEFAULTS = {
     'diagnostics_rate_hz': 2.0,
     'start_paused': False,       # start with the clock stopped; ~/set_running starts it
     'autostart': True,           # configure and activate at start-up (else: ~/change_state)
-    'medium_speed_m_s': 2.0,     # wave speed of the host medium for ~/cmd/focus
+    'medium_speed_m_s': 1.0,     # wave speed of the host medium for ~/cmd/focus
     'field_rate_hz': 2.0,        # ~/field per wall second (arrays, after an impact); 0 = none
 }
 DESCRIPTIONS = {

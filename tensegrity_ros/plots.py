@@ -72,6 +72,8 @@ def lens_field(result, path):
         ax.plot(f['bases'], np.zeros_like(f['bases']) + zs[0], 'v', color='cyan', ms=7,
                 label='column bases')
         ax.plot([X], [Z], '+', color='lime', ms=14, mew=2, label='focus')
+        if key == 'peak':
+            ax.plot(*result['peak_xz_m'], 'x', color='white', ms=9, mew=2, label='field peak')
         ax.set_xlabel('x (m)')
         ax.set_title(name)
     axes[1].sharey(axes[0])
@@ -92,8 +94,9 @@ def lens_field(result, path):
     gain = result['focal_gain']
     fig.suptitle(f"peak pressure in the medium ({result['dims']}D), C = "
                  f"{result['medium_speed_m_s']:g} m/s, focus ({X:g}, {Z:g}) m: focal gain "
-                 f"{'n/a' if gain is None else f'{gain:.2f}'}, peak across the focal depth "
-                 f"{result['lateral_offset_spacings']:.2f} spacings from the focus")
+                 f"{'n/a' if gain is None else f'{gain:.2f}'}; field peak "
+                 f"{result['peak_offset_spacings']:.2f} spacings from the focus, across the "
+                 f"focal depth {result['lateral_offset_spacings']:.2f}")
     fig.savefig(path, dpi=100)
     plt.close(fig)
     return path
