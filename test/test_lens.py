@@ -113,19 +113,25 @@ OFF_AXIS = (0.13, 0.12)     # m: off the array's axis (x = 0.08 m), 1 spacing fr
 OFF_AXIS_SPEED = 1.5        # m/s: the delay law spans 37.7 ms of the 49.4 ms the range gives
 
 
-@pytest.fixture(scope='module')
-def off_axis(scene):
-    """The scene's nine columns focused off their axis: the plan, its check, the field's figures
-    and those of the same array at the mean prestrain."""
+def _focused(focus, speed):
+    """The scene's nine columns focused at ``focus`` in a medium of ``speed`` (2D field): the
+    scene, the plan, the field's figures of its check run and those of the same array at the
+    mean prestrain."""
     full = Scene.load('config/scenes/lens_focus.yaml')
-    plan = lens.design(full, OFF_AXIS, OFF_AXIS_SPEED, 0.1)
+    plan = lens.design(full, focus, speed, 0.1)
     t, b = lens.check(full, plan)
     p_u = np.mean([c['prestrain'] for c in plan.columns])
     tu, bu, _ = lens.simulate(full, np.full(9, p_u), 0.1)
     xs = lens.base_x(full)
     spacing = full['structure.column_spacing']
-    return (full, plan, field.focus_report(t, b, xs, OFF_AXIS, OFF_AXIS_SPEED, spacing),
-            field.focus_report(tu, bu, xs, OFF_AXIS, OFF_AXIS_SPEED, spacing))
+    return (full, plan, field.focus_report(t, b, xs, focus, speed, spacing),
+            field.focus_report(tu, bu, xs, focus, speed, spacing))
+
+
+@pytest.fixture(scope='module')
+def off_axis(scene):
+    """Focused off the array's axis (the cache of ``scene``)."""
+    return _focused(OFF_AXIS, OFF_AXIS_SPEED)
 
 
 def test_off_axis_focus_meets_the_delay_law(off_axis):
@@ -159,18 +165,9 @@ NEAR_SPEED = 1.0            # m/s: the delay law spans 40 ms of the 49.4 ms the 
 
 
 @pytest.fixture(scope='module')
-def near():
-    """The scene's nine columns focused on their axis close to the surface (2D field): the plan,
-    its check run and the field's figures, with those of the array at the mean prestrain."""
-    full = Scene.load('config/scenes/lens_focus.yaml')
-    plan = lens.design(full, NEAR, NEAR_SPEED, 0.1)
-    t, b = lens.check(full, plan)
-    p_u = np.mean([c['prestrain'] for c in plan.columns])
-    tu, bu, _ = lens.simulate(full, np.full(9, p_u), 0.1)
-    xs = lens.base_x(full)
-    spacing = full['structure.column_spacing']
-    return (full, plan, field.focus_report(t, b, xs, NEAR, NEAR_SPEED, spacing),
-            field.focus_report(tu, bu, xs, NEAR, NEAR_SPEED, spacing))
+def near(scene):
+    """Focused on the array's axis close to the surface (the cache of ``scene``)."""
+    return _focused(NEAR, NEAR_SPEED)
 
 
 def test_near_focus_field_peaks_within_one_spacing_of_the_focus(near):
