@@ -254,6 +254,7 @@ class TensegritySim(LifecycleNode):
                 ('~/cmd/impact', Float64MultiArray, self._on_impact),
                 ('~/cmd/prestrain', Float64MultiArray, self._on_prestrain),
                 ('~/cmd/focus', PointStamped, self._on_focus))]
+        self._check_qos_overrides()
         self.focus = None              # the last focus plan (dict) and its state
         self._focus_impact_at = None   # sim time of the planned impact, while it is ahead
         self._record = None            # lens_record.ImpactRecord of the last impact of an array
@@ -284,6 +285,26 @@ class TensegritySim(LifecycleNode):
             f'{self.sim.model.name} + {self.sim.integrator.name}, dt = {self.sim.dt:g} s, '
             f'publishing at {self.params["publish_rate_hz"]:g} Hz, real-time factor '
             f'{self.params["real_time_factor"]:g}')
+
+    def _check_qos_overrides(self):
+        """A ``qos_overrides.*`` parameter that no publisher or subscription declared (a
+        misspelled topic, entity or policy) is an error naming it and the valid ones; what
+        configure built so far is destroyed again."""
+        bad = sorted(n for n in self._parameter_overrides
+                     if n.startswith('qos_overrides.') and not self.has_parameter(n))
+        if not bad:
+            return
+        valid = sorted(n for n in self._parameters if n.startswith('qos_overrides.'))
+        for pub in self._pubs.values():
+            self.destroy_publisher(pub)
+        for sub, _ in self._cmd_subs:
+            self.destroy_subscription(sub)
+        self._pubs, self._cmd_subs, self.sim = {}, [], None
+        raise ParameterError(
+            f'unknown QoS override{"s" if len(bad) > 1 else ""} {", ".join(bad)}: no publisher '
+            f'or subscription of this node has {"them" if len(bad) > 1 else "it"} (valid: '
+            f'qos_overrides.<topic>.<publisher|subscription>.<history|depth|reliability|'
+            f'durability>, e.g. {valid[0] if valid else "none"}; {len(valid)} in all)')
 
     # -- hooks for recorders --------------------------------------------------------------------
     def add_sink(self, sink=None, frame_sink=None, event_sink=None, close=None, takes_bytes=False,

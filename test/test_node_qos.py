@@ -97,3 +97,34 @@ def test_a_late_subscriber_gets_the_structure(node_from_file):
     np.testing.assert_allclose(s['rest_length'], net.cable_rest_length, rtol=1e-12)
     np.testing.assert_allclose(np.reshape(s['x0'], (-1, 3)), net.x0, rtol=0, atol=1e-15)
     assert len(got) == 1                       # one message, not a stream
+
+
+def test_a_misspelled_qos_override_is_an_error_naming_it():
+    """An override no publisher or subscription declares (a topic misspelled) stops configure
+    with one message naming it; nothing it would have built stays: no publisher is left, and
+    configure succeeds once the parameter is gone."""
+    from rclpy.lifecycle import TransitionCallbackReturn
+    from rclpy.parameter import Parameter
+    from tensegrity_ros.node_params import ParameterError
+    bad = f'qos_overrides.{BASE}/nodez.publisher.reliability'
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=DOMAIN)
+    try:
+        with pytest.raises(ParameterError, match=bad.replace('.', r'\.')) as err:
+            TensegritySim(context=ctx, parameter_overrides=[
+                Parameter('scene_file', value=SCENE), Parameter(bad, value='best_effort')])
+        assert 'publisher|subscription' in str(err.value)
+        node = TensegritySim(context=ctx, parameter_overrides=[
+            Parameter('scene_file', value=SCENE), Parameter('autostart', value=False),
+            Parameter(bad, value='best_effort')])
+        assert node.trigger_configure() == TransitionCallbackReturn.FAILURE
+        assert node.count_publishers(f'{BASE}/nodes') == 0 and node.sim is None
+        node.destroy_node()
+        good = TensegritySim(context=ctx, parameter_overrides=[
+            Parameter('scene_file', value=SCENE), Parameter('autostart', value=False)])
+        assert good.trigger_configure() == TransitionCallbackReturn.SUCCESS
+        assert good.count_publishers(f'{BASE}/nodes') == 1
+        good.close()
+        good.destroy_node()
+    finally:
+        rclpy.shutdown(context=ctx)
