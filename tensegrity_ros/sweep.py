@@ -397,7 +397,10 @@ def execute(sweep, cluster=None, progress=None, task=run_point, on_row=None, chu
                     finish(task(sweep.scene, sweep.overrides(p), pid), fh)
             elif todo:
                 from distributed import as_completed
-                scene = cluster.client.scatter(sweep.scene, broadcast=True)
+                # the scene (about 1 kB pickled) travels inside each task: scattered data lives
+                # only on the workers that hold it and is lost for good when they die, a task's
+                # arguments go again with its retry
+                scene = sweep.scene
                 batches = chunks(todo, cluster.n_workers, chunk)
                 futures = {cluster.client.submit(run_batch, task, scene,
                                                  [(pid, sweep.overrides(p)) for pid, p in b],
