@@ -1,7 +1,7 @@
 """tensegrity_ros: impact waves in tensegrity metamaterials, streamed over ROS 2."""
 from glob import glob
 
-from setuptools import setup
+from setuptools import find_packages, setup
 
 package_name = 'tensegrity_ros'
 
@@ -38,7 +38,7 @@ CORE = [
 setup(
     name=package_name,
     version='0.1.0',
-    packages=['solver', package_name, 'bench'],
+    packages=find_packages(include=['solver', 'solver.*', package_name, package_name + '.*']),
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
@@ -60,7 +60,7 @@ setup(
     entry_points={
         'console_scripts': [
             'tensegrity = tensegrity_ros.cli:main',
-            'tensegrity_node = tensegrity_ros.node:main',
+            'tensegrity_node = tensegrity_ros.node.node:main',
         ],
     },
 )

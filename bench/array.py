@@ -19,8 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
-from solver.scene import Scene
-from solver.simulation import Simulation
+from solver.build.scene import Scene
+from solver.simulate.simulation import Simulation
 
 from .common import COLUMNS, write_csv
 

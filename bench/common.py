@@ -13,9 +13,9 @@ from pathlib import Path
 
 import numpy as np
 
-from solver import models
-from solver.scene import Scene
-from solver.simulation import Simulation, SimulationDiverged
+from solver.models import family as models
+from solver.build.scene import Scene
+from solver.simulate.simulation import Simulation, SimulationDiverged
 
 ROOT = Path(__file__).resolve().parents[1]
 COLUMNS = {'FB': ROOT / 'config' / 'scenes' / 'fb_column.yaml',

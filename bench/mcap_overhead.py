@@ -5,10 +5,10 @@
 
 The same simulation runs from its impact to ``run.t_end`` at ``run.output_dt``, alternately plain
 and recording (recorder opened, the impact command, every frame's messages built by
-:mod:`tensegrity_ros.messages` and written, file closed), ``repeats`` pairs after one discarded
+:mod:`tensegrity_ros.msgs.messages` and written, file closed), ``repeats`` pairs after one discarded
 warm-up pair. Reports the overhead ``recorded / plain - 1`` of wall and process CPU time (all
 threads) as the median over pairs, the file size per simulated second and per frame, and the time
-:func:`~tensegrity_ros.loader.load_run` takes relative to the plain run. Only ratios measured in
+:func:`~tensegrity_ros.io.mcap_reader.load_run` takes relative to the plain run. Only ratios measured in
 the same process are reported: the machine may be busy. The figures go to ``--out`` (JSON) with
 the host's load average at the start.
 """
@@ -25,9 +25,9 @@ from pathlib import Path
 
 
 def _one(sim, scene, path):
-    from solver.runner import run
-    from tensegrity_ros.mcap_run import FrameLog, marker_every
-    from tensegrity_ros.recording import McapRecorder
+    from solver.simulate.runner import run
+    from tensegrity_ros.io.mcap_frames import FrameLog, marker_every
+    from tensegrity_ros.io.mcap_writer import McapRecorder
 
     v0 = scene['loading.impact.v0']
     t_end, output_dt = scene['run.t_end'], scene['run.output_dt']
@@ -46,9 +46,9 @@ def _one(sim, scene, path):
 
 def measure(scene_path='config/scenes/fb_column.yaml', repeats=3, log=print):
     """Dict of median ratios and sizes (see the module docstring)."""
-    from solver.scene import Scene
-    from solver.simulation import Simulation
-    from tensegrity_ros.loader import load_run
+    from solver.build.scene import Scene
+    from solver.simulate.simulation import Simulation
+    from tensegrity_ros.io.mcap_reader import load_run
 
     scene = Scene.load(scene_path)
     sim = Simulation(scene)

@@ -33,7 +33,7 @@ from pathlib import Path
 LISTENER = '''
 import rclpy, sys
 from rclpy.executors import SingleThreadedExecutor
-from tensegrity_ros.commander import Commander
+from tensegrity_ros.node.demo import Commander
 rclpy.init()
 c = Commander()
 c.create_subscription(__import__('visualization_msgs.msg', fromlist=['MarkerArray']).MarkerArray,
@@ -84,7 +84,7 @@ def cost_breakdown(node, n=200):
     ``spin_once`` with a ready timer."""
     from rclpy.executors import SingleThreadedExecutor
 
-    from tensegrity_ros import messages as M
+    from tensegrity_ros.msgs import messages as M
     sim = node.sim
     sim.reset()
     sim.apply_impact(0.1)
@@ -127,7 +127,7 @@ def measure(scene='config/scenes/fb_column.yaml', window_s=3.0, rounds=3, subscr
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.parameter import Parameter
 
-    from tensegrity_ros.node import TensegritySim, load_simulation
+    from tensegrity_ros.node.node import TensegritySim, load_simulation
 
     domain_id = domain_id if domain_id is not None else 10 + os.getpid() % 20
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')

@@ -20,7 +20,7 @@ Every figure of docs/paper.md comes from the files this writes:
 5. ``strain_waves.png``: strain along the column at several times, per v0, for the identified FB
    and RB columns (the style of the paper's Figs. 2-3).
 
-Runs go through :func:`solver.runner.simulate` (as ``tensegrity run``) on a Dask LocalCluster.
+Runs go through :func:`solver.simulate.runner.simulate` (as ``tensegrity run``) on a Dask LocalCluster.
 """
 from __future__ import annotations
 
@@ -73,13 +73,13 @@ def residuals(figs_by_v0, speed_key):
 
 
 def _cluster(workers):
-    from tensegrity_ros.sweep import Cluster
+    from tensegrity_ros.studies.sweep import Cluster
     return Cluster(workers=workers) if (workers or 2) > 1 else None
 
 
 def family(out, cluster, quick=False):
     """The family sweep and its table of best points per combination."""
-    from tensegrity_ros.sweep import build, execute, progress_bar
+    from tensegrity_ros.studies.sweep import build, execute, progress_bar
     grids = [f'{k}={",".join(str(v) for v in vals)}' for k, vals in FAMILY.items()]
     if quick:
         grids[0] = 'structure.radius=0.0035,0.005'
@@ -118,7 +118,7 @@ def family(out, cluster, quick=False):
 
 def fit(out, cluster, quick=False):
     """``tensegrity fit`` over the family against the paper's FB figures."""
-    from tensegrity_ros import fit as fitmod
+    from tensegrity_ros.studies import fit as fitmod
     lo, hi = FAMILY['structure.radius'][0], FAMILY['structure.radius'][-1]
     choices = [f'{k}={",".join(FAMILY[k])}' for k in CHOICE_KEYS]
     problem = fitmod.build(FB, TARGET, [f'structure.radius={lo}:{hi}'], choices, t_end=T_END)
@@ -132,7 +132,7 @@ def fit(out, cluster, quick=False):
 def identified_overrides(scene_path=PAPER_FB):
     """The scene values of ``paper_fb.yaml`` that differ from ``fb_column.yaml`` (the identified
     choices), as ``--set`` pairs."""
-    from solver.scene import Scene
+    from solver.build.scene import Scene
     a, b = Scene.load(FB).data, Scene.load(scene_path).data
     out = {}
 
@@ -149,8 +149,8 @@ def identified_overrides(scene_path=PAPER_FB):
 def _runs(cluster, scene_path, cases):
     """Run ``cases`` (list of (label, overrides dict)) of ``scene_path`` at every v0; returns
     label -> v0 -> flat row."""
-    from tensegrity_ros.sweep import Sweep, execute
-    from solver.scene import Scene
+    from tensegrity_ros.studies.sweep import Sweep, execute
+    from solver.build.scene import Scene
     scene = Scene.load(scene_path)
     points, labels = [], []
     for label, sets in cases:
@@ -211,7 +211,7 @@ def sensitivity(out, cluster, quick=False):
 
 
 def _default(key):
-    from solver.scene import Scene
+    from solver.build.scene import Scene
     return Scene.load(FB)[key]
 
 
@@ -236,8 +236,8 @@ def figure(out):
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from solver.runner import simulate
-    from solver.scene import Scene
+    from solver.simulate.runner import simulate
+    from solver.build.scene import Scene
     times = (0.1, 0.3, 0.5, 0.7)
     fig, axes = plt.subplots(2, 3, figsize=(14, 6.5), sharex=True, constrained_layout=True)
     for row, (path, name) in enumerate(((PAPER_FB, 'FB'), (PAPER_RB, 'RB'))):
@@ -268,7 +268,7 @@ def figure(out):
 def speed_ratios(out):
     """speed(v0 = 0.15) / speed(v0 = 0.1) of every member of the family sweep, both readings;
     the paper's is 1.5. Returns (rows sorted by ratio, best first)."""
-    from tensegrity_ros.sweep import read_rows
+    from tensegrity_ros.studies.sweep import read_rows
     groups = {}
     for r in read_rows(out / 'family').values():
         key = tuple(r[k] for k in ('structure.radius', *CHOICE_KEYS))

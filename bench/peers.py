@@ -29,10 +29,12 @@ from pathlib import Path
 
 import numpy as np
 
-from solver import integrators, models
-from solver.observables import track_pulse
-from solver.scene import Scene
-from solver.simulation import Simulation, SimulationDiverged
+from solver.integrators import registry as integrators
+
+from solver.models import family as models
+from solver.analysis.observables import track_pulse
+from solver.build.scene import Scene
+from solver.simulate.simulation import Simulation, SimulationDiverged
 
 from . import peers_report
 
@@ -241,7 +243,7 @@ def search_mujoco(network, ref, t_end, ladder, rows, log):
 
 def search_scipy(network, x, v, ref, t_end, rtols, rows, log):
     """Loosest rtol meeting the target (``rtols`` from loose to tight)."""
-    from solver.observables import prism_strains
+    from solver.analysis.observables import prism_strains
 
     from .peers_scipy import ScipyColumn
     sc = ScipyColumn(network)

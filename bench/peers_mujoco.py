@@ -184,7 +184,7 @@ class MujocoColumn:
         return out
 
     def strain(self):
-        from solver.observables import prism_strains
+        from solver.analysis.observables import prism_strains
         return prism_strains(self.positions(), self.network.levels, self.network.h0)
 
     def impact(self, v0):

@@ -81,8 +81,8 @@ def _one(sim, scene, path, frames=None):
     """(wall s, CPU s of this process and of the recorder's helper process, main-thread CPU s,
     helper CPU s) of one run, plain (``path`` None) or recorded to ``path``; with ``frames`` (the
     run's frames), only recording those frames is timed."""
-    from solver.runner import frame_count, run
-    from tensegrity_ros.rerun_log import RerunRecorder
+    from solver.simulate.runner import frame_count, run
+    from tensegrity_ros.io.rerun_log import RerunRecorder
 
     v0 = scene['loading.impact.v0']
     t_end, output_dt = scene['run.t_end'], scene['run.output_dt']
@@ -109,16 +109,16 @@ def _one(sim, scene, path, frames=None):
 def measure(scene_path='config/scenes/fb_column.yaml', repeats=3, log=print, t_end=None):
     """List of dicts, one per measured pair: wall and CPU seconds plain / recorded, and ratios;
     also the time of the recording alone (the run's frames fed from memory), ``*_rec_only_s``."""
-    from solver.runner import run
-    from solver.scene import Scene
-    from solver.simulation import Simulation
+    from solver.simulate.runner import run
+    from solver.build.scene import Scene
+    from solver.simulate.simulation import Simulation
 
     scene = Scene.load(scene_path)
     if t_end is not None:
         scene = scene.with_overrides([('run.t_end', float(t_end))])
     sim = Simulation(scene)
     sim.advance(sim.dt)                       # compile (or load cached) kernels first
-    from tensegrity_ros import rerun_log  # noqa: F401
+    from tensegrity_ros.io import rerun_log  # noqa: F401
     gc.freeze()                               # as tensegrity run does before its run
     sim.reset()
     sim.apply_impact(scene['loading.impact.v0'], scene['loading.impact.columns'])
@@ -182,15 +182,15 @@ def import_cost(repeats=3):
     second figure shows the first-use costs the warm benchmark above does not see."""
     code = '\n'.join([
         'import gc, tempfile, time',
-        'from solver.scene import Scene',
-        'from solver.simulation import Simulation',
+        'from solver.build.scene import Scene',
+        'from solver.simulate.simulation import Simulation',
         "sim = Simulation(Scene.load('config/scenes/fb_column.yaml'))",
         'frames = []',
         'for _ in range(3):',
         '    frames.append(sim.frame())',
         '    sim.advance(0.005)',
         't0 = time.perf_counter()',
-        'from tensegrity_ros.rerun_log import RerunRecorder',
+        'from tensegrity_ros.io.rerun_log import RerunRecorder',
         't1 = time.perf_counter()',
         'gc.freeze()                       # as tensegrity run',
         'with tempfile.TemporaryDirectory() as tmp:',

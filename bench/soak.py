@@ -62,7 +62,7 @@ def _start_node(out, domain_id, mcap=True, rerun=True):
               'publish_rate_hz': PUBLISH_RATE_HZ,
               **({'record_mcap': str(out / 'soak.mcap')} if mcap else {}),
               **({'record_rerun': str(out / 'soak.rrd')} if rerun else {})}
-    cmd = [sys.executable, '-m', 'tensegrity_ros.node', '--ros-args']
+    cmd = [sys.executable, '-m', 'tensegrity_ros.node.node', '--ros-args']
     for k, v in params.items():
         cmd += ['-p', f'{k}:={v}']
     log = open(out / 'node.log', 'w')
@@ -97,8 +97,8 @@ def soak(duration_s=600.0, rate=1000.0, out_dir=None, domain_id=None, warmup_s=5
     from std_msgs.msg import Float64MultiArray
     from std_srvs.srv import SetBool, Trigger
 
-    from tensegrity_ros import cdr, messages
-    from tensegrity_ros.commander import spin_until, stop_process
+    from tensegrity_ros.msgs import cdr, messages
+    from tensegrity_ros.node.demo import spin_until, stop_process
 
     out = Path(out_dir) if out_dir else Path(tempfile.mkdtemp(prefix='soak-'))
     out.mkdir(parents=True, exist_ok=True)
@@ -111,7 +111,7 @@ def soak(duration_s=600.0, rate=1000.0, out_dir=None, domain_id=None, warmup_s=5
     base = messages.resolve_topic('~/').rstrip('/')
     # the client spends as little CPU as it can (it shares the cores with the node): no QoS event
     # handlers (each is polled on every executor cycle), commands published as CDR bytes
-    # (tensegrity_ros.cdr, the same message as messages.command_array)
+    # (tensegrity_ros.msgs.cdr, the same message as messages.command_array)
     quiet_pub = PublisherEventCallbacks(use_default_callbacks=False)
     quiet_sub = SubscriptionEventCallbacks(use_default_callbacks=False)
     pubs = {topic: client.create_publisher(Float64MultiArray, f'{base}/cmd/{topic}', qos,
@@ -287,7 +287,7 @@ def check_files(mcap, rrd):
 
 
 def _check_mcap(mcap):
-    from tensegrity_ros.loader import McapLog, cloud_xyz, multi_array_values
+    from tensegrity_ros.io.mcap_reader import McapLog, cloud_xyz, multi_array_values
     log = McapLog(mcap)
     frames = non_finite = diag = cmds = 0
     for m in log.messages():

@@ -20,7 +20,7 @@ The reference of each (column, v0, prestrain) is ``dopri54_projected`` with rtol
 Two maps. The first (``stability.csv``, ``stability.png``, ``stability_limits.csv``) runs the
 scenes as shipped, without contact: above 0.2-0.3 m/s every run, the reference included, ends in
 a physical failure. The second (``stability_contact.csv``, ``stability_contact.png``) runs the
-same grid with the prism stops of :mod:`solver.contact` (:data:`CONTACT`: ``contact.lock:
+same grid with the prism stops of :mod:`solver.kernels.contact` (:data:`CONTACT`: ``contact.lock:
 penalty`` at its documented stiffness 1e5 N/m and tolerance 0.05 h0) on a dt grid that starts
 lower (:data:`CONTACT_DTS`, the stop is a stiff spring), for the methods that run stops
 (``implicit_midpoint`` refuses them). ``stability_contact_limits.csv`` gives, per column,
@@ -63,7 +63,7 @@ SHORT = {'prism height': 'S', 'prism twist': 'L', 'energy': 'E', 'constraint err
          'state': 'N', 'rigid members': 'R', 'constraint projection': 'P', 'step size': 'H'}
 
 
-# the contact map: the prism stops at their documented stiffness and tolerance (solver/contact.py)
+# the contact map: the prism stops at their documented stiffness and tolerance (solver/kernels/contact.py)
 CONTACT = ('contact.lock=penalty', 'contact.stiffness=100000.0', 'contact.tolerance=0.05')
 CONTACT_LABEL = 'prism stops: contact.lock penalty, stiffness 1e5 N/m, tolerance 0.05 h0'
 CONTACT_METHODS = ('rk4_projected', 'rk4', 'rattle', 'dopri54_projected')  # implicit refuses stops

@@ -1,13 +1,13 @@
 """Parallel efficiency of ``tensegrity sweep``: a 64-point sweep of 1 s runs of the flexible-base
 column (v0 x prestrain, 8 x 8), once serially in this process and once on a 2-worker
-``LocalCluster``, with the same task function (:func:`tensegrity_ros.sweep.run_point`).
+``LocalCluster``, with the same task function (:func:`tensegrity_ros.studies.sweep.run_point`).
 
 Efficiency = (serial wall time / cluster wall time) / workers. Where the rest goes: the cluster's
 start (scheduler and worker processes, their imports), each worker's first task (numba cache
 load; the serial side pays the same load once, in its untimed first point, reported as
 ``serial_first_point_s``), and the scheduling overhead per point (cluster wall time minus the
 busiest worker's task time, per point). The cluster runs the points in batches
-(:func:`tensegrity_ros.sweep.chunks`). Written to ``sweep.json``.
+(:func:`tensegrity_ros.studies.sweep.chunks`). Written to ``sweep.json``.
 """
 from __future__ import annotations
 
@@ -23,7 +23,7 @@ PRESTRAINS = '0.0015:0.0035:8'
 
 
 def main(out, quick=False, log=print, workers=2):
-    from tensegrity_ros import sweep as sw
+    from tensegrity_ros.studies import sweep as sw
     grid = [f'loading.impact.v0={V0S}', f'prestrain={PRESTRAINS}']
     t_end = 1.0
     if quick:

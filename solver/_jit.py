@@ -4,7 +4,7 @@
 starts without compiling. Numba checks only the source file of a cached function itself, not the
 functions it calls in other modules, so a kernel of ``integrators.py`` would keep running the old
 ``dynamics.py`` code after an edit. The cache therefore lives in a folder named after a hash of
-every solver source file (and the numba version): any edit to the solver starts a fresh cache.
+every solver source file in every sub-package (and the numba version): any edit to the solver starts a fresh cache.
 
 No ``fastmath``: the benchmarks have not shown it is worth the loss of IEEE semantics (NaN
 detection relies on them).
@@ -17,12 +17,15 @@ from pathlib import Path
 import numba
 
 
-def _source_hash():
-    digest = hashlib.sha256(numba.__version__.encode())
-    for path in sorted(Path(__file__).parent.glob('*.py')):
-        digest.update(path.name.encode())
-        digest.update(path.read_bytes())
-    return digest.hexdigest()[:16]
+def source_hash(directory=Path(__file__).parent, salt=''):
+    """sha256 (hex) of ``salt`` and of the relative paths and contents of every ``*.py`` file
+    below ``directory``, sub-packages included."""
+    directory = Path(directory)
+    digest = hashlib.sha256(salt.encode())
+    for path in sorted(directory.rglob('*.py')):
+        digest.update(path.relative_to(directory).as_posix().encode() + b'\0')
+        digest.update(path.read_bytes() + b'\0')
+    return digest.hexdigest()
 
 
 def _writable(folder):
@@ -37,7 +40,7 @@ def _writable(folder):
 
 
 def _cache_dir():
-    tag = f'numba-{_source_hash()}'
+    tag = f'numba-{source_hash(salt=numba.__version__)[:16]}'
     if os.environ.get('NUMBA_CACHE_DIR'):
         return Path(os.environ['NUMBA_CACHE_DIR']) / f'tensegrity-{tag}'
     local = Path(__file__).parent / '__pycache__'

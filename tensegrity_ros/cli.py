@@ -30,8 +30,8 @@ def _progress(total, desc):
 def _open_mcap(stack, frame_sinks, scene, sim, path):
     """Record the run to ``path`` (MCAP, the node's topics); closed by ``stack``, also on SIGTERM.
     Logs the impact command applied before the run, then every output frame."""
-    from .mcap_run import FrameLog, marker_every, network_metadata
-    from .recording import McapRecorder, signals_as_interrupt
+    from tensegrity_ros.io.mcap_frames import FrameLog, marker_every, network_metadata
+    from tensegrity_ros.io.mcap_writer import McapRecorder, signals_as_interrupt
     stack.enter_context(signals_as_interrupt())
     recorder = stack.enter_context(McapRecorder(
         path, metadata=network_metadata(sim.network, scene.name)))
@@ -51,9 +51,9 @@ def _open_mcap(stack, frame_sinks, scene, sim, path):
 def _open_rerun(stack, frame_sinks, scene, sim, path=None, url=None):
     """Record the run to a Rerun ``.rrd`` at ``path`` and/or stream it to the viewer at ``url``;
     closed by ``stack``. Logs the impact applied before the run as a command event."""
-    from solver.runner import frame_count
+    from solver.simulate.runner import frame_count
 
-    from .rerun_log import RerunRecorder
+    from tensegrity_ros.io.rerun_log import RerunRecorder
     n_frames = frame_count(scene['run.t_end'], scene['run.output_dt'])
     recorder = stack.enter_context(RerunRecorder(sim.network, path, connect=url,
                                                  expected_frames=n_frames))
@@ -79,10 +79,10 @@ def run_overrides(args):
 
 
 def cmd_run(args):
-    from solver.runner import frame_count, simulate
+    from solver.simulate.runner import frame_count, simulate
 
     if args.rerun or args.rerun_connect:
-        from . import rerun_log
+        from tensegrity_ros.io import rerun_log
         rerun_log.prestart()     # the recorder's helper process starts while the run is set up
                                  # (the module is imported before the gc.freeze() below)
     outputs, ctx = {}, {}
@@ -99,7 +99,7 @@ def cmd_run(args):
         stack.callback(close)
         frame_sinks = []
         if args.mcap:
-            from . import mcap_run, recording  # noqa: F401
+            from tensegrity_ros.io import mcap_frames as mcap_run, mcap_writer as recording  # noqa: F401
         # The objects of the imports and the set-up (some 160 000) are moved out of the garbage
         # collector's reach: otherwise its first full collection, 50-80 ms holding the GIL, tends
         # to fall in the run (with a Rerun recording: in the recorder's start, measured)
@@ -117,7 +117,7 @@ def cmd_run(args):
     scene, rec, out_dir = point.scene, point.record, ctx['out_dir']
     v0 = scene['loading.impact.v0']
     if args.plot:
-        from .plots import strain_wave
+        from tensegrity_ros.studies.plots import strain_wave
         outputs['plot'] = str(strain_wave(rec, out_dir / 'strain_wave.png',
                                           title=f'{scene.name}: v0 = {v0} m/s'))
     result = point.summary
@@ -163,8 +163,8 @@ def cmd_bench(args):
 
 def cmd_replay(args):
     """``tensegrity replay RUN.mcap``: republish a log over ROS 2, or convert it to Rerun."""
-    from .loader import LogError, McapLog
-    from .replay import ReplayError, replay_main, to_rerun
+    from tensegrity_ros.io.mcap_reader import LogError, McapLog
+    from tensegrity_ros.node.replay import ReplayError, replay_main, to_rerun
     try:
         McapLog(args.log)
         if args.to_rerun:
@@ -186,12 +186,12 @@ def cmd_replay(args):
 
 
 def cmd_paper(args):
-    """``tensegrity paper``: the paper's table under every modelling variant (solver.paper)."""
-    from solver import paper
+    """``tensegrity paper``: the paper's table under every modelling variant (solver.studies.paper)."""
+    from solver.studies import paper
     models = ('sym3d',) if args.no_chain or args.set else ('sym3d', 'chain1d')
     sets = list(args.set or [])
     if sets:                 # checked on the FB scene before anything runs
-        from solver.scene import Scene
+        from solver.build.scene import Scene
         Scene.load(paper.SCENES / 'fb_column.yaml').with_overrides(sets)
     v0s = paper.V0S[:1] if args.quick else paper.V0S
     update, close = _progress(paper.n_runs(v0s, models), 'paper')
@@ -209,9 +209,9 @@ def cmd_paper(args):
 
 def cmd_lens(args):
     """``tensegrity lens SCENE --focus X,Z --medium-speed C``: the focusing design and its
-    check (solver.lens), the field in the medium (solver.field)."""
-    from solver import lens
-    from solver.scene import Scene
+    check (solver.studies.lens), the field in the medium (solver.analysis.field)."""
+    from solver.studies import lens
+    from solver.build.scene import Scene
     if not (args.medium_speed > 0 and args.medium_speed < float('inf')):
         raise UserError(f'--medium-speed: must be a positive number of m/s, got '
                         f'{args.medium_speed!r}')
@@ -232,12 +232,12 @@ def cmd_lens(args):
         result['rerun'] = str(args.rerun)
     out_dir = Path(args.out) if args.out else Path('runs') / f'{scene.name}_lens'
     if args.plot:
-        from .plots import lens_field
+        from tensegrity_ros.studies.plots import lens_field
         out_dir.mkdir(parents=True, exist_ok=True)
         result['plot'] = str(lens_field(result, out_dir / 'lens_field.png'))
     result.pop('_field')
     if args.json:
-        from solver.runner import json_safe
+        from solver.simulate.runner import json_safe
         print(json.dumps(json_safe(result), allow_nan=False))
     else:
         for line in format_lens(result):
@@ -247,11 +247,11 @@ def cmd_lens(args):
 
 def lens_recorder(scene, path):
     """A Rerun recorder of the lens array with the field grid of :func:`lens_field_grid`."""
-    from solver import lens
-    from solver.simulation import build_network
+    from solver.studies import lens
+    from solver.simulate.simulation import build_network
 
-    from .lens_record import grid_extent
-    from .rerun_log import RerunRecorder
+    from solver.studies.lens_record import grid_extent
+    from tensegrity_ros.io.rerun_log import RerunRecorder
     xs, zs = lens_field_grid(lens.base_x(scene))
     try:
         return RerunRecorder(build_network(scene), path, field_grid=grid_extent(xs, zs))
@@ -261,19 +261,21 @@ def lens_recorder(scene, path):
 
 def lens_field_grid(base_x):
     """The grid of the field images: that of the node's ``~/field`` (lens_record.IMAGE_SHAPE)."""
-    from solver import field
+    from solver.analysis import field
 
-    from .lens_record import IMAGE_SHAPE
+    from solver.studies.lens_record import IMAGE_SHAPE
     return field.image_grid(base_x, n_x=IMAGE_SHAPE[1], n_z=IMAGE_SHAPE[0])
 
 
 def lens_result(scene, focus, speed, v0, dims=2, recorder=None):
-    """The plan, its check, the field's figures at the focus (solver.field.focus_report) and the
+    """The plan, its check, the field's figures at the focus (solver.analysis.field.focus_report) and the
     focal gain of a focus, the maps for the plot (a dict). ``recorder``: a RerunRecorder of the
     array (:func:`lens_recorder`) that gets the check run's frames and the field over time."""
     import numpy as np
 
-    from solver import field, lens
+    from solver.analysis import field
+
+    from solver.studies import lens
     plan = lens.design(scene, focus, speed, v0)
     frame_dt = scene['run.output_dt']
     t, b = lens.check(scene, plan, None if recorder is None else recorder.frame, frame_dt)
@@ -314,11 +316,11 @@ def lens_result(scene, focus, speed, v0, dims=2, recorder=None):
 
 def _record_field(recorder, t, b, base_x, speed, dims, frame_dt):
     """The field over ``sim_time`` into ``recorder``: at every frame time the peak pressure up to
-    then (solver.field.PeakMap on the recorded base forces) and the pressure then, and once more
+    then (solver.analysis.field.PeakMap on the recorded base forces) and the pressure then, and once more
     when the record's end has passed the whole grid, all over the largest peak pressure."""
     import numpy as np
 
-    from solver import field
+    from solver.analysis import field
     xs, zs = lens_field_grid(base_x)
     X, Z = np.meshgrid(xs, zs)
     pts = np.stack([X.ravel(), Z.ravel()], axis=1)
@@ -374,7 +376,7 @@ def format_lens(r):
 
 def cmd_node(args):
     """``tensegrity node [--ros-args ...]``: the ROS 2 node, as ``tensegrity_node``."""
-    from .node import main as node_main
+    from tensegrity_ros.node.node import main as node_main
     ros_args = ['--ros-args', *args.ros_args] if args.ros_args else []
     return node_main(['tensegrity_node', *ros_args])
 
@@ -388,7 +390,7 @@ def cmd_demo(args):
         int(os.environ['ROS_DOMAIN_ID']) if os.environ.get('ROS_DOMAIN_ID') else None)
     if args.focus is not None:
         return _demo_focus(args, domain)
-    from .commander import format_summary, run_demo
+    from tensegrity_ros.node.demo import format_summary, run_demo
     try:
         v0 = [float(v) for v in args.v0.split(',')]
         prestrain = None if args.prestrain is None else [float(p) for p in
@@ -415,9 +417,9 @@ FOCUS_SCENE = 'config/scenes/lens_focus.yaml'
 def _demo_focus(args, domain):
     import os
 
-    from solver import lens
+    from solver.studies import lens
 
-    from .commander import format_focus_summary, run_focus_demo
+    from tensegrity_ros.node.demo import format_focus_summary, run_focus_demo
     focus = lens.parse_focus(args.focus)
     if not focus[1] > 0:
         raise UserError(f'--focus: the depth Z must be > 0, got {focus[1]:g}')
@@ -439,8 +441,8 @@ def _demo_focus(args, domain):
 
 
 def cmd_sweep(args):
-    """``tensegrity sweep``: one run per point of a grid, on Dask (tensegrity_ros.sweep)."""
-    from . import sweep
+    """``tensegrity sweep``: one run per point of a grid, on Dask (tensegrity_ros.studies.sweep)."""
+    from tensegrity_ros.studies import sweep
     try:
         return sweep.main(args)
     except sweep.SweepError as exc:
@@ -448,9 +450,9 @@ def cmd_sweep(args):
 
 
 def cmd_fit(args):
-    """``tensegrity fit``: scene values that reproduce target figures (tensegrity_ros.fit)."""
-    from . import fit
-    from .sweep import SweepError
+    """``tensegrity fit``: scene values that reproduce target figures (tensegrity_ros.studies.fit)."""
+    from tensegrity_ros.studies import fit
+    from tensegrity_ros.studies.sweep import SweepError
     try:
         return fit.main(args)
     except SweepError as exc:
@@ -602,9 +604,9 @@ def build_parser():
 
 
 def main(argv=None):
-    from solver.network import NetworkError
-    from solver.scene import SceneError
-    from solver.simulation import SimulationDiverged
+    from solver.build.network import NetworkError
+    from solver.build.scene import SceneError
+    from solver.simulate.simulation import SimulationDiverged
 
     parser = build_parser()
     args = parser.parse_args(argv)

@@ -13,8 +13,8 @@ FLOAT32_TYPES = ('float', 'sequence<float>')
 
 def small_network(n_prisms=3):
     """The network of the prism scene stacked to ``n_prisms`` (no time stepping, no numba)."""
-    from solver.scene import Scene
-    from solver.simulation import build_network
+    from solver.build.scene import Scene
+    from solver.simulate.simulation import build_network
     scene = Scene.load(ROOT / 'config' / 'scenes' / 'prism.yaml')
     return build_network(scene.with_overrides([('structure.n_prisms', n_prisms)]))
 
@@ -22,7 +22,7 @@ def small_network(n_prisms=3):
 def synthetic_frames(net, n, dt=0.01, seed=0):
     """``n`` frames with known, distinct values (not from the solver): positions x0 + noise,
     strain, tension and base force random (some cables slack), t = k * dt."""
-    from solver.simulation import Frame
+    from solver.simulate.simulation import Frame
     rng = np.random.default_rng(seed)
     frames = []
     for k in range(n):
@@ -64,8 +64,8 @@ class Capture:
 def record_frames(path, frames, net, marker_every=2, with_network=True, **kw):
     """Write ``frames`` and an impact command (t = 0) with FrameLog (and the network metadata
     unless ``with_network`` is false); returns what was written."""
-    from tensegrity_ros.mcap_run import FrameLog, network_metadata
-    from tensegrity_ros.recording import McapRecorder
+    from tensegrity_ros.io.mcap_frames import FrameLog, network_metadata
+    from tensegrity_ros.io.mcap_writer import McapRecorder
     meta = network_metadata(net, 'test') if with_network else None
     with McapRecorder(path, metadata=meta, **kw) as rec:
         cap = Capture(rec)

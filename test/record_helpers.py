@@ -4,8 +4,8 @@ from mcap_helpers import small_network, synthetic_frames
 
 
 def record_long(path, n, n_prisms=3, chunk_size=4096):
-    from tensegrity_ros.mcap_run import FrameLog, network_metadata
-    from tensegrity_ros.recording import McapRecorder
+    from tensegrity_ros.io.mcap_frames import FrameLog, network_metadata
+    from tensegrity_ros.io.mcap_writer import McapRecorder
     net = small_network(n_prisms)
     with McapRecorder(path, chunk_size=chunk_size,
                       metadata=network_metadata(net, 'synthetic')) as rec:

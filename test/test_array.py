@@ -4,9 +4,9 @@ column (bit for bit), splits, expansion of one column, divergence naming its col
 import numpy as np
 import pytest
 
-from solver.array import ArraySimulation
-from solver.scene import Scene
-from solver.simulation import Simulation, SimulationDiverged
+from solver.simulate.array import ArraySimulation
+from solver.build.scene import Scene
+from solver.simulate.simulation import Simulation, SimulationDiverged
 
 LENS = 'config/scenes/lens_array.yaml'
 

@@ -1,4 +1,4 @@
-"""Strikers, prism stops and cable damping (solver/contact.py), each against an independent
+"""Strikers, prism stops and cable damping (solver/kernels/contact.py), each against an independent
 reference: the analytic two-mass collision, the analytic damped oscillator, the exact symmetric
 reduction, and invariants (energy, momentum, bar lengths, the lock)."""
 import hashlib
@@ -7,10 +7,16 @@ import math
 import numpy as np
 import pytest
 
-from solver import contact, integrators, models, structures
-from solver.runner import run
-from solver.scene import Scene, SceneError
-from solver.simulation import Simulation, prism_twists
+from solver.kernels import contact
+
+from solver.integrators import registry as integrators
+
+from solver.models import family as models
+
+from solver.build import structures
+from solver.simulate.runner import run
+from solver.build.scene import Scene, SceneError
+from solver.simulate.simulation import Simulation, prism_twists
 
 SCENES = 'config/scenes'
 

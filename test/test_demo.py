@@ -7,10 +7,12 @@ import pytest
 
 rclpy = pytest.importorskip('rclpy')
 
-from solver import observables, runner  # noqa: E402
-from solver.scene import Scene  # noqa: E402
-from solver.simulation import Simulation  # noqa: E402
-from tensegrity_ros.commander import (demo_domain_id, run_demo,  # noqa: E402
+from solver.analysis import observables  # noqa: E402
+
+from solver.simulate import runner
+from solver.build.scene import Scene  # noqa: E402
+from solver.simulate.simulation import Simulation  # noqa: E402
+from tensegrity_ros.node.demo import (demo_domain_id, run_demo,  # noqa: E402
                                       stamped_strain)
 
 SCENE = 'config/scenes/fb_column.yaml'
@@ -50,7 +52,7 @@ def test_demo_matches_the_headless_run(tmp_path, headless):
 def test_strain_stamps_come_from_the_matching_cloud():
     """Each float64 strain message gets the stamp of the cloud of the same frame; one whose cloud
     was dropped is left out; the float32 cloud's own strain differs by its rounding."""
-    from solver.simulation import build_network
+    from solver.simulate.simulation import build_network
     net = build_network(Scene.load(SCENE))
     sim = Simulation(Scene.load(SCENE))
     sim.apply_impact(0.1)
@@ -83,7 +85,7 @@ def test_demo_focus_prints_the_plan_measured_arrivals_and_gain(tmp_path, monkeyp
     from rerun.chunk import RrdReader
 
     from mcap.reader import make_reader
-    from solver import lens
+    from solver.studies import lens
     from tensegrity_ros.cli import main
     monkeypatch.setenv('TENSEGRITY_CACHE', str(tmp_path / 'cache'))
     small = Scene.load('config/scenes/lens_focus.yaml').with_overrides(

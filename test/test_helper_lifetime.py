@@ -20,7 +20,7 @@ OWNER = '''
 import os, sys, time
 sys.path.insert(0, {test!r})
 from mcap_helpers import small_network, synthetic_frames
-from tensegrity_ros.rerun_log import RerunRecorder
+from tensegrity_ros.io.rerun_log import RerunRecorder
 net = small_network(3)
 rec = RerunRecorder(net, {path!r}, flush_every=50, max_latency_s=1e9)
 for f in synthetic_frames(net, 120, dt=0.005):
@@ -83,8 +83,8 @@ import sys
 sys.path.insert(0, {str(ROOT / 'test')!r})
 import psutil
 from mcap_helpers import small_network, synthetic_frames
-from tensegrity_ros import rerun_log
-from tensegrity_ros.rerun_log import RerunRecorder
+from tensegrity_ros.io import rerun_log
+from tensegrity_ros.io.rerun_log import RerunRecorder
 net = small_network(3)
 frames = synthetic_frames(net, 30, dt=0.005)
 pids = set()

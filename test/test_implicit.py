@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from solver import integrators
-from solver.scene import Scene
-from solver.simulation import Simulation, SimulationDiverged
+from solver.integrators import registry as integrators
+from solver.build.scene import Scene
+from solver.simulate.simulation import Simulation, SimulationDiverged
 
 ROOT = Path(__file__).resolve().parents[1]
 PRISM = Scene.load(ROOT / 'config' / 'scenes' / 'prism.yaml')

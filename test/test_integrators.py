@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from solver import integrators
-from solver.scene import Scene, SceneError
-from solver.simulation import Simulation, SimulationDiverged
+from solver.integrators import registry as integrators
+from solver.build.scene import Scene, SceneError
+from solver.simulate.simulation import Simulation, SimulationDiverged
 
 ROOT = Path(__file__).resolve().parents[1]
 PRISM = Scene.load(ROOT / 'config' / 'scenes' / 'prism.yaml')
@@ -67,7 +67,7 @@ def test_adaptive_tolerances_are_validated():
 def test_dormand_prince_tableau_is_consistent():
     """Row sums equal the nodes, both weight rows sum to 1, and the 5th-order weights satisfy the
     order conditions sum b c^k = 1 / (k + 1) for k < 5 (independent of the step code)."""
-    from solver import adaptive
+    from solver.integrators import dopri as adaptive
     A, b, c, e = adaptive.A, adaptive.B, adaptive.C, adaptive.E
     assert np.allclose(A[:, :6].sum(axis=1)[1:], c[1:], atol=1e-15)
     assert math.isclose(b.sum(), 1.0, rel_tol=1e-14)

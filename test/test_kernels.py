@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 import twins
-from solver import dynamics as dyn
-from solver import structures
+from solver.kernels import dynamics as dyn
+from solver.build import structures
 
 
 def _networks():
@@ -125,7 +125,7 @@ def test_state_summary_matches_twin(name):
     """dynamics.state_summary (one pass: energy, constraint error, prism heights) against NumPy:
     kinetic energy with the dense mass matrix, cable strain energy, the work of external forces,
     mean level heights and the constraint error of each rigid member."""
-    from solver.models import full_summary_arrays
+    from solver.models.family import full_summary_arrays
     net = NETWORKS[name]
     x, v = _state(net, 11, amp=5e-4)
     rest, EA = np.array(net.cable_rest_length), 1.3 * np.array(net.cable_EA)

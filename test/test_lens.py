@@ -4,8 +4,10 @@ the focal depth; an unreachable focus named by column and range, bad input rejec
 import numpy as np
 import pytest
 
-from solver import field, lens
-from solver.scene import Scene
+from solver.analysis import field
+
+from solver.studies import lens
+from solver.build.scene import Scene
 
 SETS = ['structure.n_columns=5', 'lens.grid=7']        # the scene's 30-prism columns, 0.6 s
 
@@ -75,8 +77,8 @@ def test_the_design_times_the_solitary_strain_pulse(scene, prestrain):
     """The arrival the design uses is the strain pulse's: the base force peaks when the largest
     compression of the clamped end's prism does (within two output steps), several times above
     the first, faster front, which reaches the base in less than 60 % of the time."""
-    from solver.simulation import Simulation
-    from solver.support import first_arrival, pulse_arrival
+    from solver.simulate.simulation import Simulation
+    from solver.analysis.support import first_arrival, pulse_arrival
     one = scene.with_overrides(['structure.n_columns=1', f'prestrain={prestrain}'])
     sim = Simulation(one)
     sim.apply_impact(0.1)
@@ -95,7 +97,7 @@ def test_short_column_times_its_first_pulse_not_the_larger_one_after_it(scene):
     """On 10 prisms the solitary pulse follows the first, faster front closely and pushes 25
     times harder at low prestrain; the first arrival is still the front's: a third of the prisms
     are crossed in less than half the time of 30, at every prestrain of the range."""
-    from solver.support import first_arrival
+    from solver.analysis.support import first_arrival
     p = np.geomspace(scene['lens.prestrain_min'], scene['lens.prestrain_max'], 5)
 
     def fronts(sc):

@@ -22,8 +22,8 @@ from mcap_helpers import ROOT, small_network, synthetic_frames
 pytest.importorskip('rerun')
 from rerun.chunk import RrdReader  # noqa: E402
 
-from tensegrity_ros.loader import McapLog  # noqa: E402
-from tensegrity_ros.rerun_log import RerunRecorder  # noqa: E402
+from tensegrity_ros.io.mcap_reader import McapLog  # noqa: E402
+from tensegrity_ros.io.rerun_log import RerunRecorder  # noqa: E402
 
 FB = ROOT / 'config' / 'scenes' / 'fb_column.yaml'
 DEFAULT_HELD = RerunRecorder.n_buffers * 50          # frames the batch buffers hold by default
@@ -133,10 +133,10 @@ def test_node_records_every_published_frame_to_both_files(tmp_path, monkeypatch)
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.parameter import Parameter
 
-    from solver.scene import Scene
-    from solver.simulation import Simulation
-    from tensegrity_ros.commander import spin_until
-    from tensegrity_ros.node import TensegritySim
+    from solver.build.scene import Scene
+    from solver.simulate.simulation import Simulation
+    from tensegrity_ros.node.demo import spin_until
+    from tensegrity_ros.node.node import TensegritySim
     monkeypatch.setattr(RerunRecorder, 'n_buffers', 2)
     mcap, rrd = tmp_path / 'node.mcap', tmp_path / 'node.rrd'
     sim = Simulation(Scene.load(FB).with_overrides(['structure.n_prisms=4']))

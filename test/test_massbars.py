@@ -1,4 +1,4 @@
-"""Massive bars that share nodes (the banded mass-matrix system of solver.massmatrix) and the mass
+"""Massive bars that share nodes (the banded mass-matrix system of solver.kernels.massmatrix) and the mass
 placement options, each against an independent reference: the dense NumPy KKT twin
 (test/twins.py), rigid-body mechanics of a single rod derived here, invariants (total mass,
 energy, rest at t = 0, the constraints) and the full model against the symmetric reduction."""
@@ -8,13 +8,13 @@ import numpy as np
 import pytest
 
 import twins
-from solver import dynamics as dyn
-from solver import massmatrix as mm
-from solver import structures
-from solver.network import Network
-from solver.scene import Scene, SceneError
-from solver.simulation import Simulation
-from solver.sym3d import Sym3D
+from solver.kernels import dynamics as dyn
+from solver.kernels import massmatrix as mm
+from solver.build import structures
+from solver.build.network import Network
+from solver.build.scene import Scene, SceneError
+from solver.simulate.simulation import Simulation
+from solver.models.sym3d import Sym3D
 
 UNIT = 0.0249
 

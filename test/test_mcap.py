@@ -11,9 +11,9 @@ from mcap_helpers import record_frames, same, small_network, synthetic_frames
 pytest.importorskip('rclpy')
 mcap_reader = pytest.importorskip('mcap.reader')
 
-from tensegrity_ros import messages as M  # noqa: E402
-from tensegrity_ros.loader import LogError, McapLog, load_run  # noqa: E402
-from tensegrity_ros.recording import (DELIMITER, McapRecorder, RecordingError,  # noqa: E402
+from tensegrity_ros.msgs import messages as M  # noqa: E402
+from tensegrity_ros.io.mcap_reader import LogError, McapLog, load_run  # noqa: E402
+from tensegrity_ros.io.mcap_writer import (DELIMITER, McapRecorder, RecordingError,  # noqa: E402
                                       full_definition, qos_yaml, share_dir)
 
 
@@ -114,7 +114,7 @@ def test_full_definition_holds_every_nested_type_once(type_name):
 
 def test_qos_yaml_states_the_profile():
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-    from tensegrity_ros.replay import qos_from_yaml
+    from tensegrity_ros.node.replay import qos_from_yaml
     q = QoSProfile(depth=7, reliability=ReliabilityPolicy.BEST_EFFORT,
                    durability=DurabilityPolicy.TRANSIENT_LOCAL)
     p = yaml.safe_load(qos_yaml(q))
@@ -276,7 +276,7 @@ def _rrd_columns(path, entity, column, index='sim_time'):
 def test_to_rerun_has_the_live_recording_layout(log, frames, tmp_path):
     """A log with its network converts through RerunRecorder: nodes, bars, cables, strain."""
     pytest.importorskip('rerun.chunk')
-    from tensegrity_ros.replay import to_rerun
+    from tensegrity_ros.node.replay import to_rerun
     path, written = log
     out = tmp_path / 'run.rrd'
     assert to_rerun(path, out) == 3 * len(frames) + 1
@@ -292,7 +292,7 @@ def test_to_rerun_has_the_live_recording_layout(log, frames, tmp_path):
 
 def test_to_rerun_without_network_converts_topic_by_topic(net, frames, tmp_path):
     chunk = pytest.importorskip('rerun.chunk')
-    from tensegrity_ros.replay import to_rerun
+    from tensegrity_ros.node.replay import to_rerun
     path = tmp_path / 'bare.mcap'
     written = record_frames(path, frames, net, marker_every=3, with_network=False)
     assert load_run(path).network is None

@@ -10,8 +10,8 @@ from mcap_helpers import ROOT
 
 pytest.importorskip('rclpy')
 
-from tensegrity_ros import messages as M  # noqa: E402
-from tensegrity_ros.loader import McapLog, load_run  # noqa: E402
+from tensegrity_ros.msgs import messages as M  # noqa: E402
+from tensegrity_ros.io.mcap_reader import McapLog, load_run  # noqa: E402
 
 TOPICS = ('~/strain', '~/nodes', '~/cable_tension')
 
@@ -29,10 +29,10 @@ def test_node_log_holds_what_was_published_and_received(tmp_path):
     from rclpy.parameter import Parameter
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from rclpy.serialization import deserialize_message
-    from solver.scene import Scene
-    from solver.simulation import Simulation
+    from solver.build.scene import Scene
+    from solver.simulate.simulation import Simulation
     from std_msgs.msg import Float64MultiArray
-    from tensegrity_ros.node import TensegritySim
+    from tensegrity_ros.node.node import TensegritySim
 
     path = tmp_path / 'node.mcap'
     scene = Scene.load(ROOT / 'config' / 'scenes' / 'prism.yaml')
@@ -118,7 +118,7 @@ def test_node_log_holds_what_was_published_and_received(tmp_path):
     np.testing.assert_array_equal(run.network.cable_a, sim.network.cable_a)
     np.testing.assert_array_equal(run.network.x0, sim.network.x0)
     # converts to the live Rerun layout (energy from the node's /diagnostics)
-    from tensegrity_ros.replay import to_rerun
+    from tensegrity_ros.node.replay import to_rerun
     assert to_rerun(path, tmp_path / 'node.rrd') >= 3 * len(run.time)
     # at rest before the command; the impact shows in the strain after it
     before = run.strain[run.time <= run.command_time[0]]

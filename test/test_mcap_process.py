@@ -14,8 +14,8 @@ from mcap_helpers import ROOT, record_frames, small_network, synthetic_frames
 
 pytest.importorskip('rclpy')
 
-from tensegrity_ros import messages as M  # noqa: E402
-from tensegrity_ros.loader import McapLog, load_run  # noqa: E402
+from tensegrity_ros.msgs import messages as M  # noqa: E402
+from tensegrity_ros.io.mcap_reader import McapLog, load_run  # noqa: E402
 
 # A recording child: frame k has strain k and node coordinates k, stamp k ms. After `n_fast`
 # frames it waits until the background flush has handed them to the OS, says so, then keeps
@@ -24,8 +24,8 @@ CHILD = r'''
 import faulthandler, signal, sys, time
 faulthandler.register(signal.SIGUSR1)      # the test asks for the stacks if the child hangs
 import numpy as np
-from tensegrity_ros import messages as M
-from tensegrity_ros.recording import McapRecorder, signals_as_interrupt
+from tensegrity_ros.msgs import messages as M
+from tensegrity_ros.io.mcap_writer import McapRecorder, signals_as_interrupt
 path, n_fast, mode = sys.argv[1], int(sys.argv[2]), sys.argv[3]
 strain, nodes = M.resolve_topic('~/strain'), M.resolve_topic('~/nodes')
 def write(rec, k):
@@ -106,7 +106,7 @@ def test_sigkilled_recording_is_read_up_to_its_last_complete_chunk(tmp_path):
     run = check_prefix(path, 300)
     assert run.truncated and n_msgs >= 2 * len(run.time)
     # the replay reader sees the same complete prefix
-    from tensegrity_ros.replay import log_channels
+    from tensegrity_ros.node.replay import log_channels
     assert set(log_channels(path)) == {M.resolve_topic('~/strain'), M.resolve_topic('~/nodes')}
     # and Rerun's own loader recovers it too
     chunk = pytest.importorskip('rerun.chunk')
@@ -132,7 +132,7 @@ def test_recorder_left_open_is_finished_at_exit(tmp_path):
     from mcap.reader import make_reader
     path = tmp_path / 'open.mcap'
     script = ('import sys; from tensegrity_ros import messages as M; '
-              'from tensegrity_ros.recording import McapRecorder; '
+              'from tensegrity_ros.io.mcap_writer import McapRecorder; '
               'rec = McapRecorder(sys.argv[1]); '
               "[rec.write('/x', M.command_array([k], 'all'), k) for k in range(7)]")
     subprocess.run([sys.executable, '-c', script, str(path)], env=child_env(), check=True,
@@ -202,9 +202,9 @@ def test_replay_reaches_a_subscriber_in_order_with_its_stamps(tmp_path):
 def test_run_cli_mcap_logs_what_the_run_computed(tmp_path):
     """``tensegrity run --mcap`` against the same scene run again in memory: the log holds the
     run's strain history, node positions (float32) and the impact command."""
-    from solver.runner import run
-    from solver.scene import Scene
-    from solver.simulation import Simulation
+    from solver.simulate.runner import run
+    from solver.build.scene import Scene
+    from solver.simulate.simulation import Simulation
     from tensegrity_ros.cli import main
     scene_file = ROOT / 'config' / 'scenes' / 'prism.yaml'
     args = ['run', str(scene_file), '--t-end', '0.01', '--mcap', '--json', '--out', str(tmp_path)]

@@ -7,12 +7,12 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize_scalar
 
-from solver import dynamics as dyn
-from solver import models
-from solver.chain1d import Chain1D
-from solver.scene import Scene
-from solver.simulation import Simulation, build_network
-from solver.sym3d import NotSymmetric, reduce_network
+from solver.kernels import dynamics as dyn
+from solver.models import family as models
+from solver.models.chain1d import Chain1D
+from solver.build.scene import Scene
+from solver.simulate.simulation import Simulation, build_network
+from solver.models.sym3d import NotSymmetric, reduce_network
 
 SCENES = Path(__file__).resolve().parent.parent / 'config' / 'scenes'
 
@@ -97,7 +97,7 @@ def test_asymmetric_network_is_rejected():
     net = build_network(_scene('prism'))
     x = np.array(net.x0)
     x[4, 0] += 1e-4
-    from solver.network import Network
+    from solver.build.network import Network
     moved = Network.build(x, net.node_mass, np.stack([net.bar_a, net.bar_b], 1),
                           np.stack([net.cable_a, net.cable_b], 1), net.cable_rest_length,
                           net.cable_EA, clamped=np.nonzero(net.clamped)[0])
@@ -251,7 +251,7 @@ def test_chain1d_rejects_cable_changes_and_keeps_energy_on_the_paper_column():
 # -- the paper table
 # -------------------------------------------------------------------------------
 def test_first_passage_measures_the_incoming_pulse_only():
-    from solver.observables import first_passage
+    from solver.analysis.observables import first_passage
     h0, n, c = 0.0062, 50, 100.0          # a pulse moving 100 prisms/s, reflected at the far end
     times = np.arange(0.0, 1.0, 0.005)
     prisms = np.arange(n)[::-1]            # distance from the impacted end (prism n-1)
@@ -273,7 +273,7 @@ def test_sym3d_reduced_summary_equals_the_expanded_state(sets):
     """Energy, finiteness, prism heights and constraint error computed on the reduced state (no
     expansion) equal the full-network computation on the expanded state (and the NumPy
     constraint error)."""
-    from solver.observables import constraint_error, state_summary
+    from solver.analysis.observables import constraint_error, state_summary
     sim = Simulation(Scene.load(f'{SCENES}/fb_column.yaml').with_overrides(
         ['structure.n_prisms=8', 'model=sym3d'] + sets))
     sim.apply_impact(0.1)

@@ -12,9 +12,9 @@ from rclpy.parameter import Parameter  # noqa: E402
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension  # noqa: E402
 from std_srvs.srv import SetBool, Trigger  # noqa: E402
 
-from solver.scene import Scene  # noqa: E402
-from tensegrity_ros.commander import Commander, spin_until  # noqa: E402
-from tensegrity_ros.node import (DEFAULTS, FAST_WORK_FRACTION, MIN_WORK_FRACTION,  # noqa: E402
+from solver.build.scene import Scene  # noqa: E402
+from tensegrity_ros.node.demo import Commander, spin_until  # noqa: E402
+from tensegrity_ros.node.node import (DEFAULTS, FAST_WORK_FRACTION, MIN_WORK_FRACTION,  # noqa: E402
                                  WORK_FRACTION, ParameterError, TensegritySim, check_parameters)
 
 DOMAIN = 10 + os.getpid() % 20
@@ -306,7 +306,7 @@ def test_chain1d_model_rejects_prestrain_and_takes_impacts(tmp_path):
 def test_commands_of_one_tick_are_validated_counted_and_the_last_one_applied(ros):
     """Three impacts and a malformed one before the next tick: the malformed one is rejected at
     once, the last valid impact is applied, the two before it are counted as superseded."""
-    from tensegrity_ros import messages
+    from tensegrity_ros.msgs import messages
     node = ros.node
     ros.call(ros.cmd.cli_running, SetBool.Request(data=False))
     for v in (0.01, 0.02, float('nan'), 0.03):
@@ -315,7 +315,7 @@ def test_commands_of_one_tick_are_validated_counted_and_the_last_one_applied(ros
     assert ros.spin(lambda: node.counts['accepted'] == 1)
     assert node.counts['superseded'] == 2 and node.counts['rejected'] == 1
     assert node.last_command[2].startswith('impact v0 = [0.03] m/s')
-    from solver.simulation import Simulation
+    from solver.simulate.simulation import Simulation
     fresh = Simulation(node.sim.scene)                    # the same impact on a fresh column
     added = fresh.apply_impact(0.03)
     np.testing.assert_allclose(node.sim.model.velocities(), fresh.model.velocities(), atol=1e-12)
@@ -328,8 +328,8 @@ def test_a_flood_within_one_tick_is_counted_whole_the_last_valid_one_applied_log
     each one is counted once (accepted + superseded + rejected == 500), the last valid one per
     topic is what the simulation gets, and the log has one line per kind (rejected, accepted)
     instead of one per command."""
-    from solver.simulation import Simulation
-    from tensegrity_ros import messages
+    from solver.simulate.simulation import Simulation
+    from tensegrity_ros.msgs import messages
     node, sim = ros.node, ros.node.sim
     ros.call(ros.cmd.cli_running, SetBool.Request(data=False))
     node.params['prestrain_ramp_s'] = 0.0               # applied at once: checked at once

@@ -12,8 +12,8 @@ rclpy = pytest.importorskip('rclpy')
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
-from solver.scene import Scene  # noqa: E402
-from tensegrity_ros.commander import (Commander, node_process, spin_until,  # noqa: E402
+from solver.build.scene import Scene  # noqa: E402
+from tensegrity_ros.node.demo import (Commander, node_process, spin_until,  # noqa: E402
                                       stop_process)
 
 DOMAIN = 10 + (os.getpid() + 7) % 20

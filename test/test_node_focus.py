@@ -17,12 +17,12 @@ from rclpy.parameter import Parameter  # noqa: E402
 from sensor_msgs.msg import Image  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
-from solver import lens  # noqa: E402
-from solver.scene import Scene  # noqa: E402
-from tensegrity_ros import messages  # noqa: E402
-from tensegrity_ros.commander import Commander, spin_until  # noqa: E402
-from tensegrity_ros.lens_record import IMAGE_SHAPE  # noqa: E402
-from tensegrity_ros.node import TensegritySim  # noqa: E402
+from solver.studies import lens  # noqa: E402
+from solver.build.scene import Scene  # noqa: E402
+from tensegrity_ros.msgs import messages  # noqa: E402
+from tensegrity_ros.node.demo import Commander, spin_until  # noqa: E402
+from solver.studies.lens_record import IMAGE_SHAPE  # noqa: E402
+from tensegrity_ros.node.node import TensegritySim  # noqa: E402
 
 DOMAIN = 0 + os.getpid() % 10
 SETS = ['structure.n_prisms=10', 'structure.n_columns=3', 'lens.grid=9', 'run.t_end=0.3']

@@ -14,10 +14,10 @@ from lifecycle_msgs.srv import ChangeState, GetState  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 
-from solver.scene import Scene  # noqa: E402
-from tensegrity_ros import messages  # noqa: E402
-from tensegrity_ros.commander import Commander, spin_until  # noqa: E402
-from tensegrity_ros.node import TensegritySim  # noqa: E402
+from solver.build.scene import Scene  # noqa: E402
+from tensegrity_ros.msgs import messages  # noqa: E402
+from tensegrity_ros.node.demo import Commander, spin_until  # noqa: E402
+from tensegrity_ros.node.node import TensegritySim  # noqa: E402
 
 DOMAIN = 80 + os.getpid() % 10
 
@@ -123,7 +123,7 @@ def test_configure_that_cannot_load_its_scene_fails_and_stays_unconfigured(manag
 
 def test_autostart_is_active_at_once(managed):
     make, ex, cmd, transition, state, clients = managed
-    from tensegrity_ros.node import TensegritySim as Sim
+    from tensegrity_ros.node.node import TensegritySim as Sim
     node = Sim(context=cmd.context, parameter_overrides=[
         Parameter('scene_file', value='config/scenes/prism.yaml'),
         Parameter('real_time_factor', value=0.0)])

@@ -1,4 +1,4 @@
-"""Frame -> ROS messages (tensegrity_ros.messages) and command parsing (tensegrity_ros.commands):
+"""Frame -> ROS messages (tensegrity_ros.msgs.messages) and command parsing (tensegrity_ros.node.commands):
 round trips, layouts against their definition, marker geometry, nothing non-finite."""
 import math
 
@@ -9,9 +9,10 @@ pytest.importorskip('rclpy')
 from rclpy.serialization import deserialize_message, serialize_message  # noqa: E402
 from std_msgs.msg import Float64MultiArray  # noqa: E402
 
-from solver.scene import Scene  # noqa: E402
-from solver.simulation import Simulation  # noqa: E402
-from tensegrity_ros import commands, messages  # noqa: E402
+from solver.build.scene import Scene  # noqa: E402
+from solver.simulate.simulation import Simulation  # noqa: E402
+from tensegrity_ros.node import commands  # noqa: E402
+from tensegrity_ros.msgs import messages
 
 
 @pytest.fixture(scope='module')
@@ -134,7 +135,7 @@ def test_marker_bytes_equal_marker_objects(sim):
     same length (bytes may differ only in padding)."""
     from visualization_msgs.msg import MarkerArray
 
-    from tensegrity_ros.cdr import marker_array_cdr
+    from tensegrity_ros.msgs.cdr import marker_array_cdr
     sim.reset()
     sim.apply_impact(0.15)
     for _ in range(6):                  # at rest, then cables moving between colour bins
@@ -152,7 +153,7 @@ def test_marker_bytes_equal_marker_objects(sim):
 def test_frame_bytes_equal_frame_objects(sim, markers, clock):
     """Every serialized frame message against rclpy's serializer of the message objects: the same
     keys, the same length, the same message after deserialization."""
-    from tensegrity_ros.cdr import frame_messages_cdr
+    from tensegrity_ros.msgs.cdr import frame_messages_cdr
     sim.apply_impact(0.1)
     sim.advance(0.02)
     f = sim.frame()
@@ -166,7 +167,7 @@ def test_frame_bytes_equal_frame_objects(sim, markers, clock):
 
 
 def test_frame_bytes_refuse_a_non_finite_frame(sim):
-    from tensegrity_ros.cdr import frame_messages_cdr
+    from tensegrity_ros.msgs.cdr import frame_messages_cdr
     f = sim.frame()
     f.strain[0, 3] = float('nan')
     with pytest.raises(ValueError, match='strain is not finite'):
@@ -174,7 +175,7 @@ def test_frame_bytes_refuse_a_non_finite_frame(sim):
 
 
 def test_a_non_finite_base_force_is_never_published(sim):
-    from tensegrity_ros.cdr import frame_messages_cdr
+    from tensegrity_ros.msgs.cdr import frame_messages_cdr
     f = sim.frame()
     f.base_force[1] = float('inf')
     for build in (messages.frame_messages, frame_messages_cdr):

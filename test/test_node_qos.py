@@ -15,11 +15,11 @@ from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile,  # noqa: E40
                        ReliabilityPolicy)
 from std_msgs.msg import String  # noqa: E402
 
-from solver.scene import Scene  # noqa: E402
-from solver.simulation import build_network  # noqa: E402
-from tensegrity_ros import messages  # noqa: E402
-from tensegrity_ros.commander import spin_until  # noqa: E402
-from tensegrity_ros.node import TensegritySim  # noqa: E402
+from solver.build.scene import Scene  # noqa: E402
+from solver.simulate.simulation import build_network  # noqa: E402
+from tensegrity_ros.msgs import messages  # noqa: E402
+from tensegrity_ros.node.demo import spin_until  # noqa: E402
+from tensegrity_ros.node.node import TensegritySim  # noqa: E402
 
 DOMAIN = 50 + os.getpid() % 10
 SCENE = 'config/scenes/prism.yaml'
@@ -105,7 +105,7 @@ def test_a_misspelled_qos_override_is_an_error_naming_it():
     configure succeeds once the parameter is gone."""
     from rclpy.lifecycle import TransitionCallbackReturn
     from rclpy.parameter import Parameter
-    from tensegrity_ros.node_params import ParameterError
+    from tensegrity_ros.node.params import ParameterError
     bad = f'qos_overrides.{BASE}/nodez.publisher.reliability'
     ctx = rclpy.Context()
     rclpy.init(context=ctx, domain_id=DOMAIN)

@@ -13,9 +13,9 @@ from rcl_interfaces.srv import DescribeParameters, SetParameters  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 
-from tensegrity_ros import messages  # noqa: E402
-from tensegrity_ros.commander import node_process, spin_until, stop_process  # noqa: E402
-from tensegrity_ros.node import TensegritySim  # noqa: E402
+from tensegrity_ros.msgs import messages  # noqa: E402
+from tensegrity_ros.node.demo import node_process, spin_until, stop_process  # noqa: E402
+from tensegrity_ros.node.node import TensegritySim  # noqa: E402
 
 DOMAIN = 200 + os.getpid() % 30
 SCENE = 'config/scenes/prism.yaml'
@@ -119,7 +119,7 @@ def test_unknown_start_up_parameter_exits_2_naming_it():
 
 
 def test_start_paused_waits_for_set_running_and_applies_commands_meanwhile():
-    from tensegrity_ros.commander import Commander
+    from tensegrity_ros.node.demo import Commander
     ctx = rclpy.Context()
     rclpy.init(context=ctx, domain_id=DOMAIN)
     node = TensegritySim(context=ctx, parameter_overrides=[

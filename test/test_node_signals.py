@@ -7,7 +7,7 @@ import signal
 import pytest
 
 pytest.importorskip('rclpy')
-from tensegrity_ros.node import _stop_on_signals  # noqa: E402
+from tensegrity_ros.node.node import _stop_on_signals  # noqa: E402
 
 
 @pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM])

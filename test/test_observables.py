@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from solver.observables import leading_peak, prism_strains, track_pulse
+from solver.analysis.observables import leading_peak, prism_strains, track_pulse
 
 
 def _travelling_pulse(speed_prisms_s, amp, sigma, n=50, t_end=1.0, dt=0.005, tail=True):
@@ -71,7 +71,7 @@ def _sech2_history(c, amp, w, n=50, dt=0.007, t_end=1.4, modulation=None):
 
 
 def test_pulse_measures_of_a_sech2_pulse_match_their_closed_forms():
-    from solver.observables import first_passage
+    from solver.analysis.observables import first_passage
     h0, c, amp, w = 0.0062, 41.3, 0.054, 4.0
     times, strain = _sech2_history(c, amp, w)
     p = first_passage(times, strain, h0)
@@ -92,7 +92,7 @@ def test_pulse_measures_of_a_sech2_pulse_match_their_closed_forms():
 
 
 def test_maximum_over_the_first_passage_falls_between_frames():
-    from solver.observables import first_passage
+    from solver.analysis.observables import first_passage
     t_star = 0.4431                               # between frames (dt = 0.007)
 
     def modulation(t):
@@ -119,7 +119,7 @@ def test_a_peak_reflected_short_of_the_end_does_not_enter_the_speed_fit():
     clamped end reflects it before the tracker sees it reach n - 2) and comes back through the
     10-40 window: only the first passage is fitted, so the slope is the forward speed; counting
     the way back too would give about half of it."""
-    from solver.observables import first_passage
+    from solver.analysis.observables import first_passage
     h0, n, c, turn = 0.0062, 50, 90.0, 47.5
     times = np.arange(0, 1.0 + 1e-9, 0.005)
     k = np.arange(n)[::-1]                                  # distance from the impacted end

@@ -6,7 +6,7 @@ from pathlib import Path
 import pytest
 
 from bench import paper_id
-from solver.scene import Scene
+from solver.build.scene import Scene
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENES = ROOT / 'config' / 'scenes'

@@ -6,8 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from solver import paper
-from solver.observables import first_passage
+from solver.studies import paper
+from solver.analysis.observables import first_passage
 
 H0, N = 0.0062, 50
 TIMES = np.arange(0.0, 0.6, 0.005)
@@ -86,7 +86,7 @@ def test_the_table_marks_the_speed_and_explains_every_column():
 def test_paper_set_applies_an_option_to_every_variant_and_names_it(monkeypatch):
     """``tensegrity paper --set KEY=VALUE``: the option reaches every variant's scene (the
     identified scenes excepted), is checked before anything runs, and the table says so."""
-    from solver import paper
+    from solver.studies import paper
     seen = []
 
     def fake_run(variant, v0, t_end=1.2, output_dt=0.005, sets=()):

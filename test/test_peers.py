@@ -11,11 +11,11 @@ import math
 import numpy as np
 import pytest
 
-from solver import dynamics as dyn
-from solver import structures
-from solver.runner import json_safe
-from solver.scene import Scene
-from solver.simulation import Simulation
+from solver.kernels import dynamics as dyn
+from solver.build import structures
+from solver.simulate.runner import json_safe
+from solver.build.scene import Scene
+from solver.simulate.simulation import Simulation
 
 from bench.peers_mujoco import MujocoColumn, bar_tree
 from bench.peers_scipy import ScipyColumn

@@ -6,12 +6,12 @@ import math
 import numpy as np
 import pytest
 
-from solver import dynamics as dyn
-from solver import structures
-from solver.observables import kinetic_energy, prism_strains
-from solver.runner import run
-from solver.scene import Scene
-from solver.simulation import Simulation
+from solver.kernels import dynamics as dyn
+from solver.build import structures
+from solver.analysis.observables import kinetic_energy, prism_strains
+from solver.simulate.runner import run
+from solver.build.scene import Scene
+from solver.simulate.simulation import Simulation
 
 R, H0, P = 0.005, 0.0062, 0.002
 EA = 5.48e6 * math.pi * (1.4e-4) ** 2

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 from twins import accelerations
 
-from solver.scene import Scene
-from solver.simulation import Simulation
+from solver.build.scene import Scene
+from solver.simulate.simulation import Simulation
 
 SCENES = 'config/scenes/'
 

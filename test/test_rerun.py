@@ -1,4 +1,4 @@
-"""Rerun recordings (tensegrity_ros/rerun_log.py) read back with rerun's own reader.
+"""Rerun recordings (tensegrity_ros/io/rerun_log.py) read back with rerun's own reader.
 
 rerun-sdk 0.41 has no ``rerun.dataframe`` module any more (its dataframe queries need the optional
 ``datafusion`` package); the recording is read with ``rerun.chunk.RrdReader``, chunk by chunk, as
@@ -21,10 +21,10 @@ import pytest
 rr = pytest.importorskip('rerun')
 from rerun.chunk import RrdReader  # noqa: E402
 
-from solver.runner import run  # noqa: E402
-from solver.scene import Scene  # noqa: E402
-from solver.simulation import Simulation  # noqa: E402
-from tensegrity_ros.rerun_log import RerunRecorder, reference_tension_scale  # noqa: E402
+from solver.simulate.runner import run  # noqa: E402
+from solver.build.scene import Scene  # noqa: E402
+from solver.simulate.simulation import Simulation  # noqa: E402
+from tensegrity_ros.io.rerun_log import RerunRecorder, reference_tension_scale  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 FB = ROOT / 'config' / 'scenes' / 'fb_column.yaml'
@@ -147,7 +147,7 @@ def test_values_equal_the_solver_frames_at_chosen_times(recorded):
 
 
 def test_cable_colours_follow_tension_and_dim_slack_cables(recorded):
-    messages = pytest.importorskip('tensegrity_ros.messages')
+    messages = pytest.importorskip('tensegrity_ros.msgs.messages')
     sim, frames, data, _ = recorded
     scale = reference_tension_scale(sim.network)
     f = max(frames, key=lambda fr: int(np.sum(fr.tension <= 0)))
@@ -341,8 +341,8 @@ def test_packed_batch_equals_numpy_gathers():
     included; the colour law itself is checked against the ROS markers' in
     test_cable_colours_follow_tension_and_dim_slack_cables), the strain per column and the times
     in ns; three columns, so the column layout is exercised."""
-    from tensegrity_ros.rerun_writer import _Strips, _pack, tension_colors, trails
-    from solver import structures
+    from tensegrity_ros.io.rerun_writer import _Strips, _pack, tension_colors, trails
+    from solver.build import structures
     net = structures.column(n_prisms=3, n_columns=3)
     rng = np.random.default_rng(4)
     n_t, n_x, n_p = 7, 3 * net.n_nodes, net.n_prisms
@@ -373,7 +373,7 @@ def test_packed_batch_equals_numpy_gathers():
 def test_static_entities_equal_what_rerun_archetypes_log(recorded):
     """The recorder writes the network's static arrays (topology, series names) as Arrow arrays
     built directly; every static component equals what rerun's own archetypes log."""
-    from tensegrity_ros.rerun_writer import static_archetypes
+    from tensegrity_ros.io.rerun_writer import static_archetypes
     sim, _, data, _ = recorded
     for path, archetype in static_archetypes(sim.network, reference_tension_scale(sim.network)):
         got = data['/' + path]['static']
@@ -386,7 +386,7 @@ def test_static_entities_equal_what_rerun_archetypes_log(recorded):
 
 
 def test_tensor_data_equals_rerun_tensor():
-    from tensegrity_ros.rerun_writer import tensor_data
+    from tensegrity_ros.io.rerun_writer import tensor_data
     image = np.random.default_rng(2).normal(size=(5, 9))
     want = [b.as_arrow_array() for b in rr.Tensor(image, dim_names=('prism', 'frame'))
             .as_component_batches() if b.component_descriptor() == rr.Tensor.descriptor_data()]
@@ -424,7 +424,7 @@ def test_two_columns_record_one_strain_series_and_wave_per_column(tmp_path):
 
 @pytest.mark.parametrize('seed', [0, 1, 2])
 def test_trails_cover_every_member_once(seed):
-    from tensegrity_ros.rerun_writer import trails
+    from tensegrity_ros.io.rerun_writer import trails
     rng = np.random.default_rng(seed)
     n = 12
     a = rng.integers(0, n, 30)
@@ -440,9 +440,9 @@ def test_a_killed_recording_keeps_every_batch_sent(tmp_path):
     path = tmp_path / 'killed.rrd'
     code = f'''
 import sys, time
-from solver.scene import Scene
-from solver.simulation import Simulation
-from tensegrity_ros.rerun_log import RerunRecorder
+from solver.build.scene import Scene
+from solver.simulate.simulation import Simulation
+from tensegrity_ros.io.rerun_log import RerunRecorder
 sim = Simulation(Scene.load({str(FB)!r}).with_overrides(['structure.n_prisms=3']))
 rec = RerunRecorder(sim.network, {str(path)!r}, flush_every=50, max_latency_s=1e9)
 for k in range(120):
@@ -512,11 +512,11 @@ def test_worker_errors_are_raised_in_the_callers_thread(tmp_path, monkeypatch):
     sim = Simulation(scene)
     path = tmp_path / 'broken.rrd'
 
-    from tensegrity_ros import rerun_log
+    from tensegrity_ros.io import rerun_log
     # a helper process whose batches fail (started for this test only, ended after it)
     monkeypatch.setattr(rerun_log, '_HELPER_CODE', rerun_log._HELPER_CODE.replace(
-        'from tensegrity_ros.rerun_writer import serve\n',
-        'from tensegrity_ros.rerun_writer import serve, _Writer\n'
+        'from tensegrity_ros.io.rerun_writer import serve\n',
+        'from tensegrity_ros.io.rerun_writer import serve, _Writer\n'
         'def broken(self, *args):\n'
         '    raise RuntimeError("disk on fire")\n'
         '_Writer._send = broken\n'))
@@ -673,7 +673,7 @@ def test_heat_map_starts_at_the_impact_on_a_sim_time_axis(tmp_path):
 
 
 def test_heat_map_grid_resamples_uneven_frames_on_time():
-    from tensegrity_ros.rerun_writer import heat_map_grid
+    from tensegrity_ros.io.rerun_writer import heat_map_grid
     times = np.array([0.0, 0.1, 0.2, 0.21, 0.3, 0.5, 0.6])   # median step 0.1 s
     grid, pick = heat_map_grid(times, impact_t=0.1)
     np.testing.assert_allclose(grid, [0.1, 0.2, 0.3, 0.4, 0.5, 0.6])
@@ -746,7 +746,7 @@ def test_lens_cli_records_the_field_over_sim_time(tmp_path, capsys, monkeypatch)
     import yaml
 
     from tensegrity_ros.cli import main
-    from tensegrity_ros.lens_record import IMAGE_SHAPE
+    from solver.studies.lens_record import IMAGE_SHAPE
     monkeypatch.setenv('TENSEGRITY_CACHE', str(tmp_path / 'cache'))
     small = Scene.load(ROOT / 'config' / 'scenes' / 'lens_focus.yaml').with_overrides(
         ['structure.n_prisms=10', 'structure.n_columns=3', 'lens.grid=5', 'run.t_end=0.3'])

@@ -16,10 +16,10 @@ from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
-from solver.scene import Scene  # noqa: E402
-from tensegrity_ros import messages  # noqa: E402
-from tensegrity_ros.commander import spin_until  # noqa: E402
-from tensegrity_ros.node import TensegritySim  # noqa: E402
+from solver.build.scene import Scene  # noqa: E402
+from tensegrity_ros.msgs import messages  # noqa: E402
+from tensegrity_ros.node.demo import spin_until  # noqa: E402
+from tensegrity_ros.node.node import TensegritySim  # noqa: E402
 
 from test_rerun import FB, at, flat, read  # noqa: E402
 

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 pytest.importorskip('rerun')
-from solver.scene import Scene  # noqa: E402
-from solver.simulation import Simulation  # noqa: E402
-from tensegrity_ros import rerun_writer  # noqa: E402
+from solver.build.scene import Scene  # noqa: E402
+from solver.simulate.simulation import Simulation  # noqa: E402
+from tensegrity_ros.io import rerun_writer  # noqa: E402
 
 FB = os.path.join(os.path.dirname(__file__), '..', 'config', 'scenes', 'fb_column.yaml')
 

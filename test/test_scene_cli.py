@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from solver.scene import Scene, SceneError
+from solver.build.scene import Scene, SceneError
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENES = ROOT / 'config' / 'scenes'

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from mcap_helpers import ROOT
-from solver.scene import Scene, SceneError
+from solver.build.scene import Scene, SceneError
 
 SCENES = ROOT / 'config' / 'scenes'
 
@@ -45,7 +45,7 @@ def test_a_bad_set_key_lists_the_valid_keys_as_a_bad_yaml_key_does(tmp_path):
 
 
 def test_an_empty_mcap_says_so(tmp_path):
-    from tensegrity_ros.loader import LogError, load_run
+    from tensegrity_ros.io.mcap_reader import LogError, load_run
     path = tmp_path / 'empty.mcap'
     path.write_bytes(b'')
     with pytest.raises(LogError) as err:
@@ -90,7 +90,7 @@ def _fake_record(n_prisms, t_end=0.3):
 
 @pytest.mark.parametrize('n_prisms', [1, 5])
 def test_strain_plot_shows_its_lines_labels_and_whole_prisms(n_prisms):
-    from tensegrity_ros.plots import strain_wave_figure
+    from tensegrity_ros.studies.plots import strain_wave_figure
     fig = strain_wave_figure(_fake_record(n_prisms), 'x')
     ax1, ax2 = fig.axes[:2]
     lines = ax1.get_lines()

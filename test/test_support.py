@@ -6,9 +6,9 @@ import math
 import numpy as np
 import pytest
 
-from solver.scene import Scene
-from solver.simulation import Simulation
-from solver.support import axial_momentum, first_arrival, pulse_arrival
+from solver.build.scene import Scene
+from solver.simulate.simulation import Simulation
+from solver.analysis.support import axial_momentum, first_arrival, pulse_arrival
 
 SCENES = 'config/scenes/'
 

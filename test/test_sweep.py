@@ -12,7 +12,7 @@ import pytest
 import yaml
 
 from tensegrity_ros import cli
-from tensegrity_ros import sweep as sw
+from tensegrity_ros.studies import sweep as sw
 
 ROOT = Path(__file__).resolve().parents[1]
 FB = str(ROOT / 'config' / 'scenes' / 'fb_column.yaml')
@@ -171,7 +171,7 @@ def test_a_point_gets_a_new_id_when_the_solver_source_changes(tmp_path):
                     ignore=shutil.ignore_patterns('__pycache__'))
     before = sw.source_hash(src)
     assert before == sw.code_version()                  # the same files, the same hash
-    path = src / 'dynamics.py'
+    path = src / 'kernels' / 'dynamics.py'        # a kernel edit in a sub-package
     path.write_text(path.read_text() + '\n# changed\n')
     after = sw.source_hash(src)
     assert after != before
@@ -195,7 +195,7 @@ def test_small_parameter_changes_move_the_figures_continuously():
     """Over a fine prestrain grid (radius 4.2 mm, parallel base cables, v0 = 0.1) the figures
     change at every step, monotonically, with first differences that vary slowly (a figure read
     at the nearest prism and frame moves in steps: equal values, or jumps)."""
-    from solver.runner import simulate
+    from solver.simulate.runner import simulate
     ps = np.linspace(0.0030, 0.0035, 6)
     names = ('amplitude', 'amplitude_median', 'amplitude_max', 'speed_m_s',
              'speed_snapshot_m_s')
@@ -217,7 +217,7 @@ def test_small_parameter_changes_move_the_figures_continuously():
 def _target(tmp_path):
     """Figures of the project's own runs at radius 4.2 mm, prestrain 0.003, parallel base cables
     (not the defaults) at two impact velocities."""
-    from solver.runner import simulate
+    from solver.simulate.runner import simulate
     cases = []
     for v0 in (0.02, 0.1):
         s = simulate(FB, [('structure.radius', 0.0042), ('prestrain', 0.003),
@@ -233,7 +233,7 @@ def _target(tmp_path):
 
 
 def test_fit_recovers_known_values_with_a_continuous_and_a_discrete_key(cluster, tmp_path):
-    from tensegrity_ros import fit
+    from tensegrity_ros.studies import fit
     problem = fit.build(FB, _target(tmp_path), ['structure.radius=0.0038:0.0046',
                                                 'prestrain=0.0025:0.0035'],
                         ['structure.stacking=shared,parallel'], t_end=T_END)
@@ -247,7 +247,7 @@ def test_fit_recovers_known_values_with_a_continuous_and_a_discrete_key(cluster,
     assert result['runs'] == 2 * result['evaluations']
     out = tmp_path / 'best.yaml'
     fit.write_scene(problem, best, out)
-    from solver.scene import Scene
+    from solver.build.scene import Scene
     assert Scene.load(out)['structure.radius'] == best['structure.radius']
 
 

@@ -1,0 +1,308 @@
+"""Observables: strains, tensions, energy, constraint error, and the pulse tracker (docs/physics.md
+section 4).
+
+All functions take plain arrays; shapes and units are in each docstring.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from solver.kernels import dynamics as dyn
+
+
+def state_summary(x, v, network, rest, EA, f_ext=None):
+    """``(finite, energy J, prism heights (n_columns, n_prisms) m, relative constraint error)`` of
+    a full state in one compiled call (:func:`solver.kernels.dynamics.state_summary`): what the
+    divergence check and a frame need. The energy is kinetic + cable strain energy, minus the
+    work potential of constant external forces ``f_ext`` (n_nodes, 3) N when given."""
+    from solver.models.family import full_summary_arrays
+    levels = network.levels
+    heights = np.empty((levels.shape[0], max(levels.shape[1] - 1, 0)))
+    net, act = dyn.pack(network, rest, EA, f_ext)
+    finite, e, cerr, _ = dyn.state_summary(
+        np.ascontiguousarray(x, dtype=np.float64), np.ascontiguousarray(v, dtype=np.float64),
+        net, act, full_summary_arrays(network), heights)
+    return finite, e, heights, cerr
+
+
+def prism_heights(x, levels):
+    """Prism heights (n_columns, n_prisms) m: mean z of level i+1 minus mean z of level i.
+
+    ``x`` (n_nodes, 3) m, ``levels`` (n_columns, n_levels, 3) node indices."""
+    out = np.empty((levels.shape[0], max(levels.shape[1] - 1, 0)))
+    dyn.level_heights(np.ascontiguousarray(x, dtype=np.float64), levels, out)
+    return out
+
+
+def prism_strains(x, levels, h0):
+    """Axial strain per prism (n_columns, n_prisms): ``(h - h0) / h``, negative in compression."""
+    h = prism_heights(x, levels)
+    return (h - h0) / h
+
+
+def cable_tensions(x, network, rest, EA):
+    """Tension per cable (n_cables,) N (zero when slack)."""
+    out = np.zeros(network.n_cables)
+    dyn.cable_tensions(x, network.cable_a, network.cable_b, rest, EA, out)
+    return out
+
+
+def kinetic_energy(v, network):
+    """Kinetic energy J of node velocities ``v`` (n_nodes, 3) m/s (lumped and bar masses)."""
+    return dyn.kinetic_energy(v, network.node_mass, network.clamped, network.bar_a, network.bar_b,
+                              network.bar_mass)
+
+
+def constraint_error(x, network):
+    """max over rigid members of ``|(|b|^2 - L^2) / 2| / L^2`` (about the relative length
+    error)."""
+    if network.n_constraints == 0:
+        return 0.0
+    b = x[network.con_head] - x[network.con_tail]
+    L2 = network.con_length ** 2
+    return float(np.max(np.abs(0.5 * (np.einsum('ij,ij->i', b, b) - L2)) / L2))
+
+
+@dataclass
+class Pulse:
+    """Leading-pulse figures of one column (docs/physics.md section 4).
+
+    Every figure comes from the interpolated peak of each output frame (:func:`leading_peak`: a
+    parabola through the three prisms around the extreme gives its position and value between
+    prisms), so that the figures move continuously with the parameters of the run.
+
+    ``amplitude`` is the |strain| of the leading pulse at ``t_ref``, interpolated linearly in time
+    between the two output frames around ``t_ref`` (the nearest tracked time when the history
+    does not reach ``t_ref``); ``amplitude_median/min/max`` over the window
+    where the peak is in prisms ``window``; ``amplitude_passage_max`` the largest |strain| of the
+    peak over the history given (the first passage in :func:`first_passage`) once the peak is
+    ``window[0]`` prisms or more from the impacted end (the strain concentrated at the impacted
+    end right after the impact is not the pulse), refined by a parabola through the per-frame
+    values around the largest one. ``speed_m_s`` is the slope of
+    peak position against time in the window; ``speed_snapshot_m_s`` the peak position at
+    ``t_ref`` (prisms from the impacted end, times ``h0``) divided by ``t_ref``;
+    ``speed_arrival_m_s`` the distance to the clamped end (``n_prisms - 2`` prisms from the
+    impacted end) divided by the time the peak reaches it, ``arrival_end_s`` (interpolated
+    between frames). ``width_prisms`` is the number of contiguous prisms around the peak with
+    ``|eps| >= 0.5 |eps_peak|`` at the frame nearest ``t_ref``; ``width_half_prisms`` and
+    ``width_10_prisms`` the widths at half and at 10 % of the peak, with the crossings
+    interpolated linearly between prisms and the widths linearly in time. ``arrival_time_s`` is
+    the first time the peak is in the window. NaN where the pulse never reached the window (the
+    widths: where there is no pulse at ``t_ref``)."""
+    amplitude: float
+    amplitude_median: float
+    amplitude_min: float
+    amplitude_max: float
+    speed_m_s: float
+    width_prisms: int
+    t_ref: float
+    arrival_time_s: float
+    amplitude_passage_max: float = math.nan
+    speed_snapshot_m_s: float = math.nan
+    speed_arrival_m_s: float = math.nan
+    arrival_end_s: float = math.nan
+    width_half_prisms: float = math.nan
+    width_10_prisms: float = math.nan
+
+    def as_dict(self):
+        return {'amplitude': self.amplitude, 'amplitude_median': self.amplitude_median,
+                'amplitude_min': self.amplitude_min, 'amplitude_max': self.amplitude_max,
+                'amplitude_passage_max': self.amplitude_passage_max,
+                'speed_m_s': self.speed_m_s, 'speed_snapshot_m_s': self.speed_snapshot_m_s,
+                'speed_arrival_m_s': self.speed_arrival_m_s,
+                'width_prisms': self.width_prisms, 'width_half_prisms': self.width_half_prisms,
+                'width_10_prisms': self.width_10_prisms,
+                't_ref': self.t_ref, 'arrival_time_s': self.arrival_time_s,
+                'arrival_end_s': self.arrival_end_s}
+
+
+def _parabola(c0, c1, c2):
+    """``(offset, value)`` of the vertex of the parabola through ``(-1, c0), (0, c1), (1, c2)``
+    when it is a maximum inside ``[-1, 1]`` ((0, c1) otherwise)."""
+    den = c0 - 2 * c1 + c2
+    if den < 0:
+        d = 0.5 * (c0 - c2) / den
+        if -1.0 <= d <= 1.0:
+            return d, c1 - 0.25 * (c0 - c2) * d
+    return 0.0, c1
+
+
+def _peak_index(eps, threshold=0.25, floor=1e-6):
+    comp = -eps
+    top = comp.max()
+    if not top > floor:
+        return -1
+    above = np.nonzero(comp >= threshold * top)[0]
+    i = above[-1]
+    while i > 0 and comp[i - 1] >= comp[i]:
+        i -= 1
+    return int(i)
+
+
+def leading_peak(eps, threshold=0.25, floor=1e-6):
+    """Position (prisms from the impacted end, 0 = prism next to it) and strain of the leading
+    compressive peak of one strain profile ``eps`` (n_prisms,), ordered from the impacted end.
+    The front is the farthest prism whose compression exceeds ``threshold`` times the largest
+    compression of the profile; the peak is the local minimum reached walking back from the
+    front, refined by the parabola through it and its two neighbours (position and strain between
+    prisms). ``(nan, nan)`` when at rest (no compression above ``floor``, which keeps round-off
+    noise from being tracked as a pulse)."""
+    i = _peak_index(eps, threshold, floor)
+    if i < 0:
+        return np.nan, np.nan
+    if 0 < i < len(eps) - 1:
+        d, c = _parabola(-eps[i - 1], -eps[i], -eps[i + 1])
+        return float(i + d), -float(c)
+    return float(i), float(eps[i])
+
+
+def pulse_width(eps, pos, amplitude, fraction):
+    """Width in prisms of the pulse around ``pos`` (prisms, :func:`leading_peak`) of the profile
+    ``eps`` (n_prisms,) at ``fraction`` of ``amplitude`` (|strain|): the distance between the two
+    points where ``|eps|`` falls below ``fraction * amplitude``, each interpolated linearly between
+    the last prism above and the first below (a profile still above the level at its end stops
+    there). NaN without a peak."""
+    if not (math.isfinite(pos) and math.isfinite(amplitude) and amplitude > 0):
+        return math.nan
+    a = np.abs(np.asarray(eps, dtype=float))
+    n = len(a)
+    level = fraction * amplitude
+    i = min(max(int(round(pos)), 0), n - 1)
+    if a[i] < level:
+        return 0.0
+    lo = i
+    while lo > 0 and a[lo - 1] >= level:
+        lo -= 1
+    left = float(lo)
+    if lo > 0:
+        left = lo - (a[lo] - level) / (a[lo] - a[lo - 1])
+    hi = i
+    while hi < n - 1 and a[hi + 1] >= level:
+        hi += 1
+    right = float(hi)
+    if hi < n - 1:
+        right = hi + (a[hi] - level) / (a[hi] - a[hi + 1])
+    return right - left
+
+
+def _at_time(times, values, t):
+    """``values`` interpolated linearly at ``t`` between the two frames around it (NaN outside the
+    history or where one of the two is NaN)."""
+    if not len(times) or t < times[0] - 1e-9 or t > times[-1] + 1e-9:
+        return math.nan
+    k = int(np.searchsorted(times, t))
+    if k < len(times) and abs(times[k] - t) <= 1e-9:
+        return float(values[k])
+    if k > 0 and abs(times[k - 1] - t) <= 1e-9:
+        return float(values[k - 1])
+    k = min(max(k, 1), len(times) - 1)
+    t0, t1 = times[k - 1], times[k]
+    w = (t - t0) / (t1 - t0)
+    return float((1 - w) * values[k - 1] + w * values[k])
+
+
+def _max_over_time(times, amp):
+    """Largest of the per-frame values ``amp`` (NaN ignored), refined by the parabola through it
+    and its two neighbouring frames (uniform output steps)."""
+    if not np.any(np.isfinite(amp)):
+        return math.nan
+    k = int(np.nanargmax(amp))
+    if 0 < k < len(amp) - 1 and np.isfinite(amp[k - 1]) and np.isfinite(amp[k + 1]):
+        return float(_parabola(amp[k - 1], amp[k], amp[k + 1])[1])
+    return float(amp[k])
+
+
+def track_pulse(times, strains, h0, window=(10, 40), t_ref=0.5):
+    """Pulse figures from a strain history of one column.
+
+    ``times`` (n_t,) s, ``strains`` (n_t, n_prisms) with prism 0 at the clamped end and the impact
+    at the last prism, ``h0`` m. Returns a :class:`Pulse`."""
+    times = np.asarray(times, dtype=float)
+    strains = np.asarray(strains)
+    from_impact = strains[:, ::-1]
+    n = strains.shape[1]
+    pos = np.full(len(times), np.nan)
+    amp = np.full(len(times), np.nan)
+    for k, eps in enumerate(from_impact):
+        pos[k], e = leading_peak(eps)
+        amp[k] = abs(e)
+    inside = (pos >= window[0]) & (pos <= window[1])
+    # only the first passage through the window: once the peak has left it at the far end, a
+    # peak found inside again is the wave reflected from the clamped end (a peak that stops
+    # just short of the end never triggers the cut of first_passage)
+    beyond = np.nonzero(pos > window[1])[0]
+    if beyond.size:
+        inside[beyond[0]:] = False
+    nan = float('nan')
+    if inside.sum() >= 2:
+        speed = float(np.polyfit(times[inside], pos[inside], 1)[0] * h0)
+        a_in = amp[inside]
+        med, lo, hi = float(np.median(a_in)), float(a_in.min()), float(a_in.max())
+        arrival = float(times[inside][0])
+    else:
+        speed = med = lo = hi = arrival = nan
+    # arrival at the clamped end: the peak's position crosses n - 2 (interpolated in time)
+    arrival_end = speed_arrival = nan
+    end = n - 2
+    reached = np.nonzero(pos >= end)[0]
+    if end > 0 and reached.size:
+        k = int(reached[0])
+        arrival_end = float(times[k])
+        if k > 0 and np.isfinite(pos[k - 1]) and pos[k] > pos[k - 1]:
+            arrival_end = float(times[k - 1] + (end - pos[k - 1]) / (pos[k] - pos[k - 1])
+                                * (times[k] - times[k - 1]))
+        if arrival_end > 0:
+            speed_arrival = end * h0 / arrival_end
+    k_ref = int(np.argmin(np.abs(times - t_ref))) if len(times) else 0
+    width = 0
+    amplitude = _at_time(times, amp, t_ref)
+    if not math.isfinite(amplitude) and len(times) and (t_ref < times[0] or t_ref > times[-1]):
+        amplitude = float(amp[k_ref])          # a history that ends before t_ref: its last peak
+    pos_ref = _at_time(times, pos, t_ref)
+    snapshot = pos_ref * h0 / t_ref if t_ref > 0 else nan
+    halves = np.array([pulse_width(from_impact[k], pos[k], amp[k], 0.5)
+                       for k in range(len(times))])
+    tenths = np.array([pulse_width(from_impact[k], pos[k], amp[k], 0.1)
+                       for k in range(len(times))])
+    if len(times) and np.isfinite(pos[k_ref]):
+        eps = from_impact[k_ref]
+        i = int(round(pos[k_ref]))
+        i = min(max(i, 0), n - 1)
+        half = 0.5 * abs(amp[k_ref])
+        lo_i = i
+        while lo_i > 0 and abs(eps[lo_i - 1]) >= half:
+            lo_i -= 1
+        hi_i = i
+        while hi_i < n - 1 and abs(eps[hi_i + 1]) >= half:
+            hi_i += 1
+        width = hi_i - lo_i + 1 if abs(eps[i]) >= half else 0
+    return Pulse(amplitude, med, lo, hi, speed, int(width),
+                 float(times[k_ref]) if len(times) else t_ref, arrival,
+                 amplitude_passage_max=_max_over_time(times, np.where(pos >= window[0], amp,
+                                                                      np.nan)),
+                 speed_snapshot_m_s=float(snapshot), speed_arrival_m_s=speed_arrival,
+                 arrival_end_s=arrival_end, width_half_prisms=_at_time(times, halves, t_ref),
+                 width_10_prisms=_at_time(times, tenths, t_ref))
+
+
+def first_passage(times, strain, h0, t_ref=0.5):
+    """:func:`~solver.track_pulse` on the history up to the time the leading peak
+    first reaches the clamped end (``n_prisms - 2`` prisms from the impact), so that a reflected
+    wave never enters the speed fit; the figures at ``t_ref`` (amplitude, widths, snapshot speed)
+    are NaN (width 0) when the pulse has already reached the end by then. ``strain`` (n_t,
+    n_prisms) of one column."""
+    n = strain.shape[1]
+    end = len(times)
+    for k in range(len(times)):
+        pos, _ = leading_peak(strain[k, ::-1])
+        if math.isfinite(pos) and pos >= n - 2:
+            end = k + 1
+            break
+    p = track_pulse(times[:end], strain[:end], h0, t_ref=t_ref)
+    if times[end - 1] < t_ref - 1e-9:
+        p.amplitude, p.width_prisms = math.nan, 0
+        p.width_half_prisms = p.width_10_prisms = p.speed_snapshot_m_s = math.nan
+    return p

@@ -1,0 +1,323 @@
+"""Scene files: YAML -> validated, frozen :class:`Scene` (SI units; unknown keys are errors).
+
+Every default lives in :data:`DEFAULTS`; the type of a default is the type a value must have. A
+scene file gives only what differs. ``--set KEY=VALUE`` overrides use dotted keys
+(``integrator.dt=2e-4``); ``integrator=NAME`` is short for ``integrator.method=NAME``.
+"""
+from __future__ import annotations
+
+import copy
+import math
+from pathlib import Path
+
+import yaml
+
+
+class SceneError(ValueError):
+    """A scene file or override that cannot be used; the message names the key."""
+
+
+COLUMN_DEFAULTS = {
+    'builder': 'column',
+    'n_prisms': 50,
+    'n_columns': 1,
+    'column_spacing': 0.03,
+    'radius': 0.005,
+    'h0': 0.0062,
+    'bases': 'flexible',
+    'stacking': 'shared',
+    'rigid_bases_as': 'edges',
+    'kappa': 100.0,
+    'clamped_levels': [0],
+    'handedness': 'right',
+    'mass_placement': 'level',
+}
+EXPLICIT_DEFAULTS = {
+    'builder': 'explicit',
+    'nodes': [],
+    'bars': [],
+    'cables': [],
+    'rigid_edges': [],
+    'clamped': [],
+    'node_mass': 0.0083,
+    'cable_rest_length': None,
+}
+STRUCTURE_DEFAULTS = {'column': COLUMN_DEFAULTS, 'explicit': EXPLICIT_DEFAULTS}
+
+DEFAULTS = {
+    'name': 'scene',
+    'description': '',
+    'structure': COLUMN_DEFAULTS,
+    'materials': {'cable_E': 5.48e6, 'cable_radius': 1.4e-4, 'unit_mass': 0.0249, 'bar_mass': 0.0,
+                  'bar_mass_fraction': 0.0, 'end_mass': 0.0, 'cable_damping': 0.0,
+                  'cable_damping_ratio': 0.0},
+    'prestrain': 0.002,
+    'loading': {'impact': {'v0': 0.1, 'mode': 'impulse', 'columns': None,
+                           'striker_mass': 0.0249, 'contact': 'linear',
+                           'contact_stiffness': 1.0e4},
+                'gravity': 0.0},
+    'model': 'auto',
+    'integrator': {'method': 'rk4_projected', 'dt': 5e-4, 'projection_tol': 1e-12,
+                   'projection_max_iter': 3, 'land_on_kinks': True, 'rtol': 1e-8, 'atol': 1e-10},
+    'run': {'t_end': 1.2, 'output_dt': 0.005},
+    'contact': {'lock': 'none', 'stiffness': 1.0e5, 'tolerance': 0.05},
+    'divergence': {'energy_growth': 1e-3, 'constraint_error': 1e-6, 'bar_crossing': 'rigid'},
+    'outputs': {'dir': None},
+    # the focusing design (solver/studies/lens.py): the prestrain range it may use, the grid of its map
+    'lens': {'prestrain_min': 0.003, 'prestrain_max': 0.015, 'grid': 13},
+}
+
+CHOICES = {
+    'structure.builder': ('column', 'explicit'),
+    'structure.bases': ('flexible', 'rigid'),
+    'structure.stacking': ('shared', 'parallel'),
+    'structure.rigid_bases_as': ('edges', 'stiff_cables'),
+    'structure.handedness': ('right', 'left'),
+    # where the lumped part of each prism's mass sits: one unit per level, or half on each base
+    'structure.mass_placement': ('level', 'unit_bases'),
+    'loading.impact.mode': ('impulse', 'energy', 'striker'),
+    'loading.impact.contact': ('linear', 'hertz'),
+    # a penalty stop between the two levels of each prism, at the rigid-base lock (flexible
+    # bases: where the bases meet) plus contact.tolerance * h0
+    'contact.lock': ('none', 'penalty'),
+    'model': ('auto', 'full3d', 'sym3d', 'chain1d'),
+    # stop when a prism twists through 180 deg (its bars cross): in rigid-base columns only (the
+    # lock), in every column, or never
+    'divergence.bar_crossing': ('rigid', 'all', 'none'),
+}
+
+# (lower, upper, lower inclusive) for numbers
+RANGES = {
+    'structure.n_prisms': (1, 10000, True),
+    'structure.n_columns': (1, 1000, True),
+    'structure.column_spacing': (0.0, math.inf, False),
+    'structure.radius': (0.0, math.inf, False),
+    'structure.h0': (0.0, math.inf, False),
+    'structure.kappa': (0.0, math.inf, False),
+    'structure.node_mass': (0.0, math.inf, False),
+    'materials.cable_E': (0.0, math.inf, False),
+    'materials.cable_radius': (0.0, math.inf, False),
+    'materials.unit_mass': (0.0, math.inf, False),
+    'materials.bar_mass': (0.0, math.inf, True),
+    'materials.end_mass': (0.0, math.inf, True),
+    'materials.cable_damping': (0.0, math.inf, True),
+    'materials.cable_damping_ratio': (0.0, 100.0, True),
+    'loading.impact.striker_mass': (0.0, math.inf, False),
+    'loading.impact.contact_stiffness': (0.0, math.inf, False),
+    'contact.stiffness': (0.0, math.inf, False),
+    'contact.tolerance': (0.0, 1.0, False),
+    'prestrain': (0.0, 0.5, False),
+    'loading.impact.v0': (-10.0, 10.0, True),
+    'integrator.dt': (0.0, 0.1, False),
+    'integrator.projection_tol': (0.0, 1e-3, False),
+    'integrator.projection_max_iter': (1, 100, True),
+    'integrator.rtol': (0.0, 0.1, False),      # adaptive methods only (dopri54_projected)
+    'integrator.atol': (0.0, 1.0, False),
+    'run.t_end': (0.0, 1e6, True),
+    'run.output_dt': (0.0, 1e3, False),
+    'lens.prestrain_min': (0.0, 0.5, False),
+    'lens.prestrain_max': (0.0, 0.5, False),
+    'lens.grid': (3, 200, True),
+    'divergence.energy_growth': (0.0, math.inf, False),
+    'divergence.constraint_error': (0.0, math.inf, False),
+}
+
+SHORTCUTS = {'integrator': 'integrator.method'}
+
+
+def _type_name(value):
+    if isinstance(value, bool):
+        return 'a boolean'
+    if isinstance(value, int):
+        return 'an integer'
+    if isinstance(value, float):
+        return 'a number'
+    if isinstance(value, str):
+        return 'a string'
+    if isinstance(value, list):
+        return 'a list'
+    return type(value).__name__
+
+
+def _check_value(key, default, value):
+    if default is None:           # free-form (optional lists or numbers)
+        return value
+    if isinstance(default, bool):
+        if not isinstance(value, bool):
+            raise SceneError(f'{key}: expected true or false, got {value!r}')
+        return value
+    if isinstance(default, (int, float)) and not isinstance(default, bool):
+        if isinstance(value, str):      # YAML 1.1 reads 5.48e6 (no dot) as a string
+            try:
+                value = float(value)
+            except ValueError:
+                pass
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise SceneError(f'{key}: expected {_type_name(default)}, got {value!r}')
+        if isinstance(default, int) and not isinstance(value, int):
+            if float(value).is_integer():
+                value = int(value)
+            else:
+                raise SceneError(f'{key}: expected an integer, got {value!r}')
+        if not math.isfinite(value):
+            raise SceneError(f'{key}: must be finite, got {value!r}')
+        if isinstance(default, float):
+            value = float(value)
+        if key in RANGES:
+            lo, hi, inclusive = RANGES[key]
+            if value > hi or value < lo or (value == lo and not inclusive):
+                bracket = '[' if inclusive else '('
+                raise SceneError(f'{key}: {value!r} is outside {bracket}{lo}, {hi}]')
+        return value
+    if isinstance(default, str):
+        if not isinstance(value, str):
+            raise SceneError(f'{key}: expected a string, got {value!r}')
+        if key in CHOICES and value not in CHOICES[key]:
+            raise SceneError(f'{key}: {value!r} is not one of {", ".join(CHOICES[key])}')
+        return value
+    if isinstance(default, list):
+        if not isinstance(value, list):
+            raise SceneError(f'{key}: expected a list, got {value!r}')
+        return value
+    return value
+
+
+def _unknown(key, node):
+    """The message for an unknown (dotted) key, listing the valid keys at its level as a scene
+    file's unknown key does."""
+    if not isinstance(node, dict):
+        return f'{key}: unknown key ({key.rsplit(".", 1)[0]} has no sub-keys)'
+    return f'{key}: unknown key (valid here: {", ".join(sorted(node))})'
+
+
+def _merge(defaults, given, prefix=''):
+    if not isinstance(given, dict):
+        raise SceneError(f'{prefix.rstrip(".") or "scene"}: expected a mapping, got {given!r}')
+    out = {}
+    for key in given:
+        if key not in defaults:
+            full = prefix + str(key)
+            valid = ', '.join(sorted(defaults))
+            raise SceneError(f'{full}: unknown key (valid here: {valid})')
+    for key, default in defaults.items():
+        full = prefix + key
+        if isinstance(default, dict):
+            out[key] = _merge(default, given.get(key, {}) if given.get(key) is not None else {},
+                              full + '.')
+        elif key in given:
+            out[key] = _check_value(full, default, given[key])
+        else:
+            out[key] = copy.deepcopy(default)
+    return out
+
+
+def validate(raw):
+    """Merge a raw mapping onto the defaults and check every key; returns a plain nested dict."""
+    if raw is None:
+        raw = {}
+    if not isinstance(raw, dict):
+        raise SceneError(f'scene: expected a mapping at the top level, got {type(raw).__name__}')
+    structure = raw.get('structure') or {}
+    if not isinstance(structure, dict):
+        raise SceneError(f'structure: expected a mapping, got {structure!r}')
+    builder = structure.get('builder', 'column')
+    if builder not in STRUCTURE_DEFAULTS:
+        raise SceneError(f'structure.builder: {builder!r} is not one of '
+                         f'{", ".join(STRUCTURE_DEFAULTS)}')
+    defaults = dict(DEFAULTS, structure=STRUCTURE_DEFAULTS[builder])
+    data = _merge(defaults, raw)
+    imp = data['loading']['impact']
+    cols = imp['columns']
+    if cols is not None:
+        n_col = data['structure'].get('n_columns', 1)
+        if not isinstance(cols, list) or not all(isinstance(c, int) and 0 <= c < n_col
+                                                 for c in cols):
+            raise SceneError(f'loading.impact.columns: expected a list of column indices '
+                             f'0..{n_col - 1} or null, got {cols!r}')
+    mat = data['materials']
+    if not 0.0 <= mat['bar_mass_fraction'] < 1.0:     # [0, 1): RANGES has no open upper end
+        raise SceneError(f'materials.bar_mass_fraction: {mat["bar_mass_fraction"]!r} is outside '
+                         '[0.0, 1.0)')
+    if builder != 'column':
+        for key in ('bar_mass_fraction', 'end_mass'):
+            if mat[key] != 0.0:
+                raise SceneError(f'materials.{key}: only for structure.builder column (give '
+                                 'node_mass and materials.bar_mass instead)')
+    if mat['cable_damping'] > 0 and mat['cable_damping_ratio'] > 0:
+        raise SceneError('materials.cable_damping_ratio: give either materials.cable_damping '
+                         '(N s/m) or materials.cable_damping_ratio, not both')
+    if data['run']['output_dt'] < data['integrator']['dt']:
+        raise SceneError('run.output_dt: must not be smaller than integrator.dt')
+    return data
+
+
+class Scene:
+    """A validated scene: read-only nested values, ``scene['integrator.dt']`` or ``scene.data``."""
+
+    def __init__(self, data, source=None):
+        self._data = validate(data)
+        self.source = source
+
+    @classmethod
+    def load(cls, path):
+        path = Path(path)
+        try:
+            text = path.read_text()
+        except OSError as exc:
+            raise SceneError(f'{path}: cannot read scene file ({exc.strerror})') from None
+        try:
+            raw = yaml.safe_load(text)
+        except yaml.YAMLError as exc:
+            mark = getattr(exc, 'problem_mark', None)
+            where = f' line {mark.line + 1}' if mark is not None else ''
+            raise SceneError(f'{path}:{where} not valid YAML ({getattr(exc, "problem", exc)})') \
+                from None
+        if raw is None:                         # nothing but blanks or comments
+            raise SceneError(f'{path}: the scene file is empty (give at least a name and a '
+                             f'structure; see config/scenes/)')
+        try:
+            return cls(raw, source=str(path))
+        except SceneError as exc:
+            raise SceneError(f'{path}: {exc}') from None
+
+    @property
+    def data(self):
+        return copy.deepcopy(self._data)
+
+    def __getitem__(self, dotted):
+        node = self._data
+        for part in dotted.split('.'):
+            node = node[part]
+        return copy.deepcopy(node)
+
+    @property
+    def name(self):
+        return self._data['name']
+
+    def with_overrides(self, assignments):
+        """A new scene with ``KEY=VALUE`` strings (or (key, value) pairs) applied; values are
+        parsed as YAML scalars."""
+        data = self.data
+        for item in assignments:
+            if isinstance(item, str):
+                if '=' not in item:
+                    raise SceneError(f'--set {item!r}: expected KEY=VALUE')
+                key, text = item.split('=', 1)
+                try:
+                    value = yaml.safe_load(text)
+                except yaml.YAMLError:
+                    raise SceneError(f'--set {key}: cannot parse value {text!r}') from None
+            else:
+                key, value = item
+            key = key.strip()
+            key = SHORTCUTS.get(key, key) if not isinstance(value, dict) else key
+            parts = key.split('.')
+            node = data
+            for part in parts[:-1]:
+                if not isinstance(node, dict) or part not in node:
+                    raise SceneError(_unknown(key, node))
+                node = node[part]
+            if not isinstance(node, dict) or parts[-1] not in node:
+                raise SceneError(_unknown(key, node))
+            node[parts[-1]] = value
+        return Scene(data, source=self.source)

@@ -1,0 +1,354 @@
+"""Unilateral contacts and cable damping: the striker, the prism stops, viscous cables.
+
+Everything here enters the dynamics through one tuple, the fourth slot of the ``act`` tuple of
+:mod:`solver.kernels.dynamics` (``act[3]``, "extras")::
+
+    (damp (n_cables,) N s/m, levels (n_columns, n_levels, k) node indices,
+     stop_h (n_columns, n_prisms) m, st_row (n_strikers,), st_col (n_strikers,), par (6,))
+
+``par = (k_stop N/m, k_contact, contact exponent (1 linear, 1.5 Hertz), nodes per level of the
+full network, striker mass kg, gravity m/s^2)``. Empty arrays switch a part off: with all of them
+empty (:data:`NO_EXTRAS`, what :func:`solver.kernels.dynamics.pack` gives) the kernels of
+:mod:`solver.kernels.dynamics` take exactly the code path they take without this module.
+
+- **Cable damping**: a taut cable (``s > L``) carries ``T = k (s - L) + c ds/dt``, floored at 0 (a
+  cable cannot push); a slack one carries nothing. The damping force only ever removes energy.
+- **Striker**: a rigid body of mass ``m_s`` moving along the column axis, one per column, its
+  contact face at height ``z_s`` (rows ``st_row`` of the state arrays, x and y unused). The overlap
+  with the column's free end is ``d = z_end - z_s`` (``z_end`` the mean height of the end level);
+  for ``d > 0`` the contact pushes the striker up and each end node down by ``F / k`` with
+  ``F = k_c d`` (linear) or ``k_c d^1.5`` (Hertz), energy ``k_c d^2 / 2`` or ``2 k_c d^2.5 / 5``.
+- **Prism stops**: for each prism a stop between its two levels: when the height ``h`` (mean z of
+  the upper level minus that of the lower) falls below ``stop_h``, a linear penalty force
+  ``k_stop (stop_h - h)`` pushes the two levels apart, shared equally by their nodes, energy
+  ``k_stop (stop_h - h)^2 / 2``.
+
+Forces that act on whole levels, equally per node, keep the 3-fold symmetry, so the reduced
+``sym3d`` model runs them too (there a level is one node standing for ``k`` = 3: it gets the force
+of one full node).
+"""
+import math
+
+import numpy as np
+
+from solver._jit import jit
+from solver.kernels.rotation import ROT_C, ROT_S
+
+
+def _empty(shape, dtype=np.float64):
+    # writable like the arrays of an active scene: one compiled type for both (never written)
+    return np.zeros(shape, dtype=dtype)
+
+
+NO_EXTRAS = (_empty(0), _empty((0, 0, 1), np.int64), _empty((0, 0)), _empty(0, np.int64),
+             _empty(0, np.int64), _empty(6))
+
+
+def active_spec(spec):
+    """Whether a :func:`scene_extras` dict switches anything on."""
+    return spec['damp'] is not None or spec['stop_h'] is not None or spec['strikers']
+
+
+def active(extras):
+    """Whether an extras tuple switches anything on."""
+    return bool(extras[0].shape[0] or extras[2].size or extras[3].shape[0])
+
+
+@jit
+def cable_forces_damped(x, v, cable_a, cable_b, cable_rot, rest, EA, damp, f):
+    """Add tension-only cable forces with viscous damping to ``f``: for ``s > L``,
+    ``T = max(EA (s - L) / L + damp ds/dt, 0)``. ``cable_rot`` empty: plain cables; otherwise
+    cables to the rotated image ``R^r x_b`` (the force on the image rotated back, as
+    :func:`solver.kernels.rotation.cable_forces_rot`)."""
+    rotated = cable_rot.shape[0] > 0
+    for c in range(cable_a.shape[0]):
+        a = cable_a[c]
+        b = cable_b[c]
+        cr = 1.0
+        sr = 0.0
+        if rotated:
+            cr = ROT_C[cable_rot[c]]
+            sr = ROT_S[cable_rot[c]]
+        dx = cr * x[b, 0] - sr * x[b, 1] - x[a, 0]
+        dy = sr * x[b, 0] + cr * x[b, 1] - x[a, 1]
+        dz = x[b, 2] - x[a, 2]
+        s = math.sqrt(dx * dx + dy * dy + dz * dz)
+        L = rest[c]
+        if s > L:
+            ux = cr * v[b, 0] - sr * v[b, 1] - v[a, 0]
+            uy = sr * v[b, 0] + cr * v[b, 1] - v[a, 1]
+            uz = v[b, 2] - v[a, 2]
+            T = EA[c] / L * (s - L) + damp[c] * (dx * ux + dy * uy + dz * uz) / s
+            if T > 0.0:
+                g = T / s
+                fx = g * dx
+                fy = g * dy
+                f[a, 0] += fx
+                f[a, 1] += fy
+                f[a, 2] += g * dz
+                f[b, 0] -= cr * fx + sr * fy
+                f[b, 1] -= cr * fy - sr * fx
+                f[b, 2] -= g * dz
+
+
+@jit
+def _level_z(x, levels, c, j):
+    k = levels.shape[2]
+    z = 0.0
+    for i in range(k):
+        z += x[levels[c, j, i], 2]
+    return z / k
+
+
+@jit
+def contact_force(d, k, expo):
+    """Contact force N of an overlap ``d`` > 0 m (linear ``k d`` or Hertz ``k d^1.5``)."""
+    if expo == 1.0:
+        return k * d
+    return k * d * math.sqrt(d)
+
+
+@jit
+def contact_energy(d, k, expo):
+    """Energy J stored at overlap ``d`` > 0 m: ``k d^2 / 2`` or ``2 k d^2.5 / 5``."""
+    if expo == 1.0:
+        return 0.5 * k * d * d
+    return 0.4 * k * d * d * math.sqrt(d)
+
+
+@jit
+def axial_contacts(x, ex, f):
+    """Add the forces of the prism stops and strikers of ``ex`` (the extras tuple) to ``f``."""
+    levels, stop_h, st_row, st_col, par = ex[1], ex[2], ex[3], ex[4], ex[5]
+    k = levels.shape[2]
+    share = 1.0 / par[3]
+    kl = par[0]
+    for c in range(stop_h.shape[0]):
+        z_prev = _level_z(x, levels, c, 0)
+        for j in range(1, levels.shape[1]):
+            z = _level_z(x, levels, c, j)
+            d = stop_h[c, j - 1] - (z - z_prev)
+            if d > 0.0:
+                F = kl * d * share
+                for i in range(k):
+                    f[levels[c, j, i], 2] += F
+                    f[levels[c, j - 1, i], 2] -= F
+            z_prev = z
+    top = levels.shape[1] - 1
+    for s in range(st_row.shape[0]):
+        c = st_col[s]
+        d = _level_z(x, levels, c, top) - x[st_row[s], 2]
+        if d > 0.0:
+            F = contact_force(d, par[1], par[2])
+            f[st_row[s], 2] += F
+            for i in range(k):
+                f[levels[c, top, i], 2] -= F * share
+
+
+@jit
+def extra_energy(x, v, ex):
+    """Energy J of the extras: striker kinetic and gravity energy, contact and stop energies."""
+    levels, stop_h, st_row, st_col, par = ex[1], ex[2], ex[3], ex[4], ex[5]
+    e = 0.0
+    for c in range(stop_h.shape[0]):
+        z_prev = _level_z(x, levels, c, 0)
+        for j in range(1, levels.shape[1]):
+            z = _level_z(x, levels, c, j)
+            d = stop_h[c, j - 1] - (z - z_prev)
+            if d > 0.0:
+                e += 0.5 * par[0] * d * d
+            z_prev = z
+    top = levels.shape[1] - 1
+    for s in range(st_row.shape[0]):
+        r = st_row[s]
+        e += 0.5 * par[4] * v[r, 2] * v[r, 2] + par[4] * par[5] * x[r, 2]
+        d = _level_z(x, levels, st_col[s], top) - x[r, 2]
+        if d > 0.0:
+            e += contact_energy(d, par[1], par[2])
+    return e
+
+
+@jit
+def _gap_kink(g, gd, gdd, h, ignore):
+    """Earliest time in ``(ignore, h)`` at which ``g + gd t + gdd t^2 / 2`` crosses 0; ``h`` if
+    none (the same quadratic model as :func:`solver.integrators.registry.next_kink`)."""
+    disc = gd * gd - 2.0 * gdd * g
+    if disc < 0.0:
+        return h
+    q = -0.5 * (gd + math.copysign(math.sqrt(disc), gd))
+    t_best = h
+    for r in range(2):
+        if r == 0:
+            t = q / (0.5 * gdd) if gdd != 0.0 else -1.0
+        else:
+            t = g / q if q != 0.0 else -1.0
+        if ignore < t < t_best:
+            t_best = t
+    return t_best
+
+
+@jit
+def contact_kink(x, v, acc, ex, h, ignore):
+    """Earliest time in ``(ignore, h)`` at which a stop or a striker contact is predicted to
+    open or close (its force law has a kink at zero overlap); ``h`` if none."""
+    levels, stop_h, st_row, st_col = ex[1], ex[2], ex[3], ex[4]
+    for c in range(stop_h.shape[0]):
+        for j in range(1, levels.shape[1]):
+            g = _level_z(x, levels, c, j) - _level_z(x, levels, c, j - 1) - stop_h[c, j - 1]
+            gd = _level_z(v, levels, c, j) - _level_z(v, levels, c, j - 1)
+            gdd = _level_z(acc, levels, c, j) - _level_z(acc, levels, c, j - 1)
+            h = _gap_kink(g, gd, gdd, h, ignore)
+    top = levels.shape[1] - 1
+    for s in range(st_row.shape[0]):
+        r = st_row[s]
+        c = st_col[s]
+        g = x[r, 2] - _level_z(x, levels, c, top)
+        gd = v[r, 2] - _level_z(v, levels, c, top)
+        gdd = acc[r, 2] - _level_z(acc, levels, c, top)
+        h = _gap_kink(g, gd, gdd, h, ignore)
+    return h
+
+
+# -- building the extras of a scene --------------------------------------------------------------
+
+def cable_damping(scene_data, network):
+    """Per-cable damping coefficients (n_cables,) N s/m of a scene, or None when zero:
+    ``materials.cable_damping`` for every cable, or from ``materials.cable_damping_ratio`` zeta as
+    ``c = 2 zeta sqrt(k m)``, ``k = EA / L`` of the cable and ``m`` the unit mass."""
+    mat = scene_data['materials']
+    c, zeta = float(mat['cable_damping']), float(mat['cable_damping_ratio'])
+    if c > 0:
+        return np.full(network.n_cables, c)
+    if zeta > 0:
+        k = np.asarray(network.cable_EA) / np.asarray(network.cable_rest_length)
+        return 2.0 * zeta * np.sqrt(k * float(mat['unit_mass']))
+    return None
+
+
+def stop_heights(network, tolerance):
+    """Height m of each prism's stop (n_columns, n_prisms): the rigid-base lock
+    ``sqrt(b^2 - 4 r^2)`` (twist 180 deg, the bars meet on the axis) plus ``tolerance * h0``;
+    flexible bases (no rigid edges): ``tolerance * h0`` (the two bases meet)."""
+    meta = network.meta
+    h0 = float(network.h0)
+    lock = 0.0
+    if network.n_edges > 0:
+        b, r = float(meta['bar_length']), float(meta['radius'])
+        lock = math.sqrt(max(b * b - 4.0 * r * r, 0.0))
+    stop = lock + tolerance * h0
+    if not stop < h0:
+        raise ValueError(f'contact.tolerance: {tolerance:g} puts the stop at {stop:.4g} m, not '
+                         f'below the prism height h0 = {h0:.4g} m (the stops would push at rest)')
+    return np.full((network.n_columns, network.n_prisms), stop)
+
+
+def scene_extras(scene_data, network):
+    """What a scene switches on, for :func:`attach`: a dict with ``damp`` (full (n_cables,) or
+    None), ``stop_h`` ((n_columns, n_prisms) or None), ``strikers`` (bool), ``par`` (6,)."""
+    imp = scene_data['loading']['impact']
+    lock = scene_data['contact']['lock'] != 'none'
+    strikers = imp['mode'] == 'striker'
+    if (lock or strikers) and not network.levels.size:
+        key = 'contact.lock' if lock else 'loading.impact.mode'
+        raise ValueError(f'{key}: needs a column structure (levels)')
+    par = np.array([scene_data['contact']['stiffness'], imp['contact_stiffness'],
+                    1.0 if imp['contact'] == 'linear' else 1.5,
+                    float(network.levels.shape[2]) if network.levels.size else 3.0,
+                    imp['striker_mass'], scene_data['loading']['gravity']])
+    return {'damp': cable_damping(scene_data, network),
+            'stop_h': stop_heights(network, scene_data['contact']['tolerance']) if lock else None,
+            'strikers': strikers, 'par': par}
+
+
+def network_extras(spec, network):
+    """The extras tuple of ``spec`` for the full ``network`` without strikers (cable damping and
+    prism stops only): the member forces of a full state, as the base force needs them."""
+    if spec is None or not active_spec(spec):
+        return NO_EXTRAS
+    damp = NO_EXTRAS[0] if spec['damp'] is None else np.array(spec['damp'], dtype=np.float64)
+    stop_h = NO_EXTRAS[2] if spec['stop_h'] is None else np.array(spec['stop_h'], np.float64)
+    levels = np.ascontiguousarray(network.levels, dtype=np.int64) if network.levels.size \
+        else NO_EXTRAS[1]
+    return (damp, levels, stop_h, NO_EXTRAS[3], NO_EXTRAS[4], spec['par'].copy())
+
+
+def attach(model, spec, striker_state=None):
+    """Load the extras ``spec`` (:func:`scene_extras`) into a ``full3d`` or ``sym3d`` model: its
+    ``act`` gets the extras tuple; with strikers its state arrays get one row per column at the
+    end (the striker's contact face at ``(x, y, z_s)``: x, y stay at the column's centre), and its
+    ``net``, ``ws``, ``summ`` are padded to match. ``striker_state`` ((n_columns, 2) z, v_z):
+    where the strikers start (default: touching the free end, at rest). Sets
+    ``model.n_strikers``."""
+    from solver.kernels import dynamics as dyn
+    net_full = model.network
+    reduced = getattr(model, 'reduced', None)
+    if spec is None or not active_spec(spec):
+        model.n_strikers = 0
+        return model
+    levels_full = np.asarray(spec.get('levels', net_full.levels))     # (n_columns, n_levels, k)
+    if reduced is None:
+        levels = np.ascontiguousarray(levels_full, dtype=np.int64)
+    else:
+        levels = np.ascontiguousarray(np.asarray(reduced.node_rep)[levels_full[:, :, :1]],
+                                      dtype=np.int64)
+    damp = NO_EXTRAS[0]
+    if spec['damp'] is not None:
+        if reduced is None:
+            damp = np.array(spec['damp'], dtype=np.float64)
+        else:
+            damp = np.zeros(len(reduced.cable_a))
+            damp[reduced.cable_map] = spec['damp']
+    stop_h = NO_EXTRAS[2] if spec['stop_h'] is None else np.array(spec['stop_h'], np.float64)
+    n = model.x.shape[0]
+    ns = levels_full.shape[0] if spec['strikers'] else 0
+    rows = np.arange(n, n + ns, dtype=np.int64)
+    if not levels.size:
+        levels = NO_EXTRAS[1]
+    ex = (damp, levels, stop_h, rows, np.arange(ns, dtype=np.int64), spec['par'].copy())
+    if ns and len(model.net) > 12 and np.asarray(model.net[12][0]).shape[0]:
+        raise ValueError('loading.impact.mode: striker is not available with massive bars that '
+                         'share nodes (materials.bar_mass_fraction, materials.bar_mass): the '
+                         'striker is not part of their mass-matrix system; use mode impulse or '
+                         'energy, or massless bars')
+    if ns:
+        x_full = np.asarray(net_full.x0)
+        x_extra = np.zeros((ns, 3))
+        for c in range(ns):
+            end = x_full[levels_full[c, -1]]
+            x_extra[c] = (end[:, 0].mean(), end[:, 1].mean(), end[:, 2].mean())
+        x_extra0 = x_extra.copy()
+        v_extra = np.zeros((ns, 3))
+        if striker_state is not None:
+            x_extra[:, 2] = striker_state[:, 0]
+            v_extra[:, 2] = striker_state[:, 1]
+        model.x = np.concatenate([model.x, x_extra])
+        model.v = np.concatenate([model.v, v_extra])
+        net = model.net
+        pad = (np.concatenate([net[0], np.zeros(ns)]),          # no mass term: the striker's
+               np.concatenate([net[1], -np.ones(ns, np.int64)]),  # acceleration is set below
+               np.concatenate([net[2], np.zeros(ns)]))
+        # the striker's inverse mass goes into w_diag: its force is along z only
+        pad[0][n:] = 1.0 / spec['par'][4]
+        model.net = pad + tuple(net[3:])
+        f_ext = np.concatenate([model.act[2], np.zeros((ns, 3))])
+        f_ext[n:, 2] = -spec['par'][4] * spec['par'][5]
+        model.act = (model.act[0], model.act[1], f_ext, ex)
+        n_con = len(net[3])
+        model.ws = dyn.workspace(n + ns, n_con, model.ws[3].shape[1] - 1)
+        if model.summ is not None:
+            s = model.summ
+            model.summ = (np.concatenate([s[0], x_extra0]), np.concatenate([s[1], np.zeros(ns)]),
+                          np.concatenate([s[2], np.zeros(ns, bool)]),
+                          np.concatenate([s[3], np.zeros(ns)])) + tuple(s[4:])
+    else:
+        model.act = (model.act[0], model.act[1], model.act[2], ex)
+    model.n_strikers = ns
+    return model
+
+
+def striker_state(model):
+    """(n_strikers, 2) striker face height m and axial velocity m/s of a model (a copy)."""
+    ns = getattr(model, 'n_strikers', 0)
+    if not ns:
+        return np.zeros((0, 2))
+    return np.stack([model.x[-ns:, 2], model.v[-ns:, 2]], axis=1)

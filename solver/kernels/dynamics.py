@@ -1,0 +1,556 @@
+"""Numba kernels of the constrained dynamics (docs/physics.md section 1.1).
+
+Two levels, as everywhere in the solver: :func:`pack` (Python) validates and allocates, the
+``@jit`` kernels take arrays and tuples of arrays only and write into ``out`` arrays.
+
+``net`` tuple (read-only model arrays, see :class:`solver.build.network.Network`)::
+
+    (w_diag, partner, w_off, con_tail, con_head, con_length, con_coef, cable_a, cable_b,
+     con_rot, cable_rot, con_coef3, kkt)
+
+The last three serve the symmetric reduction (:mod:`solver.models.sym3d`) and are empty for a plain
+network:
+a member then joins its tail node to the ROTATED IMAGE ``R^r x_head`` of its head node, ``R`` the
+rotation by 2 pi / 3 about z and ``r = con_rot[c]`` (``cable_rot`` for cables) in {0, 1, 2}; the
+force
+on the image is rotated back onto the node. ``con_coef3`` (n_con, bw + 1, 3) replaces ``con_coef``:
+``A[c, c-k] = coef3[c, k] . (b_c^z b_d^z, b_c^x b_d^x + b_c^y b_d^y, b_c^y b_d^x - b_c^x b_d^y)``.
+With empty arrays every kernel takes the plain path (r = 0), so ``full3d`` pays nothing for them.
+``kkt`` is the layout of the mass-matrix system of :mod:`solver.kernels.massmatrix` (massive bars that
+share nodes); its arrays are empty for every other network, and the kernels then take the
+node-local inverse mass path unchanged.
+
+``act`` tuple (actuation, mutable by commands)::
+
+    (cable_rest_length (n_cables,) m, cable_EA (n_cables,) N, f_ext (n_nodes, 3) N, extras)
+
+``extras``: cable damping, strikers and prism stops (:mod:`solver.kernels.contact`); all empty
+(:data:`solver.kernels.contact.NO_EXTRAS`) unless a scene asks for them, and then the kernels take the code
+path they take without them.
+
+``ws`` workspace tuple (scratch, preallocated once): see :func:`workspace`.
+
+Status codes returned by kernels: ``OK``, ``SINGULAR`` (constraint matrix not positive definite:
+dependent or degenerate rigid members), ``NONFINITE`` (NaN or inf appeared), ``NOT_CONVERGED``
+(the position projection did not reach its tolerance).
+"""
+import math
+
+import numpy as np
+
+from solver.kernels import massmatrix as mm
+from solver._jit import jit, jit_inline
+from solver.kernels.contact import NO_EXTRAS, axial_contacts, cable_forces_damped, extra_energy
+from solver.kernels.rotation import (ROT_C, ROT_S, add_constraint_forces_rot, assemble_band_rot,  # noqa: F401
+                      cable_forces_rot, member_vectors_rot)
+
+OK, SINGULAR, NONFINITE, NOT_CONVERGED = 0, 1, 2, 3
+STATUS_TEXT = {OK: 'ok', SINGULAR: 'constraint matrix singular (degenerate rigid members)',
+               NONFINITE: 'non-finite positions or velocities',
+               NOT_CONVERGED: 'position projection did not converge'}
+STATUS_TEXT.update(mm.STATUS_TEXT)
+
+
+NO_ROT = np.zeros(0, dtype=np.int64)
+NO_ROT.setflags(write=False)
+NO_COEF3 = np.zeros((0, 1, 3))
+NO_COEF3.setflags(write=False)
+
+
+def pack(network, cable_rest_length=None, cable_EA=None, f_ext=None):
+    """The ``(net, act)`` tuples of a network; ``act`` arrays are fresh writable copies. A network
+    with rotated members (:class:`solver.models.sym3d.ReducedNetwork`) fills the last three ``net``
+    slots."""
+    net = (network.w_diag, network.partner, network.w_off, network.con_tail, network.con_head,
+           network.con_length, network.con_coef, network.cable_a, network.cable_b,
+           getattr(network, 'con_rot', NO_ROT), getattr(network, 'cable_rot', NO_ROT),
+           getattr(network, 'con_coef3', NO_COEF3), getattr(network, 'kkt', mm.NO_KKT))
+    rest = np.array(network.cable_rest_length if cable_rest_length is None else cable_rest_length,
+                    dtype=np.float64)
+    EA = np.array(network.cable_EA if cable_EA is None else cable_EA, dtype=np.float64)
+    f = np.zeros((network.n_nodes, 3)) if f_ext is None else np.array(f_ext, dtype=np.float64)
+    return net, (rest, EA, f, NO_EXTRAS)
+
+
+def workspace(n_nodes, n_con, bandwidth, kkt_dims=None):
+    """Scratch arrays: ``(f, wf, bvec, band, lam, stage arrays..., kws)``; ``kws`` (the last) is
+    the scratch of the mass-matrix system for ``kkt_dims = (n_u, kl, ku)`` (empty when None)."""
+    def z(*shape):
+        return np.zeros(shape)
+    return (z(n_nodes, 3), z(n_nodes, 3), z(n_con, 3), z(n_con, bandwidth + 1), z(n_con),
+            z(n_nodes, 3), z(n_nodes, 3), z(n_nodes, 3), z(n_nodes, 3), z(n_nodes, 3),
+            z(n_nodes, 3), mm.scratch(mm.NO_DIMS if kkt_dims is None else kkt_dims))
+
+
+def workspace_for(network):
+    """:func:`workspace` sized for ``network`` (a :class:`~solver.build.network.Network` or a reduced
+    one), including the scratch of its mass-matrix system."""
+    kkt = getattr(network, 'kkt', mm.NO_KKT)
+    return workspace(network.n_nodes, network.n_constraints, network.bandwidth, kkt[5])
+
+
+@jit
+def cable_forces(x, cable_a, cable_b, rest, EA, f):
+    """Add tension-only cable forces to ``f`` (n_nodes, 3) N: ``T = EA (s - L) / L`` when
+    ``s > L``."""
+    for c in range(cable_a.shape[0]):
+        a = cable_a[c]
+        b = cable_b[c]
+        dx = x[b, 0] - x[a, 0]
+        dy = x[b, 1] - x[a, 1]
+        dz = x[b, 2] - x[a, 2]
+        s = math.sqrt(dx * dx + dy * dy + dz * dz)
+        L = rest[c]
+        if s > L:
+            g = EA[c] / L * (s - L) / s   # force density gamma = T / s
+            f[a, 0] += g * dx
+            f[a, 1] += g * dy
+            f[a, 2] += g * dz
+            f[b, 0] -= g * dx
+            f[b, 1] -= g * dy
+            f[b, 2] -= g * dz
+
+
+@jit
+def apply_w(f, w_diag, partner, w_off, out):
+    """``out = W f``: the inverse mass operator, node-wise (a partner only for massive bars)."""
+    for p in range(f.shape[0]):
+        w = w_diag[p]
+        q = partner[p]
+        for i in range(3):
+            out[p, i] = w * f[p, i]
+        if q >= 0:
+            wo = w_off[p]
+            for i in range(3):
+                out[p, i] += wo * f[q, i]
+
+
+@jit
+def member_vectors(x, tail, head, bvec):
+    for c in range(tail.shape[0]):
+        for i in range(3):
+            bvec[c, i] = x[head[c], i] - x[tail[c], i]
+
+
+@jit
+def assemble_band(bvec, coef, band):
+    """``band[c, k] = A[c, c-k] = coef[c, k] * (b_c . b_{c-k})``."""
+    m, width = coef.shape
+    for c in range(m):
+        for k in range(width):
+            cf = coef[c, k]
+            if cf == 0.0 or k > c:
+                band[c, k] = 0.0
+                continue
+            d = c - k
+            band[c, k] = cf * (bvec[c, 0] * bvec[d, 0] + bvec[c, 1] * bvec[d, 1]
+                               + bvec[c, 2] * bvec[d, 2])
+
+
+@jit
+def _tridiag_ldl_solve(band, rhs):
+    """:func:`band_ldl_solve` for bandwidth 1 (bar chains of flexible-base columns), unrolled."""
+    m = band.shape[0]
+    d = band[0, 0]
+    if not d > 0.0:
+        return SINGULAR
+    inv = 1.0 / d
+    band[0, 0] = inv
+    y = rhs[0]
+    for i in range(1, m):
+        w = band[i, 1]
+        lij = w * inv
+        d = band[i, 0] - w * lij
+        if not d > 0.0:
+            return SINGULAR
+        inv = 1.0 / d
+        band[i, 1] = lij
+        band[i, 0] = inv
+        y = rhs[i] - lij * y
+        rhs[i] = y
+    z = rhs[m - 1] * band[m - 1, 0]
+    rhs[m - 1] = z
+    for i in range(m - 2, -1, -1):
+        z = rhs[i] * band[i, 0] - band[i + 1, 1] * z
+        rhs[i] = z
+    return OK
+
+
+@jit
+def band_ldl_solve(band, rhs):
+    """Solve ``A y = rhs`` in place (``rhs`` becomes y) for SPD banded A given by its lower band.
+
+    Square-root-free LDL^T: ``band`` is overwritten with the unit lower factor L off the diagonal
+    and ``1 / d_i`` on it (one division per row keeps the sequential dependency chain short).
+    Returns ``OK`` or ``SINGULAR`` (a pivot that is not positive).
+    """
+    m, width = band.shape
+    bw = width - 1
+    if bw == 1:
+        return _tridiag_ldl_solve(band, rhs)
+    for i in range(m):
+        lo = max(0, i - bw)
+        for j in range(lo, i):          # w_j = A_ij - sum_k w_k L_jk  (w_k = L_ik d_k)
+            s = band[i, i - j]
+            for k in range(lo, j):
+                s -= band[i, i - k] * band[j, j - k]
+            band[i, i - j] = s
+        d = band[i, 0]
+        for j in range(lo, i):
+            w = band[i, i - j]
+            lij = w * band[j, 0]
+            band[i, i - j] = lij
+            d -= w * lij
+        if not d > 0.0:
+            return SINGULAR
+        band[i, 0] = 1.0 / d
+    for i in range(m):
+        s = rhs[i]
+        for k in range(max(0, i - bw), i):
+            s -= band[i, i - k] * rhs[k]
+        rhs[i] = s
+    for i in range(m - 1, -1, -1):
+        s = rhs[i] * band[i, 0]
+        for k in range(i + 1, min(m, i + bw + 1)):
+            s -= band[k, k - i] * rhs[k]
+        rhs[i] = s
+    return OK
+
+
+@jit
+def add_constraint_forces(lam, bvec, tail, head, f):
+    """``f += sum_c lam_c G_c``: ``+lam b`` on the head node, ``-lam b`` on the tail node."""
+    for c in range(tail.shape[0]):
+        h = head[c]
+        t = tail[c]
+        for i in range(3):
+            g = lam[c] * bvec[c, i]
+            f[h, i] += g
+            f[t, i] -= g
+
+
+# the dispatchers take single arrays, never the whole ``net`` tuple: passing a tuple of arrays to
+# a compiled function costs a reference count per array (about 1 us per projection measured)
+@jit
+def _members(x, tail, head, rot, bvec):
+    if rot.shape[0] == 0:
+        member_vectors(x, tail, head, bvec)
+    else:
+        member_vectors_rot(x, tail, head, rot, bvec)
+
+
+@jit
+def _assemble(bvec, coef, coef3, rot, band):
+    if rot.shape[0] == 0:
+        assemble_band(bvec, coef, band)
+    else:
+        assemble_band_rot(bvec, coef3, band)
+
+
+@jit
+def _add_forces(lam, bvec, tail, head, rot, f):
+    if rot.shape[0] == 0:
+        add_constraint_forces(lam, bvec, tail, head, f)
+    else:
+        add_constraint_forces_rot(lam, bvec, tail, head, rot, f)
+
+
+@jit_inline
+def _rel(u, t, h, rot, c):
+    """``R^r u[h] - u[t]`` with ``r = rot[c]`` (r = 0 when ``rot`` is empty): a 3-tuple."""
+    if rot.shape[0] == 0:
+        return u[h, 0] - u[t, 0], u[h, 1] - u[t, 1], u[h, 2] - u[t, 2]
+    cr = ROT_C[rot[c]]
+    sr = ROT_S[rot[c]]
+    return (cr * u[h, 0] - sr * u[h, 1] - u[t, 0], sr * u[h, 0] + cr * u[h, 1] - u[t, 1],
+            u[h, 2] - u[t, 2])
+
+
+@jit
+def accelerations(x, v, net, act, ws, out):
+    """Accelerations (n_nodes, 3) m/s^2 of the constrained system into ``out``; multipliers
+    (bar force densities, > 0 in compression) are left in ``ws[4]``. Returns a status code."""
+    w_diag, partner, w_off, tail, head = net[0], net[1], net[2], net[3], net[4]
+    coef, cable_a, cable_b, rot, coef3 = net[6], net[7], net[8], net[9], net[11]
+    rest, EA, f_ext, ex = act[0], act[1], act[2], act[3]
+    f, wf, bvec, band, lam = ws[0], ws[1], ws[2], ws[3], ws[4]
+    f[:, :] = f_ext
+    if ex[0].shape[0] != 0:                 # damped cables (solver.kernels.contact)
+        cable_forces_damped(x, v, cable_a, cable_b, net[10], rest, EA, ex[0], f)
+    elif net[10].shape[0] == 0:
+        cable_forces(x, cable_a, cable_b, rest, EA, f)
+    else:
+        cable_forces_rot(x, cable_a, cable_b, net[10], rest, EA, f)
+    if ex[2].shape[0] != 0 or ex[3].shape[0] != 0:      # prism stops, strikers
+        axial_contacts(x, ex, f)
+    if net[12][0].shape[0] != 0:        # massive bars sharing nodes: the banded KKT system
+        return mm.accelerations(x, v, f, tail, head, rot, net[12], ws[11], bvec, lam, out)
+    apply_w(f, w_diag, partner, w_off, wf)
+    if rot.shape[0] == 0:
+        member_vectors(x, tail, head, bvec)
+        for c in range(tail.shape[0]):
+            h = head[c]
+            t = tail[c]
+            s = 0.0
+            for i in range(3):
+                db = v[h, i] - v[t, i]
+                s += bvec[c, i] * (wf[h, i] - wf[t, i]) + db * db
+            lam[c] = -s
+        assemble_band(bvec, coef, band)
+    else:
+        member_vectors_rot(x, tail, head, rot, bvec)
+        for c in range(tail.shape[0]):
+            ax, ay, az = _rel(wf, tail[c], head[c], rot, c)
+            dx, dy, dz = _rel(v, tail[c], head[c], rot, c)
+            lam[c] = -(bvec[c, 0] * ax + bvec[c, 1] * ay + bvec[c, 2] * az
+                       + dx * dx + dy * dy + dz * dz)
+        assemble_band_rot(bvec, coef3, band)
+    status = band_ldl_solve(band, lam)
+    if status != OK:
+        return status
+    _add_forces(lam, bvec, tail, head, rot, f)
+    apply_w(f, w_diag, partner, w_off, out)
+    return OK
+
+
+@jit
+def constraint_error_arrays(x, tail, head, length, rot):
+    """max_c |g_c| / L_c^2 with ``g_c = (|b_c|^2 - L_c^2) / 2`` (dimensionless), members as in the
+    ``net`` tuple (``rot`` empty for ``full3d``)."""
+    worst = 0.0
+    for c in range(tail.shape[0]):
+        dx, dy, dz = _rel(x, tail[c], head[c], rot, c)
+        L2 = length[c] * length[c]
+        e = abs(0.5 * (dx * dx + dy * dy + dz * dz - L2)) / L2
+        if not e <= worst:          # also catches NaN
+            worst = e
+    return worst
+
+
+@jit
+def project_positions(x, net, ws, tol, max_iter):
+    """Mass-weighted Gauss-Newton projection of positions onto the rigid-member manifold:
+    ``A dmu = -g``, ``x += W sum_c dmu_c G_c`` until ``|g_c| < tol L_c^2``. Returns a status
+    code."""
+    w_diag, partner, w_off, tail, head, length = net[0], net[1], net[2], net[3], net[4], net[5]
+    coef, rot, coef3 = net[6], net[9], net[11]
+    f, wf, bvec, band, lam = ws[0], ws[1], ws[2], ws[3], ws[4]
+    if net[12][0].shape[0] != 0:
+        return mm.project_positions(x, tail, head, rot, length, net[12], ws[11], bvec, tol,
+                                    max_iter)
+    for it in range(max_iter + 1):
+        _members(x, tail, head, rot, bvec)
+        worst = 0.0
+        for c in range(tail.shape[0]):
+            L2 = length[c] * length[c]
+            g = 0.5 * (bvec[c, 0] ** 2 + bvec[c, 1] ** 2 + bvec[c, 2] ** 2 - L2)
+            lam[c] = -g
+            e = abs(g) / L2
+            if not e <= worst:
+                worst = e
+        if worst < tol:
+            return OK
+        if it == max_iter or not math.isfinite(worst):
+            break
+        _assemble(bvec, coef, coef3, rot, band)
+        status = band_ldl_solve(band, lam)
+        if status != OK:
+            return status
+        f[:, :] = 0.0
+        _add_forces(lam, bvec, tail, head, rot, f)
+        apply_w(f, w_diag, partner, w_off, wf)
+        for p in range(x.shape[0]):
+            for i in range(3):
+                x[p, i] += wf[p, i]
+    return NOT_CONVERGED
+
+
+@jit
+def project_velocities(x, v, net, ws):
+    """Mass-weighted projection of velocities onto the constraint tangent space:
+    ``A mu = -J v``, ``v += W J^T mu`` (the impulse that removes every velocity violating a rigid
+    member while changing momentum least in the mass metric). Returns a status code."""
+    w_diag, partner, w_off, tail, head, rot = net[0], net[1], net[2], net[3], net[4], net[9]
+    coef, coef3 = net[6], net[11]
+    f, wf, bvec, band, lam = ws[0], ws[1], ws[2], ws[3], ws[4]
+    if net[12][0].shape[0] != 0:
+        return mm.project_velocities(x, v, tail, head, rot, net[12], ws[11], bvec)
+    _members(x, tail, head, rot, bvec)
+    if rot.shape[0] == 0:
+        for c in range(tail.shape[0]):
+            h = head[c]
+            t = tail[c]
+            lam[c] = -(bvec[c, 0] * (v[h, 0] - v[t, 0]) + bvec[c, 1] * (v[h, 1] - v[t, 1])
+                       + bvec[c, 2] * (v[h, 2] - v[t, 2]))
+    else:
+        for c in range(tail.shape[0]):
+            dx, dy, dz = _rel(v, tail[c], head[c], rot, c)
+            lam[c] = -(bvec[c, 0] * dx + bvec[c, 1] * dy + bvec[c, 2] * dz)
+    _assemble(bvec, coef, coef3, rot, band)
+    status = band_ldl_solve(band, lam)
+    if status != OK:
+        return status
+    f[:, :] = 0.0
+    _add_forces(lam, bvec, tail, head, rot, f)
+    apply_w(f, w_diag, partner, w_off, wf)
+    for p in range(x.shape[0]):
+        for i in range(3):
+            v[p, i] += wf[p, i]
+    return OK
+
+
+@jit
+def all_finite(a):
+    """Whether every entry of the 2D array ``a`` is finite. ``a * 0`` is 0 for a finite entry and
+    NaN for an infinite or NaN one, so the sum of them is 0 exactly when all are finite: no
+    branch per entry, and three independent sums let the additions overlap (5x faster than
+    testing each entry, which the integrators do after every step)."""
+    s0 = 0.0
+    s1 = 0.0
+    s2 = 0.0
+    n = a.shape[0]
+    for i in range(a.shape[1]):
+        p = 0
+        while p + 2 < n:
+            s0 += a[p, i] * 0.0
+            s1 += a[p + 1, i] * 0.0
+            s2 += a[p + 2, i] * 0.0
+            p += 3
+        while p < n:
+            s0 += a[p, i] * 0.0
+            p += 1
+    return s0 + s1 + s2 == 0.0
+
+
+@jit
+def finite_below(a, limit):
+    """Whether every entry of the 1D array ``a`` is finite and of magnitude below ``limit`` (a NaN
+    fails). For callers between kernels (a recorder checking each frame): NumPy's and OpenBLAS's
+    reductions take 512-bit instructions on CPUs with AVX-512, after which the solver's kernels ran
+    slower for a while (7 % of a recorded run, see docs/rerun.md); numba's code keeps to 256-bit
+    vectors."""
+    s = 0.0
+    m = 0.0
+    for i in range(a.shape[0]):
+        s += a[i] * 0.0
+        m = max(m, abs(a[i]))
+    return s == 0.0 and m < limit
+
+
+@jit
+def kinetic_energy(v, node_mass, clamped, bar_a, bar_b, bar_mass):
+    """``sum 1/2 m_p |v_p|^2 + sum_bars m_b / 6 (|v_a|^2 + v_a.v_b + |v_b|^2)`` J."""
+    e = 0.0
+    for p in range(v.shape[0]):
+        if not clamped[p]:
+            e += 0.5 * node_mass[p] * (v[p, 0] ** 2 + v[p, 1] ** 2 + v[p, 2] ** 2)
+    return e + _bar_kinetic_energy(v, bar_a, bar_b, bar_mass)
+
+
+@jit
+def _bar_kinetic_energy(v, bar_a, bar_b, bar_mass):
+    """``sum_bars m_b / 6 (|v_a|^2 + v_a.v_b + |v_b|^2)`` J (uniform bars)."""
+    e = 0.0
+    for j in range(bar_a.shape[0]):
+        mb = bar_mass[j]
+        if mb != 0.0:
+            a = bar_a[j]
+            b = bar_b[j]
+            e += mb / 6.0 * (v[a, 0] ** 2 + v[a, 1] ** 2 + v[a, 2] ** 2
+                             + v[a, 0] * v[b, 0] + v[a, 1] * v[b, 1] + v[a, 2] * v[b, 2]
+                             + v[b, 0] ** 2 + v[b, 1] ** 2 + v[b, 2] ** 2)
+    return e
+
+
+@jit
+def _node_energy(x, v, x0, f_ext, node_mass, clamped, node_mult):
+    """``sum mult_p (1/2 m_p |v_p|^2 - f_p . (x_p - x0_p))`` over free nodes, J."""
+    e = 0.0
+    for p in range(x.shape[0]):
+        if not clamped[p]:
+            e += node_mult[p] * (0.5 * node_mass[p] * (v[p, 0] ** 2 + v[p, 1] ** 2 + v[p, 2] ** 2)
+                                 - f_ext[p, 0] * (x[p, 0] - x0[p, 0])
+                                 - f_ext[p, 1] * (x[p, 1] - x0[p, 1])
+                                 - f_ext[p, 2] * (x[p, 2] - x0[p, 2]))
+    return e
+
+
+@jit
+def _cable_energy(x, cable_a, cable_b, cable_rot, rest, EA, cable_mult):
+    """``sum mult_c 1/2 EA_c / L_c (s_c - L_c)_+^2`` J (``cable_rot`` as in ``net``)."""
+    e = 0.0
+    for c in range(cable_a.shape[0]):
+        dx, dy, dz = _rel(x, cable_a[c], cable_b[c], cable_rot, c)
+        s = math.sqrt(dx * dx + dy * dy + dz * dz)
+        if s > rest[c]:
+            e += cable_mult[c] * 0.5 * EA[c] / rest[c] * (s - rest[c]) ** 2
+    return e
+
+
+@jit
+def level_heights(x, levels, heights):
+    """Prism heights into ``heights`` (n_columns, n_levels - 1) m: the mean z of the k nodes of
+    level j + 1 minus that of level j (``levels`` (n_columns, n_levels, k) node indices).
+    Returns the smallest height (NaN when a height is NaN, inf when there is none)."""
+    h_min = math.inf
+    k = levels.shape[2]
+    for c in range(levels.shape[0]):
+        z_prev = 0.0
+        for j in range(levels.shape[1]):
+            z = 0.0
+            for i in range(k):
+                z += x[levels[c, j, i], 2]
+            z /= k
+            if j > 0:
+                h = z - z_prev
+                heights[c, j - 1] = h
+                if h < h_min or h != h:     # a NaN height stays the minimum
+                    h_min = h
+            z_prev = z
+    return h_min
+
+
+def summary_arrays(x0, node_mass, clamped, bar_a, bar_b, bar_mass, levels, n_cables,
+                   node_mult=None, cable_mult=None):
+    """The ``summ`` tuple of :func:`state_summary`: the arrays it needs that ``net``/``act`` do
+    not hold. ``levels`` (n_columns, n_levels, k) node indices (a level's height is the mean z of
+    its k nodes); ``node_mult``/``cable_mult``: how many nodes or cables of the full network each
+    one stands for (default 1)."""
+    return (x0, node_mass, clamped,
+            np.ones(len(node_mass)) if node_mult is None else node_mult,
+            bar_a, bar_b, bar_mass, np.ones(n_cables) if cable_mult is None else cable_mult,
+            levels)
+
+
+@jit
+def state_summary(x, v, net, act, summ, heights):
+    """``(finite, energy J, relative constraint error, smallest prism height m)`` of a state, and
+    the prism heights (n_columns, n_prisms) m into ``heights``, in one pass: what the divergence
+    check and a frame need. ``net``, ``act``: the kernel tuples; ``summ``: the tuple of
+    :func:`summary_arrays`. The energy is kinetic (lumped node masses, bar masses ``m_b / 6
+    (|v_a|^2 + v_a.v_b + |v_b|^2)``) plus cable strain energy ``1/2 EA / L (s - L)_+^2``, minus
+    the work ``f_ext . (x - x0)`` of constant external forces; each node and cable term counts
+    ``node_mult``/``cable_mult`` times (a reduced network). The smallest height is NaN when a
+    height is."""
+    x0, node_mass, clamped, node_mult, bar_a, bar_b, bar_mass, cable_mult, levels = summ
+    # one compiled function per part: written as one loop nest, the same code ran 3x slower
+    e = (_node_energy(x, v, x0, act[2], node_mass, clamped, node_mult)
+         + _bar_kinetic_energy(v, bar_a, bar_b, bar_mass)
+         + _cable_energy(x, net[7], net[8], net[10], act[0], act[1], cable_mult))
+    ex = act[3]
+    if ex[2].shape[0] != 0 or ex[3].shape[0] != 0:      # strikers, prism stops
+        e += extra_energy(x, v, ex)
+    return (all_finite(x) and all_finite(v), e,
+            constraint_error_arrays(x, net[3], net[4], net[5], net[9]),
+            level_heights(x, levels, heights))
+
+
+@jit
+def cable_tensions(x, cable_a, cable_b, rest, EA, out):
+    """Tension per cable (n_cables,) N, zero when slack."""
+    for c in range(cable_a.shape[0]):
+        a = cable_a[c]
+        b = cable_b[c]
+        s = math.sqrt((x[b, 0] - x[a, 0]) ** 2 + (x[b, 1] - x[a, 1]) ** 2
+                      + (x[b, 2] - x[a, 2]) ** 2)
+        out[c] = EA[c] / rest[c] * (s - rest[c]) if s > rest[c] else 0.0

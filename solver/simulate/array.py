@@ -1,0 +1,450 @@
+"""Arrays of columns that do not interact: one reduced simulation per column, shared by the
+columns that are alike.
+
+The column builder lays out column ``c`` as column 0 moved by ``c * column_spacing`` along x, and
+no member joins two columns: the columns are independent systems. :class:`ArraySimulation` runs
+each as a one-column :class:`~solver.simulate.simulation.Simulation` of its own (``model: auto`` then
+picks the exact 3-fold reduction ``sym3d`` about the column's own axis), and columns that have had
+the same commands share one simulation (a *group*). A command that treats the columns of a group
+differently splits it: the group's simulation is copied, state, cables, prestrain ramp and
+integrator history included, so every copy continues exactly as the shared one would have. A
+command that breaks a column's symmetry (asymmetric rest lengths or state) expands only that
+column's simulation to ``full3d`` (the one-column simulation does this itself).
+
+The public interface is that of :class:`~solver.simulate.simulation.Simulation` (``Simulation(scene)``
+returns an :class:`ArraySimulation` when :func:`wants_array` holds); frames hold the full array
+(node, cable and column order of the column builder's network). Every column steps with the same
+``dt`` on one clock ``t``. A divergence in any column restores every column and names the column.
+"""
+from __future__ import annotations
+
+import copy
+import math
+import re
+
+import numpy as np
+
+from solver.build.scene import Scene
+from solver.simulate.simulation import PRESTRAIN_RANGE, Frame, Simulation, SimulationDiverged, build_network
+
+
+def wants_array(scene):
+    """Whether ``scene`` runs as an :class:`ArraySimulation`: a column-builder structure with more
+    than one column and ``model`` ``auto`` or ``sym3d``."""
+    s = scene.data['structure']
+    return (s.get('builder') == 'column' and s.get('n_columns', 1) > 1
+            and scene['model'] in ('auto', 'sym3d'))
+
+
+def _copy_arrays(value):
+    """A copy of a (nested) tuple of arrays: the kernels' ``act`` and ``ws`` tuples."""
+    if isinstance(value, tuple):
+        return tuple(_copy_arrays(v) for v in value)
+    return np.array(value)
+
+
+def _clone(sim):
+    """An independent copy of a one-column :class:`Simulation` that continues exactly as
+    ``sim`` would (state, cables, prestrain and ramp, energy reference, integrator history)."""
+    new = copy.copy(sim)
+    m = new.model = copy.copy(sim.model)
+    m.x, m.v = sim.model.x.copy(), sim.model.v.copy()
+    m.act = _copy_arrays(sim.model.act)
+    m.ws = _copy_arrays(sim.model.ws)
+    integ = new.integrator = copy.copy(sim.integrator)
+    integ.set_state(copy.deepcopy(sim.integrator.get_state()))
+    new.div = dict(sim.div)
+    new._cache = {}
+    new._plan = (None, None)
+    new._prestrain = None if sim._prestrain is None else sim._prestrain.copy()
+    new._ramp = None if sim._ramp is None else tuple(
+        np.array(r) if isinstance(r, np.ndarray) else r for r in sim._ramp)
+    new._base_force = None
+    return new
+
+
+class _ArrayModel:
+    """The model view of an array (what callers read of ``sim.model``): full arrays assembled
+    from the columns' models; ``name`` the columns' model (``sym3d``, ``full3d`` or both joined
+    by ``+``)."""
+
+    def __init__(self, array):
+        self._a = array
+
+    @property
+    def name(self):
+        names = sorted({g.sim.model.name for g in self._a.groups})
+        return '+'.join(names)
+
+    def positions(self):
+        return self._a._assemble_nodes(lambda s: s.model.positions(), offset=True)
+
+    def velocities(self):
+        return self._a._assemble_nodes(lambda s: s.model.velocities(), offset=False)
+
+    @property
+    def cable_rest_length(self):
+        return self._a._assemble_cables(lambda s: s.model.cable_rest_length)
+
+    @property
+    def cable_EA(self):
+        return self._a._assemble_cables(lambda s: s.model.cable_EA)
+
+    @property
+    def act(self):
+        """(rest lengths, EA, external forces) of the full array (new arrays)."""
+        a = self._a
+        return (self.cable_rest_length, self.cable_EA,
+                a._assemble_nodes(lambda s: s.f_ext, offset=False))
+
+    def set_state(self, x, v):
+        self._a._load(x, v)
+
+    def set_cables(self, rest, EA):
+        self._a._set_cables(rest, EA)
+
+
+class _Group:
+    __slots__ = ('sim', 'columns')
+
+    def __init__(self, sim, columns):
+        self.sim, self.columns = sim, list(columns)
+
+
+class ArraySimulation(Simulation):
+    """An array of independent columns (see the module text). ``dedup=False`` gives every column
+    its own simulation from the start (the plain twin of the shared one)."""
+
+    def __init__(self, scene: Scene, network=None, dedup=True):
+        if network is not None:
+            raise ValueError('ArraySimulation builds its own network from the scene')
+        self.scene = scene
+        self.network = net = build_network(scene)
+        data = scene.data
+        data['structure']['n_columns'] = 1
+        data['loading']['impact']['columns'] = None
+        if data['model'] == 'sym3d':
+            data['model'] = 'auto'      # per column: sym3d where the column is symmetric
+        self.column_scene = Scene(data, source=scene.source)
+        proto = Simulation(self.column_scene)
+        cnet = proto.network
+        self.n_columns = nc = net.n_columns
+        self._per = (cnet.n_nodes, cnet.n_cables)
+        self._offset = np.zeros((nc, 3))
+        self._offset[:, 0] = np.arange(nc) * scene['structure.column_spacing']
+        self._check_layout(cnet)
+        self.dedup = bool(dedup)
+        self._proto = proto
+        self.dt = proto.dt
+        self.integrator = proto.integrator
+        self.div = proto.div
+        self._prestrain_map = None
+        self.model = _ArrayModel(self)
+        self.reset()
+
+    def _check_layout(self, cnet):
+        """The full network is the column network repeated, moved by the offsets (the builder's
+        layout); anything else is a programming error."""
+        net, nc = self.network, self.n_columns
+        n, k = self._per
+        tiled = (np.asarray(cnet.x0)[None] + self._offset[:, None]).reshape(-1, 3)
+        shift = (np.arange(nc) * n)[:, None]
+        same = (net.n_nodes == nc * n and net.n_cables == nc * k
+                and np.allclose(net.x0, tiled, rtol=0, atol=1e-12)
+                and np.array_equal(net.cable_a, (cnet.cable_a[None] + shift).ravel())
+                and np.array_equal(net.cable_b, (cnet.cable_b[None] + shift).ravel())
+                and np.array_equal(net.bar_a, (cnet.bar_a[None] + shift).ravel()))
+        if not same:
+            raise RuntimeError('array: the network is not the column network repeated')
+
+    # -- groups ---------------------------------------------------------------------------------
+    def reset(self):
+        """Back to the reference geometry at rest, t = 0: every column alike again."""
+        self._proto.reset()
+        cols = range(self.n_columns)
+        if self.dedup:
+            self.groups = [_Group(self._proto, cols)]
+        else:
+            self.groups = [_Group(self._proto if c == 0 else _clone(self._proto), [c])
+                           for c in cols]
+        self._cache = {}
+
+    def _group_of(self):
+        """Group index per column (n_columns,)."""
+        g = np.empty(self.n_columns, dtype=np.int64)
+        for i, grp in enumerate(self.groups):
+            g[grp.columns] = i
+        return g
+
+    def _dispatch(self, per_column, apply):
+        """Apply a command column by column: ``per_column`` maps column -> a hashable key of what
+        the command does to it (None: not addressed); ``apply(sim, key)`` applies it to a
+        simulation. Groups whose columns get different keys are split first (copies); all checks
+        must be done before (nothing here may fail half-way)."""
+        new_groups = []
+        for grp in self.groups:
+            parts = {}
+            for c in grp.columns:
+                parts.setdefault(per_column(c), []).append(c)
+            items = list(parts.items())
+            for i, (key, cols) in enumerate(items):
+                sim = grp.sim if i == 0 else _clone(grp.sim)
+                new_groups.append((_Group(sim, cols), key))
+        # apply after every copy is made (a copy must be of the state before the command)
+        for grp, key in new_groups:
+            if key is not None:
+                apply(grp.sim, key)
+        self.groups = sorted((g for g, _ in new_groups), key=lambda g: g.columns[0])
+        self._cache = {}
+
+    # -- assembling full arrays -----------------------------------------------------------------
+    def _assemble_nodes(self, get, offset):
+        n = self._per[0]
+        out = np.empty((self.n_columns * n, 3))
+        for grp in self.groups:
+            a = np.asarray(get(grp.sim))
+            for c in grp.columns:
+                out[c * n:(c + 1) * n] = a + self._offset[c] if offset else a
+        return out
+
+    def _assemble_cables(self, get):
+        k = self._per[1]
+        out = np.empty(self.n_columns * k)
+        for grp in self.groups:
+            a = np.asarray(get(grp.sim))
+            for c in grp.columns:
+                out[c * k:(c + 1) * k] = a
+        return out
+
+    def _split_nodes(self, a, offset):
+        a = np.asarray(a, dtype=np.float64)
+        n = self._per[0]
+        if a.shape != (self.n_columns * n, 3):
+            raise ValueError(f'array: expected ({self.n_columns * n}, 3) values, got {a.shape}')
+        return [a[c * n:(c + 1) * n] - (self._offset[c] if offset else 0.0)
+                for c in range(self.n_columns)]
+
+    def _load(self, x, v):
+        xs, vs = self._split_nodes(x, True), self._split_nodes(v, False)
+        keys = [(xs[c].tobytes(), vs[c].tobytes()) for c in range(self.n_columns)]
+        states = dict(zip(keys, zip(xs, vs)))
+        self._dispatch(lambda c: keys[c], lambda s, key: s._load(*states[key]))
+
+    def _set_cables(self, rest, EA):
+        k = self._per[1]
+        rest, EA = np.asarray(rest, dtype=np.float64), np.asarray(EA, dtype=np.float64)
+        if rest.shape != (self.n_columns * k,) or EA.shape != rest.shape:
+            raise ValueError(f'array: expected {self.n_columns * k} cable values')
+        rows = {}
+        keys = []
+        for c in range(self.n_columns):
+            r, e = rest[c * k:(c + 1) * k], EA[c * k:(c + 1) * k]
+            key = (r.tobytes(), e.tobytes())
+            rows[key] = (r, e)
+            keys.append(key)
+        self._dispatch(lambda c: keys[c], lambda s, key: s._set_cables(*rows[key]))
+
+    # -- clock and summaries --------------------------------------------------------------------
+    @property
+    def t(self):
+        return self.groups[0].sim.t
+
+    @property
+    def step(self):
+        return self.groups[0].sim.step
+
+    @property
+    def steps_taken(self):
+        """Integrator steps of one column (the most any column took)."""
+        return max(g.sim.steps_taken for g in self.groups)
+
+    @property
+    def expanded(self):
+        """Why columns were expanded to ``full3d`` (text naming them), or None."""
+        why = [(g.columns, g.sim.expanded) for g in self.groups if g.sim.expanded]
+        if not why:
+            return None
+        return '; '.join(f'columns {cols}: {text}' for cols, text in why)
+
+    @property
+    def f_ext(self):
+        return self._assemble_nodes(lambda s: s.f_ext, offset=False)
+
+    def energy(self):
+        """Total energy of the array, J."""
+        e = np.empty(self.n_columns)
+        for g in self.groups:
+            e[g.columns] = g.sim.energy()
+        return float(sum(e.tolist()))           # column by column: the same sum however grouped
+
+    def constraint_error(self):
+        return float(max(g.sim.constraint_error() for g in self.groups))
+
+    def base_force(self):
+        out = np.empty(self.n_columns)
+        for g in self.groups:
+            out[g.columns] = g.sim.base_force()[0]
+        return out
+
+    @property
+    def n_simulated(self):
+        """How many column simulations run (groups)."""
+        return len(self.groups)
+
+    # -- commands -------------------------------------------------------------------------------
+    def _columns(self, columns, what):
+        cols = list(range(self.n_columns)) if columns is None else [int(c) for c in columns]
+        if not cols or any(not 0 <= c < self.n_columns for c in cols):
+            raise ValueError(f'{what}: columns must be indices 0..{self.n_columns - 1}')
+        return cols
+
+    def apply_impact(self, v0, columns=None, mode=None):
+        """Impact the free ends of the addressed columns (as :meth:`Simulation.apply_impact`,
+        each column on its own; ``mode='energy'`` rescales each column's kick to its own
+        ``3 m v0^2 / 2``). Returns the kinetic energy added, J."""
+        cols = self._columns(columns, 'impact')
+        v0 = np.asarray(v0, dtype=np.float64)
+        v = np.broadcast_to(v0, (len(cols),)) if v0.ndim == 0 else v0
+        if v.shape != (len(cols),):
+            raise ValueError(f'impact: expected 1 or {len(cols)} values, got {v0.size}')
+        if not np.all(np.isfinite(v)):
+            raise ValueError('impact: velocity is not finite')
+        mode = mode or self.scene['loading.impact.mode']
+        value = dict(zip(cols, v.tolist()))
+        before = self.energy()
+        self._dispatch(value.get, lambda s, key: s.apply_impact(key, mode=mode))
+        return self.energy() - before
+
+    def prestrain_target(self, p, columns=None):
+        """Per-prism prestrain (n_columns, n_prisms) of a command (see
+        :meth:`Simulation.prestrain_target`)."""
+        cols = self._columns(columns, 'prestrain')
+        n_p = self.network.n_prisms
+        p = np.asarray(p, dtype=np.float64)
+        if p.ndim == 0:
+            p = np.full((len(cols), n_p), float(p))
+        elif p.shape == (len(cols),):
+            p = np.repeat(p[:, None], n_p, axis=1)
+        elif p.shape != (len(cols), n_p):
+            raise ValueError(f'prestrain: expected 1, {len(cols)} or {len(cols)} x {n_p} '
+                             f'values, got shape {p.shape}')
+        if not np.all(np.isfinite(p)):
+            raise ValueError('prestrain: value is not finite')
+        lo, hi, _ = PRESTRAIN_RANGE
+        if np.any(p <= lo) or np.any(p > hi):
+            bad = p[(p <= lo) | (p > hi)].flat[0]
+            raise ValueError(f'prestrain: {bad:g} is outside ({lo:g}, {hi:g}]')
+        target = self._targets()
+        target[cols] = p
+        return target
+
+    def _targets(self):
+        out = np.empty((self.n_columns, self.network.n_prisms))
+        for g in self.groups:
+            s = g.sim
+            out[g.columns] = s._ramp[3][0] if s._ramp is not None else s._prestrain[0]
+        return out
+
+    def apply_prestrain(self, p, columns=None, ramp_s=0.0):
+        """Change the cross prestrain of the addressed columns, ramped over ``ramp_s`` s (see
+        :meth:`Simulation.apply_prestrain`), each column on its own."""
+        target = self.prestrain_target(p, columns)
+        if not (math.isfinite(ramp_s) and ramp_s >= 0):
+            raise ValueError(f'prestrain: ramp duration {ramp_s!r} must be >= 0')
+        cols = set(self._columns(columns, 'prestrain'))
+        rows = {c: target[c] for c in cols}
+        self._dispatch(lambda c: rows[c].tobytes() if c in cols else None,
+                       lambda s, key: s.apply_prestrain(np.frombuffer(key)[None, :],
+                                                        ramp_s=ramp_s))
+
+    def set_cable_rest_lengths(self, rest):
+        """Set the cable rest lengths (n_cables,) m of the whole array (see
+        :meth:`Simulation.set_cable_rest_lengths`); a column whose set breaks its symmetry is
+        expanded to ``full3d`` alone."""
+        k = self._per[1]
+        rest = np.asarray(rest, dtype=np.float64)
+        if rest.shape != (self.network.n_cables,):
+            raise ValueError(f'cable rest lengths: expected {self.network.n_cables} values, got '
+                             f'shape {rest.shape}')
+        if not np.all(np.isfinite(rest)) or np.any(rest <= 0):
+            raise ValueError('cable rest lengths: every value must be finite and positive')
+        rows = [rest[c * k:(c + 1) * k] for c in range(self.n_columns)]
+        self._dispatch(lambda c: rows[c].tobytes(),
+                       lambda s, key: s.set_cable_rest_lengths(np.frombuffer(key)))
+
+    @property
+    def prestrain(self):
+        out = np.empty((self.n_columns, self.network.n_prisms))
+        for g in self.groups:
+            out[g.columns] = g.sim._prestrain[0]
+        return out
+
+    @property
+    def _prestrain(self):
+        return self.prestrain
+
+    @property
+    def _ramp(self):
+        """None when no column ramps its prestrain, else (t0, duration, start, target) with the
+        array's current and target prestrain (the per-column ramps may differ in t0/duration)."""
+        ramps = [g.sim._ramp for g in self.groups if g.sim._ramp is not None]
+        if not ramps:
+            return None
+        return (ramps[0][0], ramps[0][1], self.prestrain, self._targets())
+
+    # -- time -----------------------------------------------------------------------------------
+    def advance(self, duration):
+        """Advance every column by ``duration`` s (whole steps of ``dt``). A divergence in any
+        column restores every column and raises :class:`SimulationDiverged` naming it."""
+        keeps = []
+        steps = 0
+        for grp in self.groups:
+            s = grp.sim
+            keep = (s._keep(), s.t, s.step, s.steps_taken)
+            try:
+                n = s.advance(duration)
+            except SimulationDiverged as exc:
+                for (g, (k, t, step, taken)) in zip(self.groups, keeps):
+                    g.sim._restore(k)
+                    g.sim.t, g.sim.step, g.sim.steps_taken = t, step, taken
+                self._cache = {}
+                raise _renamed(exc, grp.columns) from None
+            keeps.append(keep)
+            steps = max(steps, n)
+        self._cache = {}
+        return steps
+
+    def frame(self):
+        """A copied :class:`~solver.simulate.simulation.Frame` of the whole array."""
+        n, k = self._per
+        nc, n_p = self.n_columns, self.network.n_prisms
+        x = np.empty((nc * n, 3))
+        strain = np.empty((nc, n_p))
+        tension = np.empty(nc * k)
+        base = np.empty(nc)
+        energy, cerr = np.empty(nc), 0.0
+        for grp in self.groups:
+            f = grp.sim.frame()
+            for c in grp.columns:
+                x[c * n:(c + 1) * n] = f.positions + self._offset[c]
+                tension[c * k:(c + 1) * k] = f.tension
+            strain[grp.columns] = f.strain[0]
+            base[grp.columns] = f.base_force[0]
+            energy[grp.columns] = f.energy
+            cerr = max(cerr, f.constraint_error)
+        return Frame(t=self.t, step=self.step, positions=x, strain=strain, tension=tension,
+                     energy=float(sum(energy.tolist())), constraint_error=cerr, base_force=base)
+
+
+def _renamed(exc, columns):
+    """``exc`` of a one-column simulation, its text naming the array's column(s)."""
+    text = str(exc)
+    name = (f'column {columns[0]}' if len(columns) == 1
+            else f'columns {", ".join(map(str, columns))}')
+    if 'column 0' in text:
+        text = re.sub(r'\bcolumn 0\b', name, text)
+    else:
+        text = text.replace(': ', f': {name}: ', 1)
+    new = SimulationDiverged(exc.t, exc.step, exc.quantity, '', exc.hint)
+    new.args = (text,)
+    return new

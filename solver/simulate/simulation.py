@@ -1,0 +1,623 @@
+"""Simulation: one scene, one model, one integrator, one clock (``t``).
+
+    sim = Simulation(Scene.load('config/scenes/fb_column.yaml'))
+    sim.apply_impact(0.1)
+    while sim.t < 1.0:
+        sim.advance(0.005)
+        frame = sim.frame()
+
+Commands (:meth:`apply_impact`) and :meth:`advance` either succeed or change nothing: bad values
+raise
+``ValueError`` naming the problem; a diverging step raises :class:`SimulationDiverged` and restores
+the last good state.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from solver.kernels import dynamics as dyn
+from solver.kernels import contact
+from solver.integrators import registry as integrators
+from solver.models import family as models
+from solver.analysis import observables
+from solver.build import structures
+from solver.build.scene import RANGES, Scene
+
+PRESTRAIN_RANGE = RANGES['prestrain']     # (lower, upper, lower inclusive): 0 < p <= 0.5
+
+
+HINT_STEP = 'try a smaller integrator.dt or another method (e.g. integrator=dopri54_projected)'
+HINT_CONSTRAINT = ('use a projected method (rk4_projected, rattle, dopri54_projected) or a '
+                   'smaller integrator.dt')
+HINT_ENERGY = 'try a smaller integrator.dt or another method (rattle, dopri54_projected)'
+HINT_SLACK = ('cables went slack and the prism collapsed: raise the prestrain or lower the impact '
+              'velocity')
+HINT_LOCK = ('the bars of the prism crossed (past the rigid-base lock at 180 deg, or fully '
+             'untwisted): lower the impact velocity, or stop the prisms at the lock with '
+             'contact.lock=penalty (divergence.bar_crossing=none lets bars pass through each '
+             'other)')
+HINT_LOCK_CONTACT = ('the bars of the prism crossed although contact.lock is on: raise '
+                     'contact.stiffness or contact.tolerance (and lower integrator.dt)')
+STATUS_DIAGNOSIS = {
+    dyn.SINGULAR: ('rigid members', 'rigid members became degenerate (e.g. a rigid-base prism '
+                   'driven through its lock by a fast impact): lower the impact velocity or try a '
+                   'smaller integrator.dt'),
+    dyn.NONFINITE: ('state', HINT_STEP),
+    dyn.NOT_CONVERGED: ('constraint projection', 'try a smaller integrator.dt or a larger '
+                        'integrator.projection_max_iter'),
+    integrators.STEP_TOO_SMALL: ('step size', 'the motion is too stiff or singular to resolve '
+                                 '(rigid-base lock, collapsed prism?): lower the impact velocity '
+                                 'or loosen integrator.rtol'),
+}
+
+
+def prism_twists(x, levels):
+    """Relative twist (n_columns, n_prisms) rad in (-pi, pi] of the top base of each prism about
+    its
+    bottom base (node 0 of each level about the level's centroid, in the xy plane). Its sign stays
+    that of the reference twist (+-150 deg) unless the bars cross: through 180 deg (past the
+    rigid-base lock) or through 0. ``x`` (n_nodes, 3) m, ``levels`` (n_columns, n_levels, 3)."""
+    centre = x[levels].mean(axis=2)                       # (n_columns, n_levels, 3)
+    r = x[levels[:, :, 0]] - centre
+    a, b = r[:, :-1], r[:, 1:]
+    return np.arctan2(a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0],
+                      a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1])
+
+
+class SimulationDiverged(RuntimeError):
+    """The run stopped itself: ``t`` s, ``step``, the ``quantity`` that failed and a ``hint``."""
+
+    def __init__(self, t, step, quantity, detail, hint):
+        self.t, self.step, self.quantity, self.hint = t, step, quantity, hint
+        super().__init__(f'simulation diverged at t = {t:.6g} s (step {step}): {quantity} '
+                         f'{detail}; {hint}')
+
+
+@dataclass
+class Frame:
+    """A copied snapshot. ``positions`` (n_nodes, 3) m, ``strain`` (n_columns, n_prisms),
+    ``tension`` (n_cables,) N (elastic part), ``energy`` J (striker and contacts included),
+    ``constraint_error`` (relative), ``t`` s, ``base_force`` (n_columns,) N: the axial
+    reaction at each column's clamped base, positive compressive (:mod:`solver.analysis.support`;
+    empty when not given); ``striker`` (n_columns, 2): each column's striker face height m
+    and axial velocity m/s (``loading.impact.mode: striker``), else None."""
+    t: float
+    step: int
+    positions: np.ndarray
+    strain: np.ndarray
+    tension: np.ndarray
+    energy: float
+    constraint_error: float
+    base_force: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    striker: np.ndarray | None = None
+
+
+def build_network(scene):
+    """The :class:`~solver.build.network.Network` a scene describes."""
+    s = scene['structure']
+    m = scene['materials']
+    builder = s.pop('builder')
+    if builder == 'column':
+        return structures.column(
+            n_prisms=s['n_prisms'], radius=s['radius'], h0=s['h0'], cable_E=m['cable_E'],
+            cable_radius=m['cable_radius'], unit_mass=m['unit_mass'], bar_mass=m['bar_mass'],
+            prestrain=scene['prestrain'], bases=s['bases'], stacking=s['stacking'],
+            rigid_bases_as=s['rigid_bases_as'], kappa=s['kappa'], n_columns=s['n_columns'],
+            column_spacing=s['column_spacing'], clamped_levels=tuple(s['clamped_levels']),
+            handedness=s['handedness'], bar_mass_fraction=m['bar_mass_fraction'],
+            mass_placement=s['mass_placement'], end_mass=m['end_mass'])
+    EA = m['cable_E'] * math.pi * m['cable_radius'] ** 2
+    rest = s['cable_rest_length']
+    return structures.explicit(s['nodes'], s['bars'], s['cables'], s['node_mass'], EA,
+                               cable_rest_length=rest,
+                               prestrain=None if rest is not None else scene['prestrain'],
+                               rigid_edges=s['rigid_edges'], clamped=s['clamped'],
+                               bar_mass=m['bar_mass'])
+
+
+class Simulation:
+    def __new__(cls, scene=None, network=None, **options):
+        # an array of columns built by the column builder runs as one reduced model per column
+        # (solver/simulate/array.py) unless a network or another model is asked for
+        if cls is Simulation and network is None and scene is not None:
+            from solver.simulate.array import ArraySimulation, wants_array
+            if wants_array(scene):
+                return object.__new__(ArraySimulation)
+        return object.__new__(cls)
+
+    def __init__(self, scene: Scene, network=None):
+        self.scene = scene
+        self.network = network if network is not None else build_network(scene)
+        levels = self.network.levels
+        self._heights_shape = (levels.shape[0], max(levels.shape[1] - 1, 0))
+        g = scene['loading.gravity']
+        f_ext = np.zeros((self.network.n_nodes, 3))
+        if g:
+            f_ext[:, 2] = -g * self.network.gravity_mass()
+            f_ext[self.network.clamped] = 0.0
+        self.f_ext = f_ext
+        self._f_ext_or_none = f_ext if np.any(f_ext) else None
+        self._model_cls = models.choose(scene['model'], self.network, scene.data)
+        self._extras = contact.scene_extras(scene.data, self.network)
+        if self._model_cls is models.Chain1D and contact.active_spec(self._extras):
+            raise ValueError('model chain1d: has no strikers, prism stops or cable damping; use '
+                             'model full3d or sym3d')
+        self.model = contact.attach(self._model_cls(self.network, f_ext=f_ext), self._extras)
+        self.expanded = None            # why a sym3d run was expanded to full3d, if it was
+        it = scene['integrator']
+        self.integrator = integrators.get(it['method'], rtol=it['rtol'], atol=it['atol'])
+        self.dt = it['dt']
+        self.tol = it['projection_tol']
+        self.max_iter = it['projection_max_iter']
+        self.kinks = it['land_on_kinks']
+        self.div = scene['divergence']
+        self._twist_sign = None
+        rigid = scene.data['structure'].get('bases') == 'rigid'
+        self._check_twist = self.div['bar_crossing'] == 'all' or (
+            self.div['bar_crossing'] == 'rigid' and rigid)
+        self.reset()
+
+    # -- state ----------------------------------------------------------------------------------
+    def reset(self):
+        """Back to the reference geometry at rest, t = 0, rest lengths of the scene."""
+        net = self.network
+        if not isinstance(self.model, self._model_cls):     # undo an expansion to full3d
+            self.model = contact.attach(self._model_cls(net, f_ext=self.f_ext), self._extras)
+            self.expanded = None
+        self.model.set_state(net.x0, np.zeros((net.n_nodes, 3)))
+        ns = getattr(self.model, 'n_strikers', 0)
+        if ns:                                  # strikers back on the free ends, at rest
+            self.model.x[-ns:, 2] = np.asarray(net.x0)[net.levels[:, -1], 2].mean(axis=1)
+            self.model.v[-ns:] = 0.0
+        self.model.set_cables(net.cable_rest_length, net.cable_EA)
+        self._cache = {}
+        self._plan = (None, None)
+        self.t = 0.0
+        self.step = 0
+        self.steps_taken = 0
+        self.integrator.reset()
+        self._prestrain_map = None
+        self._prestrain = None          # (n_columns, n_prisms) current cross prestrain, or None
+        self._ramp = None               # (t0, duration, p_start, p_target) of a prestrain ramp
+        if net.levels.size and net.meta.get('builder') == 'column':
+            self._prestrain = np.full((net.n_columns, net.n_prisms), float(net.meta['prestrain']))
+        self._energy_ref = self.energy()
+
+    # Quantities of the current state are computed once and kept until the state changes
+    # (every change goes through _changed): the divergence check, frame() and the node share them.
+    def _changed(self):
+        self._cache = {}
+
+    def _cached(self, key, compute):
+        c = self._cache
+        if key not in c:
+            c[key] = compute()
+        return c[key]
+
+    def _summary(self):
+        """``(finite, energy J, prism heights (n_columns, n_prisms) m, relative constraint error,
+        smallest prism height m)`` of the current state, from one compiled call (made by
+        :meth:`advance` itself, inside the integrator call, when the model has ``summ``)."""
+        c = self._cache.get('summary')
+        if c is None:
+            c = self._cache['summary'] = self._compute_summary()
+        return c
+
+    def _compute_summary(self):
+        m, net = self.model, self.network
+        summ = getattr(m, 'summ', None)
+        if summ is not None:                    # on the model's own (maybe reduced) state
+            h = np.empty(self._heights_shape)
+            finite, e, cerr, h_min = dyn.state_summary(m.x, m.v, m.net, m.act, summ, h)
+            return finite, e, h, cerr, h_min
+        x, v = self._full_state()
+        if len(m.act) > 3 and contact.active(m.act[3]):     # striker, contact energies
+            finite, e, h, cerr = observables.state_summary(x, v, net, m.cable_rest_length,
+                                                           m.cable_EA, self._f_ext_or_none)
+            e += contact.extra_energy(m.x, m.v, m.act[3])
+            finite = finite and dyn.all_finite(m.x) and dyn.all_finite(m.v)
+        elif hasattr(m, 'advance'):               # chain1d: its own energy
+            finite, e, h, cerr = (dyn.all_finite(x) and dyn.all_finite(v), m.energy(),
+                                  observables.prism_heights(x, net.levels), m.constraint_error())
+        else:
+            finite, e, h, cerr = observables.state_summary(x, v, net, m.cable_rest_length,
+                                                           m.cable_EA, self._f_ext_or_none)
+        return finite, e, h, cerr, (float(h.min()) if h.size else math.inf)
+
+    def energy(self):
+        """Total energy of the current state, J."""
+        return self._summary()[1]
+
+    def constraint_error(self):
+        """Relative constraint error of the current state."""
+        return self._summary()[3]
+
+    def _full_state(self):
+        """Full (n_nodes, 3) positions and velocities of the current state (shared, read only)."""
+        return self._cached('full', lambda: (self.model.positions(), self.model.velocities()))
+
+    def _heights(self):
+        """Prism heights (n_columns, n_prisms) m of the current state (shared, read only)."""
+        return self._summary()[2]
+
+    def expand_to_full3d(self, reason):
+        """Continue a ``sym3d`` run with ``full3d`` from the same (expanded) state: no jump."""
+        if isinstance(self.model, models.Sym3D):
+            strikers = contact.striker_state(self.model)
+            self.model = contact.attach(models.expand(self.model, f_ext=self.f_ext),
+                                        self._extras, strikers if len(strikers) else None)
+            if hasattr(self.integrator, 'reset'):      # forget step-size history of sym3d
+                self.integrator.reset()
+            self.expanded = reason
+            self._changed()
+
+    def _into_model(self, setter, *args):
+        """Call the model's ``setter`` (``'set_state'`` or ``'set_cables'``) with full arrays; an
+        asymmetric value expands a ``sym3d`` run to ``full3d`` first (same state, no jump)."""
+        try:
+            getattr(self.model, setter)(*args)
+        except models.NotSymmetric as exc:
+            self.expand_to_full3d(str(exc))
+            getattr(self.model, setter)(*args)
+        self._changed()
+
+    def _load(self, x, v):
+        """Load a full state; an asymmetric one expands a ``sym3d`` run to ``full3d``."""
+        self._into_model('set_state', x, v)
+
+    def set_cable_rest_lengths(self, rest):
+        """Set the cable rest lengths (n_cables,) m directly (finite, positive). A set that breaks
+        the 3-fold symmetry expands a ``sym3d`` run to ``full3d`` (same state, no jump). The
+        change of stored energy is added to the divergence energy reference."""
+        rest = np.asarray(rest, dtype=np.float64)
+        if rest.shape != (self.network.n_cables,):
+            raise ValueError(f'cable rest lengths: expected {self.network.n_cables} values, got '
+                             f'shape {rest.shape}')
+        if not np.all(np.isfinite(rest)) or np.any(rest <= 0):
+            raise ValueError('cable rest lengths: every value must be finite and positive')
+        e0 = self.energy()
+        self._set_cables(rest, self.model.cable_EA)
+        self._energy_ref += self.energy() - e0
+
+    def _set_cables(self, rest, EA):
+        """Load full (n_cables,) rest lengths and EA; asymmetric ones expand ``sym3d``."""
+        self._into_model('set_cables', rest, EA)
+
+    # -- commands -------------------------------------------------------------------------------
+    def impact_velocities(self, v0, columns=None, mode=None):
+        """Full (n_nodes, 3) velocities after an axial impact of ``v0`` m/s (positive compressive)
+        on the free-end level of the given columns: scalar or one value per addressed column."""
+        net = self.network
+        if net.levels.size == 0:
+            raise ValueError('impact needs a column structure (levels)')
+        cols = list(range(net.n_columns)) if columns is None else list(columns)
+        v0 = np.broadcast_to(np.asarray(v0, dtype=np.float64), (len(cols),)) if np.ndim(v0) == 0 \
+            else np.asarray(v0, dtype=np.float64)
+        if v0.shape != (len(cols),):
+            raise ValueError(f'impact: expected 1 or {len(cols)} values, got {v0.size}')
+        if not np.all(np.isfinite(v0)):
+            raise ValueError('impact: velocity is not finite')
+        mode = mode or self.scene['loading.impact.mode']
+        if mode == 'striker':
+            raise ValueError('impact: a striker impact sets no node velocities (use apply_impact)')
+        v = np.array(self.model.velocities())
+        x = np.array(self.model.positions())
+        kick = np.zeros_like(v)
+        for c, vc in zip(cols, v0):
+            kick[net.levels[c, -1], 2] = -vc
+        ke_target = observables.kinetic_energy(kick, net)
+        net_t, _ = dyn.pack(net)
+        ws = dyn.workspace_for(net)
+        status = dyn.project_velocities(x, kick, net_t, ws)
+        if status != dyn.OK:
+            raise ValueError(f'impact: {dyn.STATUS_TEXT[status]}')
+        if mode == 'energy':
+            ke = observables.kinetic_energy(kick, net)
+            if ke > 0:
+                kick *= math.sqrt(ke_target / ke)
+        return v + kick
+
+    def _end_heights(self):
+        """Mean height m of each column's free-end level (n_columns,)."""
+        lev = self.network.levels
+        return np.asarray(self._full_state()[0])[lev[:, -1], 2].mean(axis=1)
+
+    def striker(self):
+        """(n_columns, 2) striker face height m and axial velocity m/s, or None without
+        strikers."""
+        st = contact.striker_state(self.model)
+        return st if len(st) else None
+
+    def _strike(self, v0, columns):
+        """Striker impact: each addressed column's striker gets the axial velocity ``-v0``
+        (towards the column); a striker out of contact is first placed on the free end (touching,
+        no overlap, so no energy changes)."""
+        m, net = self.model, self.network
+        ns = getattr(m, 'n_strikers', 0)
+        if not ns:
+            raise ValueError('impact: mode striker needs loading.impact.mode: striker in the '
+                             'scene (the strikers are built with the model)')
+        cols = list(range(net.n_columns)) if columns is None else list(columns)
+        if any(not 0 <= c < net.n_columns for c in cols):
+            raise ValueError(f'impact: columns must be indices 0..{net.n_columns - 1}')
+        v0 = np.broadcast_to(np.asarray(v0, dtype=np.float64), (len(cols),)) if np.ndim(v0) == 0 \
+            else np.asarray(v0, dtype=np.float64)
+        if v0.shape != (len(cols),):
+            raise ValueError(f'impact: expected 1 or {len(cols)} values, got {v0.size}')
+        if not np.all(np.isfinite(v0)):
+            raise ValueError('impact: velocity is not finite')
+        z_end = self._end_heights()
+        rows = m.x.shape[0] - ns
+        for c, vc in zip(cols, v0):
+            if m.x[rows + c, 2] >= z_end[c]:
+                m.x[rows + c, 2] = z_end[c]
+            m.v[rows + c, 2] = -vc
+        self._changed()
+
+    def apply_impact(self, v0, columns=None, mode=None):
+        """Impact the free end(s): the velocity jump is projected on the constraints (impulse, the
+        default) or, with ``mode='energy'``, also rescaled to the kinetic energy ``3 m v0^2 / 2``
+        per column; with ``mode='striker'`` (the scene's ``loading.impact.mode: striker``) each
+        column's striker is launched at ``v0`` against the free end instead. Returns the kinetic
+        energy added, J."""
+        before = self.energy()
+        if (mode or self.scene['loading.impact.mode']) == 'striker':
+            self._strike(v0, columns)
+            self._energy_ref = self.energy()
+            return self._energy_ref - before
+        if hasattr(self.model, 'impact'):           # chain1d: axial velocity on the end level
+            if columns not in (None, [0], (0,)):
+                raise ValueError('impact: chain1d has one column (0)')
+            if np.ndim(v0) != 0 or not math.isfinite(float(v0)):
+                raise ValueError('impact: chain1d takes one finite velocity')
+            self.model.impact(float(v0))
+            self._changed()
+            self._energy_ref = self.energy()
+            return self._energy_ref - before
+        v_new = self.impact_velocities(v0, columns, mode)
+        self._load(self.model.positions(), v_new)
+        self._energy_ref = self.energy()
+        return self._energy_ref - before
+
+    @property
+    def prestrain(self):
+        """Current cross prestrain per prism (n_columns, n_prisms) (a copy), None if not a
+        column."""
+        return None if self._prestrain is None else self._prestrain.copy()
+
+    @property
+    def prestrain_map(self):
+        """The :class:`~solver.build.structures.PrestrainMap` of the network (built on first use)."""
+        if self._prestrain_map is None:
+            self._prestrain_map = structures.PrestrainMap(self.network)
+        return self._prestrain_map
+
+    def prestrain_target(self, p, columns=None):
+        """Per-prism prestrain (n_columns, n_prisms) of a command: ``p`` a scalar (all addressed
+        columns), one value per addressed column, or an (n_addressed, n_prisms) array; columns not
+        addressed keep their current (target) values. Raises ``ValueError`` naming the problem."""
+        if self._prestrain is None:
+            raise ValueError('prestrain needs a column structure built by the column builder')
+        net = self.network
+        cols = list(range(net.n_columns)) if columns is None else list(columns)
+        if not cols or any(not 0 <= c < net.n_columns for c in cols):
+            raise ValueError(f'prestrain: columns must be indices 0..{net.n_columns - 1}')
+        p = np.asarray(p, dtype=np.float64)
+        if p.ndim == 0:
+            p = np.full((len(cols), net.n_prisms), float(p))
+        elif p.shape == (len(cols),):
+            p = np.repeat(p[:, None], net.n_prisms, axis=1)
+        elif p.shape != (len(cols), net.n_prisms):
+            raise ValueError(f'prestrain: expected 1, {len(cols)} or {len(cols)} x {net.n_prisms} '
+                             f'values, got shape {p.shape}')
+        if not np.all(np.isfinite(p)):
+            raise ValueError('prestrain: value is not finite')
+        lo, hi, _ = PRESTRAIN_RANGE
+        if np.any(p <= lo) or np.any(p > hi):
+            bad = p[(p <= lo) | (p > hi)].flat[0]
+            raise ValueError(f'prestrain: {bad:g} is outside ({lo:g}, {hi:g}]')
+        target = self._ramp[3].copy() if self._ramp is not None else self._prestrain.copy()
+        target[cols] = p
+        return target
+
+    def apply_prestrain(self, p, columns=None, ramp_s=0.0):
+        """Change the cross prestrain of the addressed columns (see :meth:`prestrain_target`) by
+        changing the rest lengths of all their cables so that the reference geometry stays in
+        equilibrium (:class:`~solver.build.structures.PrestrainMap`), linearly in ``p`` over ``ramp_s``
+        s of simulation time (0 = at once). A ramp in progress continues from where it is.
+        The actuator's work is added to the energy reference of the divergence check."""
+        target = self.prestrain_target(p, columns)
+        if not (math.isfinite(ramp_s) and ramp_s >= 0):
+            raise ValueError(f'prestrain: ramp duration {ramp_s!r} must be >= 0')
+        self.prestrain_map            # validate the network before changing anything
+        if ramp_s < self.dt:
+            self._ramp = None
+            self._set_prestrain(target)
+        else:
+            self._ramp = (self.t, float(ramp_s), self._prestrain.copy(), target)
+
+    def _set_prestrain(self, p):
+        e0 = self.energy()
+        EA = self.model.cable_EA
+        self._set_cables(self.prestrain_map.rest_lengths(p, EA), EA)
+        self._prestrain = np.array(p, dtype=np.float64)
+        self._energy_ref += self.energy() - e0
+
+    def _ramp_to(self, t):
+        t0, duration, p0, p1 = self._ramp
+        u = (t - t0) / duration
+        if u >= 1.0:
+            self._ramp = None
+            self._set_prestrain(p1)
+        else:
+            self._set_prestrain(p0 + max(u, 0.0) * (p1 - p0))
+
+    def _integrate(self, n):
+        """``n`` steps; while a prestrain ramp runs, one step at a time with rest lengths updated
+        at the start of each step. Returns ``(steps, status)`` of the integrator."""
+        m = self.model
+        self._changed()
+        if hasattr(m, 'advance'):                   # chain1d: its own state and kernel
+            if self._ramp is not None:
+                return 0, models.CHAIN_CANNOT_RAMP
+            return m.advance(self.dt, n)
+        done = total = 0
+        status = dyn.OK
+        while done < n and self._ramp is not None:
+            self._ramp_to(self.t + done * self.dt)
+            m = self.model
+            steps, status = self.integrator.run(m.x, m.v, self.dt, 1, m.net, m.act, m.ws, self.tol,
+                                                self.max_iter, self.kinks)
+            self._changed()
+            total += steps
+            done += 1
+            if status != dyn.OK:
+                return total, status
+        if done < n:
+            steps, status = self.integrator.run(m.x, m.v, self.dt, n - done, m.net, m.act, m.ws,
+                                                self.tol, self.max_iter, self.kinks)
+            self._changed()
+            total += steps
+        if self._ramp is not None:
+            self._ramp_to(self.t + n * self.dt)
+        return total, status
+
+    # -- time -----------------------------------------------------------------------------------
+    def advance(self, duration):
+        """Advance by ``duration`` s in whole steps of ``dt`` (the last one shortened to land on
+        ``t + duration``). Raises :class:`SimulationDiverged` and restores the state on failure.
+
+        Without a prestrain ramp, on a model with ``summ``, this is one compiled call: the
+        integrator keeps the start state, runs, and summarises the end state for the check."""
+        n = max(int(round(duration / self.dt)), 0)
+        if n == 0:
+            return 0
+        m = self.model
+        summ = getattr(m, 'summ', None)
+        if summ is None or self._ramp is not None:
+            keep = self._keep()
+            steps, status = self._integrate(n)
+        else:
+            integ, plan = self.integrator, self._plan
+            if plan[0] is not m or plan[1] is not integ:      # arrays of the checked call
+                kb = (np.empty_like(m.x), np.empty_like(m.v))
+                plan = self._plan = (m, integ, kb, integ.checked_args(
+                    m.x, m.net, m.act, m.ws, self.tol, self.max_iter, self.kinks, kb, summ))
+            kb = plan[2]
+            keep = (kb[0], kb[1], m.act[0], self._prestrain, self._ramp, self._energy_ref,
+                    integ.get_state())
+            h = np.empty(self._heights_shape)
+            steps, status, finite, e, cerr, h_min = integ.checked(m.x, m.v, float(self.dt), n,
+                                                                  *plan[3], h)
+            self._cache = {'summary': (finite, e, h, cerr, h_min)}
+        problem = self._check(status)
+        if problem is not None:
+            self._restore(keep)
+            raise self._locate(n, keep, problem)
+        self.t += n * self.dt
+        self.step += n
+        self.steps_taken += steps
+        return steps
+
+    # -- divergence detection -------------------------------------------------------------------
+    def _keep(self):
+        m = self.model
+        return (m.x.copy(), m.v.copy(), m.act[0].copy(), self._prestrain, self._ramp,
+                self._energy_ref, self.integrator.get_state())
+
+    def _restore(self, keep):
+        m = self.model
+        m.x[:], m.v[:], m.act[0][:] = keep[:3]
+        self._prestrain, self._ramp, self._energy_ref = keep[3:6]
+        self.integrator.set_state(keep[6])
+        self._changed()
+
+    def _check(self, status):
+        """``(quantity, detail, hint)`` of the first failed divergence check of the current state
+        after an integrator ``status``, or None when the state is sound."""
+        finite, e, h, err, h_min = self._summary()
+        if not finite:
+            return 'state', 'non-finite positions or velocities', HINT_STEP
+        if status != dyn.OK:
+            quantity, hint = STATUS_DIAGNOSIS.get(status, ('state', HINT_STEP))
+            return quantity, integrators.status_text(status), hint
+        if not err <= self.div['constraint_error']:
+            return ('constraint error', f'{err:.3g} exceeds {self.div["constraint_error"]:g}',
+                    HINT_CONSTRAINT)
+        growth = (e - self._energy_ref) / max(abs(self._energy_ref), 1e-300)
+        if not growth <= self.div['energy_growth']:
+            return ('energy', f'grew by {growth:.3g} (relative), limit '
+                              f'{self.div["energy_growth"]:g}', HINT_ENERGY)
+        net = self.network
+        if net.levels.size:
+            if h.size and not h_min > 0.0:
+                c, i = np.unravel_index(int(np.argmin(np.where(np.isfinite(h), h, -np.inf))),
+                                        h.shape)
+                return ('prism height', f'prism {i} of column {c} collapsed (height '
+                                        f'{h[c, i]:.3g} m)', HINT_SLACK)
+            if self._check_twist and self._twist_sign is None:
+                self._twist_sign = np.sign(prism_twists(np.asarray(net.x0), net.levels))
+            twist = (prism_twists(self._full_state()[0], net.levels) if self._check_twist
+                     else None)
+            bad = None if twist is None else ~(twist * self._twist_sign > 0.0)
+            if bad is not None and np.any(bad):
+                c, i = np.argwhere(bad)[0]
+                return ('prism twist', f'prism {i} of column {c} twisted through 0 or 180 deg '
+                                       f'({math.degrees(twist[c, i]):.1f} deg)',
+                        HINT_LOCK if self._extras['stop_h'] is None else HINT_LOCK_CONTACT)
+        return None
+
+    def _locate(self, n, keep, problem):
+        """The :class:`SimulationDiverged` of an interval of ``n`` steps that failed with
+        ``problem``: replays it one step at a time from ``keep`` to name the first failing step
+        (the state is restored afterwards)."""
+        t0 = self.t
+        k_fail, found = n - 1, problem
+        try:
+            for k in range(n):
+                self.t = t0 + k * self.dt
+                _, status = self._integrate(1)
+                p = self._check(status)
+                if p is not None:
+                    k_fail, found = k, p
+                    break
+        finally:
+            self.t = t0
+            self._restore(keep)
+        quantity, detail, hint = found
+        return SimulationDiverged(t0 + (k_fail + 1) * self.dt, self.step + k_fail + 1, quantity,
+                                  detail, hint)
+
+    def base_force(self):
+        """Axial base force (n_columns,) N of the current state, positive compressive
+        (:class:`solver.analysis.support.BaseForce`; zeros for a network without columns or a model
+        without a full state of rigid members)."""
+        def compute():
+            net = self.network
+            if not net.levels.size or hasattr(self.model, 'advance'):     # chain1d: none
+                return np.zeros(net.n_columns)
+            if getattr(self, '_base_force', None) is None:
+                from solver.analysis.support import BaseForce
+                self._base_force = BaseForce(net, self._extras)
+            x, v = self._full_state()
+            return self._base_force(x, v, self.model.cable_rest_length, self.model.cable_EA,
+                                    self.f_ext)
+        return self._cached('base_force', compute)
+
+    def frame(self):
+        """A copied :class:`Frame` of the current state."""
+        x = np.array(self._full_state()[0])
+        net = self.network
+        if net.levels.size:
+            h = self._heights()
+            strain = (h - net.h0) / h          # observables.prism_strains, from the shared heights
+        else:
+            strain = np.zeros((0, 0))
+        return Frame(t=self.t, step=self.step, positions=x, strain=strain,
+                     tension=observables.cable_tensions(x, net, self.model.cable_rest_length,
+                                                        self.model.cable_EA),
+                     energy=self.energy(), constraint_error=self.constraint_error(),
+                     base_force=np.array(self.base_force()), striker=self.striker())

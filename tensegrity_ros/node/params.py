@@ -1,0 +1,151 @@
+"""Parameters of the node ``tensegrity_sim``: defaults (mirrored by ``config/node.yaml``), checks,
+and the :class:`~solver.simulate.simulation.Simulation` they describe. No ROS imports: usable by tests and
+tools without a ROS context."""
+from __future__ import annotations
+
+import math
+import sys
+import time
+from pathlib import Path
+
+from solver.build.scene import Scene
+from solver.simulate.simulation import Simulation, SimulationDiverged
+
+# Defaults of every parameter (config/node.yaml repeats them; a test keeps the two equal).
+DEFAULTS = {
+    'scene_file': 'config/scenes/fb_column.yaml',
+    'model': '',                 # '' = the scene's
+    'integrator': '',            # '' = the scene's
+    'dt': 0.0,                   # 0 = the scene's, s
+    'publish_rate_hz': 200.0,
+    'real_time_factor': 1.0,     # 1 = wall clock, 0 = as fast as possible
+    'use_sim_clock': True,
+    'record_mcap': '',
+    'record_rerun': '',
+    'marker_rate_hz': 20.0,
+    'prestrain_ramp_s': 0.05,    # s of simulation time
+    'diagnostics_rate_hz': 2.0,
+    'start_paused': False,       # start with the clock stopped; ~/set_running starts it
+    'autostart': True,           # configure and activate at start-up (else: ~/change_state)
+    'medium_speed_m_s': 1.0,     # wave speed of the host medium for ~/cmd/focus
+    'field_rate_hz': 2.0,        # ~/field per wall second (arrays, after an impact); 0 = none
+}
+DESCRIPTIONS = {
+    'scene_file': 'scene YAML (absolute, relative to the working directory, or to the package)',
+    'model': 'model override (auto, full3d, ...); empty = the scene value',
+    'integrator': 'integrator.method override; empty = the scene value',
+    'dt': 'integrator.dt override, s; 0 = the scene value',
+    'publish_rate_hz': 'frames published per wall-clock second (timer rate)',
+    'real_time_factor': 'simulated seconds per wall second; 0 = as fast as possible',
+    'use_sim_clock': 'publish /clock with the simulation time',
+    'record_mcap': 'MCAP file to record every topic to; empty = none',
+    'record_rerun': 'Rerun .rrd file to record to; empty = none',
+    'marker_rate_hz': 'MarkerArray publications per wall second (<= publish_rate_hz)',
+    'prestrain_ramp_s': 'simulation time over which a prestrain command is ramped, s',
+    'diagnostics_rate_hz': '/diagnostics per wall second (with command counters; also at once '
+                           'on a pause)',
+    'start_paused': 'start with the simulation paused (commands are still applied); '
+                    '~/set_running true starts the clock',
+    'autostart': 'configure and activate the managed node at start-up; false: it waits '
+                 'unconfigured for ~/change_state',
+    'medium_speed_m_s': 'wave speed of the host medium below the bases (z > 0) for ~/cmd/focus, '
+                        'm/s',
+    'field_rate_hz': '~/field (32FC1 peak pressure map in the medium since the last impact of an '
+                     'array) per wall second, computed only when subscribed or recorded; 0 = '
+                     'none',
+}
+POSITIVE = ('publish_rate_hz', 'marker_rate_hz', 'diagnostics_rate_hz', 'medium_speed_m_s')
+NON_NEGATIVE = ('real_time_factor', 'prestrain_ramp_s', 'dt', 'field_rate_hz')
+# fixed once the node runs (the simulation and the recorders are built from them): a change is
+# refused with this reason
+READ_ONLY = ('scene_file', 'model', 'integrator', 'dt', 'record_mcap', 'record_rerun',
+             'start_paused', 'autostart')
+RESTART = 'is fixed while the node runs; restart the node with the new value'
+# ranges the parameter descriptors show (FloatingPointRange; the upper ends are generous limits)
+RANGES = {'publish_rate_hz': (1e-3, 10000.0), 'marker_rate_hz': (1e-3, 10000.0),
+          'diagnostics_rate_hz': (1e-3, 1000.0), 'real_time_factor': (0.0, 1e6),
+          'prestrain_ramp_s': (0.0, 1e3), 'dt': (0.0, 1.0), 'medium_speed_m_s': (1e-6, 1e5),
+          'field_rate_hz': (0.0, 1000.0)}
+# names the node accepts besides its own (rclpy's)
+ROS_NAMES = ('use_sim_time', 'start_type_description_service')
+
+
+def unknown_parameters(names):
+    """ParameterError naming the parameters in ``names`` that the node does not have, listing the
+    valid ones; None if there are none (QoS overrides and rclpy's own are valid)."""
+    bad = sorted(n for n in names if n not in DEFAULTS and n not in ROS_NAMES
+                 and not n.startswith('qos_overrides.'))
+    if not bad:
+        return None
+    return ParameterError(f'unknown parameter{"s" if len(bad) > 1 else ""} '
+                          f'{", ".join(bad)} (valid: {", ".join(DEFAULTS)})')
+
+
+class ParameterError(ValueError):
+    """A parameter value that cannot be used; the message names it."""
+
+
+def find_config(path):
+    """A config file given absolute, relative to the working directory, to the source checkout or
+    to the installed share directory."""
+    p = Path(path)
+    candidates = [p] if p.is_absolute() else [
+        Path.cwd() / p, Path(__file__).resolve().parents[2] / p,
+        Path(sys.prefix) / 'share' / 'tensegrity_ros' / p]
+    for c in candidates:
+        if c.is_file():
+            return c
+    raise ParameterError(f'scene_file: {path!r} not found')
+
+
+def check_parameters(values):
+    """Validate a dict of parameter values (names as in :data:`DEFAULTS`); integers are accepted
+    for floating-point parameters. Returns the coerced dict."""
+    values = dict(values)
+    for name, default in DEFAULTS.items():
+        v = values[name]
+        if isinstance(default, float) and isinstance(v, int) and not isinstance(v, bool):
+            values[name] = v = float(v)
+        if type(v) is not type(default):
+            raise ParameterError(f'{name}: expected {type(default).__name__}, got {v!r}')
+    for name in POSITIVE:
+        if not (math.isfinite(values[name]) and values[name] > 0):
+            raise ParameterError(f'{name}: must be a positive number, got {values[name]!r}')
+    for name in NON_NEGATIVE:
+        if not (math.isfinite(values[name]) and values[name] >= 0):
+            raise ParameterError(f'{name}: must be >= 0, got {values[name]!r}')
+    for name, (lo, hi) in RANGES.items():
+        if not lo <= values[name] <= hi:
+            raise ParameterError(f'{name}: must be within [{lo:g}, {hi:g}], got {values[name]!r}')
+    return values
+
+
+def load_simulation(values):
+    """The :class:`Simulation` the parameters describe, kernels compiled (one step, then reset)."""
+    scene = Scene.load(find_config(values['scene_file']))
+    sets = []
+    if values['model']:
+        sets.append(('model', values['model']))
+    if values['integrator']:
+        sets.append(('integrator.method', values['integrator']))
+    if values['dt'] > 0:
+        sets.append(('integrator.dt', values['dt']))
+    if sets:
+        scene = scene.with_overrides(sets)
+    sim = Simulation(scene)
+    sim.advance(sim.dt)
+    sim.reset()
+    return sim
+
+
+def measure_step_cost(sim, n=20):
+    """Wall seconds per step of a freshly loaded ``sim``, timed on ``n`` steps; the simulation is
+    reset afterwards (so only for a simulation at its initial state)."""
+    t0 = time.perf_counter()
+    try:
+        sim.advance(n * sim.dt)
+    except SimulationDiverged:
+        pass
+    cost = (time.perf_counter() - t0) / n
+    sim.reset()
+    return cost

@@ -1,0 +1,549 @@
+"""``tensegrity sweep``: one run per point of a grid (or a Latin hypercube) of scene overrides, on
+Dask distributed; one row per point in a Parquet table and a CSV file.
+
+Each point is one :func:`solver.simulate.runner.simulate` call, the function ``tensegrity run`` uses, so a
+row holds the figures of that point's ``tensegrity run --json`` summary under their dotted names
+(``pulse.amplitude``, ``energy_drift_rel``). Rows are appended to ``rows.jsonl`` as they complete
+(the table is rewritten from it), so an interrupted sweep keeps every finished point and a rerun
+of the same command runs only the points that are missing.
+"""
+from __future__ import annotations
+
+import functools
+import hashlib
+import itertools
+import json
+import math
+import os
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+ROWS = 'rows.jsonl'
+TABLE = 'results.parquet'
+CSV = 'results.csv'
+# top-level figures of the run summary a row keeps (besides every ``pulse.*`` figure)
+SUMMARY_FIELDS = ('energy_drift_rel', 'constraint_error_rel', 'wall_time_s', 'real_time_factor',
+                  'steps', 'steps_taken', 'model', 'integrator', 'dt', 't_end')
+PULSE_FIELDS = ('amplitude', 'amplitude_median', 'amplitude_min', 'amplitude_max',
+                'amplitude_passage_max', 'speed_m_s', 'speed_snapshot_m_s', 'speed_arrival_m_s',
+                'width_prisms', 'width_half_prisms', 'width_10_prisms', 't_ref',
+                'arrival_time_s', 'arrival_end_s')
+# the fields of a row that depend on the machine and the moment, not on the point
+TIMING_FIELDS = ('wall_time_s', 'real_time_factor', 'task_wall_s', 'cpu_time_s', 'worker_pid')
+# the numeric figures a fit may use, named as in the summary
+FIGURES = tuple(f'pulse.{k}' for k in PULSE_FIELDS if k != 't_ref') + (
+    'energy_drift_rel', 'constraint_error_rel')
+
+
+class SweepError(ValueError):
+    """Bad sweep or fit input; the message names the option or key."""
+
+
+# -- the grid -------------------------------------------------------------------------------------
+@dataclass
+class Axis:
+    """One swept key: its ``values`` (a list) or a ``range`` (start, stop) for Latin-hypercube
+    samples."""
+    key: str
+    values: list | None = None
+    range: tuple | None = None
+    text: str = ''
+
+
+def _scalar(text, what):
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError:
+        raise SweepError(f'{what}: cannot parse value {text!r}') from None
+
+
+def _number(text, what):
+    value = _scalar(text, what)
+    if isinstance(value, str):
+        try:
+            value = float(value)
+        except ValueError:
+            pass
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise SweepError(f'{what}: {text!r} is not a finite number')
+    return value
+
+
+def parse_axis(text, option='--grid'):
+    """``KEY=V1,V2,...`` (values), ``KEY=START:STOP:N`` (N evenly spaced values, both ends
+    included) or ``KEY=START:STOP`` (a range for ``--samples``)."""
+    if '=' not in text:
+        raise SweepError(f'{option} {text!r}: expected KEY=V1,V2,... or KEY=START:STOP:N')
+    key, spec = (s.strip() for s in text.split('=', 1))
+    if not key or not spec:
+        raise SweepError(f'{option} {text!r}: expected KEY=V1,V2,... or KEY=START:STOP:N')
+    what = f'{option} {key}'
+    if ':' in spec:
+        parts = spec.split(':')
+        if len(parts) not in (2, 3):
+            raise SweepError(f'{what}: expected START:STOP:N or START:STOP, got {spec!r}')
+        lo, hi = _number(parts[0], what), _number(parts[1], what)
+        if not hi > lo:
+            raise SweepError(f'{what}: STOP ({parts[1]}) must be greater than START ({parts[0]})')
+        if len(parts) == 2:
+            return Axis(key, range=(float(lo), float(hi)), text=text)
+        n = _number(parts[2], what)
+        if not (isinstance(n, int) or float(n).is_integer()) or n < 1:
+            raise SweepError(f'{what}: N must be a whole number >= 1, got {parts[2]!r}')
+        values = [float(v) for v in np.linspace(lo, hi, int(n))] if n > 1 else [float(lo)]
+        return Axis(key, values=values, text=text)
+    values = [_scalar(v.strip(), what) for v in spec.split(',')]
+    if any(v is None or v == '' for v in values):
+        raise SweepError(f'{what}: empty value in {spec!r}')
+    if len(set(map(repr, values))) != len(values):
+        raise SweepError(f'{what}: repeated value in {spec!r}')
+    return Axis(key, values=values, text=text)
+
+
+def points(axes, samples=None, seed=0):
+    """The points of a sweep: a list of dicts ``{key: value}`` in the order of ``axes``.
+
+    Without ``samples``: the cartesian product of every axis's values. With ``samples``: that
+    many Latin-hypercube points (:class:`scipy.stats.qmc.LatinHypercube`, seeded) over the axes
+    given as ranges, crossed with the values of the others."""
+    keys = [a.key for a in axes]
+    if len(set(keys)) != len(keys):
+        dup = next(k for k in keys if keys.count(k) > 1)
+        raise SweepError(f'--grid {dup}: given twice')
+    if samples is None:
+        ranged = [a for a in axes if a.range is not None]
+        if ranged:
+            raise SweepError(f'--grid {ranged[0].key}: START:STOP needs a count (START:STOP:N) '
+                             'or --samples N')
+        return [dict(zip(keys, combo)) for combo in itertools.product(*[a.values for a in axes])]
+    if samples < 1:
+        raise SweepError(f'--samples: must be >= 1, got {samples}')
+    ranged = [a for a in axes if a.range is not None]
+    if not ranged:
+        raise SweepError('--samples: needs at least one --grid KEY=START:STOP range')
+    from scipy.stats import qmc
+    unit = qmc.LatinHypercube(d=len(ranged), rng=np.random.default_rng(seed)).random(samples)
+    lo = np.array([a.range[0] for a in ranged])
+    hi = np.array([a.range[1] for a in ranged])
+    drawn = qmc.scale(unit, lo, hi)
+    listed = [a for a in axes if a.range is None]
+    out = []
+    for combo in itertools.product(*[a.values for a in listed]):
+        fixed = dict(zip([a.key for a in listed], combo))
+        for row in drawn:
+            sampled = {a.key: float(v) for a, v in zip(ranged, row)}
+            out.append({k: (fixed[k] if k in fixed else sampled[k]) for k in keys})
+    return out
+
+
+def canonical(value):
+    """A value as a plain JSON type (numpy scalars to Python)."""
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+@functools.lru_cache(maxsize=1)
+def code_version():
+    """A hash of the solver's source (every ``solver/**/*.py``): a resumed sweep reruns its points
+    after the solver changed instead of mixing rows of two versions."""
+    import solver
+    return source_hash(Path(solver.__file__).parent)
+
+
+def source_hash(directory):
+    """sha256 (12 hex digits) of every ``*.py`` file below ``directory`` (sub-packages too)."""
+    from solver import _jit
+    return _jit.source_hash(directory)[:12]
+
+
+def point_id(scene_data, overrides, code=None):
+    """A key of the point: a hash of the scene's validated data, the overrides in canonical
+    form (sorted keys, JSON) and the solver's :func:`code_version`, so that the same point gets
+    the same key in any order of options, and a new key when the solver changes."""
+    blob = json.dumps({'scene': scene_data, 'code': code or code_version(),
+                       'set': sorted([k, canonical(v)] for k, v in overrides.items())},
+                      sort_keys=True, default=repr)
+    return hashlib.sha256(blob.encode()).hexdigest()[:16]
+
+
+# -- one point ------------------------------------------------------------------------------------
+def flatten(summary):
+    """The figures of a run summary a row holds: ``SUMMARY_FIELDS`` and ``pulse.*``."""
+    row = {k: summary.get(k) for k in SUMMARY_FIELDS}
+    pulse = summary.get('pulse') or {}
+    for k in PULSE_FIELDS:
+        row[f'pulse.{k}'] = pulse.get(k)
+    return row
+
+
+def empty_figures():
+    row = {k: None for k in SUMMARY_FIELDS}
+    row.update({f'pulse.{k}': None for k in PULSE_FIELDS})
+    return row
+
+
+def run_point(scene, overrides, pid=None):
+    """One row: ``scene`` (a :class:`solver.build.scene.Scene`) with ``overrides`` (``{key: value}``,
+    applied in order) run by :func:`solver.simulate.runner.simulate`. Never raises for a failed run: the
+    row's ``status`` is ``ok``, ``diverged`` or ``error`` with a one-line ``reason``."""
+    from solver.simulate.runner import simulate
+    from solver.simulate.simulation import SimulationDiverged
+    wall0, cpu0 = time.perf_counter(), time.process_time()
+    row = {'point_id': pid, **{k: canonical(v) for k, v in overrides.items()}}
+    row.update(empty_figures())
+    try:
+        point = simulate(scene, list(overrides.items()))
+        row.update(flatten(point.summary))
+        row['status'], row['reason'] = 'ok', ''
+    except SimulationDiverged as exc:
+        row['status'], row['reason'] = 'diverged', str(exc).splitlines()[0]
+    except Exception as exc:           # noqa: BLE001 - a failed point is a row, never a crash
+        row['status'] = 'error'
+        row['reason'] = f'{type(exc).__name__}: {exc}'.splitlines()[0]
+    row['task_wall_s'] = time.perf_counter() - wall0
+    row['cpu_time_s'] = time.process_time() - cpu0
+    row['worker_pid'] = os.getpid()
+    return row
+
+
+# -- the table ------------------------------------------------------------------------------------
+def read_rows(out_dir):
+    """The rows already in ``out_dir`` (``rows.jsonl``), by point id (the last row of an id
+    wins; a line cut short by a kill is ignored)."""
+    path = Path(out_dir) / ROWS
+    rows = {}
+    if not path.exists():
+        return rows
+    for line in path.read_text().splitlines():
+        try:
+            row = json.loads(line)
+        except json.JSONDecodeError:
+            continue
+        if isinstance(row, dict) and row.get('point_id'):
+            rows[row['point_id']] = row
+    return rows
+
+
+def write_table(out_dir, rows, columns):
+    """``results.parquet`` and ``results.csv`` from ``rows`` (dicts), columns in ``columns``
+    order first; each written to a temporary file and renamed, so a reader never sees half a
+    table."""
+    import pyarrow as pa
+    import pyarrow.csv as pacsv
+    import pyarrow.parquet as pq
+    out_dir = Path(out_dir)
+    names = list(columns) + sorted({k for r in rows for k in r} - set(columns))
+    data = {}
+    for name in names:
+        col = [r.get(name) for r in rows]
+        kinds = {type(v) for v in col if v is not None}
+        if kinds and kinds <= {int, float} and float in kinds:
+            col = [None if v is None else float(v) for v in col]
+        elif len(kinds) > 1:
+            col = [None if v is None else str(v) for v in col]
+        data[name] = col
+    table = pa.table(data) if rows else pa.table({n: pa.array([], pa.null()) for n in names})
+    tmp = out_dir / (TABLE + '.tmp')
+    pq.write_table(table, tmp)
+    os.replace(tmp, out_dir / TABLE)
+    tmp = out_dir / (CSV + '.tmp')
+    pacsv.write_csv(table, tmp)
+    os.replace(tmp, out_dir / CSV)
+
+
+GUIDED_SHARE = 3                 # a batch takes 1/(3 x workers) of the points still to run,
+MAX_BATCH = 8                    # at most this many (Ctrl-C loses the rows of running batches)
+
+
+# -- the cluster ----------------------------------------------------------------------------------
+class Cluster:
+    """A Dask client: on ``address`` (an existing scheduler) or on a ``LocalCluster`` of
+    ``workers`` single-threaded worker processes started here and shut down by :meth:`close`."""
+
+    def __init__(self, workers=None, address=None):
+        from distributed import Client, LocalCluster
+        self.cluster = None
+        self.timings = {}
+        t0 = time.perf_counter()
+        if address:
+            try:
+                self.client = Client(address, timeout='20s')
+            except (OSError, TimeoutError, ValueError) as exc:
+                raise SweepError(f'--scheduler {address}: cannot connect ({exc})') from None
+        else:
+            n = workers or os.cpu_count() or 1
+            self.cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                                        dashboard_address=':0', silence_logs=40)
+            self.client = Client(self.cluster)
+        self.timings['cluster_start_s'] = time.perf_counter() - t0
+
+    @property
+    def n_workers(self):
+        return len(self.client.scheduler_info(n_workers=-1)['workers'])
+
+    def map(self, func, items, **kwargs):
+        """``[func(item) for item in items]`` on the cluster (the map-like callable of
+        :func:`scipy.optimize.differential_evolution`)."""
+        futures = self.client.map(func, list(items), pure=False, **kwargs)
+        return self.client.gather(futures)
+
+    def close(self):
+        try:
+            self.client.close()
+        finally:
+            if self.cluster is not None:
+                self.cluster.close()
+
+
+# -- the sweep ------------------------------------------------------------------------------------
+@dataclass
+class Sweep:
+    """A sweep of ``scene`` (a Scene) over ``points`` (dicts of overrides, ``extra`` applied after
+    each, e.g. ``run.t_end``) into ``out_dir``."""
+    scene: object
+    points: list
+    out_dir: Path
+    keys: list
+    extra: dict = field(default_factory=dict)
+
+    def overrides(self, point):
+        return {**point, **self.extra}
+
+    def ids(self):
+        data = self.scene.data
+        return [point_id(data, self.overrides(p)) for p in self.points]
+
+    def columns(self):
+        return (['point_id', *self.keys, *[k for k in self.extra if k not in self.keys],
+                 'status', 'reason', *[k for k in empty_figures()],
+                 'task_wall_s', 'cpu_time_s', 'worker_pid'])
+
+
+def validate_points(scene, sweep_points, extra):
+    """Apply every point's overrides to ``scene`` once (no run): an unknown key or a value out of
+    range stops the sweep before anything runs, with the scene's message."""
+    from solver.build.scene import SceneError
+    for p in sweep_points:
+        try:
+            scene.with_overrides(list({**p, **extra}.items()))
+        except SceneError as exc:
+            raise SweepError(str(exc)) from None
+
+
+def chunks(todo, workers, size=None):
+    """``todo`` cut into consecutive batches, one Dask task each. With ``size`` every batch has
+    ``size`` points; by default the batches shrink as the sweep goes (guided self-scheduling):
+    each takes a third of the remaining points divided among the workers, at least one and at most
+    :data:`MAX_BATCH`, so the early tasks are long (few round trips to the scheduler) and the last
+    ones short (the workers finish together)."""
+    todo = list(todo)
+    out = []
+    i = 0
+    while i < len(todo):
+        n = size or min(MAX_BATCH, max(1, (len(todo) - i) // (GUIDED_SHARE * max(workers, 1))))
+        out.append(todo[i:i + n])
+        i += n
+    return out
+
+
+def run_batch(task, scene, items):
+    """The rows of ``items`` (``(point_id, overrides)`` pairs), one :func:`run_point` each."""
+    return [task(scene, overrides, pid) for pid, overrides in items]
+
+
+def execute(sweep, cluster=None, progress=None, task=run_point, on_row=None, chunk=None):
+    """Run the points of ``sweep`` not yet in its ``out_dir``; serially in this process when
+    ``cluster`` is None, else as Dask tasks of a few points each (:func:`chunks`; ``chunk`` fixes
+    the number of points per task). Each finished row is appended to
+    ``rows.jsonl`` at once; the table is rewritten every few seconds and at the end (also after
+    Ctrl-C or an error). Returns ``(rows of every point in order, number run now)``."""
+    out = Path(sweep.out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    ids = sweep.ids()
+    done = read_rows(out)
+    todo = [(pid, p) for pid, p in zip(ids, sweep.points) if pid not in done]
+    todo = list(dict(todo).items())                   # a point listed twice runs once
+    columns = sweep.columns()
+    last_write = [time.monotonic()]
+    n_run = 0
+
+    def finish(row, fh):
+        nonlocal n_run
+        done[row['point_id']] = row
+        fh.write(json.dumps(row, allow_nan=True) + '\n')
+        fh.flush()
+        os.fsync(fh.fileno())
+        n_run += 1
+        if progress is not None:
+            progress(1)
+        if on_row is not None:
+            on_row(row)
+        if time.monotonic() - last_write[0] > 5.0:
+            write_table(out, [done[i] for i in ids if i in done], columns)
+            last_write[0] = time.monotonic()
+
+    try:
+        with (out / ROWS).open('a') as fh:
+            if cluster is None:
+                for pid, p in todo:
+                    finish(task(sweep.scene, sweep.overrides(p), pid), fh)
+            elif todo:
+                from distributed import as_completed
+                # the scene (about 1 kB pickled) travels inside each task: scattered data lives
+                # only on the workers that hold it and is lost for good when they die, a task's
+                # arguments go again with its retry
+                scene = sweep.scene
+                batches = chunks(todo, cluster.n_workers, chunk)
+                futures = {cluster.client.submit(run_batch, task, scene,
+                                                 [(pid, sweep.overrides(p)) for pid, p in b],
+                                                 key=f'points-{b[0][0]}-{len(b)}', pure=False): b
+                           for b in batches}
+                try:
+                    for fut in as_completed(futures):
+                        try:
+                            rows = fut.result()
+                        except Exception as exc:    # noqa: BLE001 - e.g. KilledWorker
+                            reason = f'{type(exc).__name__}: {exc}'.splitlines()[0]
+                            rows = [{'point_id': pid, **sweep.overrides(p), **empty_figures(),
+                                     'status': 'error', 'reason': reason}
+                                    for pid, p in futures[fut]]
+                        for row in rows:
+                            finish(row, fh)
+                finally:
+                    for fut in futures:
+                        if not fut.done():
+                            fut.cancel()
+    finally:
+        write_table(out, [done[i] for i in ids if i in done], columns)
+    return [done[i] for i in ids], n_run
+
+
+# -- the plot -------------------------------------------------------------------------------------
+def plot(rows, keys, figure, path):
+    """A heat map of ``figure`` over the first two swept ``keys`` (a line over one key; a scatter
+    for scattered samples), diverged and failed points marked with a cross. Returns ``path``."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots(figsize=(6.4, 4.8))
+    bad = [r for r in rows if r.get('status') != 'ok']
+
+    def val(r):
+        v = r.get(figure)
+        return np.nan if v is None else float(v)
+
+    def axis_values(k):
+        vals = []
+        for r in rows:
+            if r[k] not in vals:
+                vals.append(r[k])
+        numeric = all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in vals)
+        return (sorted(vals) if numeric else vals), numeric
+
+    if len(keys) == 1:
+        k = keys[0]
+        xs, numeric = axis_values(k)
+        pos = {v: (v if numeric else i) for i, v in enumerate(xs)}
+        good = sorted((pos[r[k]], val(r)) for r in rows if r.get('status') == 'ok')
+        ax.plot([g[0] for g in good], [g[1] for g in good], 'o-', label=figure)
+        for r in bad:
+            ax.axvline(pos[r[k]], color='red', ls=':', lw=1)
+            ax.plot(pos[r[k]], min((g[1] for g in good if np.isfinite(g[1])), default=0.0),
+                    'rx', ms=9)
+        if not numeric:
+            ax.set_xticks(range(len(xs)), [str(v) for v in xs])
+        ax.set_xlabel(k)
+        ax.set_ylabel(figure)
+    else:
+        kx, ky = keys[0], keys[1]
+        xs, nx = axis_values(kx)
+        ys, ny = axis_values(ky)
+        if len(xs) * len(ys) <= len(rows) or not (nx and ny):
+            grid = np.full((len(ys), len(xs)), np.nan)
+            for r in rows:
+                if r.get('status') == 'ok':
+                    grid[ys.index(r[ky]), xs.index(r[kx])] = val(r)
+            im = ax.imshow(grid, origin='lower', aspect='auto', cmap='viridis',
+                           interpolation='nearest')
+            for r in bad:
+                ax.plot(xs.index(r[kx]), ys.index(r[ky]), 'rx', ms=10, mew=2)
+            ax.set_xticks(range(len(xs)), [f'{v:.4g}' if nx else str(v) for v in xs],
+                          rotation=45 if len(xs) > 6 else 0)
+            ax.set_yticks(range(len(ys)), [f'{v:.4g}' if ny else str(v) for v in ys])
+        else:                              # scattered (Latin-hypercube) samples
+            good = [r for r in rows if r.get('status') == 'ok' and np.isfinite(val(r))]
+            none = [r for r in rows if r.get('status') == 'ok' and not np.isfinite(val(r))]
+            im = ax.scatter([r[kx] for r in good], [r[ky] for r in good],
+                            c=[val(r) for r in good], cmap='viridis')
+            ax.scatter([r[kx] for r in none], [r[ky] for r in none], facecolors='none',
+                       edgecolors='grey', label=f'no {figure}')
+            ax.plot([r[kx] for r in bad], [r[ky] for r in bad], 'rx', ms=10, mew=2)
+        fig.colorbar(im, ax=ax, label=figure)
+        ax.set_xlabel(kx)
+        ax.set_ylabel(ky)
+    title = f'{figure}' + (f' ({len(bad)} diverged or failed: x)' if bad else '')
+    ax.set_title(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return str(path)
+
+
+# -- the command ----------------------------------------------------------------------------------
+def progress_bar(total, desc):
+    """A tqdm bar on a terminal; nothing otherwise. Returns ``(update, close)``."""
+    if not sys.stderr.isatty() or total == 0:
+        return None, (lambda: None)
+    from tqdm import tqdm
+    bar = tqdm(total=total, desc=desc, unit='run')
+    return bar.update, bar.close
+
+
+def build(scene_path, grids, samples=None, seed=0, out=None, t_end=None):
+    """A validated :class:`Sweep` from the command's options (raises :class:`SweepError` or
+    :class:`solver.build.scene.SceneError`, nothing run)."""
+    from solver.build.scene import Scene
+    scene = Scene.load(scene_path)
+    if not grids:
+        raise SweepError('sweep: give at least one --grid KEY=...')
+    axes = [parse_axis(g) for g in grids]
+    pts = points(axes, samples=samples, seed=seed)
+    extra = {} if t_end is None else {'run.t_end': t_end}
+    validate_points(scene, pts, extra)
+    out_dir = Path(out) if out else Path('runs') / 'sweeps' / scene.name
+    return Sweep(scene, pts, out_dir, [a.key for a in axes], extra)
+
+
+def main(args):
+    """``tensegrity sweep``: returns the exit code."""
+    if args.workers is not None and args.workers < 1:
+        raise SweepError(f'--workers: must be >= 1, got {args.workers}')
+    if args.plot and args.plot not in FIGURES:
+        raise SweepError(f'--plot {args.plot}: unknown figure (one of {", ".join(FIGURES)})')
+    sweep = build(args.scene, args.grid, samples=args.samples, seed=args.seed, out=args.out,
+                  t_end=args.t_end)
+    n_todo = len(set(sweep.ids()) - set(read_rows(sweep.out_dir)))
+    update, close = progress_bar(n_todo, 'sweep')
+    cluster = None
+    try:
+        if n_todo and (args.scheduler or (args.workers or os.cpu_count() or 1) > 1):
+            cluster = Cluster(workers=args.workers, address=args.scheduler)
+        rows, n_run = execute(sweep, cluster, progress=update)
+    finally:
+        close()
+        if cluster is not None:
+            cluster.close()
+    counts = {s: sum(r['status'] == s for r in rows) for s in ('ok', 'diverged', 'error')}
+    out = Path(sweep.out_dir)
+    print(f'{len(rows)} points ({n_run} run now, {len(rows) - n_run} already in {out}): '
+          f'{counts["ok"]} ok, {counts["diverged"]} diverged, {counts["error"]} error')
+    print(f'  table: {out / TABLE}, {out / CSV}')
+    if args.plot:
+        print(f'  plot: {plot(rows, sweep.keys, args.plot, out / f"{args.plot}.png")}')
+    return 0
