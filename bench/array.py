@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from solver.build.scene import Scene
-from solver.simulate.simulation import Simulation
+from solver.simulate.array import simulation_for
 
 from .common import COLUMNS, write_csv
 
@@ -33,7 +33,7 @@ def _scene(n_columns, model='auto', t_end=1.2):
 def _run(scene, prestrain=None):
     """Wall time s of the advance calls of one run from the impact to ``run.t_end``, and the
     simulation (its model name, how many column simulations ran)."""
-    sim = Simulation(scene)
+    sim = simulation_for(scene)
     sim.advance(sim.dt)          # compile / load the kernels outside the timing
     sim.reset()
     if prestrain is not None:

@@ -15,7 +15,8 @@ import numpy as np
 
 from solver.models import family as models
 from solver.build.scene import Scene
-from solver.simulate.simulation import Simulation, SimulationDiverged
+from solver.simulate.simulation import SimulationDiverged
+from solver.simulate.array import simulation_for
 
 ROOT = Path(__file__).resolve().parents[1]
 COLUMNS = {'FB': ROOT / 'config' / 'scenes' / 'fb_column.yaml',
@@ -80,7 +81,7 @@ def record(sc, network=None, repeats=1, min_total_s=0.5, max_repeats=7):
 
 
 def _record_once(sc, network):
-    sim = Simulation(sc, network=network)
+    sim = simulation_for(sc, network=network)
     sim.advance(sim.dt)          # compile or load the kernels outside the timing
     sim.reset()
     sim.apply_impact(sc['loading.impact.v0'])

@@ -5,10 +5,12 @@
 
 The same simulation runs from its impact to ``run.t_end`` at ``run.output_dt``, alternately plain
 and recording (recorder opened, the impact command, every frame's messages built by
-:mod:`tensegrity_ros.msgs.messages` and written, file closed), ``repeats`` pairs after one discarded
+:mod:`tensegrity_ros.msgs.messages` and written, file closed), ``repeats`` pairs after one
+discarded
 warm-up pair. Reports the overhead ``recorded / plain - 1`` of wall and process CPU time (all
 threads) as the median over pairs, the file size per simulated second and per frame, and the time
-:func:`~tensegrity_ros.io.mcap_reader.load_run` takes relative to the plain run. Only ratios measured in
+:func:`~tensegrity_ros.io.mcap_reader.load_run` takes relative to the plain run. Only ratios
+measured in
 the same process are reported: the machine may be busy. The figures go to ``--out`` (JSON) with
 the host's load average at the start.
 """
@@ -47,11 +49,11 @@ def _one(sim, scene, path):
 def measure(scene_path='config/scenes/fb_column.yaml', repeats=3, log=print):
     """Dict of median ratios and sizes (see the module docstring)."""
     from solver.build.scene import Scene
-    from solver.simulate.simulation import Simulation
+    from solver.simulate.array import simulation_for
     from tensegrity_ros.io.mcap_reader import load_run
 
     scene = Scene.load(scene_path)
-    sim = Simulation(scene)
+    sim = simulation_for(scene)
     sim.advance(sim.dt)                       # compile (or load cached) kernels first
     wall, cpu, load = [], [], []
     with tempfile.TemporaryDirectory() as tmp:

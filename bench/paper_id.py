@@ -20,7 +20,8 @@ Every figure of docs/paper.md comes from the files this writes:
 5. ``strain_waves.png``: strain along the column at several times, per v0, for the identified FB
    and RB columns (the style of the paper's Figs. 2-3).
 
-Runs go through :func:`solver.simulate.runner.simulate` (as ``tensegrity run``) on a Dask LocalCluster.
+Runs go through :func:`solver.simulate.runner.simulate` (as ``tensegrity run``) on a Dask
+LocalCluster.
 """
 from __future__ import annotations
 

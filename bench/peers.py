@@ -34,7 +34,8 @@ from solver.integrators import registry as integrators
 from solver.models import family as models
 from solver.analysis.observables import track_pulse
 from solver.build.scene import Scene
-from solver.simulate.simulation import Simulation, SimulationDiverged
+from solver.simulate.simulation import SimulationDiverged
+from solver.simulate.array import simulation_for
 
 from . import peers_report
 
@@ -64,7 +65,7 @@ def fb_scene(overrides=()):
 def integrator_only(overrides, t_end):
     """CPU seconds per step of the integrator kernel alone (one call for the whole run, no
     ``Simulation.advance`` bookkeeping), from the impact, best of 3; ``(s_per_step, steps)``."""
-    sim = Simulation(fb_scene(overrides))
+    sim = simulation_for(fb_scene(overrides))
     sim.apply_impact(V0)
     m = sim.model
     x, v = m.x.copy(), m.v.copy()
@@ -105,7 +106,7 @@ def strain_error(eps, ref):
 def run_ours(overrides, t_end, ref=None, abort=True):
     """One run of our solver. Returns a dict with the strain history (n_t, n_prisms), the CPU and
     wall time of ``advance`` only, the steps taken and the simulation (its final state)."""
-    sim = Simulation(fb_scene(overrides))
+    sim = simulation_for(fb_scene(overrides))
     sim.advance(sim.dt)                      # compile or load cached kernels, untimed
     sim.reset()
     sim.apply_impact(V0)
@@ -345,7 +346,7 @@ def kernel_bound(ours, t_end, log, rounds=9):
     k = int(np.argsort(ratios)[len(ratios) // 2])            # the median round
     prof = profs[k]
     bound, per_step, alone = bounds[k], steps[k], alones[k]
-    psim = Simulation(fb_scene(ours['overrides']))
+    psim = simulation_for(fb_scene(ours['overrides']))
     psim.apply_impact(V0)
     py_profile = advance_profile(psim, min(t_end, 0.5), OUTPUT_DT)
     log(f'  step {per_step * 1e6:.1f} us ({alone * 1e6:.1f} us integrator alone), kernel bound '
@@ -405,7 +406,7 @@ def main(out_dir='bench/results', quick=False, log=_stderr):
     log('peers: kernel bound')
     kernel = kernel_bound(ours, t_end, log) if ours is not None else None
 
-    sim0 = Simulation(fb_scene([('model', 'full3d')]))
+    sim0 = simulation_for(fb_scene([('model', 'full3d')]))
     x0 = np.array(sim0.model.positions())
     v_imp = sim0.impact_velocities(V0)
     mj = None

@@ -1,7 +1,8 @@
 """The kernel bound of ``tensegrity bench --peers``: kernels timed in numba loops (no Python).
 
 ``profile(model, dt)`` times, at the model's current state, one force-and-
-constraint evaluation (:func:`solver.kernels.dynamics.accelerations`) and the other per-step kernels of the
+constraint evaluation (:func:`solver.kernels.dynamics.accelerations`) and the other per-step
+kernels of the
 projected Runge-Kutta methods (kink prediction, position and velocity projection), each as the
 mean over a jitted loop of ``n`` calls, so that no interpreter overhead is included.
 """
@@ -13,7 +14,7 @@ import numpy as np
 
 from solver.kernels import dynamics as dyn
 from solver._jit import jit
-from solver.integrators.registry import next_kink
+from solver.kernels.kinks import next_kink
 
 
 @jit

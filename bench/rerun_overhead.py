@@ -111,12 +111,12 @@ def measure(scene_path='config/scenes/fb_column.yaml', repeats=3, log=print, t_e
     also the time of the recording alone (the run's frames fed from memory), ``*_rec_only_s``."""
     from solver.simulate.runner import run
     from solver.build.scene import Scene
-    from solver.simulate.simulation import Simulation
+    from solver.simulate.array import simulation_for
 
     scene = Scene.load(scene_path)
     if t_end is not None:
         scene = scene.with_overrides([('run.t_end', float(t_end))])
-    sim = Simulation(scene)
+    sim = simulation_for(scene)
     sim.advance(sim.dt)                       # compile (or load cached) kernels first
     from tensegrity_ros.io import rerun_log  # noqa: F401
     gc.freeze()                               # as tensegrity run does before its run
@@ -184,7 +184,7 @@ def import_cost(repeats=3):
         'import gc, tempfile, time',
         'from solver.build.scene import Scene',
         'from solver.simulate.simulation import Simulation',
-        "sim = Simulation(Scene.load('config/scenes/fb_column.yaml'))",
+        "sim = simulation_for(Scene.load('config/scenes/fb_column.yaml'))",
         'frames = []',
         'for _ in range(3):',
         '    frames.append(sim.frame())',

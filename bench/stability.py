@@ -63,7 +63,8 @@ SHORT = {'prism height': 'S', 'prism twist': 'L', 'energy': 'E', 'constraint err
          'state': 'N', 'rigid members': 'R', 'constraint projection': 'P', 'step size': 'H'}
 
 
-# the contact map: the prism stops at their documented stiffness and tolerance (solver/kernels/contact.py)
+# the contact map: the prism stops at their documented stiffness and tolerance
+# (solver/kernels/contact.py)
 CONTACT = ('contact.lock=penalty', 'contact.stiffness=100000.0', 'contact.tolerance=0.05')
 CONTACT_LABEL = 'prism stops: contact.lock penalty, stiffness 1e5 N/m, tolerance 0.05 h0'
 CONTACT_METHODS = ('rk4_projected', 'rk4', 'rattle', 'dopri54_projected')  # implicit refuses stops

@@ -4,7 +4,8 @@
 starts without compiling. Numba checks only the source file of a cached function itself, not the
 functions it calls in other modules, so a kernel of ``integrators.py`` would keep running the old
 ``dynamics.py`` code after an edit. The cache therefore lives in a folder named after a hash of
-every solver source file in every sub-package (and the numba version): any edit to the solver starts a fresh cache.
+every solver source file in every sub-package (and the numba version): any edit to the solver
+starts a fresh cache.
 
 No ``fastmath``: the benchmarks have not shown it is worth the loss of IEEE semantics (NaN
 detection relies on them).

@@ -186,7 +186,8 @@ def cmd_replay(args):
 
 
 def cmd_paper(args):
-    """``tensegrity paper``: the paper's table under every modelling variant (solver.studies.paper)."""
+    """``tensegrity paper``: the paper's table under every modelling variant
+    (solver.studies.paper)."""
     from solver.studies import paper
     models = ('sym3d',) if args.no_chain or args.set else ('sym3d', 'chain1d')
     sets = list(args.set or [])
@@ -248,7 +249,7 @@ def cmd_lens(args):
 def lens_recorder(scene, path):
     """A Rerun recorder of the lens array with the field grid of :func:`lens_field_grid`."""
     from solver.studies import lens
-    from solver.simulate.simulation import build_network
+    from solver.build.structures import build_network
 
     from solver.studies.lens_record import grid_extent
     from tensegrity_ros.io.rerun_log import RerunRecorder
@@ -268,7 +269,8 @@ def lens_field_grid(base_x):
 
 
 def lens_result(scene, focus, speed, v0, dims=2, recorder=None):
-    """The plan, its check, the field's figures at the focus (solver.analysis.field.focus_report) and the
+    """The plan, its check, the field's figures at the focus (solver.analysis.field.focus_report)
+    and the
     focal gain of a focus, the maps for the plot (a dict). ``recorder``: a RerunRecorder of the
     array (:func:`lens_recorder`) that gets the check run's frames and the field over time."""
     import numpy as np
@@ -316,7 +318,8 @@ def lens_result(scene, focus, speed, v0, dims=2, recorder=None):
 
 def _record_field(recorder, t, b, base_x, speed, dims, frame_dt):
     """The field over ``sim_time`` into ``recorder``: at every frame time the peak pressure up to
-    then (solver.analysis.field.PeakMap on the recorded base forces) and the pressure then, and once more
+    then (solver.analysis.field.PeakMap on the recorded base forces) and the pressure then, and
+    once more
     when the record's end has passed the whole grid, all over the largest peak pressure."""
     import numpy as np
 
@@ -441,7 +444,8 @@ def _demo_focus(args, domain):
 
 
 def cmd_sweep(args):
-    """``tensegrity sweep``: one run per point of a grid, on Dask (tensegrity_ros.studies.sweep)."""
+    """``tensegrity sweep``: one run per point of a grid, on Dask
+    (tensegrity_ros.studies.sweep)."""
     from tensegrity_ros.studies import sweep
     try:
         return sweep.main(args)
@@ -450,7 +454,8 @@ def cmd_sweep(args):
 
 
 def cmd_fit(args):
-    """``tensegrity fit``: scene values that reproduce target figures (tensegrity_ros.studies.fit)."""
+    """``tensegrity fit``: scene values that reproduce target figures
+    (tensegrity_ros.studies.fit)."""
     from tensegrity_ros.studies import fit
     from tensegrity_ros.studies.sweep import SweepError
     try:

@@ -14,7 +14,7 @@ FLOAT32_TYPES = ('float', 'sequence<float>')
 def small_network(n_prisms=3):
     """The network of the prism scene stacked to ``n_prisms`` (no time stepping, no numba)."""
     from solver.build.scene import Scene
-    from solver.simulate.simulation import build_network
+    from solver.build.structures import build_network
     scene = Scene.load(ROOT / 'config' / 'scenes' / 'prism.yaml')
     return build_network(scene.with_overrides([('structure.n_prisms', n_prisms)]))
 

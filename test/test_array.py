@@ -7,6 +7,7 @@ import pytest
 from solver.simulate.array import ArraySimulation
 from solver.build.scene import Scene
 from solver.simulate.simulation import Simulation, SimulationDiverged
+from solver.simulate.array import simulation_for
 
 LENS = 'config/scenes/lens_array.yaml'
 
@@ -30,15 +31,15 @@ def _close(a, b, what):
 
 
 def test_auto_runs_an_array_per_column_and_full3d_on_request():
-    sim = Simulation(_scene())
+    sim = simulation_for(_scene())
     assert isinstance(sim, ArraySimulation) and sim.model.name == 'sym3d'
     assert sim.n_simulated == 1                         # five alike columns, one simulation
-    full = Simulation(_scene('model=full3d'))
+    full = simulation_for(_scene('model=full3d'))
     assert type(full) is Simulation and full.model.name == 'full3d'
 
 
 def test_per_column_reduction_equals_full3d_with_different_prestrains():
-    arr, full = Simulation(_scene()), Simulation(_scene('model=full3d'))
+    arr, full = simulation_for(_scene()), simulation_for(_scene('model=full3d'))
     p = [0.001, 0.0025, 0.004, 0.003, 0.0015]
     for s in (arr, full):
         s.apply_prestrain(p)
@@ -88,13 +89,13 @@ def test_shared_array_equals_one_simulation_per_column_exactly_and_splits():
     assert counts == 4                   # {0, 1}, {2}, {3}, {4}
     assert sorted(g.columns for g in shared.groups) == [[0, 1], [2], [3], [4]]
     # and the split array is right, not only self-consistent: the full3d twin
-    full = Simulation(_scene('model=full3d'))
+    full = simulation_for(_scene('model=full3d'))
     _commands(full)
     _close(shared, full, 'after the splits')
 
 
 def test_asymmetric_cables_expand_only_their_column():
-    arr, full = Simulation(_scene()), Simulation(_scene('model=full3d'))
+    arr, full = simulation_for(_scene()), simulation_for(_scene('model=full3d'))
     rest = np.array(arr.model.cable_rest_length)
     k = arr.network.n_cables // 5
     rest[k + 4] *= 1.0005                                 # one cross cable of column 1
@@ -109,7 +110,7 @@ def test_asymmetric_cables_expand_only_their_column():
 
 
 def test_divergence_names_the_column_and_restores_every_column():
-    arr = Simulation(_scene())
+    arr = simulation_for(_scene())
     arr.apply_impact(0.1)
     arr.advance(0.02)
     arr.apply_impact([3.0], columns=[3])                  # far beyond what column 3 survives
@@ -126,7 +127,7 @@ def test_divergence_names_the_column_and_restores_every_column():
 
 @pytest.mark.parametrize('bad', [float('nan'), 0.7, [0.1, 0.2]])
 def test_bad_commands_change_nothing(bad):
-    arr = Simulation(_scene())
+    arr = simulation_for(_scene())
     arr.apply_impact(0.1)
     arr.advance(0.01)
     f0, groups = arr.frame(), arr.n_simulated

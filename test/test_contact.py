@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from solver.kernels import contact
+from solver.models import extras
 
 from solver.integrators import registry as integrators
 
@@ -16,7 +16,8 @@ from solver.models import family as models
 from solver.build import structures
 from solver.simulate.runner import run
 from solver.build.scene import Scene, SceneError
-from solver.simulate.simulation import Simulation, prism_twists
+from solver.simulate.array import simulation_for
+from solver.analysis.observables import prism_twists
 
 SCENES = 'config/scenes'
 
@@ -38,7 +39,7 @@ def test_striker_on_a_free_mass_is_the_two_mass_collision(ratio):
     model = models.Full3D(net)
     spec = {'damp': None, 'stop_h': None, 'strikers': True, 'levels': np.array([[[0]]]),
             'par': np.array([0.0, k, 1.0, 1.0, m_s, 0.0])}
-    contact.attach(model, spec)
+    extras.attach(model, spec)
     model.v[1, 2] = -v0                     # the striker (row 1) moves down onto the mass
     mu = m * m_s / (m + m_s)
     duration = math.pi * math.sqrt(mu / k)
@@ -71,7 +72,7 @@ def test_striker_sym3d_equals_full3d_and_conserves_energy():
     sets = ('loading.impact.mode=striker', 'integrator.dt=1e-4', 'structure.n_prisms=10')
     runs = {}
     for model in ('sym3d', 'full3d'):
-        sim = Simulation(_scene('fb_column', *sets, f'model={model}'))
+        sim = simulation_for(_scene('fb_column', *sets, f'model={model}'))
         assert sim.model.name == model
         added = sim.apply_impact(0.1)
         assert added == pytest.approx(0.5 * 0.0249 * 0.1 ** 2, rel=1e-12)
@@ -91,7 +92,7 @@ def test_striker_sym3d_equals_full3d_and_conserves_energy():
 
 
 def test_striker_energy_balance_right_after_the_impact():
-    sim = Simulation(_scene('fb_column', 'loading.impact.mode=striker',
+    sim = simulation_for(_scene('fb_column', 'loading.impact.mode=striker',
                             'loading.impact.striker_mass=0.0747'))
     before = sim.energy()
     assert sim.striker()[0, 1] == 0.0
@@ -110,7 +111,7 @@ UNDAMPED_FB_STRAIN_SHA256 = 'e831a64b46a6044f3618cdb31b6da9ea89e866bc12b231f96b2
 
 
 def _fb_strain(*sets):
-    sim = Simulation(_scene('fb_column', *sets))
+    sim = simulation_for(_scene('fb_column', *sets))
     sim.apply_impact(0.1)
     return run(sim, 0.05, 0.005).strain
 
@@ -125,7 +126,7 @@ def test_zero_damping_is_bit_for_bit_the_undamped_code():
 
 
 def test_damped_column_loses_energy_monotonically():
-    sim = Simulation(_scene('fb_column', 'materials.cable_damping_ratio=0.05'))
+    sim = simulation_for(_scene('fb_column', 'materials.cable_damping_ratio=0.05'))
     sim.apply_impact(0.1)
     rec = run(sim, 0.2, 0.005)
     assert np.all(np.diff(rec.energy) < 0.0)
@@ -146,7 +147,7 @@ def test_damped_cable_mass_oscillator_matches_the_analytic_one():
                    'materials': {'cable_E': EA / (math.pi * 1.4e-4 ** 2), 'cable_damping': c},
                    'loading': {'gravity': g}, 'model': 'full3d',
                    'integrator': {'dt': 1e-4}, 'run': {'output_dt': 1e-3}})
-    sim = Simulation(scene)
+    sim = simulation_for(scene)
     w = math.sqrt(k / m)
     zeta = c / (2.0 * math.sqrt(k * m))
     wd = w * math.sqrt(1.0 - zeta ** 2)
@@ -168,7 +169,7 @@ def test_damped_cable_mass_oscillator_matches_the_analytic_one():
 # -- prism stops (contact.lock) ----------------------------------------------------------------
 
 def test_rigid_base_column_at_1_m_s_runs_through_the_lock_with_stops():
-    sim = Simulation(_scene('rb_column', 'contact.lock=penalty', 'integrator.dt=2e-4'))
+    sim = simulation_for(_scene('rb_column', 'contact.lock=penalty', 'integrator.dt=2e-4'))
     assert sim.model.name == 'sym3d'
     sim.apply_impact(1.0)
     e0 = sim.energy()
@@ -187,7 +188,7 @@ def test_rigid_base_column_at_1_m_s_runs_through_the_lock_with_stops():
     assert cerr < 1e-9
     assert worst < math.pi
     # without the stops the same impact ends with the bars crossing
-    plain = Simulation(_scene('rb_column', 'integrator.dt=2e-4'))
+    plain = simulation_for(_scene('rb_column', 'integrator.dt=2e-4'))
     plain.apply_impact(1.0)
     with pytest.raises(Exception, match='prism twist'):
         plain.advance(0.05)
@@ -212,6 +213,6 @@ def test_bad_contact_keys_name_the_key(sets, key):
 
 def test_stop_above_the_rest_height_and_chain1d_are_refused():
     with pytest.raises(ValueError, match='contact.tolerance'):
-        Simulation(_scene('rb_column', 'contact.lock=penalty', 'contact.tolerance=0.2'))
+        simulation_for(_scene('rb_column', 'contact.lock=penalty', 'contact.tolerance=0.2'))
     with pytest.raises(ValueError, match='chain1d'):
-        Simulation(_scene('fb_column', 'loading.impact.mode=striker', 'model=chain1d'))
+        simulation_for(_scene('fb_column', 'loading.impact.mode=striker', 'model=chain1d'))

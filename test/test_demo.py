@@ -11,7 +11,7 @@ from solver.analysis import observables  # noqa: E402
 
 from solver.simulate import runner
 from solver.build.scene import Scene  # noqa: E402
-from solver.simulate.simulation import Simulation  # noqa: E402
+from solver.simulate.array import simulation_for
 from tensegrity_ros.node.demo import (demo_domain_id, run_demo,  # noqa: E402
                                       stamped_strain)
 
@@ -52,9 +52,9 @@ def test_demo_matches_the_headless_run(tmp_path, headless):
 def test_strain_stamps_come_from_the_matching_cloud():
     """Each float64 strain message gets the stamp of the cloud of the same frame; one whose cloud
     was dropped is left out; the float32 cloud's own strain differs by its rounding."""
-    from solver.simulate.simulation import build_network
+    from solver.build.structures import build_network
     net = build_network(Scene.load(SCENE))
-    sim = Simulation(Scene.load(SCENE))
+    sim = simulation_for(Scene.load(SCENE))
     sim.apply_impact(0.1)
     clouds, strains = [], []
     for _ in range(6):

@@ -11,7 +11,8 @@ import pytest
 
 from solver.integrators import registry as integrators
 from solver.build.scene import Scene
-from solver.simulate.simulation import Simulation, SimulationDiverged
+from solver.simulate.simulation import SimulationDiverged
+from solver.simulate.array import simulation_for
 
 ROOT = Path(__file__).resolve().parents[1]
 PRISM = Scene.load(ROOT / 'config' / 'scenes' / 'prism.yaml')
@@ -32,7 +33,7 @@ def _oscillator(g=9.81, mass=0.0083, rest=0.01):
                           'cable_rest_length': [rest]},
             'loading': {'gravity': g}, 'model': 'full3d',
             'integrator': {'method': 'implicit_midpoint', 'dt': 1e-3}, 'run': {'output_dt': 1e-3}}
-    return Simulation(Scene(data)), k, math.sqrt(k / mass)
+    return simulation_for(Scene(data)), k, math.sqrt(k / mass)
 
 
 def _bar_length_error(sim):
@@ -64,7 +65,7 @@ def test_massive_bars_are_refused_with_a_clear_error():
                                          'cable_rest_length': [0.0139]},
             'materials': {'bar_mass': 0.001}, 'model': 'full3d',
             'integrator': {'method': 'implicit_midpoint', 'dt': 1e-3}, 'run': {'output_dt': 1e-3}}
-    sim = Simulation(Scene(data))
+    sim = simulation_for(Scene(data))
     assert np.any(sim.network.partner >= 0)
     with pytest.raises(ValueError, match='massive bars.*rk4_projected'):
         sim.advance(sim.dt)
@@ -76,7 +77,7 @@ def test_massive_bars_sharing_nodes_are_refused_too():
     scene = Scene.load(ROOT / 'config' / 'scenes' / 'fb_column.yaml').with_overrides(
         ['structure.n_prisms=3', 'materials.bar_mass_fraction=0.3', 'model=full3d',
          'integrator=implicit_midpoint'])
-    sim = Simulation(scene)
+    sim = simulation_for(scene)
     assert not np.any(sim.network.partner >= 0)        # not the class-1 rod blocks
     with pytest.raises(ValueError, match='massive bars'):
         sim.advance(sim.dt)
@@ -124,7 +125,7 @@ def test_observed_order_on_a_prism():
     T = 0.064
     finals = []
     for n in (16, 32, 64, 128):
-        sim = Simulation(PRISM.with_overrides([
+        sim = simulation_for(PRISM.with_overrides([
             'model=full3d', 'integrator=implicit_midpoint', f'integrator.dt={T / n}',
             'integrator.projection_tol=1e-14', 'run.output_dt=0.01']))
         sim.apply_impact(2e-4)
@@ -144,8 +145,9 @@ def test_bars_kept_and_energy_never_grows_on_the_stiff_column(model):
     dt = 4 ms: after every step every bar keeps its length to 1e-9 (measured from the full
     positions), and the energy never rises (the discrete-gradient forces and the bar forces do
     no net work over a step; the velocity projection only removes kinetic energy)."""
-    sim = Simulation(RB.with_overrides(STIFF + [f'model={model}', 'integrator=implicit_midpoint',
-                                                'integrator.dt=4e-3']))
+    sim = simulation_for(RB.with_overrides(STIFF + [f'model={model}',
+                                                    'integrator=implicit_midpoint',
+                                                    'integrator.dt=4e-3']))
     sim.apply_impact(0.1)
     e_prev = e0 = sim.energy()
     for _ in range(40):
@@ -177,7 +179,7 @@ def test_full_and_reduced_models_agree():
     over = STIFF + ['integrator=implicit_midpoint', 'integrator.dt=2e-3']
     runs = []
     for model in ('full3d', 'sym3d'):
-        sim = Simulation(RB.with_overrides(over + [f'model={model}']))
+        sim = simulation_for(RB.with_overrides(over + [f'model={model}']))
         sim.apply_impact(0.1)
         sim.advance(0.032)
         runs.append(np.array(sim.model.positions()))
@@ -186,7 +188,7 @@ def test_full_and_reduced_models_agree():
 
 # -- stiff scene ----------------------------------------------------------------------------------
 def _survives(method, dt, t_end=0.16):
-    sim = Simulation(RB.with_overrides(STIFF + ['model=sym3d', f'integrator={method}',
+    sim = simulation_for(RB.with_overrides(STIFF + ['model=sym3d', f'integrator={method}',
                                                 f'integrator.dt={dt}']))
     sim.apply_impact(0.1)
     try:
@@ -211,6 +213,6 @@ def test_forces_outside_the_midpoint_step_are_refused(sets):
     a clear error instead of being silently left out."""
     scene = Scene.load(ROOT / 'config' / 'scenes' / 'fb_column.yaml').with_overrides(
         ['structure.n_prisms=3', 'model=full3d', 'integrator=implicit_midpoint', *sets])
-    sim = Simulation(scene)
+    sim = simulation_for(scene)
     with pytest.raises(ValueError, match='not part of its step'):
         sim.advance(sim.dt)

@@ -13,7 +13,8 @@ import pytest
 
 from solver.integrators import registry as integrators
 from solver.build.scene import Scene, SceneError
-from solver.simulate.simulation import Simulation, SimulationDiverged
+from solver.simulate.simulation import SimulationDiverged
+from solver.simulate.array import simulation_for
 
 ROOT = Path(__file__).resolve().parents[1]
 PRISM = Scene.load(ROOT / 'config' / 'scenes' / 'prism.yaml')
@@ -22,7 +23,7 @@ METHODS = ('rk4_projected', 'rk4', 'rattle', 'dopri54_projected')
 
 
 def _sim(scene, overrides, v0):
-    sim = Simulation(scene.with_overrides(['model=full3d'] + list(overrides)))
+    sim = simulation_for(scene.with_overrides(['model=full3d'] + list(overrides)))
     if v0:
         sim.apply_impact(v0)
     return sim
@@ -54,7 +55,7 @@ def test_unknown_method_lists_the_valid_ones():
     for name in METHODS:
         assert name in str(err.value)
     with pytest.raises(ValueError, match='rattle'):
-        Simulation(PRISM.with_overrides(['integrator=leapfrog']))
+        simulation_for(PRISM.with_overrides(['integrator=leapfrog']))
 
 
 def test_adaptive_tolerances_are_validated():

@@ -77,10 +77,10 @@ def test_the_design_times_the_solitary_strain_pulse(scene, prestrain):
     """The arrival the design uses is the strain pulse's: the base force peaks when the largest
     compression of the clamped end's prism does (within two output steps), several times above
     the first, faster front, which reaches the base in less than 60 % of the time."""
-    from solver.simulate.simulation import Simulation
+    from solver.simulate.array import simulation_for
     from solver.analysis.support import first_arrival, pulse_arrival
     one = scene.with_overrides(['structure.n_columns=1', f'prestrain={prestrain}'])
-    sim = Simulation(one)
+    sim = simulation_for(one)
     sim.apply_impact(0.1)
     t, b, strain = [0.0], [sim.base_force()[0]], [sim.frame().strain[0, 0]]
     while sim.t < one['run.t_end'] - 1e-9:

@@ -134,12 +134,12 @@ def test_node_records_every_published_frame_to_both_files(tmp_path, monkeypatch)
     from rclpy.parameter import Parameter
 
     from solver.build.scene import Scene
-    from solver.simulate.simulation import Simulation
+    from solver.simulate.array import simulation_for
     from tensegrity_ros.node.demo import spin_until
     from tensegrity_ros.node.node import TensegritySim
     monkeypatch.setattr(RerunRecorder, 'n_buffers', 2)
     mcap, rrd = tmp_path / 'node.mcap', tmp_path / 'node.rrd'
-    sim = Simulation(Scene.load(FB).with_overrides(['structure.n_prisms=4']))
+    sim = simulation_for(Scene.load(FB).with_overrides(['structure.n_prisms=4']))
     ctx = rclpy.Context()
     rclpy.init(context=ctx, domain_id=90 + os.getpid() % 10)
     stamps = []

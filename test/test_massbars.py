@@ -1,4 +1,5 @@
-"""Massive bars that share nodes (the banded mass-matrix system of solver.kernels.massmatrix) and the mass
+"""Massive bars that share nodes (the banded mass-matrix system of solver.kernels.massmatrix) and
+the mass
 placement options, each against an independent reference: the dense NumPy KKT twin
 (test/twins.py), rigid-body mechanics of a single rod derived here, invariants (total mass,
 energy, rest at t = 0, the constraints) and the full model against the symmetric reduction."""
@@ -13,7 +14,7 @@ from solver.kernels import massmatrix as mm
 from solver.build import structures
 from solver.build.network import Network
 from solver.build.scene import Scene, SceneError
-from solver.simulate.simulation import Simulation
+from solver.simulate.array import simulation_for
 from solver.models.sym3d import Sym3D
 
 UNIT = 0.0249
@@ -297,7 +298,7 @@ def test_sym3d_reduced_mass_matrix_matches_the_full_dense_kkt(bases):
 def test_impulse_uses_the_full_mass_matrix():
     """The velocity after the impact is the dense mass-weighted projection of the axial kick:
     no rigid member is stretched and the kinetic energy is that of the dense mass matrix."""
-    sim = Simulation(Scene({'structure': {'n_prisms': 12}, 'model': 'full3d',
+    sim = simulation_for(Scene({'structure': {'n_prisms': 12}, 'model': 'full3d',
                             'materials': {'bar_mass_fraction': 0.3}}))
     net = sim.network
     kick = np.zeros((net.n_nodes, 3))
@@ -320,7 +321,7 @@ def test_impact_conserves_energy_and_sym3d_equals_full3d(over):
         base.setdefault(key, {}).update(sub)
     runs = {}
     for model in ('sym3d', 'full3d'):
-        sim = Simulation(Scene(dict(base, model=model)))
+        sim = simulation_for(Scene(dict(base, model=model)))
         assert sim.model.name == model
         sim.apply_impact(0.1)
         e0 = sim.energy()
@@ -333,7 +334,7 @@ def test_impact_conserves_energy_and_sym3d_equals_full3d(over):
         assert worst / t_end < 1e-6
         runs[model] = sim
     full = runs['full3d']
-    sym = Simulation(Scene(dict(base, model='sym3d')))
+    sym = simulation_for(Scene(dict(base, model='sym3d')))
     sym.apply_impact(0.1)
     sym.advance(full.t)
     # equal to round-off (which grows along the pulse: 1e-12 m after 0.1 s)
@@ -342,11 +343,11 @@ def test_impact_conserves_energy_and_sym3d_equals_full3d(over):
 
 
 def test_auto_picks_sym3d_for_massive_bars_and_chain1d_refuses_them():
-    sim = Simulation(Scene({'structure': {'n_prisms': 5},
+    sim = simulation_for(Scene({'structure': {'n_prisms': 5},
                             'materials': {'bar_mass_fraction': 0.3}}))
     assert sim.model.name == 'sym3d'
     with pytest.raises(ValueError, match='chain1d: bar masses'):
-        Simulation(Scene({'structure': {'n_prisms': 5}, 'model': 'chain1d',
+        simulation_for(Scene({'structure': {'n_prisms': 5}, 'model': 'chain1d',
                           'materials': {'bar_mass_fraction': 0.3}}))
 
 
@@ -382,7 +383,7 @@ def test_gravity_acts_on_bar_masses():
     level (the sum of the multipliers' z forces on it) equals the weight of everything free
     plus half of each bar attached to it."""
     net = structures.column(n_prisms=3, bar_mass_fraction=0.5)
-    sim = Simulation(Scene({'structure': {'n_prisms': 3}, 'model': 'full3d',
+    sim = simulation_for(Scene({'structure': {'n_prisms': 3}, 'model': 'full3d',
                             'materials': {'bar_mass_fraction': 0.5},
                             'loading': {'gravity': 9.81}}))
     weight = 9.81 * (np.sum(np.asarray(net.node_mass)[~net.clamped]) + np.sum(net.bar_mass)

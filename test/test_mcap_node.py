@@ -30,7 +30,7 @@ def test_node_log_holds_what_was_published_and_received(tmp_path):
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from rclpy.serialization import deserialize_message
     from solver.build.scene import Scene
-    from solver.simulate.simulation import Simulation
+    from solver.simulate.array import simulation_for
     from std_msgs.msg import Float64MultiArray
     from tensegrity_ros.node.node import TensegritySim
 
@@ -41,7 +41,7 @@ def test_node_log_holds_what_was_published_and_received(tmp_path):
     rclpy.init(context=ctx, domain_id=domain)
     got = {key: [] for key in TOPICS}
     try:
-        sim = Simulation(scene)
+        sim = simulation_for(scene)
         node = TensegritySim(sim=sim, context=ctx, parameter_overrides=[
             Parameter('record_mcap', value=str(path)),
             Parameter('real_time_factor', value=0.0),

@@ -204,7 +204,7 @@ def test_run_cli_mcap_logs_what_the_run_computed(tmp_path):
     run's strain history, node positions (float32) and the impact command."""
     from solver.simulate.runner import run
     from solver.build.scene import Scene
-    from solver.simulate.simulation import Simulation
+    from solver.simulate.array import simulation_for
     from tensegrity_ros.cli import main
     scene_file = ROOT / 'config' / 'scenes' / 'prism.yaml'
     args = ['run', str(scene_file), '--t-end', '0.01', '--mcap', '--json', '--out', str(tmp_path)]
@@ -212,7 +212,7 @@ def test_run_cli_mcap_logs_what_the_run_computed(tmp_path):
     log_path = tmp_path / 'run.mcap'
     assert json.loads((tmp_path / 'summary.json').read_text())['outputs']['mcap'] == str(log_path)
     scene = Scene.load(scene_file).with_overrides([('run.t_end', 0.01)])
-    sim = Simulation(scene)
+    sim = simulation_for(scene)
     sim.apply_impact(scene['loading.impact.v0'], scene['loading.impact.columns'])
     positions = []
     rec = run(sim, 0.01, scene['run.output_dt'], on_frame=lambda f: positions.append(f.positions))

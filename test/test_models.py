@@ -11,7 +11,8 @@ from solver.kernels import dynamics as dyn
 from solver.models import family as models
 from solver.models.chain1d import Chain1D
 from solver.build.scene import Scene
-from solver.simulate.simulation import Simulation, build_network
+from solver.simulate.array import simulation_for
+from solver.build.structures import build_network
 from solver.models.sym3d import NotSymmetric, reduce_network
 
 SCENES = Path(__file__).resolve().parent.parent / 'config' / 'scenes'
@@ -22,7 +23,7 @@ def _scene(name, *sets):
 
 
 def _impacted(name, model, v0=0.1, t=0.2):
-    sim = Simulation(_scene(name, f'model={model}'))
+    sim = simulation_for(_scene(name, f'model={model}'))
     sim.apply_impact(v0)
     sim.advance(t)
     return sim
@@ -51,7 +52,7 @@ def test_sym3d_equals_full3d_on_the_paper_columns(name):
 def test_sym3d_equals_full3d_on_other_symmetric_variants(name, sets):
     x = {}
     for model in ('full3d', 'auto'):
-        sim = Simulation(_scene(name, f'model={model}', *sets))
+        sim = simulation_for(_scene(name, f'model={model}', *sets))
         sim.apply_impact(sim.scene['loading.impact.v0'])
         sim.advance(0.05)
         x[sim.model.name] = sim.frame().positions
@@ -63,18 +64,18 @@ def test_sym3d_equals_full3d_on_other_symmetric_variants(name, sets):
 def test_auto_selects_sym3d_on_the_paper_columns(name):
     scene = _scene(name)
     assert scene['model'] == 'auto'
-    assert Simulation(scene).model.name == 'sym3d'
+    assert simulation_for(scene).model.name == 'sym3d'
 
 
 def test_auto_falls_back_to_full3d_and_sym3d_on_request_names_the_problem():
     scene = _scene('fb_column', 'structure.n_columns=2', 'structure.n_prisms=3')
     # two columns: not symmetric about z as one network, each column about its own axis
-    assert Simulation(scene.with_overrides(['model=full3d'])).model.name == 'full3d'
-    assert Simulation(scene).model.name == 'sym3d'
+    assert simulation_for(scene.with_overrides(['model=full3d'])).model.name == 'full3d'
+    assert simulation_for(scene).model.name == 'sym3d'
     assert models.choose('auto', build_network(scene), scene.data) is models.Full3D
     with pytest.raises(ValueError, match='sym3d'):
-        Simulation(scene.with_overrides(['model=sym3d']), network=build_network(scene))
-    assert Simulation(_scene('fb_column', 'model=chain1d')).model.name == 'chain1d'
+        simulation_for(scene.with_overrides(['model=sym3d']), network=build_network(scene))
+    assert simulation_for(_scene('fb_column', 'model=chain1d')).model.name == 'chain1d'
 
 
 @pytest.mark.parametrize('bases', ['flexible', 'rigid'])
@@ -199,7 +200,7 @@ def test_flexible_law_is_the_derivative_of_the_minimised_prism_energy():
 
 # -- chain1d: dynamics ---------------------------------------------------------------------------
 def test_chain1d_small_oscillation_period_of_one_prism():
-    sim = Simulation(_scene('prism', 'model=chain1d', 'structure.bases=rigid',
+    sim = simulation_for(_scene('prism', 'model=chain1d', 'structure.bases=rigid',
                             'integrator.dt=1e-4'))
     chain = sim.model
     v0 = 1e-5
@@ -217,7 +218,7 @@ def test_chain1d_small_oscillation_period_of_one_prism():
 
 
 def test_chain1d_rigid_lock_is_a_hard_elastic_contact():
-    sim = Simulation(_scene('prism', 'model=chain1d', 'structure.bases=rigid',
+    sim = simulation_for(_scene('prism', 'model=chain1d', 'structure.bases=rigid',
                             'integrator.dt=1e-6', 'run.output_dt=1e-3'))
     chain = sim.model
     k, L = chain.cross[0]
@@ -237,7 +238,7 @@ def test_chain1d_rigid_lock_is_a_hard_elastic_contact():
 
 
 def test_chain1d_rejects_cable_changes_and_keeps_energy_on_the_paper_column():
-    sim = Simulation(_scene('rb_column', 'model=chain1d'))
+    sim = simulation_for(_scene('rb_column', 'model=chain1d'))
     with pytest.raises(ValueError, match='chain1d'):
         sim.set_cable_rest_lengths(sim.network.cable_rest_length * 0.99)
     sim.apply_impact(0.1)
@@ -274,7 +275,7 @@ def test_sym3d_reduced_summary_equals_the_expanded_state(sets):
     expansion) equal the full-network computation on the expanded state (and the NumPy
     constraint error)."""
     from solver.analysis.observables import constraint_error, state_summary
-    sim = Simulation(Scene.load(f'{SCENES}/fb_column.yaml').with_overrides(
+    sim = simulation_for(Scene.load(f'{SCENES}/fb_column.yaml').with_overrides(
         ['structure.n_prisms=8', 'model=sym3d'] + sets))
     sim.apply_impact(0.1)
     sim.advance(0.05)

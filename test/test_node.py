@@ -13,6 +13,7 @@ from std_msgs.msg import Float64MultiArray, MultiArrayDimension  # noqa: E402
 from std_srvs.srv import SetBool, Trigger  # noqa: E402
 
 from solver.build.scene import Scene  # noqa: E402
+from solver.simulate.array import simulation_for  # noqa: E402
 from tensegrity_ros.node.demo import Commander, spin_until  # noqa: E402
 from tensegrity_ros.node.node import (DEFAULTS, FAST_WORK_FRACTION, MIN_WORK_FRACTION,  # noqa: E402
                                  WORK_FRACTION, ParameterError, TensegritySim, check_parameters)
@@ -315,8 +316,8 @@ def test_commands_of_one_tick_are_validated_counted_and_the_last_one_applied(ros
     assert ros.spin(lambda: node.counts['accepted'] == 1)
     assert node.counts['superseded'] == 2 and node.counts['rejected'] == 1
     assert node.last_command[2].startswith('impact v0 = [0.03] m/s')
-    from solver.simulate.simulation import Simulation
-    fresh = Simulation(node.sim.scene)                    # the same impact on a fresh column
+    from solver.simulate.array import simulation_for
+    fresh = simulation_for(node.sim.scene)                    # the same impact on a fresh column
     added = fresh.apply_impact(0.03)
     np.testing.assert_allclose(node.sim.model.velocities(), fresh.model.velocities(), atol=1e-12)
     assert f'+{added:.3g} J' in node.last_command[2]
@@ -328,7 +329,6 @@ def test_a_flood_within_one_tick_is_counted_whole_the_last_valid_one_applied_log
     each one is counted once (accepted + superseded + rejected == 500), the last valid one per
     topic is what the simulation gets, and the log has one line per kind (rejected, accepted)
     instead of one per command."""
-    from solver.simulate.simulation import Simulation
     from tensegrity_ros.msgs import messages
     node, sim = ros.node, ros.node.sim
     ros.call(ros.cmd.cli_running, SetBool.Request(data=False))
@@ -363,7 +363,7 @@ def test_a_flood_within_one_tick_is_counted_whole_the_last_valid_one_applied_log
     assert ros.spin(lambda: node.counts['accepted'] == before['accepted'] + 2)
     d = {k: node.counts[k] - before[k] for k in ('accepted', 'superseded', 'rejected')}
     assert d['rejected'] == n_bad and sum(d.values()) == n
-    fresh = Simulation(sim.scene)                       # the last ones on a fresh column
+    fresh = simulation_for(sim.scene)                       # the last ones on a fresh column
     for key in order:
         if key == '~/cmd/impact':
             fresh.apply_impact(last[key])

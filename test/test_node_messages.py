@@ -1,4 +1,5 @@
-"""Frame -> ROS messages (tensegrity_ros.msgs.messages) and command parsing (tensegrity_ros.node.commands):
+"""Frame -> ROS messages (tensegrity_ros.msgs.messages) and command parsing
+(tensegrity_ros.node.commands):
 round trips, layouts against their definition, marker geometry, nothing non-finite."""
 import math
 
@@ -10,14 +11,14 @@ from rclpy.serialization import deserialize_message, serialize_message  # noqa: 
 from std_msgs.msg import Float64MultiArray  # noqa: E402
 
 from solver.build.scene import Scene  # noqa: E402
-from solver.simulate.simulation import Simulation  # noqa: E402
+from solver.simulate.array import simulation_for
 from tensegrity_ros.node import commands  # noqa: E402
 from tensegrity_ros.msgs import messages
 
 
 @pytest.fixture(scope='module')
 def sim():
-    s = Simulation(Scene.load('config/scenes/fb_column.yaml').with_overrides(
+    s = simulation_for(Scene.load('config/scenes/fb_column.yaml').with_overrides(
         ['structure.n_prisms=6', 'structure.n_columns=2']))
     s.apply_impact(0.1)
     s.advance(0.03)

@@ -16,7 +16,7 @@ from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile,  # noqa: E40
 from std_msgs.msg import String  # noqa: E402
 
 from solver.build.scene import Scene  # noqa: E402
-from solver.simulate.simulation import build_network  # noqa: E402
+from solver.build.structures import build_network  # noqa: E402
 from tensegrity_ros.msgs import messages  # noqa: E402
 from tensegrity_ros.node.demo import spin_until  # noqa: E402
 from tensegrity_ros.node.node import TensegritySim  # noqa: E402

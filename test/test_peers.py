@@ -15,7 +15,7 @@ from solver.kernels import dynamics as dyn
 from solver.build import structures
 from solver.simulate.runner import json_safe
 from solver.build.scene import Scene
-from solver.simulate.simulation import Simulation
+from solver.simulate.array import simulation_for
 
 from bench.peers_mujoco import MujocoColumn, bar_tree
 from bench.peers_scipy import ScipyColumn
@@ -24,7 +24,7 @@ from bench.peers_scipy import ScipyColumn
 def small_column(n_prisms=4):
     scene = Scene.load('config/scenes/fb_column.yaml').with_overrides(
         [('structure.n_prisms', n_prisms), ('model', 'full3d')])
-    return Simulation(scene)
+    return simulation_for(scene)
 
 
 def random_state(net, rng, scale=2e-4):
@@ -149,7 +149,7 @@ def test_mujoco_builder_refuses_loops():
     """Rigid bases close loops: no kinematic tree, a clear error (needs no mujoco)."""
     scene = Scene.load('config/scenes/rb_column.yaml').with_overrides(
         [('structure.n_prisms', 2), ('model', 'full3d')])
-    net = Simulation(scene).network
+    net = simulation_for(scene).network
     with pytest.raises(ValueError, match='rigid base edges'):
         bar_tree(net)
 
@@ -199,7 +199,7 @@ def test_scipy_trajectory_matches_solver():
 def test_mujoco_trajectory_matches_solver():
     """MuJoCo's RK4 on the tree model follows the solver's trajectory after the impact (the same
     physics up to the 1e-9 spin inertia and both integrators' errors)."""
-    sim = Simulation(Scene.load('config/scenes/fb_column.yaml').with_overrides(
+    sim = simulation_for(Scene.load('config/scenes/fb_column.yaml').with_overrides(
         [('structure.n_prisms', 3), ('model', 'full3d'), ('integrator.dt', 1e-4)]))
     ours = impact_trajectory_ours(sim, 0.05, 5)
     mc = MujocoColumn(sim.network, 1e-4, spin_inertia=1e-9)

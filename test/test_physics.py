@@ -11,7 +11,7 @@ from solver.build import structures
 from solver.analysis.observables import kinetic_energy, prism_strains
 from solver.simulate.runner import run
 from solver.build.scene import Scene
-from solver.simulate.simulation import Simulation
+from solver.simulate.array import simulation_for
 
 R, H0, P = 0.005, 0.0062, 0.002
 EA = 5.48e6 * math.pi * (1.4e-4) ** 2
@@ -77,7 +77,7 @@ def test_base_cable_tension_is_the_prism_self_stress():
 
 @pytest.mark.parametrize('bases,fraction', [('flexible', 0.85), ('rigid', 0.14)])
 def test_impulse_keeps_the_expected_kinetic_energy_fraction(bases, fraction):
-    sim = Simulation(Scene({'structure': {'bases': bases}}))
+    sim = simulation_for(Scene({'structure': {'bases': bases}}))
     sim.apply_impact(0.1)
     m_node = 0.0249 / 3
     ke_axial = 3 * 0.5 * m_node * 0.1 ** 2
@@ -86,7 +86,7 @@ def test_impulse_keeps_the_expected_kinetic_energy_fraction(bases, fraction):
 
 
 def test_energy_mode_impact_has_the_axial_kinetic_energy():
-    sim = Simulation(Scene({'structure': {'bases': 'rigid'},
+    sim = simulation_for(Scene({'structure': {'bases': 'rigid'},
                             'loading': {'impact': {'mode': 'energy'}}}))
     sim.apply_impact(0.125)
     assert kinetic_energy(sim.model.velocities(), sim.network) == pytest.approx(
@@ -98,7 +98,7 @@ def test_energy_mode_impact_has_the_axial_kinetic_energy():
 @pytest.fixture(scope='module')
 def fb_run():
     scene = Scene.load(f'{SCENES}/fb_column.yaml').with_overrides(['run.t_end=1.0'])
-    sim = Simulation(scene)
+    sim = simulation_for(scene)
     sim.apply_impact(0.1)
     return sim, run(sim, 1.0, scene['run.output_dt'])
 
@@ -108,7 +108,7 @@ def test_energy_drift_below_1e6_per_second_at_the_default_step(name, fb_run):
     if name == 'fb_column':
         sim, rec = fb_run
     else:
-        sim = Simulation(Scene.load(f'{SCENES}/{name}.yaml'))
+        sim = simulation_for(Scene.load(f'{SCENES}/{name}.yaml'))
         sim.apply_impact(0.1)
         rec = run(sim, 1.0, 0.01)
     drift = np.max(np.abs(rec.energy - rec.energy[0])) / rec.energy[0]
@@ -147,7 +147,7 @@ def test_rigid_bases_never_exceed_the_lock_strain():
                    'integrator': {'dt': 2e-4},
                    # run through the lock (by default the run stops there: bars cross)
                    'divergence': {'bar_crossing': 'none'}})
-    sim = Simulation(scene)
+    sim = simulation_for(scene)
     sim.apply_impact(0.4)
     worst = 0.0
     for _ in range(100):
@@ -163,7 +163,7 @@ def test_halving_dt_changes_amplitude_and_speed_little(fb_run):
     _, rec = fb_run
     base = Scene.load(f'{SCENES}/fb_column.yaml')
     scene = base.with_overrides(['run.t_end=1.0', f'integrator.dt={base["integrator.dt"] / 2}'])
-    sim = Simulation(scene)
+    sim = simulation_for(scene)
     sim.apply_impact(0.1)
     half = run(sim, 1.0, scene['run.output_dt'])
     p, q = rec.pulses[0], half.pulses[0]
@@ -176,7 +176,7 @@ def test_observed_order_is_four_on_a_smooth_problem():
     """A prism with a small impact keeps every cable taut (smooth force law): the error against a
     fine reference must fall by 2^4 per halving of dt."""
     def end_state(dt):
-        sim = Simulation(Scene.load(f'{SCENES}/prism.yaml').with_overrides(
+        sim = simulation_for(Scene.load(f'{SCENES}/prism.yaml').with_overrides(
             [f'integrator.dt={dt}', 'run.output_dt=0.04']))
         sim.apply_impact(0.005)
         sim.advance(0.04)

@@ -8,14 +8,14 @@ import pytest
 from twins import accelerations
 
 from solver.build.scene import Scene
-from solver.simulate.simulation import Simulation
+from solver.simulate.array import simulation_for
 
 SCENES = 'config/scenes/'
 
 
 def make(name='fb_column.yaml', *sets):
     sets = ['structure.n_prisms=8', 'structure.n_columns=2'] + list(sets)
-    return Simulation(Scene.load(SCENES + name).with_overrides(sets))
+    return simulation_for(Scene.load(SCENES + name).with_overrides(sets))
 
 
 def analytic_tensions(net, p):

@@ -23,7 +23,7 @@ from rerun.chunk import RrdReader  # noqa: E402
 
 from solver.simulate.runner import run  # noqa: E402
 from solver.build.scene import Scene  # noqa: E402
-from solver.simulate.simulation import Simulation  # noqa: E402
+from solver.simulate.array import simulation_for
 from tensegrity_ros.io.rerun_log import RerunRecorder, reference_tension_scale  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -92,7 +92,7 @@ def tensor(ent, row=None):
 def small_run(tmp_path, n_prisms=8, t_end=0.1, v0=0.1, **kw):
     scene = Scene.load(FB).with_overrides([f'structure.n_prisms={n_prisms}',
                                            f'run.t_end={t_end}', 'model=full3d'])
-    sim = Simulation(scene)
+    sim = simulation_for(scene)
     sim.apply_impact(v0)
     frames = []
     path = tmp_path / 'run.rrd'
@@ -192,7 +192,7 @@ def test_commands_are_text_events_and_a_blueprint_is_stored(recorded):
 
 def test_bad_frames_are_rejected_and_change_nothing(tmp_path):
     scene = Scene.load(FB).with_overrides(['structure.n_prisms=3'])
-    sim = Simulation(scene)
+    sim = simulation_for(scene)
     good = sim.frame()
     path = tmp_path / 'bad.rrd'
     with RerunRecorder(sim.network, path) as rec:
@@ -231,7 +231,7 @@ def test_bad_frames_are_rejected_and_change_nothing(tmp_path):
 def test_a_reset_clock_keeps_recording(tmp_path):
     """The node resets the simulation (t back to 0): both stretches are kept."""
     scene = Scene.load(FB).with_overrides(['structure.n_prisms=3'])
-    sim = Simulation(scene)
+    sim = simulation_for(scene)
     path = tmp_path / 'reset.rrd'
     with RerunRecorder(sim.network, path, flush_every=4) as rec:
         for stretch in range(2):
@@ -257,7 +257,7 @@ def test_run_cli_records_what_the_solver_computes(tmp_path, capsys):
     data = read(out['outputs']['rerun'])
     # the same scene run again without recording (the solver is deterministic)
     scene = Scene.load(FB).with_overrides(['structure.n_prisms=4', 'model=full3d'])
-    sim = Simulation(scene)
+    sim = simulation_for(scene)
     sim.apply_impact(scene['loading.impact.v0'])
     frames = []
     run(sim, 0.02, scene['run.output_dt'], on_frame=frames.append)
@@ -271,7 +271,7 @@ def test_run_cli_records_what_the_solver_computes(tmp_path, capsys):
 
 def test_connect_needs_a_listening_viewer(tmp_path):
     scene = Scene.load(FB).with_overrides(['structure.n_prisms=3'])
-    net = Simulation(scene).network
+    net = simulation_for(scene).network
     with socket.socket() as s:                   # a port nobody listens on
         s.bind(('127.0.0.1', 0))
         port = s.getsockname()[1]
@@ -310,7 +310,7 @@ def test_connect_streams_to_a_running_viewer(tmp_path):
                 assert time.monotonic() < deadline, 'rerun server did not start'
                 time.sleep(0.2)
         scene = Scene.load(FB).with_overrides(['structure.n_prisms=3', 'model=full3d'])
-        sim = Simulation(scene)
+        sim = simulation_for(scene)
         sim.apply_impact(0.1)
         frames = []
         with RerunRecorder(sim.network, connect=f'rerun+http://127.0.0.1:{port}/proxy',
@@ -403,7 +403,7 @@ def test_tensor_data_equals_rerun_tensor():
 def test_two_columns_record_one_strain_series_and_wave_per_column(tmp_path):
     scene = Scene.load(FB).with_overrides(['structure.n_prisms=4', 'structure.n_columns=2',
                                            'run.t_end=0.03', 'model=full3d'])
-    sim = Simulation(scene)
+    sim = simulation_for(scene)
     sim.apply_impact(0.1, [1])                                 # column 1 only
     frames = []
     path = tmp_path / 'two.rrd'
@@ -443,7 +443,7 @@ import sys, time
 from solver.build.scene import Scene
 from solver.simulate.simulation import Simulation
 from tensegrity_ros.io.rerun_log import RerunRecorder
-sim = Simulation(Scene.load({str(FB)!r}).with_overrides(['structure.n_prisms=3']))
+sim = simulation_for(Scene.load({str(FB)!r}).with_overrides(['structure.n_prisms=3']))
 rec = RerunRecorder(sim.network, {str(path)!r}, flush_every=50, max_latency_s=1e9)
 for k in range(120):
     rec.frame(sim.frame())
@@ -490,7 +490,7 @@ def test_close_returns_with_the_file_complete(tmp_path):
     """The batches are sent by the recorder's worker thread: when close() returns, the file holds
     every frame, the static entities and the blueprint, and ends with its footer."""
     scene = Scene.load(FB).with_overrides(['structure.n_prisms=3'])
-    sim = Simulation(scene)
+    sim = simulation_for(scene)
     path = tmp_path / 'complete.rrd'
     rec = RerunRecorder(sim.network, path, flush_every=4)
     for k in range(11):                               # two batches and three frames buffered
@@ -509,7 +509,7 @@ def test_worker_errors_are_raised_in_the_callers_thread(tmp_path, monkeypatch):
     """An error while sending a batch (in the worker) is raised as ValueError by the next call,
     and by close(), which still finishes the file."""
     scene = Scene.load(FB).with_overrides(['structure.n_prisms=3'])
-    sim = Simulation(scene)
+    sim = simulation_for(scene)
     path = tmp_path / 'broken.rrd'
 
     from tensegrity_ros.io import rerun_log
@@ -543,7 +543,7 @@ def test_worker_errors_are_raised_in_the_callers_thread(tmp_path, monkeypatch):
 
 def test_values_beyond_float32_are_refused(tmp_path):
     scene = Scene.load(FB).with_overrides(['structure.n_prisms=3'])
-    sim = Simulation(scene)
+    sim = simulation_for(scene)
     path = tmp_path / 'huge.rrd'
     with RerunRecorder(sim.network, path) as rec:
         bad = sim.frame()
@@ -641,7 +641,7 @@ def test_heat_map_starts_at_the_impact_on_a_sim_time_axis(tmp_path):
     """Idle frames before the impact command are left out; the heat map's columns are the
     frames on a uniform sim_time grid (5 ms here) from the impact, and its time axis says so."""
     scene = Scene.load(FB).with_overrides(['structure.n_prisms=6', 'model=full3d'])
-    sim = Simulation(scene)
+    sim = simulation_for(scene)
     frames = []
     path = tmp_path / 'idle.rrd'
     with RerunRecorder(sim.network, path, flush_every=8) as rec:
@@ -685,7 +685,7 @@ def test_heat_map_grid_resamples_uneven_frames_on_time():
 
 def test_a_single_prism_records_its_bar_chart(tmp_path):
     """One prism: the strain of a batch is a strided view of the batch buffer unless copied."""
-    sim = Simulation(Scene.load(ROOT / 'config' / 'scenes' / 'prism.yaml'))
+    sim = simulation_for(Scene.load(ROOT / 'config' / 'scenes' / 'prism.yaml'))
     sim.apply_impact(0.05)
     frames = []
     path = tmp_path / 'prism.rrd'
@@ -716,7 +716,7 @@ def test_field_images_are_the_given_maps_over_their_scale(tmp_path):
     mapped to 0.5 + 0.5 p / scale, at the given times; non-finite maps are refused; the
     blueprint gets the two views."""
     scene = Scene.load(FB).with_overrides(['structure.n_prisms=3', 'model=full3d'])
-    sim = Simulation(scene)
+    sim = simulation_for(scene)
     path = tmp_path / 'field.rrd'
     rng = np.random.default_rng(3)
     maps = [(0.01 * k, rng.random((4, 6)) * k, rng.standard_normal((4, 6))) for k in (1, 2)]
@@ -774,7 +774,7 @@ def test_commands_are_handed_over_together_and_all_recorded_in_order(tmp_path):
     as on a paused node): 2,500 of them between the frames of a run and more while no frame
     comes are all in the file, in order, with their times, texts and levels."""
     scene = Scene.load(FB).with_overrides(['structure.n_prisms=3'])
-    sim = Simulation(scene)
+    sim = simulation_for(scene)
     path = tmp_path / 'flood.rrd'
     sent = []
     with RerunRecorder(sim.network, path, flush_every=4, max_latency_s=0.2) as rec:

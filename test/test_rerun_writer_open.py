@@ -7,7 +7,7 @@ import pytest
 
 pytest.importorskip('rerun')
 from solver.build.scene import Scene  # noqa: E402
-from solver.simulate.simulation import Simulation  # noqa: E402
+from solver.simulate.array import simulation_for
 from tensegrity_ros.io import rerun_writer  # noqa: E402
 
 FB = os.path.join(os.path.dirname(__file__), '..', 'config', 'scenes', 'fb_column.yaml')
@@ -23,7 +23,7 @@ class _Conn:
 
 def test_an_open_that_fails_after_the_stream_exists_is_reported_and_closes(tmp_path,
                                                                            monkeypatch):
-    sim = Simulation(Scene.load(FB).with_overrides(['structure.n_prisms=3', 'model=full3d']))
+    sim = simulation_for(Scene.load(FB).with_overrides(['structure.n_prisms=3', 'model=full3d']))
     net = sim.network
     f = sim.frame()
     shapes = (f.positions.shape, f.strain.shape, f.tension.shape)

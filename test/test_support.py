@@ -7,14 +7,14 @@ import numpy as np
 import pytest
 
 from solver.build.scene import Scene
-from solver.simulate.simulation import Simulation
+from solver.simulate.array import simulation_for
 from solver.analysis.support import axial_momentum, first_arrival, pulse_arrival
 
 SCENES = 'config/scenes/'
 
 
 def _sim(name='fb_column', *sets):
-    return Simulation(Scene.load(f'{SCENES}{name}.yaml').with_overrides(list(sets)))
+    return simulation_for(Scene.load(f'{SCENES}{name}.yaml').with_overrides(list(sets)))
 
 
 def _cross_axial(net, p):

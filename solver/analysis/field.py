@@ -2,7 +2,8 @@
 
 The bases of the columns lie on the surface ``z = 0`` of a homogeneous, linear, lossless acoustic
 medium of wave speed ``C`` (m/s) that fills ``z > 0`` (depth ``z``, m; the array along ``x``).
-Each base pushes on the medium with its base force ``B_i(t)`` (N, :mod:`solver.analysis.support`), normal
+Each base pushes on the medium with its base force ``B_i(t)`` (N, :mod:`solver.analysis.support`),
+normal
 to the surface: in the far field a normal force radiates as a dipole, with a pressure that follows
 the rate of change of the force and the obliquity ``cos theta_i = z / R_i``. The model's pressure
 (in units of N/s per spreading length, up to the medium's constant factor) is the delay-and-sum

@@ -306,3 +306,16 @@ def first_passage(times, strain, h0, t_ref=0.5):
         p.amplitude, p.width_prisms = math.nan, 0
         p.width_half_prisms = p.width_10_prisms = p.speed_snapshot_m_s = math.nan
     return p
+
+
+def prism_twists(x, levels):
+    """Relative twist (n_columns, n_prisms) rad in (-pi, pi] of the top base of each prism about
+    its
+    bottom base (node 0 of each level about the level's centroid, in the xy plane). Its sign stays
+    that of the reference twist (+-150 deg) unless the bars cross: through 180 deg (past the
+    rigid-base lock) or through 0. ``x`` (n_nodes, 3) m, ``levels`` (n_columns, n_levels, 3)."""
+    centre = x[levels].mean(axis=2)                       # (n_columns, n_levels, 3)
+    r = x[levels[:, :, 0]] - centre
+    a, b = r[:, :-1], r[:, 1:]
+    return np.arctan2(a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0],
+                      a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1])

@@ -3,7 +3,8 @@
 The base force of a column is the axial reaction at its clamped base level, N, positive when the
 column pushes down on the support (compressive): minus the z sum of the member forces that act
 on the nodes of that level (cable tensions and the bars' constraint forces, the multipliers of
-:func:`solver.kernels.dynamics.accelerations`). Rigid members whose two nodes are clamped carry nothing
+:func:`solver.kernels.dynamics.accelerations`). Rigid members whose two nodes are clamped carry
+nothing
 (they are not constraints of the network). The base level of a column is its lowest level whose
 three nodes are all clamped; a column without one has no base force (0).
 
@@ -22,6 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from solver import status as codes
 from solver.kernels import dynamics as dyn
 
 ARRIVAL_FRACTION = 0.5        # arrival: the rise to the first compressive peak crosses this share
@@ -48,7 +50,7 @@ class BaseForce:
     """Base force per column of a full state of ``network`` (see the module text)."""
 
     def __init__(self, network, extras=None):
-        from solver.kernels.contact import network_extras
+        from solver.models.extras import network_extras
         self.network = network
         self.base = base_levels(network)
         self.net, _ = dyn.pack(network)
@@ -59,7 +61,7 @@ class BaseForce:
 
     def member_forces(self, x, v, rest, EA, f_ext=None):
         """Resultant member force (n_nodes, 3) N on every node (cables with their damping, prism
-        stops and bar multipliers; ``extras``: the :func:`solver.kernels.contact.scene_extras` of the
+        stops and bar multipliers; ``extras``: the :func:`solver.models.extras.scene_extras` of the
         scene, or None) of
         the state ``x``, ``v`` (n_nodes, 3) with rest lengths ``rest`` and ``EA`` (n_cables,);
         ``f_ext`` (n_nodes, 3) N enters the multipliers. Raises ValueError if the constraint
@@ -71,7 +73,7 @@ class BaseForce:
                                    np.ascontiguousarray(v, dtype=np.float64), self.net, act,
                                    self.ws, self._acc)
         if status != dyn.OK:
-            raise ValueError(f'base force: {dyn.STATUS_TEXT[status]}')
+            raise ValueError(f'base force: {codes.text(status)}')
         return self.ws[0] - f_ext
 
     def __call__(self, x, v, rest, EA, f_ext=None):
@@ -105,7 +107,8 @@ class Arrival:
     rise of the base force to its first compressive peak crosses :data:`ARRIVAL_FRACTION` of that
     peak (linear interpolation between samples); ``peak_time_s`` and ``peak_N`` (deviation from
     rest, N, positive) of that peak; ``rise_s``, the width at half height of the largest rate
-    ``dB/dt`` on that rise (the duration of the pulse as the field of :mod:`solver.analysis.field` sees
+    ``dB/dt`` on that rise (the duration of the pulse as the field of :mod:`solver.analysis.field`
+    sees
     it); ``precursor_N`` (<= 0), the largest pull on the support before the arrival. NaN when no
     compressive pulse arrived."""
     time_s: float

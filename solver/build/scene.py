@@ -63,7 +63,8 @@ DEFAULTS = {
     'contact': {'lock': 'none', 'stiffness': 1.0e5, 'tolerance': 0.05},
     'divergence': {'energy_growth': 1e-3, 'constraint_error': 1e-6, 'bar_crossing': 'rigid'},
     'outputs': {'dir': None},
-    # the focusing design (solver/studies/lens.py): the prestrain range it may use, the grid of its map
+    # the focusing design (solver/studies/lens.py): the prestrain range it may use, the grid of
+    # its map
     'lens': {'prestrain_min': 0.003, 'prestrain_max': 0.015, 'grid': 13},
 }
 

@@ -5,7 +5,8 @@ stacked on
   shared bases, flexible (FB) or rigid (RB) bases; a single prism is ``n_prisms=1``.
 - :func:`explicit`: any network given as nodes, bars, cables (and optional rigid edges).
 
-To add a structure: write a function returning a :class:`~solver.build.network.Network` whose cable rest
+To add a structure: write a function returning a :class:`~solver.build.network.Network` whose
+cable rest
 lengths put it at rest (check 1 of docs/physics.md section 7), register it in :data:`BUILDERS`,
 and list its parameters with their defaults in :data:`solver.build.scene.STRUCTURE_DEFAULTS`.
 """
@@ -260,3 +261,26 @@ class PrestrainMap:
         EA_b = cable_EA[self.base]
         rest[self.base] = EA_b * self.length[self.base] / (EA_b + t)
         return rest
+
+
+def build_network(scene):
+    """The :class:`~solver.build.network.Network` a scene describes."""
+    s = scene['structure']
+    m = scene['materials']
+    builder = s.pop('builder')
+    if builder == 'column':
+        return column(
+            n_prisms=s['n_prisms'], radius=s['radius'], h0=s['h0'], cable_E=m['cable_E'],
+            cable_radius=m['cable_radius'], unit_mass=m['unit_mass'], bar_mass=m['bar_mass'],
+            prestrain=scene['prestrain'], bases=s['bases'], stacking=s['stacking'],
+            rigid_bases_as=s['rigid_bases_as'], kappa=s['kappa'], n_columns=s['n_columns'],
+            column_spacing=s['column_spacing'], clamped_levels=tuple(s['clamped_levels']),
+            handedness=s['handedness'], bar_mass_fraction=m['bar_mass_fraction'],
+            mass_placement=s['mass_placement'], end_mass=m['end_mass'])
+    EA = m['cable_E'] * math.pi * m['cable_radius'] ** 2
+    rest = s['cable_rest_length']
+    return explicit(s['nodes'], s['bars'], s['cables'], s['node_mass'], EA,
+                               cable_rest_length=rest,
+                               prestrain=None if rest is not None else scene['prestrain'],
+                               rigid_edges=s['rigid_edges'], clamped=s['clamped'],
+                               bar_mass=m['bar_mass'])

@@ -1,6 +1,7 @@
 """Adaptive Dormand-Prince 5(4) with error control, projection and kink landing.
 
-``y = (x, v)``, ``y' = (v, a(x, v))`` with ``a`` from :func:`solver.kernels.dynamics.accelerations`. Each
+``y = (x, v)``, ``y' = (v, a(x, v))`` with ``a`` from
+:func:`solver.kernels.dynamics.accelerations`. Each
 accepted step is the 5th-order solution, then positions and velocities are projected on the rigid
 members as in ``rk4_projected``. The error estimate (5th minus embedded 4th order) is measured in
 the RMS norm of ``err / (atol + rtol max(|y|, |y+|))`` over every coordinate of x (m) and v (m/s)
@@ -20,7 +21,9 @@ import numpy as np
 
 from solver.kernels import dynamics as dyn
 from solver._jit import jit
-from solver.integrators.registry import STEP_TOO_SMALL, keep_state, next_kink
+from solver.integrators.base import Integrator
+from solver.kernels.kinks import keep_state, next_kink
+from solver.status import STEP_TOO_SMALL
 
 H_MIN_FRACTION = 1e-9      # smallest step, as a fraction of dt, before giving up
 
@@ -142,3 +145,42 @@ def dopri_checked(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, rtol, a
     out = dopri_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, rtol, atol, A, E, kx,
                     kv, xs, vs, hstate)
     return out + dyn.state_summary(x, v, net, act, summ, heights)
+
+
+class DOPRI54Projected(Integrator):
+    """Adaptive Dormand-Prince 5(4) (see :mod:`solver.integrators.dopri`): ``dt`` is the initial
+    and largest
+    step, ``rtol``/``atol`` the error tolerances. Seven force evaluations per accepted step (six
+    plus a fresh first stage after the projection); ``stats()`` counts steps and evaluations."""
+    name = 'dopri54_projected'
+    order = 5
+    projected = True
+    adaptive = True
+    evaluations_per_step = 7
+
+    def __init__(self, rtol=1e-8, atol=1e-10):
+        super().__init__(rtol, atol)
+        self.hstate = np.zeros(4)
+
+    kernel = staticmethod(dopri_run)
+    checked = staticmethod(dopri_checked)
+
+    def reset(self):
+        self.hstate[:] = 0.0
+
+    def get_state(self):
+        return self.hstate.copy()
+
+    def set_state(self, state):
+        self.hstate[:] = state
+
+    def stats(self):
+        """``{'accepted': int, 'rejected': int, 'evaluations': int}`` since the last reset."""
+        return {'accepted': int(self.hstate[1]), 'rejected': int(self.hstate[2]),
+                'evaluations': int(self.hstate[3])}
+
+    def extra_args(self, x, kinks):
+        n = x.shape[0]
+        return (bool(kinks), self.rtol, self.atol, A, E,
+                self.scratch('kx', (7, n, 3)), self.scratch('kv', (7, n, 3)),
+                self.scratch('xs', (n, 3)), self.scratch('vs', (n, 3)), self.hstate)

@@ -13,7 +13,8 @@ force ``f`` is the discrete gradient of the cable energy between ``x0`` and ``x1
 over the step equals the change of cable energy exactly, also across a slack/taut transition. The
 constraint term does no work either (``g`` is quadratic, ``g(x0) = g(x1) = 0``), so the step
 conserves the energy to the Newton tolerance. Then positions and velocities are projected
-(:func:`solver.kernels.dynamics.project_positions`, ``project_velocities``) as in ``rk4_projected``: bar
+(:func:`solver.kernels.dynamics.project_positions`, ``project_velocities``) as in
+``rk4_projected``: bar
 errors stay at the projection tolerance and the energy can only decrease. External forces enter
 as they are (``act[2]``); velocity-dependent forces are not part of the step.
 
@@ -34,7 +35,8 @@ leading block is itself a non-singular KKT matrix: a banded LDL^T factorisation 
 Properties: order 2; for a linear spring A-stable without damping (the step is a rotation by
 ``2 atan(omega h / 2)``) and the quadratic energy is conserved; the energy never rises.
 
-Two levels as in :mod:`solver.kernels.dynamics`: :func:`layout` (Python) orders the unknowns and sizes
+Two levels as in :mod:`solver.kernels.dynamics`: :func:`layout` (Python) orders the unknowns and
+sizes
 the band, the ``@jit`` kernels take arrays and tuples. Networks with massive bars (a non-diagonal
 mass matrix) are refused.
 """
@@ -46,10 +48,10 @@ import numpy as np
 
 from solver.kernels import dynamics as dyn
 from solver._jit import jit
+from solver.integrators.base import Integrator
 from solver.kernels.rotation import ROT_C, ROT_S
 
-NEWTON_FAILED = 11          # status code (after integrators.STEP_TOO_SMALL)
-STATUS_TEXT = {NEWTON_FAILED: 'implicit step: Newton iteration did not converge'}
+from solver.status import NEWTON_FAILED  # noqa: E402
 NEWTON_TOL = 1e-13          # on max |dx|, relative to the largest |position| of the start state
 NEWTON_MAX_ITER = 60
 
@@ -465,3 +467,64 @@ def midpoint_checked(x, v, dt, n_steps, net, act, ws, tol, max_iter, node_pos, c
     out = midpoint_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, node_pos, con_pos, band,
                        rhs, nu, x0, v0, xm, f, acc, nstate)
     return out + dyn.state_summary(x, v, net, act, summ, heights)
+
+
+class ImplicitMidpoint(Integrator):
+    """Implicit midpoint rule with the rigid members as unknown forces, for stiff scenes (see
+    :mod:`solver.integrators.implicit`): order 2, A-stable, symmetric; Newton on a banded KKT
+    system each
+    step, then projection. Fixed steps (no kink landing). ``stats()`` counts Newton iterations,
+    factorisations and force evaluations. Massive bars are refused."""
+    name = 'implicit_midpoint'
+    order = 2
+    projected = True
+    evaluations_per_step = 3
+
+    def __init__(self, rtol=1e-8, atol=1e-10):
+        super().__init__(rtol, atol)
+        self.nstate = np.zeros(4)
+        self._layout = None
+
+    kernel = staticmethod(midpoint_run)
+    checked = staticmethod(midpoint_checked)
+
+    def reset(self):
+        self.nstate[:] = 0.0
+
+    def stats(self):
+        """``{'steps', 'newton_iterations', 'factorizations', 'evaluations'}`` since the last
+        reset."""
+        s = self.nstate
+        return {'steps': int(s[2]), 'newton_iterations': int(s[0]),
+                'factorizations': int(s[1]), 'evaluations': int(s[3])}
+
+    def _args(self, x, net):
+        if self._layout is None or self._layout[0] is not net:
+            self._layout = (net, layout(net))
+        node_pos, con_pos, size, bw = self._layout[1]
+        n, m = x.shape[0], len(con_pos)
+        return (node_pos, con_pos, self.scratch('band', (size, bw + 1)),
+                self.scratch('rhs', (size,)), self.scratch('nu', (m,)),
+                self.scratch('x0', x.shape), self.scratch('v0', x.shape),
+                self.scratch('xm', x.shape), self.scratch('f', x.shape),
+                self.scratch('acc', (n, 3)), self.nstate)
+
+    @staticmethod
+    def _refuse_extras(act):
+        """The step has no cable damping, prism stops or strikers (``act[3]``): refuse them
+        rather than run without them."""
+        ex = act[3] if len(act) > 3 else ()
+        if any(np.asarray(ex[i]).size for i in (0, 2, 3) if i < len(ex)):
+            raise ValueError('implicit_midpoint: cable damping, prism stops (contact.lock) and '
+                             'strikers are not part of its step; use rk4_projected or '
+                             'dopri54_projected')
+
+    def run(self, x, v, dt, n_steps, net, act, ws, tol=1e-12, max_iter=3, kinks=True):
+        self._refuse_extras(act)
+        steps, status = self.kernel(x, v, float(dt), int(n_steps), net, act, ws, float(tol),
+                                    int(max_iter), *self._args(x, net))
+        return int(steps), int(status)
+
+    def checked_args(self, x, net, act, ws, tol, max_iter, kinks, keep, summ):
+        self._refuse_extras(act)
+        return (net, act, ws, float(tol), int(max_iter)) + self._args(x, net) + (keep, summ)

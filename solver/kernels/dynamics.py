@@ -16,7 +16,8 @@ force
 on the image is rotated back onto the node. ``con_coef3`` (n_con, bw + 1, 3) replaces ``con_coef``:
 ``A[c, c-k] = coef3[c, k] . (b_c^z b_d^z, b_c^x b_d^x + b_c^y b_d^y, b_c^y b_d^x - b_c^x b_d^y)``.
 With empty arrays every kernel takes the plain path (r = 0), so ``full3d`` pays nothing for them.
-``kkt`` is the layout of the mass-matrix system of :mod:`solver.kernels.massmatrix` (massive bars that
+``kkt`` is the layout of the mass-matrix system of :mod:`solver.kernels.massmatrix` (massive bars
+that
 share nodes); its arrays are empty for every other network, and the kernels then take the
 node-local inverse mass path unchanged.
 
@@ -25,7 +26,8 @@ node-local inverse mass path unchanged.
     (cable_rest_length (n_cables,) m, cable_EA (n_cables,) N, f_ext (n_nodes, 3) N, extras)
 
 ``extras``: cable damping, strikers and prism stops (:mod:`solver.kernels.contact`); all empty
-(:data:`solver.kernels.contact.NO_EXTRAS`) unless a scene asks for them, and then the kernels take the code
+(:data:`solver.kernels.contact.NO_EXTRAS`) unless a scene asks for them, and then the kernels take
+the code
 path they take without them.
 
 ``ws`` workspace tuple (scratch, preallocated once): see :func:`workspace`.
@@ -44,11 +46,7 @@ from solver.kernels.contact import NO_EXTRAS, axial_contacts, cable_forces_dampe
 from solver.kernels.rotation import (ROT_C, ROT_S, add_constraint_forces_rot, assemble_band_rot,  # noqa: F401
                       cable_forces_rot, member_vectors_rot)
 
-OK, SINGULAR, NONFINITE, NOT_CONVERGED = 0, 1, 2, 3
-STATUS_TEXT = {OK: 'ok', SINGULAR: 'constraint matrix singular (degenerate rigid members)',
-               NONFINITE: 'non-finite positions or velocities',
-               NOT_CONVERGED: 'position projection did not converge'}
-STATUS_TEXT.update(mm.STATUS_TEXT)
+from solver.status import NONFINITE, NOT_CONVERGED, OK, SINGULAR  # noqa: E402,F401
 
 
 NO_ROT = np.zeros(0, dtype=np.int64)
@@ -83,7 +81,8 @@ def workspace(n_nodes, n_con, bandwidth, kkt_dims=None):
 
 
 def workspace_for(network):
-    """:func:`workspace` sized for ``network`` (a :class:`~solver.build.network.Network` or a reduced
+    """:func:`workspace` sized for ``network`` (a :class:`~solver.build.network.Network` or a
+    reduced
     one), including the scratch of its mass-matrix system."""
     kkt = getattr(network, 'kkt', mm.NO_KKT)
     return workspace(network.n_nodes, network.n_constraints, network.bandwidth, kkt[5])

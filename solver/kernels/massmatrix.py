@@ -3,9 +3,11 @@
 A bar of mass ``m_b`` is a uniform rigid rod: its kinetic energy ``m_b / 6 (|v_a|^2 + v_a . v_b +
 |v_b|^2)`` gives the mass matrix ``M = C_B^T m C_B / 12 + C_R^T m C_R`` (``C_R = |C_B| / 2``), i.e.
 the rod block ``[[m_b/3, m_b/6], [m_b/6, m_b/3]]`` on the bar's two nodes, plus the lumped node
-masses on the diagonal (physics of :mod:`solver.kernels.dynamics`). When two massive bars share a node
+masses on the diagonal (physics of :mod:`solver.kernels.dynamics`). When two massive bars share a
+node
 (columns on shared bases: each bar chain is a tridiagonal block of M), ``M^-1`` is a full matrix
-within each chain, so the constraint matrix ``J M^-1 J^T`` of :mod:`solver.kernels.dynamics` is full too.
+within each chain, so the constraint matrix ``J M^-1 J^T`` of :mod:`solver.kernels.dynamics` is
+full too.
 This module keeps the mass matrix and solves the saddle-point (KKT) system itself::
 
     [ M (x) I3   -J^T ] [ a   ]   [ f         ]
@@ -42,10 +44,7 @@ from scipy.sparse.csgraph import reverse_cuthill_mckee
 from solver._jit import jit, jit_inline
 from solver.kernels.rotation import ROT_C, ROT_S
 
-OK, SINGULAR, NONFINITE, NOT_CONVERGED = 0, 1, 2, 3     # as solver.kernels.dynamics
-BAD_WORKSPACE = 30
-STATUS_TEXT = {BAD_WORKSPACE: 'workspace too small for the mass-matrix system (build it with '
-                              'dynamics.workspace_for)'}
+from solver.status import BAD_WORKSPACE, NONFINITE, NOT_CONVERGED, OK, SINGULAR  # noqa: F401
 
 EMPTY_I = np.zeros(0, dtype=np.int64)
 EMPTY_I.setflags(write=False)

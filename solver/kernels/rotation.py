@@ -3,8 +3,10 @@
 A member ``c`` with rotation index ``r = rot[c]`` in {0, 1, 2} joins ``x[tail]`` to ``R^r
 x[head]``,
 ``R`` the rotation by 2 pi / 3 about z; its force on the image is rotated back onto the head node
-(``R^-r``). :mod:`solver.kernels.dynamics` dispatches to these kernels when the rotation slots of its
-``net`` tuple are not empty (see :mod:`solver.models.sym3d`). Shapes as in :mod:`solver.kernels.dynamics`.
+(``R^-r``). :mod:`solver.kernels.dynamics` dispatches to these kernels when the rotation slots of
+its
+``net`` tuple are not empty (see :mod:`solver.models.sym3d`). Shapes as in
+:mod:`solver.kernels.dynamics`.
 """
 import math
 

@@ -48,11 +48,7 @@ from solver._jit import jit
 from solver.models.prism_law import (PrismLaw, poly_eval, cross_length, prism_energy, rigid_force,
                         table_law, twist)
 
-OUT_OF_TABLE = 20
-STATUS_TEXT = {OUT_OF_TABLE: ('a prism height left the range of the force-law table (crushed '
-                              'flat or overstretched: the quasi-static law has no more '
-                              'resistance)'),
-               dyn.NONFINITE: 'non-finite state'}
+from solver.status import OUT_OF_TABLE  # noqa: E402
 # largest Verlet sub-steps, s: the paper figures agree with 2e-6 s sub-steps to 0.05 %; the energy
 # drift of the rigid-base chain (near-lock stiffness) is about 4e-4 per second at 1e-5 s
 SUBSTEP = {0: 1e-5, 1: 1e-4}        # by law kind: 0 rigid closed form, 1 table

@@ -8,13 +8,15 @@ network's node positions (for frames, messages and recordings):
 - ``positions()`` / ``velocities()``: full (n_nodes, 3) arrays of the network;
 - ``set_state(x_full, v_full)``: load a full state;
 - ``cable_rest_length``, ``cable_EA`` (full (n_cables,) arrays) and ``set_cables(rest, EA)``;
-- ``summ``: the arrays of :func:`solver.kernels.dynamics.state_summary` for the model's own state (energy,
+- ``summ``: the arrays of :func:`solver.kernels.dynamics.state_summary` for the model's own state
+(energy,
   prism heights, constraint error in one compiled pass, also run inside the integrator call of
   each ``Simulation.advance``), or None: the simulation then computes them from the full state
   (``sym3d`` where its reduction of them is not exact), or, for a model with its own ``advance``
   (``chain1d``), asks its ``energy()`` and ``constraint_error()``.
 
-``sym3d`` (:mod:`solver.models.sym3d`) raises :class:`~solver.models.sym3d.NotSymmetric` from ``set_state`` or
+``sym3d`` (:mod:`solver.models.sym3d`) raises :class:`~solver.models.sym3d.NotSymmetric` from
+``set_state`` or
 ``set_cables`` when given an asymmetric state; the simulation then expands the run to ``full3d``
 (:func:`expand`). ``chain1d`` (:mod:`solver.models.chain1d`) has its own state and ``advance``.
 
@@ -90,23 +92,13 @@ def full_summary_arrays(network):
                               np.ascontiguousarray(levels, dtype=np.int64), network.n_cables)
 
 
-from solver.models import chain1d  # noqa: E402
 
 
-from solver.integrators import registry as integrators
 from solver.models.chain1d import Chain1D  # noqa: E402
 from solver.models.sym3d import NotSymmetric, Sym3D, reduce_network  # noqa: E402
 
 MODELS = {cls.name: cls for cls in (Full3D, Sym3D, Chain1D)}
 
-CHAIN_CANNOT_RAMP = 21
-STATUS_TEXT = {CHAIN_CANNOT_RAMP: 'chain1d cannot follow a prestrain ramp (its force law is '
-                                  'precomputed for the scene)'}
-STATUS_TEXT.update(chain1d.STATUS_TEXT)
-STATUS_TEXT.pop(dyn.NONFINITE, None)
-dyn.STATUS_TEXT.update(STATUS_TEXT)             # so that Simulation names these statuses
-if hasattr(integrators, 'STATUS_TEXT'):
-    integrators.STATUS_TEXT.update(STATUS_TEXT)
 
 
 def symmetric_loading(scene_data):

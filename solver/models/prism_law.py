@@ -137,7 +137,8 @@ def table_law(h0, b, cross, bases, lo_frac=0.02, hi_frac=1.5, n=2001):
 
 def poly_eval(h, lo, dh, coef):
     """The piecewise polynomial rows ``coef`` (n - 1, d) on the uniform grid (``lo``, ``dh``) at
-    the heights ``h`` (array), clamped to the table (NumPy twin of ``solver.models.chain1d._piece``)."""
+    the heights ``h`` (array), clamped to the table (NumPy twin of
+    ``solver.models.chain1d._piece``)."""
     h = np.asarray(h, dtype=np.float64)
     n = coef.shape[0]
     i = np.clip(((h - lo) / dh).astype(np.int64), 0, n - 1)

@@ -12,7 +12,8 @@ likewise.
 The reduced system is the full one restricted to the symmetric subspace (Lagrangian divided by 3),
 so node masses, multipliers and cable tensions are those of the full model and its trajectories
 are the full model's, to round-off. The kernels of :mod:`solver.kernels.dynamics` and
-:mod:`solver.integrators.registry` run it unchanged through the rotation slots of the ``net`` tuple.
+:mod:`solver.integrators.registry` run it unchanged through the rotation slots of the ``net``
+tuple.
 
 :func:`reduce_network` finds the symmetry (or raises :class:`NotSymmetric`);
 :class:`Sym3D` is the model (same interface as :class:`solver.models.family.Full3D`).
@@ -29,7 +30,8 @@ from solver.kernels import dynamics as dyn
 from solver._jit import jit
 from solver.kernels.rotation import ROT_C, ROT_S
 from solver.kernels import massmatrix
-from solver.build.network import NetworkError, _band_order, _diagonal_inverse_mass, _inverse_mass, _ro
+from solver.build.network import (NetworkError, _band_order, _diagonal_inverse_mass, _inverse_mass,
+    _ro)
 
 R3 = np.array([[-0.5, -math.sqrt(3.0) / 2.0, 0.0], [math.sqrt(3.0) / 2.0, -0.5, 0.0],
                [0.0, 0.0, 1.0]])
@@ -258,7 +260,8 @@ class Sym3D:
 
     ``positions()``/``velocities()`` expand to the full network; :meth:`set_state` and
     :meth:`set_cables` take full arrays and raise :class:`NotSymmetric` (changing nothing) when
-    they are not symmetric, which is the cue for :class:`~solver.simulate.simulation.Simulation` to expand
+    they are not symmetric, which is the cue for :class:`~solver.simulate.simulation.Simulation`
+    to expand
     the run to ``full3d``."""
     name = 'sym3d'
 

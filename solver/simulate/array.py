@@ -3,7 +3,8 @@ columns that are alike.
 
 The column builder lays out column ``c`` as column 0 moved by ``c * column_spacing`` along x, and
 no member joins two columns: the columns are independent systems. :class:`ArraySimulation` runs
-each as a one-column :class:`~solver.simulate.simulation.Simulation` of its own (``model: auto`` then
+each as a one-column :class:`~solver.simulate.simulation.Simulation` of its own (``model: auto``
+then
 picks the exact 3-fold reduction ``sym3d`` about the column's own axis), and columns that have had
 the same commands share one simulation (a *group*). A command that treats the columns of a group
 differently splits it: the group's simulation is copied, state, cables, prestrain ramp and
@@ -11,21 +12,31 @@ integrator history included, so every copy continues exactly as the shared one w
 command that breaks a column's symmetry (asymmetric rest lengths or state) expands only that
 column's simulation to ``full3d`` (the one-column simulation does this itself).
 
-The public interface is that of :class:`~solver.simulate.simulation.Simulation` (``Simulation(scene)``
-returns an :class:`ArraySimulation` when :func:`wants_array` holds); frames hold the full array
+The public interface is that of :class:`~solver.simulate.simulation.Simulation`
+(:func:`simulation_for` returns an :class:`ArraySimulation` when :func:`wants_array` holds);
+frames hold the full array
 (node, cable and column order of the column builder's network). Every column steps with the same
 ``dt`` on one clock ``t``. A divergence in any column restores every column and names the column.
 """
 from __future__ import annotations
 
-import copy
 import math
 import re
 
 import numpy as np
 
 from solver.build.scene import Scene
-from solver.simulate.simulation import PRESTRAIN_RANGE, Frame, Simulation, SimulationDiverged, build_network
+from solver.build.structures import build_network
+from solver.simulate.simulation import PRESTRAIN_RANGE, Frame, Simulation, SimulationDiverged
+
+
+def simulation_for(scene, network=None, **options):
+    """The simulation of ``scene``: an :class:`ArraySimulation` for an array of columns built by
+    the column builder (:func:`wants_array`, no ``network`` given), else a
+    :class:`~solver.simulate.simulation.Simulation` (``network``: an existing network to run)."""
+    if network is None and wants_array(scene):
+        return ArraySimulation(scene, **options)
+    return Simulation(scene, network, **options)
 
 
 def wants_array(scene):
@@ -34,33 +45,6 @@ def wants_array(scene):
     s = scene.data['structure']
     return (s.get('builder') == 'column' and s.get('n_columns', 1) > 1
             and scene['model'] in ('auto', 'sym3d'))
-
-
-def _copy_arrays(value):
-    """A copy of a (nested) tuple of arrays: the kernels' ``act`` and ``ws`` tuples."""
-    if isinstance(value, tuple):
-        return tuple(_copy_arrays(v) for v in value)
-    return np.array(value)
-
-
-def _clone(sim):
-    """An independent copy of a one-column :class:`Simulation` that continues exactly as
-    ``sim`` would (state, cables, prestrain and ramp, energy reference, integrator history)."""
-    new = copy.copy(sim)
-    m = new.model = copy.copy(sim.model)
-    m.x, m.v = sim.model.x.copy(), sim.model.v.copy()
-    m.act = _copy_arrays(sim.model.act)
-    m.ws = _copy_arrays(sim.model.ws)
-    integ = new.integrator = copy.copy(sim.integrator)
-    integ.set_state(copy.deepcopy(sim.integrator.get_state()))
-    new.div = dict(sim.div)
-    new._cache = {}
-    new._plan = (None, None)
-    new._prestrain = None if sim._prestrain is None else sim._prestrain.copy()
-    new._ramp = None if sim._ramp is None else tuple(
-        np.array(r) if isinstance(r, np.ndarray) else r for r in sim._ramp)
-    new._base_force = None
-    return new
 
 
 class _ArrayModel:
@@ -165,7 +149,7 @@ class ArraySimulation(Simulation):
         if self.dedup:
             self.groups = [_Group(self._proto, cols)]
         else:
-            self.groups = [_Group(self._proto if c == 0 else _clone(self._proto), [c])
+            self.groups = [_Group(self._proto if c == 0 else self._proto.clone(), [c])
                            for c in cols]
         self._cache = {}
 
@@ -188,7 +172,7 @@ class ArraySimulation(Simulation):
                 parts.setdefault(per_column(c), []).append(c)
             items = list(parts.items())
             for i, (key, cols) in enumerate(items):
-                sim = grp.sim if i == 0 else _clone(grp.sim)
+                sim = grp.sim if i == 0 else grp.sim.clone()
                 new_groups.append((_Group(sim, cols), key))
         # apply after every copy is made (a copy must be of the state before the command)
         for grp, key in new_groups:

@@ -10,6 +10,7 @@ import numpy as np
 from solver.analysis import observables, support
 from solver.build.scene import Scene
 from solver.simulate.simulation import Simulation
+from solver.simulate.array import simulation_for
 
 
 @dataclass
@@ -130,7 +131,7 @@ def prepare(scene, overrides=()):
     overrides = list(overrides)
     if overrides:
         scene = scene.with_overrides(overrides)
-    sim = Simulation(scene)
+    sim = simulation_for(scene)
     sim.advance(sim.dt)          # compile (or load cached) kernels outside the timed loop
     sim.reset()
     v0 = scene['loading.impact.v0']

@@ -13,13 +13,16 @@ the last good state.
 """
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from solver import status as codes
 from solver.kernels import dynamics as dyn
 from solver.kernels import contact
+from solver.models import extras
 from solver.integrators import registry as integrators
 from solver.models import family as models
 from solver.analysis import observables
@@ -27,44 +30,6 @@ from solver.build import structures
 from solver.build.scene import RANGES, Scene
 
 PRESTRAIN_RANGE = RANGES['prestrain']     # (lower, upper, lower inclusive): 0 < p <= 0.5
-
-
-HINT_STEP = 'try a smaller integrator.dt or another method (e.g. integrator=dopri54_projected)'
-HINT_CONSTRAINT = ('use a projected method (rk4_projected, rattle, dopri54_projected) or a '
-                   'smaller integrator.dt')
-HINT_ENERGY = 'try a smaller integrator.dt or another method (rattle, dopri54_projected)'
-HINT_SLACK = ('cables went slack and the prism collapsed: raise the prestrain or lower the impact '
-              'velocity')
-HINT_LOCK = ('the bars of the prism crossed (past the rigid-base lock at 180 deg, or fully '
-             'untwisted): lower the impact velocity, or stop the prisms at the lock with '
-             'contact.lock=penalty (divergence.bar_crossing=none lets bars pass through each '
-             'other)')
-HINT_LOCK_CONTACT = ('the bars of the prism crossed although contact.lock is on: raise '
-                     'contact.stiffness or contact.tolerance (and lower integrator.dt)')
-STATUS_DIAGNOSIS = {
-    dyn.SINGULAR: ('rigid members', 'rigid members became degenerate (e.g. a rigid-base prism '
-                   'driven through its lock by a fast impact): lower the impact velocity or try a '
-                   'smaller integrator.dt'),
-    dyn.NONFINITE: ('state', HINT_STEP),
-    dyn.NOT_CONVERGED: ('constraint projection', 'try a smaller integrator.dt or a larger '
-                        'integrator.projection_max_iter'),
-    integrators.STEP_TOO_SMALL: ('step size', 'the motion is too stiff or singular to resolve '
-                                 '(rigid-base lock, collapsed prism?): lower the impact velocity '
-                                 'or loosen integrator.rtol'),
-}
-
-
-def prism_twists(x, levels):
-    """Relative twist (n_columns, n_prisms) rad in (-pi, pi] of the top base of each prism about
-    its
-    bottom base (node 0 of each level about the level's centroid, in the xy plane). Its sign stays
-    that of the reference twist (+-150 deg) unless the bars cross: through 180 deg (past the
-    rigid-base lock) or through 0. ``x`` (n_nodes, 3) m, ``levels`` (n_columns, n_levels, 3)."""
-    centre = x[levels].mean(axis=2)                       # (n_columns, n_levels, 3)
-    r = x[levels[:, :, 0]] - centre
-    a, b = r[:, :-1], r[:, 1:]
-    return np.arctan2(a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0],
-                      a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1])
 
 
 class SimulationDiverged(RuntimeError):
@@ -95,42 +60,10 @@ class Frame:
     striker: np.ndarray | None = None
 
 
-def build_network(scene):
-    """The :class:`~solver.build.network.Network` a scene describes."""
-    s = scene['structure']
-    m = scene['materials']
-    builder = s.pop('builder')
-    if builder == 'column':
-        return structures.column(
-            n_prisms=s['n_prisms'], radius=s['radius'], h0=s['h0'], cable_E=m['cable_E'],
-            cable_radius=m['cable_radius'], unit_mass=m['unit_mass'], bar_mass=m['bar_mass'],
-            prestrain=scene['prestrain'], bases=s['bases'], stacking=s['stacking'],
-            rigid_bases_as=s['rigid_bases_as'], kappa=s['kappa'], n_columns=s['n_columns'],
-            column_spacing=s['column_spacing'], clamped_levels=tuple(s['clamped_levels']),
-            handedness=s['handedness'], bar_mass_fraction=m['bar_mass_fraction'],
-            mass_placement=s['mass_placement'], end_mass=m['end_mass'])
-    EA = m['cable_E'] * math.pi * m['cable_radius'] ** 2
-    rest = s['cable_rest_length']
-    return structures.explicit(s['nodes'], s['bars'], s['cables'], s['node_mass'], EA,
-                               cable_rest_length=rest,
-                               prestrain=None if rest is not None else scene['prestrain'],
-                               rigid_edges=s['rigid_edges'], clamped=s['clamped'],
-                               bar_mass=m['bar_mass'])
-
-
 class Simulation:
-    def __new__(cls, scene=None, network=None, **options):
-        # an array of columns built by the column builder runs as one reduced model per column
-        # (solver/simulate/array.py) unless a network or another model is asked for
-        if cls is Simulation and network is None and scene is not None:
-            from solver.simulate.array import ArraySimulation, wants_array
-            if wants_array(scene):
-                return object.__new__(ArraySimulation)
-        return object.__new__(cls)
-
     def __init__(self, scene: Scene, network=None):
         self.scene = scene
-        self.network = network if network is not None else build_network(scene)
+        self.network = network if network is not None else structures.build_network(scene)
         levels = self.network.levels
         self._heights_shape = (levels.shape[0], max(levels.shape[1] - 1, 0))
         g = scene['loading.gravity']
@@ -141,11 +74,11 @@ class Simulation:
         self.f_ext = f_ext
         self._f_ext_or_none = f_ext if np.any(f_ext) else None
         self._model_cls = models.choose(scene['model'], self.network, scene.data)
-        self._extras = contact.scene_extras(scene.data, self.network)
-        if self._model_cls is models.Chain1D and contact.active_spec(self._extras):
+        self._extras = extras.scene_extras(scene.data, self.network)
+        if self._model_cls is models.Chain1D and extras.active_spec(self._extras):
             raise ValueError('model chain1d: has no strikers, prism stops or cable damping; use '
                              'model full3d or sym3d')
-        self.model = contact.attach(self._model_cls(self.network, f_ext=f_ext), self._extras)
+        self.model = extras.attach(self._model_cls(self.network, f_ext=f_ext), self._extras)
         self.expanded = None            # why a sym3d run was expanded to full3d, if it was
         it = scene['integrator']
         self.integrator = integrators.get(it['method'], rtol=it['rtol'], atol=it['atol'])
@@ -165,7 +98,7 @@ class Simulation:
         """Back to the reference geometry at rest, t = 0, rest lengths of the scene."""
         net = self.network
         if not isinstance(self.model, self._model_cls):     # undo an expansion to full3d
-            self.model = contact.attach(self._model_cls(net, f_ext=self.f_ext), self._extras)
+            self.model = extras.attach(self._model_cls(net, f_ext=self.f_ext), self._extras)
             self.expanded = None
         self.model.set_state(net.x0, np.zeros((net.n_nodes, 3)))
         ns = getattr(self.model, 'n_strikers', 0)
@@ -185,6 +118,26 @@ class Simulation:
         if net.levels.size and net.meta.get('builder') == 'column':
             self._prestrain = np.full((net.n_columns, net.n_prisms), float(net.meta['prestrain']))
         self._energy_ref = self.energy()
+
+    def clone(self):
+        """An independent copy that continues exactly as this simulation would (state, cables,
+        prestrain and ramp, energy reference, integrator history); arrays of columns split their
+        groups with it."""
+        new = copy.copy(self)
+        m = new.model = copy.copy(self.model)
+        m.x, m.v = self.model.x.copy(), self.model.v.copy()
+        m.act = _copy_arrays(self.model.act)
+        m.ws = _copy_arrays(self.model.ws)
+        integ = new.integrator = copy.copy(self.integrator)
+        integ.set_state(copy.deepcopy(self.integrator.get_state()))
+        new.div = dict(self.div)
+        new._cache = {}
+        new._plan = (None, None)
+        new._prestrain = None if self._prestrain is None else self._prestrain.copy()
+        new._ramp = None if self._ramp is None else tuple(
+            np.array(r) if isinstance(r, np.ndarray) else r for r in self._ramp)
+        new._base_force = None
+        return new
 
     # Quantities of the current state are computed once and kept until the state changes
     # (every change goes through _changed): the divergence check, frame() and the node share them.
@@ -246,8 +199,8 @@ class Simulation:
     def expand_to_full3d(self, reason):
         """Continue a ``sym3d`` run with ``full3d`` from the same (expanded) state: no jump."""
         if isinstance(self.model, models.Sym3D):
-            strikers = contact.striker_state(self.model)
-            self.model = contact.attach(models.expand(self.model, f_ext=self.f_ext),
+            strikers = extras.striker_state(self.model)
+            self.model = extras.attach(models.expand(self.model, f_ext=self.f_ext),
                                         self._extras, strikers if len(strikers) else None)
             if hasattr(self.integrator, 'reset'):      # forget step-size history of sym3d
                 self.integrator.reset()
@@ -313,7 +266,7 @@ class Simulation:
         ws = dyn.workspace_for(net)
         status = dyn.project_velocities(x, kick, net_t, ws)
         if status != dyn.OK:
-            raise ValueError(f'impact: {dyn.STATUS_TEXT[status]}')
+            raise ValueError(f'impact: {codes.text(status)}')
         if mode == 'energy':
             ke = observables.kinetic_energy(kick, net)
             if ke > 0:
@@ -328,7 +281,7 @@ class Simulation:
     def striker(self):
         """(n_columns, 2) striker face height m and axial velocity m/s, or None without
         strikers."""
-        st = contact.striker_state(self.model)
+        st = extras.striker_state(self.model)
         return st if len(st) else None
 
     def _strike(self, v0, columns):
@@ -390,7 +343,8 @@ class Simulation:
 
     @property
     def prestrain_map(self):
-        """The :class:`~solver.build.structures.PrestrainMap` of the network (built on first use)."""
+        """The :class:`~solver.build.structures.PrestrainMap` of the network (built on first
+        use)."""
         if self._prestrain_map is None:
             self._prestrain_map = structures.PrestrainMap(self.network)
         return self._prestrain_map
@@ -426,7 +380,8 @@ class Simulation:
     def apply_prestrain(self, p, columns=None, ramp_s=0.0):
         """Change the cross prestrain of the addressed columns (see :meth:`prestrain_target`) by
         changing the rest lengths of all their cables so that the reference geometry stays in
-        equilibrium (:class:`~solver.build.structures.PrestrainMap`), linearly in ``p`` over ``ramp_s``
+        equilibrium (:class:`~solver.build.structures.PrestrainMap`), linearly in ``p`` over
+        ``ramp_s``
         s of simulation time (0 = at once). A ramp in progress continues from where it is.
         The actuator's work is added to the energy reference of the divergence check."""
         target = self.prestrain_target(p, columns)
@@ -540,34 +495,37 @@ class Simulation:
         after an integrator ``status``, or None when the state is sound."""
         finite, e, h, err, h_min = self._summary()
         if not finite:
-            return 'state', 'non-finite positions or velocities', HINT_STEP
+            return 'state', 'non-finite positions or velocities', codes.HINT_STEP
         if status != dyn.OK:
-            quantity, hint = STATUS_DIAGNOSIS.get(status, ('state', HINT_STEP))
-            return quantity, integrators.status_text(status), hint
+            quantity, hint = codes.DIAGNOSIS.get(status, ('state', codes.HINT_STEP))
+            return quantity, codes.text(status), hint
         if not err <= self.div['constraint_error']:
             return ('constraint error', f'{err:.3g} exceeds {self.div["constraint_error"]:g}',
-                    HINT_CONSTRAINT)
+                    codes.HINT_CONSTRAINT)
         growth = (e - self._energy_ref) / max(abs(self._energy_ref), 1e-300)
         if not growth <= self.div['energy_growth']:
             return ('energy', f'grew by {growth:.3g} (relative), limit '
-                              f'{self.div["energy_growth"]:g}', HINT_ENERGY)
+                              f'{self.div["energy_growth"]:g}', codes.HINT_ENERGY)
         net = self.network
         if net.levels.size:
             if h.size and not h_min > 0.0:
                 c, i = np.unravel_index(int(np.argmin(np.where(np.isfinite(h), h, -np.inf))),
                                         h.shape)
                 return ('prism height', f'prism {i} of column {c} collapsed (height '
-                                        f'{h[c, i]:.3g} m)', HINT_SLACK)
+                                        f'{h[c, i]:.3g} m)', codes.HINT_SLACK)
             if self._check_twist and self._twist_sign is None:
-                self._twist_sign = np.sign(prism_twists(np.asarray(net.x0), net.levels))
-            twist = (prism_twists(self._full_state()[0], net.levels) if self._check_twist
+                self._twist_sign = np.sign(observables.prism_twists(np.asarray(net.x0),
+                                                                    net.levels))
+            twist = (observables.prism_twists(self._full_state()[0], net.levels)
+                     if self._check_twist
                      else None)
             bad = None if twist is None else ~(twist * self._twist_sign > 0.0)
             if bad is not None and np.any(bad):
                 c, i = np.argwhere(bad)[0]
                 return ('prism twist', f'prism {i} of column {c} twisted through 0 or 180 deg '
                                        f'({math.degrees(twist[c, i]):.1f} deg)',
-                        HINT_LOCK if self._extras['stop_h'] is None else HINT_LOCK_CONTACT)
+                        codes.HINT_LOCK if self._extras['stop_h'] is None
+                        else codes.HINT_LOCK_CONTACT)
         return None
 
     def _locate(self, n, keep, problem):
@@ -621,3 +579,10 @@ class Simulation:
                                                         self.model.cable_EA),
                      energy=self.energy(), constraint_error=self.constraint_error(),
                      base_force=np.array(self.base_force()), striker=self.striker())
+
+
+def _copy_arrays(value):
+    """A copy of a (nested) tuple of arrays: the kernels' ``act`` and ``ws`` tuples."""
+    if isinstance(value, tuple):
+        return tuple(_copy_arrays(v) for v in value)
+    return np.array(value)

@@ -3,7 +3,8 @@
 The bases of an array lie on the surface ``z = 0`` of a host medium of wave speed ``C``; column
 ``i`` has its base at ``X_i = (x_i, 0)``. Pulses that leave the bases at ``T_i = T0 - |F - X_i| /
 C`` meet at the focus ``F = (X, Z)`` at ``T0``. The arrival time of a column's solitary pulse at
-its base (:func:`solver.analysis.support.pulse_arrival`: the largest compression of the record, which the
+its base (:func:`solver.analysis.support.pulse_arrival`: the largest compression of the record,
+which the
 scene's ``run.t_end`` must hold, and nothing larger after it) depends on its prestrain;
 :func:`arrival_map` measures it with the solver itself on a grid of prestrains over the scene's
 ``lens`` range, for the scene and the impact velocity, and keeps it on disk. :func:`design`
@@ -27,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from solver.build.scene import Scene
-from solver.simulate.simulation import Simulation
+from solver.simulate.array import simulation_for
 from solver.analysis.support import pulse_arrival
 
 CACHE_VERSION = 5         # the arrival definition of solver.analysis.support is part of the map
@@ -61,7 +62,8 @@ SAMPLE_S = 1e-3          # base forces are sampled every this many seconds (whol
 def record_base(sim, t_end, on_frame=None, frame_dt=None):
     """Base force of every column every :data:`SAMPLE_S` (whole integrator steps) from now to
     ``t_end`` s: ``(times (n_t,), forces (n_t, n_columns))``. ``on_frame(frame)``: called with
-    :meth:`~solver.simulate.simulation.Simulation.frame` now and every ``frame_dt`` s (a whole number of
+    :meth:`~solver.simulate.simulation.Simulation.frame` now and every ``frame_dt`` s (a whole
+    number of
     samples)."""
     t, b = [sim.t], [sim.base_force()]
     every = max(1, int(round(SAMPLE_S / sim.dt)))
@@ -83,7 +85,7 @@ def simulate(scene, prestrain, v0, on_frame=None, frame_dt=None):
     """Run the array of ``scene`` with per-column ``prestrain`` (set at once) and an impact of
     ``v0`` m/s on every column at t = 0, to ``run.t_end``: ``(times, base forces, arrivals)``.
     ``on_frame``, ``frame_dt``: as :func:`record_base`."""
-    sim = Simulation(scene)
+    sim = simulation_for(scene)
     sim.apply_prestrain(np.asarray(prestrain, dtype=np.float64))
     sim.apply_impact(v0)
     t, b = record_base(sim, scene['run.t_end'], on_frame, frame_dt)

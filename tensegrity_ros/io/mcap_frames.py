@@ -2,7 +2,8 @@
 
 :class:`FrameLog` turns solver frames into the messages the node publishes, built by the same
 :mod:`tensegrity_ros.msgs.messages` functions, under the same topic names, and writes them to a
-:class:`~tensegrity_ros.io.mcap_writer.McapRecorder`; so a log is the same whichever way it was made.
+:class:`~tensegrity_ros.io.mcap_writer.McapRecorder`; so a log is the same whichever way it was
+made.
 Commands applied by the command line (the impact) are logged as the node would log them on receipt.
 """
 from __future__ import annotations
@@ -21,7 +22,8 @@ NETWORK_METADATA = 'tensegrity_network'
 
 
 def network_metadata(network, scene_name=''):
-    """``{name: {key: text}}`` for :class:`~tensegrity_ros.io.mcap_writer.McapRecorder`'s ``metadata``:
+    """``{name: {key: text}}`` for :class:`~tensegrity_ros.io.mcap_writer.McapRecorder`'s
+    ``metadata``:
     the topology of ``network`` as JSON texts (member index arrays, cable kinds, levels, reference
     positions x0 in m, the markers' tension colour scale in N), so that a log can be drawn and
     analysed without the scene file."""
@@ -90,7 +92,8 @@ class FrameLog:
         return M.resolve_topic(key, self.namespace, self.node)
 
     def frame(self, frame):
-        """Write one :class:`solver.simulate.simulation.Frame` (raises ValueError if it is not finite)."""
+        """Write one :class:`solver.simulate.simulation.Frame` (raises ValueError if it is not
+        finite)."""
         stamp = M.sim_stamp(frame.t)
         ns = M.stamp_to_ns(stamp)
         extra = self.n_frames % self.marker_every == 0
@@ -123,7 +126,8 @@ class FrameLog:
 
     def command(self, key, values, label, frame, detail=''):
         """Log a command (``'~/cmd/impact'`` or ``'~/cmd/prestrain'``) applied at ``frame``
-        (a :class:`solver.simulate.simulation.Frame`, for its time and the diagnostics), as the node logs
+        (a :class:`solver.simulate.simulation.Frame`, for its time and the diagnostics), as the
+        node logs
         one it receives and accepts: the command, then a ``/diagnostics`` saying so."""
         if key not in M.COMMANDS:
             raise ValueError(f'unknown command topic {key!r}')

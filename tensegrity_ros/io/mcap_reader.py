@@ -186,7 +186,8 @@ def cloud_xyz(msg):
 
 def log_network(metadata):
     """The network topology of a log's ``tensegrity_network`` metadata record, as an object
-    with the :class:`solver.build.network.Network` names (``bar_a``, ``bar_b``, ``edge_a``, ``edge_b``,
+    with the :class:`solver.build.network.Network` names (``bar_a``, ``bar_b``, ``edge_a``,
+    ``edge_b``,
     ``cable_a``, ``cable_b`` int64; ``cable_kind`` str; ``levels`` (n_columns, n_levels, 3);
     ``x0`` (n_nodes, 3) m; ``n_nodes``, ``n_bars``, ``n_edges``, ``n_cables``, ``n_columns``,
     ``n_prisms``; ``scene``; ``tension_scale`` N), or None when the log has none."""

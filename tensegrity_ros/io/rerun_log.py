@@ -24,7 +24,8 @@ timeline ``sim_time`` (a duration, from the simulation clock; no wall-clock time
 - ``energy`` (J) and ``constraint_error`` Scalars; ``commands`` TextLog events.
 - ``field/peak_pressure`` Image (float32, one channel, depth down the rows, x along the array
   across the columns; given to :meth:`RerunRecorder.field`, with a ``field_grid``): the peak
-  pressure in the host medium so far (:mod:`solver.analysis.field`) over its scale, ``field/scale`` Scalars
+  pressure in the host medium so far (:mod:`solver.analysis.field`) over its scale,
+  ``field/scale`` Scalars
   (that scale, model units), and optionally ``field/pressure`` Image, the pressure at that time
   mapped to ``0.5 + 0.5 p / scale`` (0.5: zero pressure).
 
@@ -193,7 +194,8 @@ atexit.register(shutdown_helpers)
 class RerunRecorder:
     """Records solver frames of one network to a ``.rrd`` file and/or a live viewer.
 
-    ``network``: the :class:`solver.build.network.Network` (read-only arrays). ``path``: ``.rrd`` file to
+    ``network``: the :class:`solver.build.network.Network` (read-only arrays). ``path``: ``.rrd``
+    file to
     write (headless). ``connect``: gRPC URL of a running viewer (``True`` for :data:`DEFAULT_URL`).
     At least one of the two is required. ``tension_scale`` N: tension shown at the top of the
     colour ramp (default :func:`reference_tension_scale`).
@@ -244,7 +246,7 @@ class RerunRecorder:
                                                 and expected_frames >= 1):
             raise ValueError(f'rerun: expected_frames must be a positive integer, got '
                              f'{expected_frames!r}')
-        from solver.kernels.dynamics import finite_below   # here: the helper process needs no numba
+        from solver.kernels.dynamics import finite_below   # the helper process needs no numba
         self._finite_below = finite_below
         self.path = None if path is None else str(path)
         self.url = (DEFAULT_URL if connect is True else connect) or None
@@ -379,7 +381,8 @@ class RerunRecorder:
         self._bb = rows[:, cb]
 
     def frame(self, frame):
-        """Buffer one :class:`solver.simulate.simulation.Frame`; sends a batch every ``flush_every`` frames.
+        """Buffer one :class:`solver.simulate.simulation.Frame`; sends a batch every
+        ``flush_every`` frames.
         A frame that does not match the network or has non-finite values raises ValueError and
         records nothing. A time not after the previous frame (the simulation was reset) flushes
         the frames before it and restarts the strain wave; ``sim_time`` then holds both."""

@@ -1,7 +1,8 @@
 """Frame -> ROS 2 messages: pure functions shared by the node and the MCAP writer.
 
 Nothing here talks to ROS middleware: the functions build message objects from a
-:class:`solver.simulate.simulation.Frame` and a :class:`solver.build.network.Network`, so the node, the MCAP log
+:class:`solver.simulate.simulation.Frame` and a :class:`solver.build.network.Network`, so the
+node, the MCAP log
 and the tests see exactly the same bytes.
 
 Stable API (keep it so; the recorder depends on it):
@@ -256,7 +257,8 @@ def frame_messages(frame, network, stamp=None, markers=True, clock=False, t_max=
     ``'~/markers'`` when ``markers``; ``'/clock'`` when ``clock``. ``stamp`` defaults to
     :func:`sim_stamp` of ``frame.t``. With
     ``serialized`` the values are the CDR bytes of the same messages written from the arrays
-    (:mod:`tensegrity_ros.msgs.cdr`, for ``Publisher.publish(bytes)``). Raises ``ValueError`` if the
+    (:mod:`tensegrity_ros.msgs.cdr`, for ``Publisher.publish(bytes)``). Raises ``ValueError`` if
+    the
     frame holds a non-finite value (nothing NaN is ever published)."""
     check_finite(frame)
     if stamp is None:

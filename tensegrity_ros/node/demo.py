@@ -202,7 +202,7 @@ def run_demo(scene_file='config/scenes/fb_column.yaml', v0=(0.1,), duration_s=1.
 
     from solver.analysis import observables
     from solver.build.scene import Scene
-    from solver.simulate.simulation import build_network
+    from solver.build.structures import build_network
 
     from tensegrity_ros.node.node import find_config
 
@@ -215,9 +215,9 @@ def run_demo(scene_file='config/scenes/fb_column.yaml', v0=(0.1,), duration_s=1.
     params = {'scene_file': str(scene_path), 'real_time_factor': float(rtf),
               'publish_rate_hz': float(publish_rate_hz), 'start_paused': True}
     outputs = {'mcap': None, 'rerun': None}
-    if record and _recorder_available('recording'):
+    if record and _recorder_available('io.mcap_writer'):
         outputs['mcap'] = params['record_mcap'] = str(out / 'run.mcap')
-    if record and _recorder_available('rerun_log'):
+    if record and _recorder_available('io.rerun_log'):
         outputs['rerun'] = params['record_rerun'] = str(out / 'run.rrd')
     v0 = [float(v) for v in np.atleast_1d(v0)]
     proc = node_process(params, domain_id)
@@ -339,9 +339,9 @@ def run_focus_demo(focus, scene_file='config/scenes/lens_focus.yaml', speed=1.5,
               'start_paused': True, 'medium_speed_m_s': float(speed),
               'diagnostics_rate_hz': 10.0}
     outputs = {'mcap': None, 'rerun': None}
-    if record and _recorder_available('recording'):
+    if record and _recorder_available('io.mcap_writer'):
         outputs['mcap'] = params['record_mcap'] = str(out / 'run.mcap')
-    if record and _recorder_available('rerun_log'):
+    if record and _recorder_available('io.rerun_log'):
         outputs['rerun'] = params['record_rerun'] = str(out / 'run.rrd')
     proc = node_process(params, domain_id)
     ctx = rclpy.Context()

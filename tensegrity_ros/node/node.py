@@ -6,7 +6,8 @@
 One timer drives everything: each tick applies the commands that arrived since the last one,
 advances the simulation towards the paced target time, never working longer than 90 % of a
 publish period less the time the command callbacks took (with ``real_time_factor`` 0: as far as
-fits until the next tick is due), then publishes one frame (built by :mod:`tensegrity_ros.msgs.cdr`,
+fits until the next tick is due), then publishes one frame (built by
+:mod:`tensegrity_ros.msgs.cdr`,
 or :mod:`tensegrity_ros.msgs.messages` for a recorder that needs message objects).
 Commands are taken by the tick itself (the executor never runs their subscriptions), so they never
 race a step: each tick takes every command waiting, validates (and counts, and hands to the
@@ -18,7 +19,8 @@ lines are throttled (:meth:`TensegritySim._log`). Stamps are simulation time.
 Recorders hook in through three lists (see :meth:`TensegritySim.add_sink`): ``_sinks`` get
 ``(topic, msg, stamp_ns)`` for every published message and every received command (the frame's
 messages as CDR ``bytes`` when every sink takes bytes, as the MCAP recorder does), ``_frame_sinks``
-get each published :class:`solver.simulate.simulation.Frame`, ``_event_sinks`` get ``(t, text)`` per
+get each published :class:`solver.simulate.simulation.Frame`, ``_event_sinks`` get ``(t, text)``
+per
 command.
 """
 from __future__ import annotations
@@ -100,7 +102,8 @@ class TakenByTick(CallbackGroup):
 
 
 class TensegritySim(LifecycleNode):
-    """The node ``tensegrity_sim``. ``sim``: an existing :class:`~solver.simulate.simulation.Simulation`
+    """The node ``tensegrity_sim``. ``sim``: an existing
+    :class:`~solver.simulate.simulation.Simulation`
     to drive (tests, benchmarks) instead of the one the parameters describe; ``kwargs`` go to
     :class:`rclpy.lifecycle.LifecycleNode` (``context``, ``parameter_overrides``, ``namespace``).
     A managed node: with ``autostart`` (the default) it configures and activates itself in the
@@ -716,7 +719,8 @@ class TensegritySim(LifecycleNode):
         return self._command('~/cmd/prestrain', msg, check)
 
     def _on_focus(self, msg):
-        """``~/cmd/focus``: plan one prestrain per column (solver.studies.lens.design) for the focus
+        """``~/cmd/focus``: plan one prestrain per column (solver.studies.lens.design) for the
+        focus
         (point.x along the array, point.z the depth below the bases, m) in a medium of speed
         ``medium_speed_m_s``, ramp the prestrains over ``prestrain_ramp_s``, then impact every
         column at once with the scene's v0. The first plan for a scene and v0 computes the

@@ -1,5 +1,6 @@
 """Parameters of the node ``tensegrity_sim``: defaults (mirrored by ``config/node.yaml``), checks,
-and the :class:`~solver.simulate.simulation.Simulation` they describe. No ROS imports: usable by tests and
+and the :class:`~solver.simulate.simulation.Simulation` they describe. No ROS imports: usable by
+tests and
 tools without a ROS context."""
 from __future__ import annotations
 
@@ -9,7 +10,8 @@ import time
 from pathlib import Path
 
 from solver.build.scene import Scene
-from solver.simulate.simulation import Simulation, SimulationDiverged
+from solver.simulate.simulation import SimulationDiverged
+from solver.simulate.array import simulation_for
 
 # Defaults of every parameter (config/node.yaml repeats them; a test keeps the two equal).
 DEFAULTS = {
@@ -132,7 +134,7 @@ def load_simulation(values):
         sets.append(('integrator.dt', values['dt']))
     if sets:
         scene = scene.with_overrides(sets)
-    sim = Simulation(scene)
+    sim = simulation_for(scene)
     sim.advance(sim.dt)
     sim.reset()
     return sim

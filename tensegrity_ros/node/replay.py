@@ -17,8 +17,8 @@ import time
 
 import numpy as np
 
-from tensegrity_ros.io.mcap_reader import (NODES, STRAIN, TENSION, LogError, McapLog, cloud_xyz, log_network,
-                     multi_array_values)
+from tensegrity_ros.io.mcap_reader import (NODES, STRAIN, TENSION, LogError, McapLog, cloud_xyz,
+                                           log_network, multi_array_values)
 
 CLOCK_TOPIC = '/clock'
 

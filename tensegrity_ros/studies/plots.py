@@ -50,7 +50,8 @@ def strain_wave_figure(rec, title='', column=0, snapshots=(0.1, 0.3, 0.5, 0.7, 0
 
 
 def lens_field(result, path):
-    """The peak pressure in the medium (the model of :mod:`solver.analysis.field`) of the designed array
+    """The peak pressure in the medium (the model of :mod:`solver.analysis.field`) of the designed
+    array
     next to the same array at uniform prestrain, the bases and the focus marked, and the peak
     pressure of both across the focal depth with one column spacing either side of the focus
     shaded. ``result``: the dict of ``tensegrity lens`` (with its ``_field`` maps). Writes a

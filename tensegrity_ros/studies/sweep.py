@@ -1,7 +1,8 @@
 """``tensegrity sweep``: one run per point of a grid (or a Latin hypercube) of scene overrides, on
 Dask distributed; one row per point in a Parquet table and a CSV file.
 
-Each point is one :func:`solver.simulate.runner.simulate` call, the function ``tensegrity run`` uses, so a
+Each point is one :func:`solver.simulate.runner.simulate` call, the function ``tensegrity run``
+uses, so a
 row holds the figures of that point's ``tensegrity run --json`` summary under their dotted names
 (``pulse.amplitude``, ``energy_drift_rel``). Rows are appended to ``rows.jsonl`` as they complete
 (the table is rewritten from it), so an interrupted sweep keeps every finished point and a rerun
@@ -189,8 +190,10 @@ def empty_figures():
 
 
 def run_point(scene, overrides, pid=None):
-    """One row: ``scene`` (a :class:`solver.build.scene.Scene`) with ``overrides`` (``{key: value}``,
-    applied in order) run by :func:`solver.simulate.runner.simulate`. Never raises for a failed run: the
+    """One row: ``scene`` (a :class:`solver.build.scene.Scene`) with ``overrides`` (``{key:
+    value}``,
+    applied in order) run by :func:`solver.simulate.runner.simulate`. Never raises for a failed
+    run: the
     row's ``status`` is ``ok``, ``diverged`` or ``error`` with a one-line ``reason``."""
     from solver.simulate.runner import simulate
     from solver.simulate.simulation import SimulationDiverged

@@ -1,0 +1,60 @@
+"""The interface every integrator family implements (the contract is in
+:mod:`solver.integrators.registry`, which lists the families)."""
+from __future__ import annotations
+
+import numpy as np
+
+
+class Integrator:
+    """A method behind one interface. ``kernel`` is the ``@jit`` run function described in the
+    module doc, ``checked`` its twin (see :meth:`checked_args`); ``extra_args`` gives the kernel
+    arguments after ``max_iter``; ``evaluations_per_step`` counts force evaluations (for work
+    estimates)."""
+    name = ''
+    order = 0
+    projected = False
+    adaptive = False
+    evaluations_per_step = 0
+    kernel = None
+    checked = None
+
+    def __init__(self, rtol=1e-8, atol=1e-10):
+        self.rtol, self.atol = float(rtol), float(atol)
+        self._scratch = {}
+
+    def scratch(self, key, shape):
+        """A zeroed float64 array owned by this integrator (reused while the shape is the same)."""
+        a = self._scratch.get(key)
+        if a is None or a.shape != tuple(shape):
+            a = self._scratch[key] = np.zeros(shape)
+        return a
+
+    def extra_args(self, x, kinks):
+        """The kernel arguments after ``max_iter`` for a state shaped like ``x``."""
+        return (bool(kinks),)
+
+    def reset(self):
+        """Forget any step-size history (adaptive methods)."""
+
+    def get_state(self):
+        """A copy of the integrator's own state (step-size history), for :meth:`set_state`."""
+        return None
+
+    def set_state(self, state):
+        pass
+
+    def run(self, x, v, dt, n_steps, net, act, ws, tol=1e-12, max_iter=3, kinks=True):
+        """Advance ``x``, ``v`` (n, 3) in place by ``n_steps * dt`` s; returns (steps, status)."""
+        steps, status = self.kernel(x, v, float(dt), int(n_steps), net, act, ws, float(tol),
+                                     int(max_iter), *self.extra_args(x, kinks))
+        return int(steps), int(status)
+
+    def checked_args(self, x, net, act, ws, tol, max_iter, kinks, keep, summ):
+        """The arguments of ``checked`` between ``n_steps`` and ``heights``: ``checked(x, v, dt,
+        n_steps, *checked_args(...), heights)`` is :meth:`run` in one compiled call that first
+        copies ``x``, ``v`` into ``keep = (x_keep, v_keep)`` and then summarises the end state
+        (:func:`solver.kernels.dynamics.state_summary` with the arrays ``summ``, prism heights into
+        ``heights``), returning ``(steps, status, finite, energy J, relative constraint error,
+        smallest prism height m)``. ``Simulation.advance`` builds them once per model."""
+        return (net, act, ws, float(tol), int(max_iter)) + tuple(self.extra_args(x, kinks)) + (
+            keep, summ)

@@ -1,0 +1,185 @@
+"""Classical RK4 (plain and projected) and velocity Verlet with RATTLE constraints: fixed-step
+kernels and their :class:`~solver.integrators.base.Integrator` classes."""
+from __future__ import annotations
+
+from solver._jit import jit
+from solver.integrators.base import Integrator
+from solver.kernels import dynamics as dyn
+from solver.kernels.kinks import keep_state, next_kink
+
+
+@jit
+def _rk4_step(x, v, h, a1, net, act, ws):
+    """One classical RK4 step of size h of ``x' = v, v' = a(x, v)`` given the first-stage
+    acceleration ``a1 = a(x, v)``; the new state is left in ``x``, ``v``."""
+    xs, vs, acc, xacc, vacc = ws[5], ws[6], ws[7], ws[8], ws[9]
+    n = x.shape[0]
+    xacc[:, :] = v
+    vacc[:, :] = a1
+    for p in range(n):
+        for i in range(3):
+            xs[p, i] = x[p, i] + 0.5 * h * v[p, i]
+            vs[p, i] = v[p, i] + 0.5 * h * a1[p, i]
+    for stage in range(1, 4):
+        status = dyn.accelerations(xs, vs, net, act, ws, acc)
+        if status != dyn.OK:
+            return status
+        w = 1.0 if stage == 3 else 2.0
+        c = 0.5 * h if stage == 1 else h
+        for p in range(n):
+            for i in range(3):
+                xacc[p, i] += w * vs[p, i]
+                vacc[p, i] += w * acc[p, i]
+                if stage < 3:
+                    xs[p, i] = x[p, i] + c * vs[p, i]
+                    vs[p, i] = v[p, i] + c * acc[p, i]
+    for p in range(n):
+        for i in range(3):
+            x[p, i] += h / 6.0 * xacc[p, i]
+            v[p, i] += h / 6.0 * vacc[p, i]
+    return dyn.OK
+
+
+
+@jit
+def _rk4_advance(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, project):
+    """Advance by ``n_steps * dt`` with classical RK4; with ``kinks`` a step is shortened to land
+    on the next cable slack/taut transition, with ``project`` positions and velocities are
+    projected on the rigid members after every step. Returns (RK4 steps taken, status)."""
+    a1 = ws[10]
+    total = n_steps * dt
+    t = 0.0
+    steps = 0
+    while total - t > 1e-9 * dt:
+        h = min(dt, total - t)
+        status = dyn.accelerations(x, v, net, act, ws, a1)
+        if status == dyn.OK and kinks:
+            h = next_kink(x, v, a1, net, act, h, 1e-3 * dt)
+        if status == dyn.OK:
+            status = _rk4_step(x, v, h, a1, net, act, ws)
+        if project and status == dyn.OK:
+            status = dyn.project_positions(x, net, ws, tol, max_iter)
+        if project and status == dyn.OK:
+            status = dyn.project_velocities(x, v, net, ws)
+        if status == dyn.OK and not (dyn.all_finite(x) and dyn.all_finite(v)):
+            status = dyn.NONFINITE
+        if status != dyn.OK:
+            return steps, status
+        t += h
+        steps += 1
+    return steps, dyn.OK
+
+
+@jit
+def _rk4_projected_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks):
+    """RK4 with projection after every step (see :func:`_rk4_advance`)."""
+    return _rk4_advance(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, True)
+
+
+@jit
+def _rk4_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks):
+    """:func:`_rk4_projected_run` without the projections (``tol``, ``max_iter`` unused): the
+    constraints hold only at the acceleration level, so bar lengths drift."""
+    return _rk4_advance(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, False)
+
+
+@jit
+def _rattle_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, acc, x_old):
+    """Velocity Verlet with RATTLE constraints, ``n_steps`` steps of ``dt``; scratch ``acc`` and
+    ``x_old`` (n, 3). One force evaluation per step (plus one per call to start).
+
+    Stage 1 (SHAKE): ``x+ = x + h v + h^2/2 a(x)``, projected on the rigid members; the half-step
+    velocity is ``(x+ - x) / h`` (it includes the constraint impulse). Stage 2: ``v+ = v_1/2 +
+    h/2 a(x+)``, projected on the tangent space. ``a`` already holds the acceleration-level
+    multipliers, so ``x + h v + h^2/2 a`` misses the constraints by O(h^3) only; the Gauss-Newton
+    projection (gradients at the iterate) then differs from SHAKE (gradients at ``x``) by
+    O(h^4) per step, and it is converged to ``tol``. In stage 2 the constraint part of ``a(x+)``
+    lies in the range the velocity projection removes, so stage 2 is exactly RATTLE's."""
+    status = dyn.accelerations(x, v, net, act, ws, acc)
+    if status != dyn.OK:
+        return 0, status
+    n = x.shape[0]
+    for step in range(n_steps):
+        h = dt
+        for p in range(n):
+            for i in range(3):
+                x_old[p, i] = x[p, i]
+                x[p, i] += h * v[p, i] + 0.5 * h * h * acc[p, i]
+        status = dyn.project_positions(x, net, ws, tol, max_iter)
+        if status == dyn.OK:
+            for p in range(n):
+                for i in range(3):
+                    v[p, i] = (x[p, i] - x_old[p, i]) / h
+            status = dyn.accelerations(x, v, net, act, ws, acc)
+        if status == dyn.OK:
+            for p in range(n):
+                for i in range(3):
+                    v[p, i] += 0.5 * h * acc[p, i]
+            status = dyn.project_velocities(x, v, net, ws)
+        if status == dyn.OK and not (dyn.all_finite(x) and dyn.all_finite(v)):
+            status = dyn.NONFINITE
+        if status != dyn.OK:
+            return step, status
+    return n_steps, dyn.OK
+
+
+
+# The checked kernels (Integrator.checked_args): the run kernel between keep_state and
+# dynamics.state_summary, in one compiled call (a Simulation.advance makes no other).
+@jit
+def _rk4_projected_checked(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, keep, summ,
+                           heights):
+    keep_state(x, v, keep)
+    out = _rk4_advance(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, True)
+    return out + dyn.state_summary(x, v, net, act, summ, heights)
+
+
+@jit
+def _rk4_checked(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, keep, summ, heights):
+    keep_state(x, v, keep)
+    out = _rk4_advance(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, False)
+    return out + dyn.state_summary(x, v, net, act, summ, heights)
+
+
+@jit
+def _rattle_checked(x, v, dt, n_steps, net, act, ws, tol, max_iter, acc, x_old, keep, summ,
+                    heights):
+    keep_state(x, v, keep)
+    out = _rattle_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, acc, x_old)
+    return out + dyn.state_summary(x, v, net, act, summ, heights)
+
+
+class RK4Projected(Integrator):
+    """Classical RK4, then mass-weighted projection of positions and velocities after every step
+    (docs/physics.md section 1.2). Four force evaluations per step; steps land on cable kinks."""
+    name = 'rk4_projected'
+    order = 4
+    projected = True
+    evaluations_per_step = 4
+    kernel = staticmethod(_rk4_projected_run)
+    checked = staticmethod(_rk4_projected_checked)
+
+
+class RK4(Integrator):
+    """Classical RK4 without projection: bar lengths drift (shown, not hidden). Steps land on
+    kinks."""
+    name = 'rk4'
+    order = 4
+    evaluations_per_step = 4
+    kernel = staticmethod(_rk4_run)
+    checked = staticmethod(_rk4_checked)
+
+
+class Rattle(Integrator):
+    """Velocity Verlet with RATTLE constraints (see :func:`_rattle_run`): order 2, one force
+    evaluation per step, fixed steps (no kink landing: a variable step would break symplecticity,
+    and a kink costs a second-order method no order)."""
+    name = 'rattle'
+    order = 2
+    projected = True
+    evaluations_per_step = 1
+    kernel = staticmethod(_rattle_run)
+    checked = staticmethod(_rattle_checked)
+
+    def extra_args(self, x, kinks):
+        return self.scratch('acc', x.shape), self.scratch('x_old', x.shape)

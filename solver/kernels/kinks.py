@@ -1,0 +1,74 @@
+"""Where a step should end: the next cable slack/taut kink or contact kink, and the copy of a
+state to restore when a step fails. Shared by every explicit integrator family."""
+import math
+
+from solver._jit import jit
+from solver.kernels import dynamics as dyn
+from solver.kernels.contact import contact_kink
+
+
+@jit
+def next_kink(x, v, acc, net, act, h, ignore):
+    """Earliest time in ``(ignore, h)`` at which a cable is predicted to go slack or taut, from a
+    quadratic Taylor model of ``s - L`` (position, velocity, acceleration); ``h`` if none.
+
+    The tension-only cable law has a kink at ``s = L``; a Runge-Kutta step whose stages straddle it
+    loses its order. Landing steps on kinks restores it (a kink closer than ``ignore`` is taken as
+    already crossed)."""
+    cable_a, cable_b, cable_rot = net[7], net[8], net[10]
+    rest = act[0]
+    t_best = h
+    rotated = cable_rot.shape[0] > 0
+    for c in range(cable_a.shape[0]):
+        a = cable_a[c]
+        b = cable_b[c]
+        if rotated:         # a cable to the image R^r x_b (sym3d)
+            cr = dyn.ROT_C[cable_rot[c]]
+            sr = dyn.ROT_S[cable_rot[c]]
+            dx = cr * x[b, 0] - sr * x[b, 1] - x[a, 0]
+            dy = sr * x[b, 0] + cr * x[b, 1] - x[a, 1]
+            vx = cr * v[b, 0] - sr * v[b, 1] - v[a, 0]
+            vy = sr * v[b, 0] + cr * v[b, 1] - v[a, 1]
+            ax = cr * acc[b, 0] - sr * acc[b, 1] - acc[a, 0]
+            ay = sr * acc[b, 0] + cr * acc[b, 1] - acc[a, 1]
+        else:
+            dx = x[b, 0] - x[a, 0]
+            dy = x[b, 1] - x[a, 1]
+            vx = v[b, 0] - v[a, 0]
+            vy = v[b, 1] - v[a, 1]
+            ax = acc[b, 0] - acc[a, 0]
+            ay = acc[b, 1] - acc[a, 1]
+        dz = x[b, 2] - x[a, 2]
+        vz = v[b, 2] - v[a, 2]
+        az = acc[b, 2] - acc[a, 2]
+        bb = dx * dx + dy * dy + dz * dz
+        bbd = dx * vx + dy * vy + dz * vz
+        bdbd = vx * vx + vy * vy + vz * vz
+        bbdd = dx * ax + dy * ay + dz * az
+        s = math.sqrt(bb)
+        g = s - rest[c]
+        sd = bbd / s
+        sdd = (bdbd + bbdd - sd * sd) / s
+        disc = sd * sd - 2.0 * sdd * g
+        if disc < 0.0:
+            continue
+        q = -0.5 * (sd + math.copysign(math.sqrt(disc), sd))
+        for r in range(2):
+            if r == 0:
+                t = q / (0.5 * sdd) if sdd != 0.0 else -1.0
+            else:
+                t = g / q if q != 0.0 else -1.0
+            if ignore < t < t_best:
+                t_best = t
+    ex = act[3]
+    if ex[2].shape[0] != 0 or ex[3].shape[0] != 0:      # stops and strikers (kernels.contact)
+        t_best = contact_kink(x, v, acc, ex, t_best, ignore)
+    return t_best
+
+
+
+@jit
+def keep_state(x, v, keep):
+    """Copy ``x``, ``v`` into ``keep = (x_keep, v_keep)`` (the state to restore on failure)."""
+    keep[0][:, :] = x
+    keep[1][:, :] = v
