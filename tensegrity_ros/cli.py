@@ -10,6 +10,8 @@ from __future__ import annotations
 import argparse
 import gc
 import json
+import os
+import subprocess
 import sys
 from pathlib import Path
 
@@ -148,17 +150,15 @@ def cmd_run(args):
 
 
 def cmd_bench(args):
-    """Work-precision chart, stability map and (``--peers``) the peer comparison into ``--out``."""
-    from bench.main import main as bench_main
-
-    def log(msg):
-        print(msg, file=sys.stderr, flush=True)
-
-    only = None if args.only is None else set(args.only)
-    written = bench_main(args.out, quick=args.quick, peers=args.peers, only=only, log=log)
-    for path in written:
-        print(path)
-    return 0
+    """``tensegrity bench ARGS``: ``python -m bench ARGS`` from the source checkout (the benchmarks
+    are not part of the installed package)."""
+    root = Path(__file__).resolve().parents[1]
+    if not (root / 'bench' / '__main__.py').exists():
+        raise UserError('bench: the benchmarks live in the source checkout (bench/); run '
+                        '`python -m bench` there')
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(
+        [str(root)] + [p for p in os.environ.get('PYTHONPATH', '').split(os.pathsep) if p]))
+    return subprocess.call([sys.executable, '-m', 'bench', *args.args], env=env)
 
 
 def cmd_replay(args):
@@ -538,20 +538,10 @@ def build_parser():
     p.add_argument('--to-rerun', metavar='OUT.rrd', help='write a Rerun recording instead')
     p.add_argument('--ros-args', nargs=argparse.REMAINDER, help='ROS arguments (remapping)')
     p.set_defaults(func=cmd_replay)
-    p = sub.add_parser('bench', help='work-precision chart, stability map, peer comparison')
-    p.add_argument('--quick', action='store_true',
-                   help='small grids and short windows (smoke run)')
-    p.add_argument('--out', default='bench/results', help='output directory (CSV and PNG)')
-    p.add_argument('--peers', action='store_true', help='also run the peer comparison')
-    p.add_argument('--only', action='append',
-                   choices=('work_precision', 'stability', 'stiff', 'peers', 'rerun', 'sweep',
-                            'soak', 'array'),
-                   help='run only this benchmark (repeatable); stiff: the stiff scenes of '
-                        'work_precision and stability (both also run them); rerun: the cost of '
-                        'a Rerun recording, sweep: the parallel efficiency of a 64-point sweep, '
-                        'soak: the node under a command flood for 10 minutes, array: arrays of '
-                        'columns '
-                        'per column (these four only on request)')
+    p = sub.add_parser('bench', add_help=False,
+                       help='benchmarks: work-precision chart, stability map, peer comparison, '
+                            'adapter costs (python -m bench; --help lists its options)')
+    p.add_argument('args', nargs=argparse.REMAINDER, help='options of python -m bench')
     p.set_defaults(func=cmd_bench)
     p = sub.add_parser('paper', help="the paper's table (FB and RB, v0 = 0.1, 0.125, 0.15) "
                        'under every modelling variant, next to the paper\'s FB values')
@@ -614,7 +604,11 @@ def main(argv=None):
     from solver.simulate.simulation import SimulationDiverged
 
     parser = build_parser()
-    args = parser.parse_args(argv)
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv[:1] == ['bench']:          # its options are python -m bench's own
+        args = argparse.Namespace(func=cmd_bench, args=argv[1:])
+    else:
+        args = parser.parse_args(argv)
     try:
         return args.func(args)
     except SimulationDiverged as exc:

@@ -12,6 +12,7 @@ pytest.importorskip('rclpy')
 mcap_reader = pytest.importorskip('mcap.reader')
 
 from tensegrity_ros.msgs import messages as M  # noqa: E402
+from tensegrity_ros.msgs import style  # noqa: E402
 from tensegrity_ros.io.mcap_reader import LogError, McapLog, load_run  # noqa: E402
 from tensegrity_ros.io.mcap_writer import (DELIMITER, McapRecorder, RecordingError,  # noqa: E402
                                       full_definition, qos_yaml, share_dir)
@@ -254,7 +255,7 @@ def test_log_carries_its_network(log, net):
     assert list(got.cable_kind) == [str(k) for k in net.cable_kind]
     assert (got.n_nodes, got.n_cables, got.n_columns, got.n_prisms) == (
         net.n_nodes, net.n_cables, net.n_columns, net.n_prisms)
-    assert got.tension_scale == 2.0 * M.reference_tension_scale(net)
+    assert got.tension_scale == style.reference_tension_scale(net)
 
 
 def _rrd_columns(path, entity, column, index='sim_time'):

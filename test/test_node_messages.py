@@ -13,7 +13,7 @@ from std_msgs.msg import Float64MultiArray  # noqa: E402
 from solver.build.scene import Scene  # noqa: E402
 from solver.simulate.array import simulation_for
 from tensegrity_ros.node import commands  # noqa: E402
-from tensegrity_ros.msgs import messages
+from tensegrity_ros.msgs import messages, style
 
 
 @pytest.fixture(scope='module')
@@ -63,7 +63,7 @@ def test_frame_messages_round_trip(sim):
 def test_markers_cover_every_member_with_binned_colours(sim):
     f = sim.frame()
     net = sim.network
-    t_max = 2.0 * messages.reference_tension_scale(net)
+    t_max = style.reference_tension_scale(net)
     arr = messages.marker_array(f, net, messages.sim_stamp(f.t), t_max)
     bars = [m for m in arr.markers if m.ns == 'bars']
     cables = [m for m in arr.markers if m.ns == 'cables']

@@ -14,6 +14,7 @@ import numpy as np
 
 from tensegrity_ros.msgs import cdr
 from tensegrity_ros.msgs import messages as M
+from tensegrity_ros.msgs import style
 
 MARKER_RATE_HZ = 20.0       # the node's default marker_rate_hz (docs/interfaces.md section 4)
 
@@ -38,7 +39,7 @@ def network_metadata(network, scene_name=''):
         'cable_kind': json.dumps([str(k) for k in net.cable_kind]),
         'levels_shape': text(np.shape(net.levels)), 'levels': text(np.ravel(net.levels)),
         'x0': text(np.ravel(net.x0)),
-        'tension_scale': repr(2.0 * M.reference_tension_scale(net))}}
+        'tension_scale': repr(style.reference_tension_scale(net))}}
 
 
 def structure_json(network, scene_name, rest):

@@ -22,10 +22,11 @@ import struct
 
 import numpy as np
 
-from tensegrity_ros.msgs import messages as M
+from tensegrity_ros.msgs import style as M
 
 _HEADER = b'\x00\x01\x00\x00'
 LINE_LIST = 5
+FLOAT32 = 7                     # sensor_msgs/PointField.FLOAT32
 ADD = 0
 
 
@@ -129,7 +130,7 @@ def marker_array_cdr(frame, network, stamp, t_max=None):
     arguments."""
     x = np.asarray(frame.positions, dtype=np.float64)
     if t_max is None:
-        t_max = 2.0 * M.reference_tension_scale(network)
+        t_max = M.reference_tension_scale(network)
     bins, colors = M.cable_bins(frame.tension, t_max)
     bar_a = np.concatenate([network.bar_a, network.edge_a])
     bar_b = np.concatenate([network.bar_b, network.edge_b])
@@ -178,12 +179,12 @@ def _cloud_middle(n_points):
     w.pack('iI', 4, 0, 0)                                         # stamp placeholder
     w.string(M.FRAME_ID)
     w.pack('II', 4, 1, n_points)                                  # height, width
-    w.pack('I', 4, len(M.XYZ_FIELDS))
-    for f in M.XYZ_FIELDS:
-        w.string(f.name)
-        w.pack('I', 4, f.offset)
-        w.pack('B', 1, f.datatype)
-        w.pack('I', 4, f.count)
+    w.pack('I', 4, len(M.XYZ))
+    for name, offset in M.XYZ:
+        w.string(name)
+        w.pack('I', 4, offset)
+        w.pack('B', 1, FLOAT32)
+        w.pack('I', 4, 1)
     w.pack('?', 1, False)                                         # is_bigendian
     w.pack('II', 4, 12, 12 * n_points)                            # point_step, row_step
     w.pack('I', 4, 12 * n_points)                                 # data count
@@ -203,6 +204,10 @@ def clock_cdr(stamp):
 
 
 def frame_messages_cdr(frame, network, stamp=None, markers=True, clock=False, t_max=None):
-    """:func:`messages.frame_messages` as serialized messages: dict topic key -> bytes."""
-    return M.frame_messages(frame, network, stamp=stamp, markers=markers, clock=clock,
-                            t_max=t_max, serialized=True)
+    """:func:`tensegrity_ros.msgs.messages.frame_messages` as serialized messages: dict topic
+    key -> bytes."""
+    return M.frame_topics(frame, network, _BYTES, stamp, markers, clock, t_max)
+
+
+_BYTES = M.Builders(cloud=nodes_cloud_cdr, multi=multi_array_cdr, markers=marker_array_cdr,
+                    clock=clock_cdr)

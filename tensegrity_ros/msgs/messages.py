@@ -23,7 +23,6 @@ import array
 import math
 
 import numpy as np
-from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Point, PointStamped
 from rosgraph_msgs.msg import Clock
@@ -31,25 +30,11 @@ from sensor_msgs.msg import Image, PointCloud2, PointField
 from std_msgs.msg import ColorRGBA, Float64MultiArray, MultiArrayDimension, String
 from visualization_msgs.msg import Marker, MarkerArray
 
-FRAME_ID = 'world'
-NAMESPACE = '/tensegrity'
-NODE_NAME = 'tensegrity_sim'
+from tensegrity_ros.msgs import style
+from tensegrity_ros.msgs.style import (BAR_COLOR, COMMANDS, FRAME_ID, LINE_WIDTH_M,  # noqa: F401
+                                       N_BINS, NAMESPACE, NODE_NAME, OPTIONAL, PUBLISHED, TYPES,
+                                       XYZ, check_finite, resolve_topic, sim_stamp, stamp_to_ns)
 
-TYPES = {
-    '~/nodes': 'sensor_msgs/msg/PointCloud2',
-    '~/strain': 'std_msgs/msg/Float64MultiArray',
-    '~/cable_tension': 'std_msgs/msg/Float64MultiArray',
-    '~/markers': 'visualization_msgs/msg/MarkerArray',
-    '~/base_force': 'std_msgs/msg/Float64MultiArray',
-    '~/striker': 'std_msgs/msg/Float64MultiArray',
-    '/clock': 'rosgraph_msgs/msg/Clock',
-    '/diagnostics': 'diagnostic_msgs/msg/DiagnosticArray',
-    '~/cmd/prestrain': 'std_msgs/msg/Float64MultiArray',
-    '~/cmd/impact': 'std_msgs/msg/Float64MultiArray',
-    '~/structure': 'std_msgs/msg/String',     # JSON, transient-local, once per activation
-    '~/cmd/focus': 'geometry_msgs/msg/PointStamped',
-    '~/field': 'sensor_msgs/msg/Image',       # 32FC1 peak pressure map, at field_rate_hz
-}
 MSG_CLASSES = {
     '~/nodes': PointCloud2, '~/strain': Float64MultiArray, '~/cable_tension': Float64MultiArray,
     '~/markers': MarkerArray, '~/base_force': Float64MultiArray,
@@ -57,38 +42,8 @@ MSG_CLASSES = {
     '~/cmd/prestrain': Float64MultiArray, '~/cmd/impact': Float64MultiArray,
     '~/structure': String, '~/cmd/focus': PointStamped, '~/field': Image,
 }
-PUBLISHED = ('~/nodes', '~/strain', '~/cable_tension', '~/markers', '/clock', '/diagnostics',
-             '~/base_force')
-OPTIONAL = ('~/striker',)      # published only by scenes that have strikers
-COMMANDS = ('~/cmd/prestrain', '~/cmd/impact')
-
-BAR_COLOR = (0.55, 0.55, 0.6, 1.0)
-LINE_WIDTH_M = 3.0e-4
-N_BINS = 10                   # tension colour bins of the cable markers
-XYZ_FIELDS = [PointField(name=n, offset=4 * i, datatype=PointField.FLOAT32, count=1)
-               for i, n in enumerate('xyz')]
-
-
-def resolve_topic(key, namespace=NAMESPACE, node=NODE_NAME):
-    """Full topic name of a key: ``'~/nodes'`` -> ``'/tensegrity/tensegrity_sim/nodes'``;
-    absolute keys are returned unchanged."""
-    if key.startswith('~/'):
-        ns = namespace.rstrip('/')
-        return f'{ns}/{node}/{key[2:]}'
-    return key
-
-
-def sim_stamp(t):
-    """``builtin_interfaces/Time`` of a simulation time ``t`` s (>= 0), rounded to the ns."""
-    ns = int(round(float(t) * 1e9))
-    if ns < 0:
-        raise ValueError(f'stamp: negative simulation time {t!r}')
-    return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
-
-
-def stamp_to_ns(stamp):
-    """Nanoseconds of a ``builtin_interfaces/Time``."""
-    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+XYZ_FIELDS = [PointField(name=n, offset=offset, datatype=PointField.FLOAT32, count=1)
+              for n, offset in XYZ]
 
 
 def _header(msg, stamp):
@@ -169,20 +124,6 @@ def cloud_positions(msg):
     return raw.reshape(msg.width * msg.height, 3).astype(np.float64)
 
 
-def tension_colors(tension, t_max):
-    """RGBA (n_cables, 4) in [0, 1]: blue (low) to red (``t_max``); slack cables dimmed grey."""
-    t = np.asarray(tension, dtype=np.float64)
-    u = np.clip(t / t_max, 0.0, 1.0) if t_max > 0 else np.zeros_like(t)
-    rgba = np.empty((len(t), 4))
-    rgba[:, 0] = u
-    rgba[:, 1] = 0.2 * (1.0 - u)
-    rgba[:, 2] = 1.0 - u
-    rgba[:, 3] = 1.0
-    slack = t <= 0.0
-    rgba[slack] = (0.5, 0.5, 0.5, 0.25)
-    return rgba
-
-
 def _line_list(marker_id, ns, stamp, x, a, b, color):
     m = _header(Marker(), stamp)
     m.ns = ns
@@ -200,17 +141,6 @@ def _line_list(marker_id, ns, stamp, x, a, b, color):
     return m
 
 
-def cable_bins(tension, t_max):
-    """Colour bin per cable (n_cables,) int: 0 slack, k = 1..N_BINS for tensions in
-    ``[(k-1), k) * t_max / N_BINS`` (the last bin also holds everything above ``t_max``), and the
-    RGBA colour of each bin (N_BINS + 1, 4): :func:`tension_colors` at the bin centre."""
-    tension = np.asarray(tension, dtype=np.float64)
-    u = np.clip(tension / t_max, 0.0, 1.0)
-    bins = np.where(tension <= 0.0, 0, 1 + np.minimum((u * N_BINS).astype(np.int64), N_BINS - 1))
-    centres = np.concatenate([[0.0], (np.arange(N_BINS) + 0.5) / N_BINS * t_max])
-    return bins, tension_colors(centres, t_max)
-
-
 def marker_array(frame, network, stamp, t_max=None):
     """``MarkerArray`` of line lists: bars and rigid edges (ns ``bars``, id 0, grey) and cables
     coloured by tension (ns ``cables``): id 0 the slack cables (dimmed), ids 1..:data:`N_BINS` the
@@ -219,10 +149,10 @@ def marker_array(frame, network, stamp, t_max=None):
     (possibly empty), so a viewer never keeps a stale one."""
     x = np.asarray(frame.positions, dtype=np.float64)
     if t_max is None:
-        t_max = 2.0 * reference_tension_scale(network)
+        t_max = style.reference_tension_scale(network)
     bar_a = np.concatenate([network.bar_a, network.edge_a])
     bar_b = np.concatenate([network.bar_b, network.edge_b])
-    bins, colors = cable_bins(frame.tension, t_max)
+    bins, colors = style.cable_bins(frame.tension, t_max)
     arr = MarkerArray()
     arr.markers = [_line_list(0, 'bars', stamp, x, bar_a, bar_b, BAR_COLOR)] + [
         _line_list(k, 'cables', stamp, x, network.cable_a[bins == k],
@@ -230,64 +160,13 @@ def marker_array(frame, network, stamp, t_max=None):
     return arr
 
 
-def reference_tension_scale(network):
-    """Largest cable tension N of the reference geometry at the network's rest lengths."""
-    s = np.linalg.norm(network.x0[network.cable_b] - network.x0[network.cable_a], axis=1)
-    L = network.cable_rest_length
-    t = np.where(s > L, network.cable_EA * (s - L) / L, 0.0)
-    return float(t.max()) if t.size and t.max() > 0 else 1.0
-
-
-def check_finite(frame):
-    """``ValueError`` if a frame holds a non-finite value (nothing NaN is ever published)."""
-    for name in ('positions', 'strain', 'tension', 'base_force', 'striker'):
-        value = getattr(frame, name, None)
-        if value is not None and not np.all(np.isfinite(value)):
-            raise ValueError(f'frame at t = {frame.t:.6g} s: {name} is not finite')
-
-
-def frame_messages(frame, network, stamp=None, markers=True, clock=False, t_max=None,
-                   serialized=False):
-    """Messages of one publish frame: dict topic key -> message.
-
-    Always ``'~/nodes'`` (PointCloud2), ``'~/strain'`` (dims ``column``, ``prism``) and
-    ``'~/cable_tension'`` (dim ``cable``, N); ``'~/base_force'`` (dim ``column``, N, positive
-    compressive) when the frame has one value per column; ``'~/striker'`` (dims ``column``,
-    ``state``: face height m, axial velocity m/s) when the frame has strikers;
-    ``'~/markers'`` when ``markers``; ``'/clock'`` when ``clock``. ``stamp`` defaults to
-    :func:`sim_stamp` of ``frame.t``. With
-    ``serialized`` the values are the CDR bytes of the same messages written from the arrays
-    (:mod:`tensegrity_ros.msgs.cdr`, for ``Publisher.publish(bytes)``). Raises ``ValueError`` if
-    the
-    frame holds a non-finite value (nothing NaN is ever published)."""
-    check_finite(frame)
-    if stamp is None:
-        stamp = sim_stamp(frame.t)
-    if serialized:
-        from tensegrity_ros.msgs import cdr
-        cloud, multi, marker, clock_msg = (cdr.nodes_cloud_cdr, cdr.multi_array_cdr,
-                                           cdr.marker_array_cdr, cdr.clock_cdr)
-    else:
-        cloud, multi, marker = nodes_cloud, multi_array, marker_array
-
-        def clock_msg(s):
-            return Clock(clock=s)
-    out = {
-        '~/nodes': cloud(frame.positions, stamp),
-        '~/strain': multi(np.asarray(frame.strain).reshape(network.n_columns, network.n_prisms),
-                          ('column', 'prism')),
-        '~/cable_tension': multi(frame.tension, ('cable',)),
-    }
-    base = np.asarray(getattr(frame, 'base_force', ()))
-    if base.shape == (network.n_columns,) and base.size:
-        out['~/base_force'] = multi(base, ('column',))
-    if getattr(frame, 'striker', None) is not None:
-        out['~/striker'] = multi(np.ascontiguousarray(frame.striker), ('column', 'state'))
-    if markers:
-        out['~/markers'] = marker(frame, network, stamp, t_max)
-    if clock:
-        out['/clock'] = clock_msg(stamp)
-    return out
+def frame_messages(frame, network, stamp=None, markers=True, clock=False, t_max=None):
+    """Messages of one publish frame: dict topic key -> message object (see
+    :func:`tensegrity_ros.msgs.style.frame_topics` for the topics; :func:`tensegrity_ros.msgs.cdr.
+    frame_messages_cdr` gives the same messages as CDR bytes). ``stamp`` defaults to
+    :func:`sim_stamp` of ``frame.t``. Raises ``ValueError`` if the frame holds a non-finite value
+    (nothing NaN is ever published)."""
+    return style.frame_topics(frame, network, _OBJECTS, stamp, markers, clock, t_max)
 
 
 def diagnostics_message(stamp, values, level=0, message='', name='tensegrity_sim',
@@ -309,3 +188,7 @@ def diagnostics_message(stamp, values, level=0, message='', name='tensegrity_sim
     arr.header.frame_id = FRAME_ID
     arr.status = [status]
     return arr
+
+
+_OBJECTS = style.Builders(cloud=nodes_cloud, multi=multi_array, markers=marker_array,
+                          clock=lambda stamp: Clock(clock=stamp))

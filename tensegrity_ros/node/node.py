@@ -49,7 +49,7 @@ from std_srvs.srv import SetBool, Trigger
 
 from solver.simulate.simulation import SimulationDiverged
 
-from tensegrity_ros.msgs import cdr, messages
+from tensegrity_ros.msgs import cdr, messages, style
 
 from tensegrity_ros.node import commands
 from tensegrity_ros.node.params import (DEFAULTS, DESCRIPTIONS, RANGES, READ_ONLY, RESTART,  # noqa: F401
@@ -243,7 +243,7 @@ class TensegritySim(LifecycleNode):
         net = self.sim.network
         self._cross_prism = (self.sim.prestrain_map.cross_prism
                              if self.sim.prestrain is not None else None)
-        self._t_max = 2.0 * messages.reference_tension_scale(net)
+        self._t_max = style.reference_tension_scale(net)
         self._pubs = {key: self._publisher(key)
                       for key in messages.PUBLISHED + (
                           messages.OPTIONAL if self.sim.striker() is not None else ())

@@ -1,0 +1,46 @@
+"""``python -m bench`` (what ``tensegrity bench`` runs): the benchmarks, from the source checkout.
+
+    python -m bench [--only NAME ...] [--quick] [--peers] [--out DIR]
+
+Each benchmark writes its CSV, JSON and PNG files into ``--out`` and prints their paths.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+
+from bench.main import main as bench_main
+
+CHOICES = ('work_precision', 'stability', 'stiff', 'peers', 'rerun', 'sweep', 'soak', 'array')
+
+
+def parser():
+    p = argparse.ArgumentParser(prog='python -m bench', description='work-precision chart, '
+                                'stability map, peer comparison and adapter costs')
+    p.add_argument('--quick', action='store_true',
+                   help='small grids and short windows (smoke run)')
+    p.add_argument('--out', default='bench/results', help='output directory (CSV and PNG)')
+    p.add_argument('--peers', action='store_true', help='also run the peer comparison')
+    p.add_argument('--only', action='append', choices=CHOICES,
+                   help='run only this benchmark (repeatable); stiff: the stiff scenes of '
+                        'work_precision and stability (both also run them); rerun: the cost of '
+                        'a Rerun recording, sweep: the parallel efficiency of a 64-point sweep, '
+                        'soak: the node under a command flood for 10 minutes, array: arrays of '
+                        'columns per column (these four only on request)')
+    return p
+
+
+def main(argv=None):
+    args = parser().parse_args(argv)
+
+    def log(msg):
+        print(msg, file=sys.stderr, flush=True)
+
+    only = None if args.only is None else set(args.only)
+    for path in bench_main(args.out, quick=args.quick, peers=args.peers, only=only, log=log):
+        print(path)
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
