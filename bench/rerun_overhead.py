@@ -8,24 +8,22 @@ closing of a recording are a fixed cost that weighs less in longer runs) at the 
 (``run.output_dt``), alternately plain and recording to a ``.rrd`` file (recorder construction,
 every frame and ``close()`` included), ``repeats`` pairs after one discarded warm-up pair. Reports
 the overhead ``recorded / plain - 1`` of wall time and of CPU time (all threads of this process
-and of the recorder's helper process, as it reports it: Rerun's encoder and writer threads
-count), per pair, as the median of the
+Rerun's encoder and writer threads count), per pair, as the median of the
 pairs (with a 90 % bootstrap interval of that median: :func:`median_interval`) and as the ratio
 of the best (smallest) times of each kind (the least disturbed by other processes). Each pair is
 followed by a recording of the same frames fed from memory (the recording alone, no simulation):
 its best time over the best plain run is the cost of recording with the least noise. Writes
 ``rerun_overhead.csv`` (one row per pair) and ``rerun_overhead.json`` (the medians, the time a
-fresh process takes to import the recorder, not rerun-sdk: the helper does, and the time of a
-first small recording in that process, which starts the helper process: paid once per
-process). Only ratios measured in the same process are reported; the machine may be busy.
+fresh process takes to import the recorder and rerun-sdk, and the time of a first small
+recording in that process: paid once per process). Only ratios measured in the same process are reported; the machine may be busy.
 
-The recorder hands the frames to a helper process through shared memory (the helper, started by
-the warm-up pair and kept, converts them; Rerun's threads in it encode and write): the timing ends
-when ``close()`` returns, which is after the file was written to its end (footer included).
+The recorder buffers the frames and sends them as columns every ``flush_every`` frames; Rerun's
+threads encode and write: the timing ends when ``close()`` returns, which is after the file was
+written to its end (footer included).
 Every recorded file is checked after its timing: it must hold every frame and read without the
 "no footer" warning. ``others_cores`` is the CPU time other processes used during a pair per
 second of it, ``steal_cores`` the time the hypervisor took from this machine's vCPUs (both from
-``/proc/stat``, less this process and the helper; 1.0 = one of the two cores all along): with a
+``/proc/stat``, less this process; 1.0 = one of the two cores all along): with a
 busy or stolen second core the recording's threads compete with the simulation, so the summary
 also gives the median of the quiet pairs (the two below :data:`QUIET_CORES` together), besides
 the median of all pairs, and says ``HOST BUSY`` when the median pair was not quiet: the figure
@@ -47,8 +45,7 @@ import warnings
 from pathlib import Path
 
 # A pair (or a run, by its median pair) counts as quiet when other processes and the hypervisor
-# (steal) took less than this many cores during it. Session 4: 16 runs below it measured +9.9 to
-# +18.1 %, the 7 above it +17.9 to +48.3 %.
+# (steal) took less than this many cores during it.
 QUIET_CORES = 0.1
 
 
@@ -78,32 +75,28 @@ def check_complete(path, n_frames):
 
 
 def _one(sim, scene, path, frames=None):
-    """(wall s, CPU s of this process and of the recorder's helper process, main-thread CPU s,
-    helper CPU s) of one run, plain (``path`` None) or recorded to ``path``; with ``frames`` (the
+    """(wall s, CPU s of this process, main-thread CPU s, 0.0) of one run, plain (``path`` None) or recorded to ``path``; with ``frames`` (the
     run's frames), only recording those frames is timed."""
-    from solver.simulate.runner import frame_count, run
-    from tensegrity_ros.io.rerun_log import RerunRecorder
+    from solver.simulate.runner import run
+    from tensegrity_ros.io.rerun_sink import RerunRecorder
 
     v0 = scene['loading.impact.v0']
     t_end, output_dt = scene['run.t_end'], scene['run.output_dt']
     sim.reset()
     sim.apply_impact(v0, scene['loading.impact.columns'])
     w0, c0, m0 = time.perf_counter(), time.process_time(), time.thread_time()
-    helper = 0.0
     if path is None:
         run(sim, t_end, output_dt)
     else:
-        n_frames = frame_count(t_end, output_dt) if frames is None else len(frames)
-        with RerunRecorder(sim.network, path, expected_frames=n_frames) as rec:   # as the CLI
+        with RerunRecorder(sim.network, path) as rec:              # as the CLI
             rec.command(sim.t, f'impact v0 = {v0} m/s')
             if frames is None:
                 run(sim, t_end, output_dt, on_frame=rec.frame)
             else:
                 for f in frames:
                     rec.frame(f)
-        helper = rec.helper_cpu_s
     w, c, m = time.perf_counter() - w0, time.process_time() - c0, time.thread_time() - m0
-    return w, c + helper, m, helper
+    return w, c, m, 0.0
 
 
 def measure(scene_path='config/scenes/fb_column.yaml', repeats=3, log=print, t_end=None):
@@ -118,7 +111,7 @@ def measure(scene_path='config/scenes/fb_column.yaml', repeats=3, log=print, t_e
         scene = scene.with_overrides([('run.t_end', float(t_end))])
     sim = simulation_for(scene)
     sim.advance(sim.dt)                       # compile (or load cached) kernels first
-    from tensegrity_ros.io import rerun_log  # noqa: F401
+    from tensegrity_ros.io import rerun_sink  # noqa: F401
     gc.freeze()                               # as tensegrity run does before its run
     sim.reset()
     sim.apply_impact(scene['loading.impact.v0'], scene['loading.impact.columns'])
@@ -175,22 +168,19 @@ def median_interval(values, level=0.9, resamples=2000, seed=0):
 
 def import_cost(repeats=3):
     """Medians over ``repeats`` fresh processes that have already set up a simulation: (seconds
-    to import the recorder, which leaves rerun-sdk and pyarrow to the helper process; seconds of a
-    first, 3-frame recording in that process: it starts the helper process). What a process pays
-    once, besides the run's own cost
-    (``tensegrity run --rerun`` starts the helper ahead, while it builds the simulation); the
-    second figure shows the first-use costs the warm benchmark above does not see."""
+    to import the recorder and rerun-sdk; seconds of a first, 3-frame recording in that process).
+    What a process pays once, besides the run's own cost; the second figure shows the first-use costs the warm benchmark above does not see."""
     code = '\n'.join([
         'import gc, tempfile, time',
         'from solver.build.scene import Scene',
-        'from solver.simulate.simulation import Simulation',
+        'from solver.simulate.array import simulation_for',
         "sim = simulation_for(Scene.load('config/scenes/fb_column.yaml'))",
         'frames = []',
         'for _ in range(3):',
         '    frames.append(sim.frame())',
         '    sim.advance(0.005)',
         't0 = time.perf_counter()',
-        'from tensegrity_ros.io.rerun_log import RerunRecorder',
+        'from tensegrity_ros.io.rerun_sink import RerunRecorder',
         't1 = time.perf_counter()',
         'gc.freeze()                       # as tensegrity run',
         'with tempfile.TemporaryDirectory() as tmp:',
@@ -238,8 +228,8 @@ def main(out='bench/results', quick=False, log=print, scene='config/scenes/fb_co
                 statistics.median(r['steal_cores'] for r in rows))
         if sum(busy) >= QUIET_CORES:
             log(f'HOST BUSY: other processes used {busy[0]:.2f} and the hypervisor took (steal) '
-                f'{busy[1]:.2f} of a core during the median pair: the recorder relies on the '
-                f'second vCPU, so this figure shows the host, not the recording; measure again '
+                f'{busy[1]:.2f} of a core during the median pair: Rerun's threads '
+                f'use the second vCPU, so this figure shows the host, not the recording; measure again '
                 f'when the machine is quiet')
     log(f'rerun recording overhead, median of {len(rows)} pairs: wall {100 * wall:+.1f} % '
         f'(90 % interval of the median {100 * wall_lo:+.1f} to {100 * wall_hi:+.1f} %), '
@@ -250,8 +240,8 @@ def main(out='bench/results', quick=False, log=print, scene='config/scenes/fb_co
     imp, first = import_cost()
     plain = statistics.median(r['wall_plain_s'] for r in rows)
     log(f'once per process (median of 3 fresh processes): importing the recorder '
-        f'{imp:.2f} s, {imp / plain:.1f}x the plain run; a first 3-frame recording, which '
-        f'starts the helper process, {1e3 * first:.1f} ms')
+        f'{imp:.2f} s, {imp / plain:.1f}x the plain run; a first 3-frame recording '
+        f'{1e3 * first:.1f} ms')
     summary = path.with_suffix('.json')
     summary.write_text(json.dumps({
         'pairs': len(rows), 'wall_overhead_median': wall,

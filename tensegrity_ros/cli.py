@@ -53,12 +53,8 @@ def _open_mcap(stack, frame_sinks, scene, sim, path):
 def _open_rerun(stack, frame_sinks, scene, sim, path=None, url=None):
     """Record the run to a Rerun ``.rrd`` at ``path`` and/or stream it to the viewer at ``url``;
     closed by ``stack``. Logs the impact applied before the run as a command event."""
-    from solver.simulate.runner import frame_count
-
-    from tensegrity_ros.io.rerun_log import RerunRecorder
-    n_frames = frame_count(scene['run.t_end'], scene['run.output_dt'])
-    recorder = stack.enter_context(RerunRecorder(sim.network, path, connect=url,
-                                                 expected_frames=n_frames))
+    from tensegrity_ros.io.rerun_sink import RerunRecorder
+    recorder = stack.enter_context(RerunRecorder(sim.network, path, connect=url))
     v0 = scene['loading.impact.v0']
     if v0:
         columns = scene['loading.impact.columns']
@@ -84,9 +80,7 @@ def cmd_run(args):
     from solver.simulate.runner import frame_count, simulate
 
     if args.rerun or args.rerun_connect:
-        from tensegrity_ros.io import rerun_log
-        rerun_log.prestart()     # the recorder's helper process starts while the run is set up
-                                 # (the module is imported before the gc.freeze() below)
+        from tensegrity_ros.io import rerun_sink  # noqa: F401  (imported before gc.freeze below)
     outputs, ctx = {}, {}
 
     def setup(stack, scene, sim):
@@ -164,7 +158,8 @@ def cmd_bench(args):
 def cmd_replay(args):
     """``tensegrity replay RUN.mcap``: republish a log over ROS 2, or convert it to Rerun."""
     from tensegrity_ros.io.mcap_reader import LogError, McapLog
-    from tensegrity_ros.node.replay import ReplayError, replay_main, to_rerun
+    from tensegrity_ros.io.convert import to_rerun
+    from tensegrity_ros.node.replay import ReplayError, replay_main
     try:
         McapLog(args.log)
         if args.to_rerun:
@@ -252,7 +247,7 @@ def lens_recorder(scene, path):
     from solver.build.structures import build_network
 
     from solver.studies.lens_record import grid_extent
-    from tensegrity_ros.io.rerun_log import RerunRecorder
+    from tensegrity_ros.io.rerun_sink import RerunRecorder
     xs, zs = lens_field_grid(lens.base_x(scene))
     try:
         return RerunRecorder(build_network(scene), path, field_grid=grid_extent(xs, zs))

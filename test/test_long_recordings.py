@@ -23,7 +23,7 @@ pytest.importorskip('rerun')
 from rerun.chunk import RrdReader  # noqa: E402
 
 from tensegrity_ros.io.mcap_reader import McapLog  # noqa: E402
-from tensegrity_ros.io.rerun_log import RerunRecorder  # noqa: E402
+from tensegrity_ros.io.rerun_sink import RerunRecorder  # noqa: E402
 
 FB = ROOT / 'config' / 'scenes' / 'fb_column.yaml'
 DEFAULT_HELD = RerunRecorder.n_buffers * 50          # frames the batch buffers hold by default

@@ -277,7 +277,7 @@ def _rrd_columns(path, entity, column, index='sim_time'):
 def test_to_rerun_has_the_live_recording_layout(log, frames, tmp_path):
     """A log with its network converts through RerunRecorder: nodes, bars, cables, strain."""
     pytest.importorskip('rerun.chunk')
-    from tensegrity_ros.node.replay import to_rerun
+    from tensegrity_ros.io.convert import to_rerun
     path, written = log
     out = tmp_path / 'run.rrd'
     assert to_rerun(path, out) == 3 * len(frames) + 1
@@ -293,7 +293,7 @@ def test_to_rerun_has_the_live_recording_layout(log, frames, tmp_path):
 
 def test_to_rerun_without_network_converts_topic_by_topic(net, frames, tmp_path):
     chunk = pytest.importorskip('rerun.chunk')
-    from tensegrity_ros.node.replay import to_rerun
+    from tensegrity_ros.io.convert import to_rerun
     path = tmp_path / 'bare.mcap'
     written = record_frames(path, frames, net, marker_every=3, with_network=False)
     assert load_run(path).network is None

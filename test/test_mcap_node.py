@@ -118,7 +118,7 @@ def test_node_log_holds_what_was_published_and_received(tmp_path):
     np.testing.assert_array_equal(run.network.cable_a, sim.network.cable_a)
     np.testing.assert_array_equal(run.network.x0, sim.network.x0)
     # converts to the live Rerun layout (energy from the node's /diagnostics)
-    from tensegrity_ros.node.replay import to_rerun
+    from tensegrity_ros.io.convert import to_rerun
     assert to_rerun(path, tmp_path / 'node.rrd') >= 3 * len(run.time)
     # at rest before the command; the impact shows in the strain after it
     before = run.strain[run.time <= run.command_time[0]]

@@ -131,7 +131,7 @@ def test_sigint_and_sigterm_finish_the_file(tmp_path, sig):
 def test_recorder_left_open_is_finished_at_exit(tmp_path):
     from mcap.reader import make_reader
     path = tmp_path / 'open.mcap'
-    script = ('import sys; from tensegrity_ros import messages as M; '
+    script = ('import sys; from tensegrity_ros.msgs import messages as M; '
               'from tensegrity_ros.io.mcap_writer import McapRecorder; '
               'rec = McapRecorder(sys.argv[1]); '
               "[rec.write('/x', M.command_array([k], 'all'), k) for k in range(7)]")

@@ -1,4 +1,4 @@
-"""Rerun recordings (tensegrity_ros/io/rerun_log.py) read back with rerun's own reader.
+"""Rerun recordings (tensegrity_ros/io/rerun_sink.py) read back with rerun's own reader.
 
 rerun-sdk 0.41 has no ``rerun.dataframe`` module any more (its dataframe queries need the optional
 ``datafusion`` package); the recording is read with ``rerun.chunk.RrdReader``, chunk by chunk, as
@@ -24,7 +24,8 @@ from rerun.chunk import RrdReader  # noqa: E402
 from solver.simulate.runner import run  # noqa: E402
 from solver.build.scene import Scene  # noqa: E402
 from solver.simulate.array import simulation_for
-from tensegrity_ros.io.rerun_log import RerunRecorder, reference_tension_scale  # noqa: E402
+from tensegrity_ros.io.rerun_sink import RerunRecorder, heat_map_grid  # noqa: E402
+from tensegrity_ros.msgs.style import reference_tension_scale  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 FB = ROOT / 'config' / 'scenes' / 'fb_column.yaml'
@@ -147,7 +148,8 @@ def test_values_equal_the_solver_frames_at_chosen_times(recorded):
 
 
 def test_cable_colours_follow_tension_and_dim_slack_cables(recorded):
-    messages = pytest.importorskip('tensegrity_ros.msgs.messages')
+    """Colour of a taut cable: u = T / scale clipped to [0, 1] as (u, 0.2 (1 - u), 1 - u), opaque
+    (the ROS markers' law, written out here); slack cables grey and translucent."""
     sim, frames, data, _ = recorded
     scale = reference_tension_scale(sim.network)
     f = max(frames, key=lambda fr: int(np.sum(fr.tension <= 0)))
@@ -155,9 +157,10 @@ def test_cable_colours_follow_tension_and_dim_slack_cables(recorded):
     assert slack.any() and (~slack).any()
     packed = at(data['/world/cables'], f.t, 'LineStrips3D:colors').astype(np.uint32)
     rgba = np.stack([(packed >> s) & 0xFF for s in (24, 16, 8, 0)], axis=1).astype(float)
-    want = 255.0 * messages.tension_colors(f.tension, scale)   # the ROS markers' colours
-    assert np.max(np.abs(rgba - want)) <= 1.5                   # 256 colour levels
-    assert np.all(rgba[slack, 3] < 100) and np.all(rgba[~slack, 3] == 255)
+    u = np.clip(f.tension / scale, 0.0, 1.0)
+    want = 255.0 * np.stack([u, 0.2 * (1 - u), 1 - u, np.ones_like(u)], axis=1)
+    assert np.max(np.abs(rgba[~slack] - want[~slack])) <= 0.5          # rounded to 8 bits
+    assert np.all(rgba[slack, 3] < 100) and np.all(rgba[slack, :3] == 128)
 
 
 def test_topology_is_static_and_matches_the_network(recorded):
@@ -335,71 +338,6 @@ def test_connect_streams_to_a_running_viewer(tmp_path):
                                   f.strain[0])
 
 
-def test_packed_batch_equals_numpy_gathers():
-    """The batch packing (every array Rerun gets from a batch buffer) against plain NumPy
-    gathers per array: float32 positions, the colours of the buffer's tensions (slack and clipped
-    included; the colour law itself is checked against the ROS markers' in
-    test_cable_colours_follow_tension_and_dim_slack_cables), the strain per column and the times
-    in ns; three columns, so the column layout is exercised."""
-    from tensegrity_ros.io.rerun_writer import _Strips, _pack, tension_colors, trails
-    from solver.build import structures
-    net = structures.column(n_prisms=3, n_columns=3)
-    rng = np.random.default_rng(4)
-    n_t, n_x, n_p = 7, 3 * net.n_nodes, net.n_prisms
-    n_s, n_c = net.n_columns * n_p, net.n_cables
-    rows = rng.normal(size=(10, n_x + n_s + n_c + 3))          # 10 rows buffered, 7 used
-    ten = rows[:, n_x + n_s:n_x + n_s + n_c]
-    ten[:, ::3] = 0.0                                          # slack
-    ten[:, 1::5] *= 1e3                                        # beyond the top of the ramp
-    rows[:, -3] = np.arange(10) * 0.005 + 1e-10
-    bars = _Strips(trails(net.bar_a, net.bar_b, net.n_nodes), n_t)
-    cables = _Strips(np.stack([net.cable_a, net.cable_b], axis=1), n_t)
-    scale = 3.7
-    nodes, b, c, colors, strain, energy, cerr, times = _pack(
-        rows, n_t, n_x, n_p, n_s, n_c, bars.index, cables.index, scale)
-    used = rows[:n_t]
-    np.testing.assert_array_equal(nodes, used[:, :n_x].astype(np.float32).ravel())
-    np.testing.assert_array_equal(b, used[:, bars.index].astype(np.float32).ravel())
-    np.testing.assert_array_equal(c, used[:, cables.index].astype(np.float32).ravel())
-    np.testing.assert_array_equal(colors, tension_colors(used[:, n_x + n_s:n_x + n_s + n_c],
-                                                         scale).ravel())
-    want = used[:, n_x:n_x + n_s].reshape(n_t, net.n_columns, n_p).transpose(1, 0, 2)
-    np.testing.assert_array_equal(strain, want.ravel())
-    np.testing.assert_array_equal(energy, used[:, -2])
-    np.testing.assert_array_equal(cerr, used[:, -1])
-    np.testing.assert_array_equal(times, np.rint(used[:, -3] * 1e9).astype(np.int64))
-
-
-def test_static_entities_equal_what_rerun_archetypes_log(recorded):
-    """The recorder writes the network's static arrays (topology, series names) as Arrow arrays
-    built directly; every static component equals what rerun's own archetypes log."""
-    from tensegrity_ros.io.rerun_writer import static_archetypes
-    sim, _, data, _ = recorded
-    for path, archetype in static_archetypes(sim.network, reference_tension_scale(sim.network)):
-        got = data['/' + path]['static']
-        for batch in archetype.as_component_batches():
-            name = batch.component_descriptor().component
-            want = batch.as_arrow_array()
-            assert got[name].type.value_type == want.type, (path, name)
-            assert got[name].flatten().to_pylist() == want.to_pylist(), (path, name)
-        assert len(got) == len(list(archetype.as_component_batches())), path
-
-
-def test_tensor_data_equals_rerun_tensor():
-    from tensegrity_ros.io.rerun_writer import tensor_data
-    image = np.random.default_rng(2).normal(size=(5, 9))
-    want = [b.as_arrow_array() for b in rr.Tensor(image, dim_names=('prism', 'frame'))
-            .as_component_batches() if b.component_descriptor() == rr.Tensor.descriptor_data()]
-    got = tensor_data(image, ('prism', 'frame'))
-    assert got.type == want[0].type and got.to_pylist() == want[0].to_pylist()
-    # a strided view (as the wave ring hands over) gives the same; the values are a copy
-    ring = np.zeros((5, 20))
-    ring[:, 3:12] = image
-    view = tensor_data(ring[:, 3:12], ('prism', 'frame'))
-    ring[:] = np.nan
-    assert view.to_pylist() == want[0].to_pylist()
-
-
 def test_two_columns_record_one_strain_series_and_wave_per_column(tmp_path):
     scene = Scene.load(FB).with_overrides(['structure.n_prisms=4', 'structure.n_columns=2',
                                            'run.t_end=0.03', 'model=full3d'])
@@ -422,59 +360,37 @@ def test_two_columns_record_one_strain_series_and_wave_per_column(tmp_path):
     assert np.abs(frames[-1].strain[1]).max() > np.abs(frames[-1].strain[0]).max()
 
 
-@pytest.mark.parametrize('seed', [0, 1, 2])
-def test_trails_cover_every_member_once(seed):
-    from tensegrity_ros.io.rerun_writer import trails
-    rng = np.random.default_rng(seed)
-    n = 12
-    a = rng.integers(0, n, 30)
-    b = (a + rng.integers(1, n, 30)) % n                     # no self loops; repeats allowed
-    got = sorted(tuple(sorted(pq)) for tr in trails(a, b, n) for pq in zip(tr[:-1], tr[1:]))
-    assert got == sorted(tuple(sorted(pq)) for pq in zip(a.tolist(), b.tolist()))
-
-
-def test_a_killed_recording_keeps_every_batch_sent(tmp_path):
-    """SIGKILL of the recording process after two batches of 50 frames were handed over: its
-    helper process finishes the file with those 100 frames (the 20 buffered after them are lost),
-    footer included, and exits."""
+def test_a_killed_recording_keeps_what_sync_wrote(tmp_path):
+    """SIGKILL of the recording process after sync(): the file holds the 100 frames sent until
+    then, readable, and nothing of the frames buffered after them."""
     path = tmp_path / 'killed.rrd'
     code = f'''
-import sys, time
+import time
 from solver.build.scene import Scene
-from solver.simulate.simulation import Simulation
-from tensegrity_ros.io.rerun_log import RerunRecorder
+from solver.simulate.array import simulation_for
+from tensegrity_ros.io.rerun_sink import RerunRecorder
 sim = simulation_for(Scene.load({str(FB)!r}).with_overrides(['structure.n_prisms=3']))
 rec = RerunRecorder(sim.network, {str(path)!r}, flush_every=50, max_latency_s=1e9)
 for k in range(120):
+    if k == 100:
+        rec.sync()
+        print('ready', flush=True)
     rec.frame(sim.frame())
     sim.advance(0.005)
-rec.sync()
-print('ready', rec._helper.proc.pid, flush=True)
 time.sleep(120)
 '''
     proc = subprocess.Popen([sys.executable, '-c', code], cwd=ROOT, stdout=subprocess.PIPE,
                             text=True, env=dict(os.environ, PYTHONPATH=str(ROOT)))
     try:
-        word, helper = proc.stdout.readline().split()
-        assert word == 'ready'
+        assert proc.stdout.readline().split() == ['ready']
     finally:
         proc.kill()
         proc.wait(timeout=30)
-    deadline = time.monotonic() + 30
-    while _running(int(helper)):                      # it finishes the file, then exits
-        assert time.monotonic() < deadline, 'the helper process did not exit'
-        time.sleep(0.02)
-    rows = _read_checked(path)['/energy']['rows']
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore')                 # no footer: the process was killed
+        rows = read(path)['/energy']['rows']
     assert [t for t, _ in rows] == [k * 5_000_000 for k in range(100)]
-
-
-def _running(pid):
-    """Whether process ``pid`` exists and is not a zombie (Linux)."""
-    try:
-        with open(f'/proc/{pid}/stat') as f:
-            return f.read().rsplit(')', 1)[1].split()[0] != 'Z'
-    except OSError:
-        return False
 
 
 # -- the helper process ------------------------------------------------------------------------
@@ -487,8 +403,8 @@ def _read_checked(path):
 
 
 def test_close_returns_with_the_file_complete(tmp_path):
-    """The batches are sent by the recorder's worker thread: when close() returns, the file holds
-    every frame, the static entities and the blueprint, and ends with its footer."""
+    """When close() returns, the file holds every frame, the static entities and the blueprint,
+    and ends with its footer."""
     scene = Scene.load(FB).with_overrides(['structure.n_prisms=3'])
     sim = simulation_for(scene)
     path = tmp_path / 'complete.rrd'
@@ -503,42 +419,6 @@ def test_close_returns_with_the_file_complete(tmp_path):
     rec.close()                                       # idempotent
     with pytest.raises(ValueError, match='closed'):
         rec.frame(sim.frame())
-
-
-def test_worker_errors_are_raised_in_the_callers_thread(tmp_path, monkeypatch):
-    """An error while sending a batch (in the worker) is raised as ValueError by the next call,
-    and by close(), which still finishes the file."""
-    scene = Scene.load(FB).with_overrides(['structure.n_prisms=3'])
-    sim = simulation_for(scene)
-    path = tmp_path / 'broken.rrd'
-
-    from tensegrity_ros.io import rerun_log
-    # a helper process whose batches fail (started for this test only, ended after it)
-    monkeypatch.setattr(rerun_log, '_HELPER_CODE', rerun_log._HELPER_CODE.replace(
-        'from tensegrity_ros.io.rerun_writer import serve\n',
-        'from tensegrity_ros.io.rerun_writer import serve, _Writer\n'
-        'def broken(self, *args):\n'
-        '    raise RuntimeError("disk on fire")\n'
-        '_Writer._send = broken\n'))
-    monkeypatch.setattr(rerun_log, '_IDLE', [])
-    rec = RerunRecorder(sim.network, path, flush_every=2)
-    rec.frame(sim.frame())
-    sim.advance(0.005)
-    rec.frame(sim.frame())                            # the batch goes to the helper, which fails
-    with pytest.raises(ValueError, match='disk on fire'):
-        rec.sync()                                    # waits for the helper
-    with pytest.raises(ValueError, match='disk on fire'):
-        rec.frame(sim.frame())
-    with pytest.raises(ValueError, match='disk on fire'):
-        rec.command(0.0, 'impact')
-    with pytest.raises(ValueError, match='disk on fire'):
-        rec.close()
-    data = _read_checked(path)                        # finished: static entities and footer
-    assert data['/topology']['static'] and '/energy' not in {
-        e for e, v in data.items() if v['rows']}
-    for helper in rerun_log._IDLE:                    # end the broken helper
-        helper.conn.close()
-        helper.proc.wait(timeout=30)
 
 
 def test_values_beyond_float32_are_refused(tmp_path):
@@ -563,28 +443,6 @@ def test_recording_over_an_old_file_replaces_it(tmp_path):
     data = read(path)
     assert [t for t, _ in data['/energy']['rows']] == [round(f.t * 1e9) for f in frames]
     assert b'not a recording' not in path.read_bytes()
-
-
-def test_expected_frames_leaves_a_short_last_batch(tmp_path):
-    """With the run's length known, the first batch is cut so that the batch close() sends is
-    short; every frame is still recorded once, in order, with its values."""
-    sim, frames, path = small_run(tmp_path, t_end=0.11, flush_every=10, expected_frames=23,
-                                  max_latency_s=1e9)
-    assert len(frames) == 23
-    sizes, times = [], []
-    for chunk in RrdReader(path).stream():
-        if chunk.entity_path == '/world/nodes' and not chunk.is_static:
-            t = chunk.to_record_batch().column('sim_time').cast(pa.int64()).to_numpy()
-            sizes.append((int(t[0]), len(t)))
-            times.extend(t.tolist())
-    assert [n for _, n in sorted(sizes)] == [2, 10, 10, 1]     # (23 - 1) % 10, ..., the tail
-    assert sorted(times) == [round(f.t * 1e9) for f in frames]
-    last = read(path)['/world/nodes']
-    np.testing.assert_array_equal(at(last, frames[-1].t, 'Points3D:positions'),
-                                  frames[-1].positions.astype(np.float32).ravel())
-    for bad in (0, -3, 2.5, 'ten'):
-        with pytest.raises(ValueError, match='expected_frames'):
-            RerunRecorder(sim.network, tmp_path / 'bad.rrd', expected_frames=bad)
 
 
 def test_base_force_series_per_column(recorded):
@@ -673,7 +531,6 @@ def test_heat_map_starts_at_the_impact_on_a_sim_time_axis(tmp_path):
 
 
 def test_heat_map_grid_resamples_uneven_frames_on_time():
-    from tensegrity_ros.io.rerun_writer import heat_map_grid
     times = np.array([0.0, 0.1, 0.2, 0.21, 0.3, 0.5, 0.6])   # median step 0.1 s
     grid, pick = heat_map_grid(times, impact_t=0.1)
     np.testing.assert_allclose(grid, [0.1, 0.2, 0.3, 0.4, 0.5, 0.6])
@@ -768,11 +625,9 @@ def test_lens_cli_records_the_field_over_sim_time(tmp_path, capsys, monkeypatch)
     assert len(data['/field/pressure']['rows']) == len(frames) + 1
 
 
-def test_commands_are_handed_over_together_and_all_recorded_in_order(tmp_path):
-    """Commands go to the helper together (one message and one chunk before each batch of
-    frames, at most ``max_commands`` at a time, and after ``max_latency_s`` when no frame comes,
-    as on a paused node): 2,500 of them between the frames of a run and more while no frame
-    comes are all in the file, in order, with their times, texts and levels."""
+def test_commands_between_frames_are_all_recorded_in_order(tmp_path):
+    """2,500 commands between the frames of a run and more while no frame comes (a paused node)
+    are all in the file, in order, with their times, texts and levels."""
     scene = Scene.load(FB).with_overrides(['structure.n_prisms=3'])
     sim = simulation_for(scene)
     path = tmp_path / 'flood.rrd'
@@ -785,14 +640,9 @@ def test_commands_are_handed_over_together_and_all_recorded_in_order(tmp_path):
                 rec.command(sim.t, text)
                 sent.append((round(sim.t * 1e9), text, 'WARN' if j % 5 == 0 else 'INFO'))
             sim.advance(0.005)
-        assert len(rec._commands) < RerunRecorder.max_commands
-        for j in range(3):                      # paused: no frames come
+        for j in range(4):                      # paused: no frames come
             rec.command(sim.t, f'reset {j}')
             sent.append((round(sim.t * 1e9), f'reset {j}', 'INFO'))
-        time.sleep(0.3)
-        rec.command(sim.t, 'reset 3')           # later than max_latency_s: handed over now
-        sent.append((round(sim.t * 1e9), 'reset 3', 'INFO'))
-        assert rec._commands == []
         assert rec.n_commands == len(sent)
     rows = read(path)['/commands']['rows']
     got = [(t, str(flat(r['TextLog:text'])[0]), str(flat(r['TextLog:level'])[0]))

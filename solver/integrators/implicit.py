@@ -49,6 +49,7 @@ import numpy as np
 from solver.kernels import dynamics as dyn
 from solver._jit import jit
 from solver.integrators.base import Integrator
+from solver.kernels.banded import band_ldl_apply, band_ldl_factor
 from solver.kernels.rotation import ROT_C, ROT_S
 
 from solver.status import NEWTON_FAILED  # noqa: E402
@@ -107,50 +108,6 @@ def layout(net):
             best = other
     node_pos, con_pos, bw = best
     return node_pos, con_pos, 3 * n + len(tail), bw
-
-
-# -- banded symmetric indefinite solve ------------------------------------------------------------
-@jit
-def band_ldl_factor(band):
-    """LDL^T of a symmetric banded matrix given by its lower band (``band[i, k] = A[i, i-k]``), in
-    place, without pivoting; pivots may have either sign. Leaves L off the diagonal and ``1/d`` on
-    it. Returns ``OK`` or ``SINGULAR`` (a zero or non-finite pivot)."""
-    m, width = band.shape
-    bw = width - 1
-    for i in range(m):
-        lo = max(0, i - bw)
-        for j in range(lo, i):
-            s = band[i, i - j]
-            for k in range(lo, j):
-                s -= band[i, i - k] * band[j, j - k]
-            band[i, i - j] = s
-        d = band[i, 0]
-        for j in range(lo, i):
-            w = band[i, i - j]
-            lij = w * band[j, 0]
-            band[i, i - j] = lij
-            d -= w * lij
-        if not (abs(d) > 0.0 and math.isfinite(d)):
-            return dyn.SINGULAR
-        band[i, 0] = 1.0 / d
-    return dyn.OK
-
-
-@jit
-def band_ldl_apply(band, rhs):
-    """Solve ``A y = rhs`` in place with the factor of :func:`band_ldl_factor`."""
-    m, width = band.shape
-    bw = width - 1
-    for i in range(m):
-        s = rhs[i]
-        for k in range(max(0, i - bw), i):
-            s -= band[i, i - k] * rhs[k]
-        rhs[i] = s
-    for i in range(m - 1, -1, -1):
-        s = rhs[i] * band[i, 0]
-        for k in range(i + 1, min(m, i + bw + 1)):
-            s -= band[k, k - i] * rhs[k]
-        rhs[i] = s
 
 
 @jit

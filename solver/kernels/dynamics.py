@@ -41,6 +41,7 @@ import math
 import numpy as np
 
 from solver.kernels import massmatrix as mm
+from solver.kernels.banded import band_ldl_solve
 from solver._jit import jit, jit_inline
 from solver.kernels.contact import NO_EXTRAS, axial_contacts, cable_forces_damped, extra_energy
 from solver.kernels.rotation import (ROT_C, ROT_S, add_constraint_forces_rot, assemble_band_rot,  # noqa: F401
@@ -144,76 +145,6 @@ def assemble_band(bvec, coef, band):
             d = c - k
             band[c, k] = cf * (bvec[c, 0] * bvec[d, 0] + bvec[c, 1] * bvec[d, 1]
                                + bvec[c, 2] * bvec[d, 2])
-
-
-@jit
-def _tridiag_ldl_solve(band, rhs):
-    """:func:`band_ldl_solve` for bandwidth 1 (bar chains of flexible-base columns), unrolled."""
-    m = band.shape[0]
-    d = band[0, 0]
-    if not d > 0.0:
-        return SINGULAR
-    inv = 1.0 / d
-    band[0, 0] = inv
-    y = rhs[0]
-    for i in range(1, m):
-        w = band[i, 1]
-        lij = w * inv
-        d = band[i, 0] - w * lij
-        if not d > 0.0:
-            return SINGULAR
-        inv = 1.0 / d
-        band[i, 1] = lij
-        band[i, 0] = inv
-        y = rhs[i] - lij * y
-        rhs[i] = y
-    z = rhs[m - 1] * band[m - 1, 0]
-    rhs[m - 1] = z
-    for i in range(m - 2, -1, -1):
-        z = rhs[i] * band[i, 0] - band[i + 1, 1] * z
-        rhs[i] = z
-    return OK
-
-
-@jit
-def band_ldl_solve(band, rhs):
-    """Solve ``A y = rhs`` in place (``rhs`` becomes y) for SPD banded A given by its lower band.
-
-    Square-root-free LDL^T: ``band`` is overwritten with the unit lower factor L off the diagonal
-    and ``1 / d_i`` on it (one division per row keeps the sequential dependency chain short).
-    Returns ``OK`` or ``SINGULAR`` (a pivot that is not positive).
-    """
-    m, width = band.shape
-    bw = width - 1
-    if bw == 1:
-        return _tridiag_ldl_solve(band, rhs)
-    for i in range(m):
-        lo = max(0, i - bw)
-        for j in range(lo, i):          # w_j = A_ij - sum_k w_k L_jk  (w_k = L_ik d_k)
-            s = band[i, i - j]
-            for k in range(lo, j):
-                s -= band[i, i - k] * band[j, j - k]
-            band[i, i - j] = s
-        d = band[i, 0]
-        for j in range(lo, i):
-            w = band[i, i - j]
-            lij = w * band[j, 0]
-            band[i, i - j] = lij
-            d -= w * lij
-        if not d > 0.0:
-            return SINGULAR
-        band[i, 0] = 1.0 / d
-    for i in range(m):
-        s = rhs[i]
-        for k in range(max(0, i - bw), i):
-            s -= band[i, i - k] * rhs[k]
-        rhs[i] = s
-    for i in range(m - 1, -1, -1):
-        s = rhs[i] * band[i, 0]
-        for k in range(i + 1, min(m, i + bw + 1)):
-            s -= band[k, k - i] * rhs[k]
-        rhs[i] = s
-    return OK
 
 
 @jit

@@ -217,7 +217,7 @@ def run_demo(scene_file='config/scenes/fb_column.yaml', v0=(0.1,), duration_s=1.
     outputs = {'mcap': None, 'rerun': None}
     if record and _recorder_available('io.mcap_writer'):
         outputs['mcap'] = params['record_mcap'] = str(out / 'run.mcap')
-    if record and _recorder_available('io.rerun_log'):
+    if record and _recorder_available('io.rerun_sink'):
         outputs['rerun'] = params['record_rerun'] = str(out / 'run.rrd')
     v0 = [float(v) for v in np.atleast_1d(v0)]
     proc = node_process(params, domain_id)
@@ -341,7 +341,7 @@ def run_focus_demo(focus, scene_file='config/scenes/lens_focus.yaml', speed=1.5,
     outputs = {'mcap': None, 'rerun': None}
     if record and _recorder_available('io.mcap_writer'):
         outputs['mcap'] = params['record_mcap'] = str(out / 'run.mcap')
-    if record and _recorder_available('io.rerun_log'):
+    if record and _recorder_available('io.rerun_sink'):
         outputs['rerun'] = params['record_rerun'] = str(out / 'run.rrd')
     proc = node_process(params, domain_id)
     ctx = rclpy.Context()

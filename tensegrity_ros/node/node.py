@@ -230,9 +230,6 @@ class TensegritySim(LifecycleNode):
     def _setup(self):
         """What configure builds: the simulation (the caller's, in its state, or the one the
         parameters describe), recorders, publishers, subscriptions, services, counters."""
-        if self.params['record_rerun']:    # the recorder's helper starts while the node sets up
-            from tensegrity_ros.io.rerun_log import prestart
-            prestart()
         sim = self._given_sim
         if sim is None:
             sim = load_simulation(self.params)
@@ -341,7 +338,7 @@ class TensegritySim(LifecycleNode):
             self.add_sink(sink=rec.write, close=rec.close, takes_bytes=True)
         if self.params['record_rerun']:
             from solver.studies.lens_record import grid_extent, image_grid, is_array
-            from tensegrity_ros.io.rerun_log import RerunRecorder
+            from tensegrity_ros.io.rerun_sink import RerunRecorder
             grid = grid_extent(*image_grid(self.sim.scene)) if is_array(self.sim.scene) else None
             rr = RerunRecorder(self.sim.network, self.params['record_rerun'],
                                tension_scale=self._t_max, field_grid=grid)

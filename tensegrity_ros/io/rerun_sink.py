@@ -1,0 +1,438 @@
+"""Headless Rerun recordings of a run (docs/rerun.md), on rerun-sdk's public API.
+
+    with RerunRecorder(sim.network, path='run.rrd') as rec:     # or connect='rerun+http://...'
+        runner.run(sim, t_end, output_dt, on_frame=rec.frame)
+        rec.command(0.0, 'impact v0 = 0.1 m/s')
+
+One owned :class:`rerun.RecordingStream` (never the global one), one timeline ``sim_time`` (a
+duration from the simulation clock; no wall-clock timelines). Frames are copied into buffers and
+sent every ``flush_every`` frames as columns (``rr.send_columns``, one call per entity); Rerun's
+own threads encode and write. Entities:
+
+- ``topology`` (static): member index arrays ``bar_a``/``bar_b``/``cable_a``/``cable_b``,
+  ``cable_kind``, ``levels`` (flattened) and ``levels_shape``, the reference positions ``x0``.
+- ``world/nodes`` Points3D, ``world/bars`` and ``world/cables`` LineStrips3D (one strip of two
+  points per member, float32 m); cables coloured by tension as the ROS markers
+  (:func:`tensegrity_ros.msgs.style.tension_colors`), slack cables grey and translucent.
+- ``strain/column_c`` Scalars (one series per prism), ``strain_profile/column_c`` BarChart (the
+  strain per prism at each time), ``base_force/column_c`` Scalars N (positive compressive).
+- ``wave/column_c`` Tensor (prism x time from the last impact: the last ``wave_window`` frames)
+  and ``wave_scale/column_c`` (its colour scale), every ``wave_period_s`` wall seconds and, static,
+  when the recording closes.
+- ``energy`` J and ``constraint_error`` Scalars; ``commands`` TextLog; ``legend`` TextDocument.
+- ``field/peak_pressure`` and ``field/pressure`` Images (``L``, over ``field/scale``), for arrays
+  given a ``field_grid``.
+"""
+from __future__ import annotations
+
+import math
+import socket
+import time
+import urllib.parse
+
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+
+from tensegrity_ros.msgs.style import reference_tension_scale, tension_colors
+
+DEFAULT_URL = 'rerun+http://127.0.0.1:9876/proxy'
+TIMELINE = 'sim_time'
+COLORMAP = 'Spectral'
+PRISM_AXIS = 'prism (0: clamped end)'
+BAR_RGBA = (200, 200, 210, 255)
+NODE_RGBA = (240, 120, 40, 255)
+SCALE_STEPS = 101
+F32_MAX = float(np.finfo(np.float32).max)
+
+
+def check_viewer(url, timeout_s=1.0):
+    """Raise ValueError unless ``url`` is a Rerun gRPC URL with something listening on its port
+    (a quick TCP probe, so that a missing viewer is reported before the run, not after it)."""
+    u = urllib.parse.urlsplit(str(url))
+    if u.scheme not in ('rerun', 'rerun+http', 'rerun+https') or not u.hostname:
+        raise ValueError(f'rerun: {url!r} is not a viewer URL (expected e.g. {DEFAULT_URL})')
+    try:
+        socket.create_connection((u.hostname, u.port or 9876), timeout=timeout_s).close()
+    except OSError as exc:
+        raise ValueError(f'rerun: no viewer listening at {url} ({exc.strerror or exc}); start '
+                         f'one with `rerun` or record to a file instead') from None
+
+
+def packed_colors(tension, scale):
+    """Packed RGBA (``0xRRGGBBAA``, uint32) of the marker colours
+    (:func:`~tensegrity_ros.msgs.style.tension_colors`)."""
+    rgba = np.rint(255.0 * tension_colors(np.ravel(tension), scale)).astype(np.uint32)
+    return (rgba[:, 0] << 24) | (rgba[:, 1] << 16) | (rgba[:, 2] << 8) | rgba[:, 3]
+
+
+def _ns(t):
+    return np.rint(np.asarray(t, dtype=np.float64) * 1e9).astype('timedelta64[ns]')
+
+
+class RerunRecorder:
+    """Records solver frames of one network to a ``.rrd`` file and/or a live viewer.
+
+    ``path``: the ``.rrd`` file; ``connect``: the gRPC URL of a running viewer (``True`` for
+    :data:`DEFAULT_URL`); at least one. ``tension_scale`` N: the top of the colour ramp (default
+    :func:`~tensegrity_ros.msgs.style.reference_tension_scale`). Frames go out every
+    ``flush_every`` frames, or after ``max_latency_s`` wall seconds. A frame that does not match
+    the network, or holds a value that is not finite or beyond float32, raises ValueError and
+    records nothing; a time not after the previous frame (a reset) flushes what came before and
+    starts a new heat map."""
+
+    def __init__(self, network, path=None, *, connect=None, tension_scale=None, flush_every=50,
+                 max_latency_s=0.5, wave_window=1000, wave_period_s=2.0,
+                 application_id='tensegrity_ros', recording_id=None, send_blueprint=True,
+                 field_grid=None):
+        if path is None and not connect:
+            raise ValueError('rerun: give a file path or a viewer URL (connect) to record to')
+        if tension_scale is not None and not (np.isfinite(tension_scale) and tension_scale > 0):
+            raise ValueError(f'rerun: tension_scale must be a positive number, got '
+                             f'{tension_scale}')
+        if int(flush_every) < 1 or int(wave_window) < 1 or not max_latency_s > 0:
+            raise ValueError('rerun: flush_every and wave_window must be at least 1, '
+                             'max_latency_s positive')
+        if field_grid is not None:
+            field_grid = tuple(float(v) for v in field_grid)
+            if len(field_grid) != 4 or not all(math.isfinite(v) for v in field_grid):
+                raise ValueError(f'rerun: field_grid must be (x0, x1, z0, z1) m, got '
+                                 f'{field_grid!r}')
+        self.net, self.field_grid = network, field_grid
+        self.path = None if path is None else str(path)
+        self.url = (DEFAULT_URL if connect is True else connect) or None
+        if self.url is not None:
+            check_viewer(self.url)
+        if self.path is not None:
+            try:
+                open(self.path, 'wb').close()
+            except OSError as exc:
+                raise ValueError(f'rerun: cannot record to {self.path}: '
+                                 f'{exc.strerror or exc}') from None
+        self.tension_scale = (reference_tension_scale(network) if tension_scale is None
+                              else float(tension_scale))
+        self.flush_every, self.max_latency_s = int(flush_every), float(max_latency_s)
+        self.wave_window, self.wave_period_s = int(wave_window), float(wave_period_s)
+        n_col = network.n_columns if network.n_prisms else 0
+        self._shapes = ((network.n_nodes, 3), (network.levels.shape[0], network.n_prisms),
+                        (network.n_cables,))
+        self._n_base = network.n_columns if network.levels.size else 0
+        b = self.flush_every
+        self._x = np.empty((b,) + self._shapes[0])
+        self._s = np.empty((b,) + self._shapes[1])
+        self._tension = np.empty((b,) + self._shapes[2])
+        self._base = np.zeros((b, self._n_base))
+        self._scalars = np.empty((b, 3))              # t, energy, constraint error
+        self._wave = np.empty((n_col, network.n_prisms, self.wave_window))
+        self._wave_t = np.empty(self.wave_window)
+        self._n = self._wave_n = 0
+        self._lo = self._hi = None                    # strain extremes per column so far
+        self._impact_t = None
+        self._last_t = None
+        self._last_flush = self._last_wave = time.monotonic()
+        self.n_frames = self.n_commands = self.n_restarts = self.n_fields = 0
+        self._closed = False
+        self.stream = rr.RecordingStream(application_id, recording_id=recording_id)
+        self.stream.set_log_time_enabled(False)
+        self.stream.set_log_tick_enabled(False)
+        sinks = ([rr.FileSink(self.path)] if self.path else []) + (
+            [rr.GrpcSink(self.url)] if self.url else [])
+        self.stream.set_sinks(*sinks)
+        if send_blueprint:
+            self.stream.send_blueprint(blueprint(max(network.n_columns, 1), field_grid),
+                                       make_active=True, make_default=True)
+        self._log_static(n_col)
+
+    # -- static ---------------------------------------------------------------------------------
+    def _log_static(self, n_col):
+        net, log = self.net, self.stream.log
+        log('topology', rr.AnyValues(
+            bar_a=np.asarray(net.bar_a, np.int64), bar_b=np.asarray(net.bar_b, np.int64),
+            cable_a=np.asarray(net.cable_a, np.int64), cable_b=np.asarray(net.cable_b, np.int64),
+            cable_kind=[str(k) for k in net.cable_kind],
+            levels=np.asarray(net.levels, np.int64).ravel(),
+            levels_shape=np.asarray(net.levels.shape, np.int64),
+            x0=np.asarray(net.x0, np.float64).ravel()), static=True)
+        log('legend', rr.TextDocument(legend_markdown(self.tension_scale),
+                                      media_type='text/markdown'), static=True)
+        log('world', rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)     # column axis: z
+        log('world/nodes', rr.Points3D.from_fields(colors=[NODE_RGBA],
+                                                   radii=rr.Radius.ui_points(3.0)), static=True)
+        log('world/bars', rr.LineStrips3D.from_fields(colors=[BAR_RGBA],
+                                                      radii=rr.Radius.ui_points(2.5)), static=True)
+        log('world/cables', rr.LineStrips3D.from_fields(radii=rr.Radius.ui_points(1.2)),
+            static=True)
+        log('energy', rr.SeriesLines(names=['energy']), static=True)
+        log('constraint_error', rr.SeriesLines(names=['constraint error']), static=True)
+        names = [f'prism {p}' for p in range(net.n_prisms)]
+        for c in range(n_col):
+            log(f'strain/column_{c}', rr.SeriesLines(names=names), static=True)
+
+    # -- per frame ------------------------------------------------------------------------------
+    def frame(self, frame):
+        """Buffer one :class:`solver.simulate.simulation.Frame` (see the class text)."""
+        self._open()
+        t = float(frame.t)
+        x, strain, tension = frame.positions, frame.strain, frame.tension
+        if (np.shape(x), np.shape(strain), np.shape(tension)) != self._shapes:
+            raise ValueError(f'rerun: frame at t = {t:g} s does not match the network '
+                             f'(positions {np.shape(x)}, strain {np.shape(strain)}, '
+                             f'tension {np.shape(tension)}); not recorded')
+        base = np.asarray(getattr(frame, 'base_force', ()), dtype=np.float64)
+        values = (('time', t), ('energy', frame.energy),
+                  ('constraint error', frame.constraint_error), ('positions', x),
+                  ('strain', strain), ('tension', tension), ('base force', base))
+        for name, v in values:
+            a = np.abs(np.asarray(v, dtype=np.float64))
+            if not (np.isfinite(a).all() and (a <= F32_MAX).all()):
+                raise ValueError(f'rerun: frame at t = {t:g} s has non-finite {name} (or beyond '
+                                 f'float32); not recorded')
+        if self._last_t is not None and t <= self._last_t:       # the clock went back: a reset
+            self.flush(wave=True)
+            self._wave_n = 0
+            self.n_restarts += 1
+        i = self._n
+        self._x[i], self._s[i], self._tension[i] = x, strain, tension
+        if self._n_base:            # a frame without base forces records 0
+            self._base[i] = base if base.shape == (self._n_base,) else 0.0
+        self._scalars[i] = (t, frame.energy, frame.constraint_error)
+        self._last_t, self._n = t, i + 1
+        self.n_frames += 1
+        if self._n == self.flush_every or \
+                time.monotonic() - self._last_flush > self.max_latency_s:
+            self.flush()
+
+    def command(self, t, text, level=None):
+        """A command (or any event) as a text entry at simulation time ``t`` s on ``commands``;
+        ``level`` defaults to WARN for texts starting with 'rejected' or 'paused', else INFO. The
+        frames buffered before it are sent first, so the log keeps their order."""
+        self._open()
+        if not math.isfinite(t):
+            raise ValueError(f'rerun: command time {t} is not finite')
+        text = str(text)
+        if text.startswith('impact') or ': impact ' in text:     # the heat map starts here
+            self._impact_t = float(t)
+        self.flush()
+        self.stream.set_time(TIMELINE, duration=_ns(t))
+        self.stream.log('commands', rr.TextLog(text, level=level or (
+            'WARN' if text.startswith(('rejected', 'paused')) else 'INFO')))
+        self.n_commands += 1
+
+    def field(self, t, peak, pressure=None, scale=None):
+        """The field in the medium at simulation time ``t`` s: ``peak`` (n_z, n_x), the peak
+        pressure so far on ``field_grid`` (rows: depth down, columns: x), optionally ``pressure``
+        at ``t``, shown over ``scale`` (default the largest value of ``peak``)."""
+        self._open()
+        if self.field_grid is None:
+            raise ValueError('rerun: field images need a field_grid (x0, x1, z0, z1)')
+        arrays = [np.array(a, dtype=np.float64) for a in (peak, pressure) if a is not None]
+        if arrays[0].ndim != 2 or any(a.shape != arrays[0].shape for a in arrays):
+            raise ValueError(f'rerun: field images must be 2-D of one shape, got '
+                             f'{[a.shape for a in arrays]}')
+        if not (math.isfinite(t) and all(np.isfinite(a).all() for a in arrays)):
+            raise ValueError(f'rerun: field at t = {t:g} s is not finite; not recorded')
+        scale = float(arrays[0].max(initial=0.0)) if scale is None else float(scale)
+        scale = scale if math.isfinite(scale) and scale > 0 else 1.0
+        self.stream.set_time(TIMELINE, duration=_ns(t))
+        self.stream.log('field/peak_pressure', rr.Image(
+            np.clip(arrays[0] / scale, 0.0, 1.0).astype(np.float32), color_model='L'))
+        self.stream.log('field/scale', rr.Scalars([scale]))
+        if len(arrays) > 1:
+            self.stream.log('field/pressure', rr.Image(np.clip(
+                0.5 + 0.5 * arrays[1] / scale, 0.0, 1.0).astype(np.float32), color_model='L'))
+        self.n_fields += 1
+
+    # -- batches --------------------------------------------------------------------------------
+    def flush(self, wave=False):
+        """Send the buffered frames as columns; the heat map too if ``wave`` or when
+        ``wave_period_s`` of wall time passed since it was last sent."""
+        self._open()
+        n, self._n = self._n, 0
+        self._last_flush = time.monotonic()
+        if n:
+            self._send(n)
+        if self._wave_n and (wave or self._last_flush - self._last_wave >= self.wave_period_s):
+            self._log_wave()
+
+    def _send(self, n):
+        net = self.net
+        t = self._scalars[:n, 0]
+        index = [rr.TimeColumn(TIMELINE, duration=_ns(t))]
+
+        def put(path, columns):
+            rr.send_columns(path, index, columns, recording=self.stream)
+        x = self._x[:n].astype(np.float32)
+        put('world/nodes', rr.Points3D.columns(positions=x.reshape(-1, 3)).partition(
+            [net.n_nodes] * n))
+        if net.n_bars:
+            bars = np.stack([x[:, net.bar_a], x[:, net.bar_b]], axis=2).reshape(-1, 2, 3)
+            put('world/bars', rr.LineStrips3D.columns(strips=bars).partition([net.n_bars] * n))
+        if net.n_cables:
+            cables = np.stack([x[:, net.cable_a], x[:, net.cable_b]], axis=2).reshape(-1, 2, 3)
+            put('world/cables', rr.LineStrips3D.columns(
+                strips=cables, colors=packed_colors(self._tension[:n], self.tension_scale))
+                .partition([net.n_cables] * n))
+        n_p = net.n_prisms
+        for c in range(self._wave.shape[0]):
+            s = self._s[:n, c].copy()
+            put(f'strain/column_{c}', rr.Scalars.columns(scalars=s.ravel()).partition([n_p] * n))
+            lo, hi = s.min(), s.max()
+            if self._lo is None:
+                self._lo, self._hi = np.full(self._wave.shape[0], lo), np.full(
+                    self._wave.shape[0], hi)
+            self._lo[c], self._hi[c] = min(self._lo[c], lo), max(self._hi[c], hi)
+        for i in range(n):                  # bar charts: one tensor a row, logged row by row
+            self.stream.set_time(TIMELINE, duration=_ns(t[i]))
+            for c in range(self._wave.shape[0]):
+                self.stream.log(f'strain_profile/column_{c}', rr.BarChart(self._s[i, c].copy()))
+        for c in range(self._n_base):
+            put(f'base_force/column_{c}', rr.Scalars.columns(scalars=self._base[:n, c].copy()))
+        put('energy', rr.Scalars.columns(scalars=self._scalars[:n, 1].copy()))
+        put('constraint_error', rr.Scalars.columns(scalars=self._scalars[:n, 2].copy()))
+        if self._wave.shape[0]:                        # the heat map's ring of frames
+            w = self.wave_window
+            keep = slice(max(0, n - w), n)
+            at = (self._wave_n + keep.start + np.arange(keep.stop - keep.start)) % w
+            self._wave[:, :, at] = self._s[keep].transpose(1, 2, 0)
+            self._wave_t[at] = t[keep]
+            self._wave_n += n
+
+    def _log_wave(self, static=False):
+        """The heat map and its colour scale of every column: at the time of the last frame,
+        or (``static``, on close) for every time, so the whole wave shows wherever the cursor
+        is."""
+        self._last_wave = time.monotonic()
+        n, w = self._wave_n, self.wave_window
+        order = np.arange(n) if n <= w else np.r_[n % w:w, 0:n % w]       # oldest first
+        times = self._wave_t[order]
+        grid, pick = heat_map_grid(times, self._impact_t)
+        label = (f'sim_time {grid[0]:.3f} to {grid[-1]:.3f} s' + (
+            f', {1e3 * (grid[1] - grid[0]):.3g} ms per column' if len(grid) > 1 else ''))
+        if not static:
+            self.stream.set_time(TIMELINE, duration=_ns(times[-1]))
+        for c in range(self._wave.shape[0]):
+            image = self._wave[c][:, order[pick]]
+            lim = float(max(image.max(initial=0.0), -image.min(initial=0.0))) or 1.0
+            self.stream.log(f'wave/column_{c}', rr.Tensor(
+                image, dim_names=(PRISM_AXIS, label), value_range=(-lim, lim)), static=static)
+            self.stream.log(f'wave_scale/column_{c}', rr.Tensor(
+                np.linspace(-lim, lim, SCALE_STEPS)[None, :],
+                dim_names=('', f'strain {-lim:+.3g} (left) to {lim:+.3g} (right)'),
+                value_range=(-lim, lim)), static=static)
+
+    def sync(self):
+        """Send everything buffered and wait until Rerun has written it."""
+        self.flush()
+        self.stream.flush()
+
+    def close(self):
+        """Send what is buffered and the whole heat map, then finish the file / disconnect: the
+        file is complete when this returns. Idempotent."""
+        if self._closed:
+            return
+        try:
+            self.flush()
+            if self._wave_n:
+                self._log_wave(static=True)
+            for c in range(len(self._lo) if self._lo is not None else 0):
+                # two invisible bars at the run's strain extremes: the chart keeps its y range
+                self.stream.log(f'strain_profile/column_{c}/range', rr.BarChart(
+                    [float(self._lo[c]), float(self._hi[c])], abscissa=[0.0, 0.0],
+                    widths=[0.0, 0.0], color=(0, 0, 0, 0)), static=True)
+            if self.url is not None:
+                self.stream.flush()
+        except Exception as exc:
+            raise ValueError(f'rerun: {exc}') from None
+        finally:
+            self._closed = True
+            self.stream.disconnect()
+
+    def _open(self):
+        if self._closed:
+            raise ValueError('rerun: recorder is closed')
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+        return False
+
+
+def heat_map_grid(times, impact_t=None):
+    """The columns of the heat map: ``(grid, pick)``, a uniform time grid s from the impact
+    (``impact_t``; the first frame when None or when no frame is that late) to the last frame,
+    one step the median frame interval, and the index of the frame shown at each grid time (the
+    last frame at or before it). ``times`` (n,) s, increasing."""
+    times = np.asarray(times, dtype=np.float64)
+    start = 0
+    if impact_t is not None:
+        start = int(np.searchsorted(times, impact_t - 1e-9))
+        if start >= len(times):
+            start = 0
+    t = times[start:]
+    dt = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+    if not dt > 0:
+        return t.copy(), np.arange(start, len(times))
+    grid = t[0] + dt * np.arange(int(np.floor((t[-1] - t[0]) / dt + 1e-6)) + 1)
+    return grid, np.searchsorted(times, grid + 1e-6 * dt, side='right') - 1
+
+
+def legend_markdown(tension_scale):
+    """The text of the ``legend`` entity: what the colours of the 3D view mean."""
+    return (f'**Cables**: tension T from blue (0 N) to red (T >= {tension_scale:.3g} N, twice '
+            f'the largest prestress tension); slack cables grey and translucent. '
+            f'**Bars** light grey, **nodes** orange. Heat map and bar chart: axial strain, '
+            f'negative in compression.')
+
+
+def blueprint(n_columns=1, field_grid=None):
+    """The default layout, as the paper's figures: on the left the 3D column above the colour
+    legend (with a ``field_grid``, the field in the medium between them); on the right the strain
+    per prism at the time cursor, the prism-by-``sim_time`` heat map and its scale, base force,
+    energy and constraint error side by side, and the command log. Several columns: one tab per
+    column for the bar chart and the heat map."""
+    def one_or_tabs(views):
+        return views[0] if len(views) == 1 else rrb.Tabs(*views)
+    mapping = rrb.archetypes.TensorScalarMapping(colormap=COLORMAP)
+    bars = [rrb.BarChartView(origin=f'strain_profile/column_{c}',
+                             name=f'strain per prism at the time cursor, column {c} '
+                                  f'(prism 0: clamped end)',
+                             plot_legend=rrb.archetypes.PlotLegend(visible=False))
+            for c in range(n_columns)]
+    waves = [rrb.Vertical(
+        rrb.TensorView(origin=f'wave/column_{c}',
+                       name=f'strain, prism x sim_time from the impact, column {c}',
+                       slice_selection=rrb.archetypes.TensorSliceSelection(
+                           width=rr.TensorDimensionSelection(1),
+                           height=rr.TensorDimensionSelection(0)),
+                       scalar_mapping=mapping, view_fit='fill'),
+        rrb.TensorView(origin=f'wave_scale/column_{c}', name='colour scale: strain',
+                       scalar_mapping=mapping, view_fit='fill'),
+        row_shares=[5, 1], name=f'column {c}') for c in range(n_columns)]
+    left = [rrb.Spatial3DView(origin='world', name='column, cables coloured by tension')]
+    shares = [6]
+    if field_grid is not None:
+        x0, x1, z0, z1 = field_grid
+        where = f'x {x0:.3g} to {x1:.3g} m across, depth {z0:.3g} to {z1:.3g} m down'
+        left.append(rrb.Horizontal(
+            rrb.Spatial2DView(origin='field/peak_pressure',
+                              name=f'peak pressure in the medium so far, {where}'),
+            rrb.Spatial2DView(origin='field/pressure',
+                              name='pressure at the time cursor (grey: zero)')))
+        shares = [4, 3]
+    left.append(rrb.TextDocumentView(origin='legend', name='colours'))
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Vertical(*left, row_shares=shares + [1]),
+            rrb.Vertical(
+                one_or_tabs(bars), one_or_tabs(waves),
+                rrb.Horizontal(rrb.TimeSeriesView(origin='base_force', name='base force, N'),
+                               rrb.TimeSeriesView(origin='energy', name='energy, J'),
+                               rrb.TimeSeriesView(origin='constraint_error',
+                                                  name='constraint error')),
+                rrb.TextLogView(origin='commands', name='commands'),
+                row_shares=[3, 4, 1.5, 1]),
+            column_shares=[2, 3]),
+        rrb.BlueprintPanel(state='collapsed'), rrb.SelectionPanel(state='collapsed'),
+        rrb.TimePanel(timeline=TIMELINE, state='collapsed'))
