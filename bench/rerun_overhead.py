@@ -15,7 +15,8 @@ followed by a recording of the same frames fed from memory (the recording alone,
 its best time over the best plain run is the cost of recording with the least noise. Writes
 ``rerun_overhead.csv`` (one row per pair) and ``rerun_overhead.json`` (the medians, the time a
 fresh process takes to import the recorder and rerun-sdk, and the time of a first small
-recording in that process: paid once per process). Only ratios measured in the same process are reported; the machine may be busy.
+recording in that process: paid once per process). Only ratios measured in the same process are
+reported; the machine may be busy.
 
 The recorder buffers the frames and sends them as columns every ``flush_every`` frames; Rerun's
 threads encode and write: the timing ends when ``close()`` returns, which is after the file was
@@ -75,7 +76,8 @@ def check_complete(path, n_frames):
 
 
 def _one(sim, scene, path, frames=None):
-    """(wall s, CPU s of this process, main-thread CPU s, 0.0) of one run, plain (``path`` None) or recorded to ``path``; with ``frames`` (the
+    """(wall s, CPU s of this process, main-thread CPU s, 0.0) of one run, plain (``path`` None)
+    or recorded to ``path``; with ``frames`` (the
     run's frames), only recording those frames is timed."""
     from solver.simulate.runner import run
     from tensegrity_ros.io.rerun_sink import RerunRecorder
@@ -169,7 +171,8 @@ def median_interval(values, level=0.9, resamples=2000, seed=0):
 def import_cost(repeats=3):
     """Medians over ``repeats`` fresh processes that have already set up a simulation: (seconds
     to import the recorder and rerun-sdk; seconds of a first, 3-frame recording in that process).
-    What a process pays once, besides the run's own cost; the second figure shows the first-use costs the warm benchmark above does not see."""
+    What a process pays once, besides the run's own cost; the second figure shows the first-use
+    costs the warm benchmark above does not see."""
     code = '\n'.join([
         'import gc, tempfile, time',
         'from solver.build.scene import Scene',
@@ -228,9 +231,9 @@ def main(out='bench/results', quick=False, log=print, scene='config/scenes/fb_co
                 statistics.median(r['steal_cores'] for r in rows))
         if sum(busy) >= QUIET_CORES:
             log(f'HOST BUSY: other processes used {busy[0]:.2f} and the hypervisor took (steal) '
-                f'{busy[1]:.2f} of a core during the median pair: Rerun's threads '
-                f'use the second vCPU, so this figure shows the host, not the recording; measure again '
-                f'when the machine is quiet')
+                f'{busy[1]:.2f} of a core during the median pair: Rerun\'s threads use the '
+                f'second vCPU, so this figure shows the host, not the recording; measure '
+                f'again when the machine is quiet')
     log(f'rerun recording overhead, median of {len(rows)} pairs: wall {100 * wall:+.1f} % '
         f'(90 % interval of the median {100 * wall_lo:+.1f} to {100 * wall_hi:+.1f} %), '
         f'cpu {100 * cpu:+.1f} %; best of each: wall {100 * best_wall:+.1f} %, cpu '

@@ -35,7 +35,8 @@ STRONG_EVERY_S = 10.0            # an impact of 10 m/s (the column diverges) thi
 
 
 def _proc_stats(proc):
-    """RSS (MB), open files, threads of a psutil process; its helper processes (pid, RSS MB)."""
+    """RSS (MB), open files, threads of a psutil process; its child processes (pid, RSS MB): the
+    node starts none, so any is reported."""
     import psutil
     with proc.oneshot():
         rss = proc.memory_info().rss / 2**20
@@ -45,10 +46,9 @@ def _proc_stats(proc):
     helpers, helper_cpu = [], 0.0
     for child in proc.children(recursive=True):
         try:
-            if 'rerun_writer' in ' '.join(child.cmdline()):
-                helpers.append((child.pid, child.memory_info().rss / 2**20))
-                c = child.cpu_times()
-                helper_cpu += c.user + c.system
+            helpers.append((child.pid, child.memory_info().rss / 2**20))
+            c = child.cpu_times()
+            helper_cpu += c.user + c.system
         except psutil.Error:
             pass
     return {'rss_mb': rss, 'open_files': fds, 'threads': threads, 'helpers': helpers,

@@ -33,7 +33,8 @@ def to_rerun(path, out, application_id='tensegrity_ros', recording_id=None, stat
 
     A log that carries its network (``tensegrity_network`` metadata, written by the node and by
     ``tensegrity run --mcap``) goes through
-    :class:`~tensegrity_ros.io.rerun_sink.RerunRecorder`, so the result has the layout of a live recording (docs/interfaces.md section 6); energy and
+    :class:`~tensegrity_ros.io.rerun_sink.RerunRecorder`, so the result has the layout of a live
+    recording (docs/interfaces.md section 6); energy and
     constraint error come from ``/diagnostics``, held from the latest one (the first one before
     it). Other logs get a generic conversion (:func:`to_rerun_generic`)."""
     first = McapLog(path)
