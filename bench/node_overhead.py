@@ -65,7 +65,7 @@ def _node(node, ex, rtf, window_s):
     node.params['real_time_factor'] = rtf
     node.sim.reset()
     node.sim.apply_impact(0.1)
-    node._anchor()
+    node.pacer.anchor(node.sim.t, time.monotonic())
     f0, t_sim0 = node.counts['frames'], node.sim.t
     node.tick_max_s = 0.0
     t0, c0 = time.perf_counter(), time.process_time()
@@ -105,10 +105,10 @@ def cost_breakdown(node, n=200):
            'frame_messages_us': cpu(lambda: M.frame_messages(fr, sim.network, markers=False,
                                                               clock=True)),
            'marker_array_us': cpu(lambda: M.marker_array(fr, sim.network, stamp), 20)}
-    due = node._markers_due
-    node._markers_due = lambda now: False
-    out['publish_frame_us'] = cpu(lambda: node._publish_frame(time.monotonic()))
-    node._markers_due = due
+    due = node.publishing.markers_due
+    node.publishing.markers_due = lambda now: False
+    out['publish_frame_us'] = cpu(lambda: node.publishing.frame(time.monotonic()))
+    node.publishing.markers_due = due
     ex = SingleThreadedExecutor(context=node.context)
     ex.add_node(node)
     node.timer.cancel()
@@ -154,7 +154,7 @@ def measure(scene='config/scenes/fb_column.yaml', window_s=3.0, rounds=3, subscr
         chunk = max(1, int(round(1.0 / publish_rate_hz / sim.dt)))
         if subscriber:
             end = time.monotonic() + 10
-            while time.monotonic() < end and node._pubs['~/nodes'].get_subscription_count() == 0:
+            while time.monotonic() < end and node.pubs['~/nodes'].get_subscription_count() == 0:
                 ex.spin_once(timeout_sec=0.05)
         _node(node, ex, 0.0, 0.5)                                   # warm-up
         rows = []

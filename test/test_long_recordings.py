@@ -3,10 +3,10 @@ directly, ``tensegrity run --mcap --rerun``, ``tensegrity replay --to-rerun``, t
 ``record_mcap`` and ``record_rerun``) finishes with the file complete (rerun's reader warns on a
 missing footer: the warning is an error here; the MCAP summary is read) and every frame in it.
 
-The Rerun recorder holds ``n_buffers * flush_every`` frames (8 x 50 by default) in shared memory
-and waits for the helper process to hand a buffer back when all are in use; every test here
-passes through that wait many times (4x the frames the buffers hold, or more).
+The Rerun recorder buffers ``flush_every`` frames (50 by default) and sends them as columns;
+every test here fills and sends that buffer many times (30x or more).
 """
+from types import SimpleNamespace
 import os
 import subprocess
 import sys
@@ -26,7 +26,7 @@ from tensegrity_ros.io.mcap_reader import McapLog  # noqa: E402
 from tensegrity_ros.io.rerun_sink import RerunRecorder  # noqa: E402
 
 FB = ROOT / 'config' / 'scenes' / 'fb_column.yaml'
-DEFAULT_HELD = RerunRecorder.n_buffers * 50          # frames the batch buffers hold by default
+DEFAULT_HELD = 50                # frames the recorder buffers by default (flush_every)
 
 
 def rrd_times(path, entity='world/nodes'):
@@ -69,10 +69,8 @@ def within(seconds, fn, *args):
     return out[0]
 
 
-def test_a_recorder_short_of_buffers_waits_and_records_every_frame(tmp_path, monkeypatch):
-    """One batch buffer: after every batch the recorder must wait for the helper to hand it
-    back; 40 batches (40x the frames the buffers hold) all arrive, in order."""
-    monkeypatch.setattr(RerunRecorder, 'n_buffers', 1)
+def test_a_small_buffer_sent_forty_times_records_every_frame(tmp_path):
+    """A buffer of 10 frames: 40 batches all arrive, in order."""
     net = small_network(3)
     frames = synthetic_frames(net, 400, dt=0.005)
     path = tmp_path / 'one_buffer.rrd'
@@ -86,11 +84,11 @@ def test_a_recorder_short_of_buffers_waits_and_records_every_frame(tmp_path, mon
     assert rrd_times(path) == [k * 5_000_000 for k in range(400)]
 
 
-def test_a_recording_four_times_the_default_buffers(tmp_path):
-    """Default buffers (8 x 50 frames), frames handed over far faster than the helper converts
-    them: 1,650 frames, all in the file."""
+def test_a_recording_thirty_times_the_default_buffer(tmp_path):
+    """The default buffer (50 frames), 1,650 frames handed over as fast as they come: all in the
+    file."""
     net = small_network(3)
-    n = 4 * DEFAULT_HELD + 50
+    n = 33 * DEFAULT_HELD
     frames = synthetic_frames(net, n, dt=0.005)
     path = tmp_path / 'long.rrd'
 
@@ -103,7 +101,7 @@ def test_a_recording_four_times_the_default_buffers(tmp_path):
 
 
 def test_run_and_replay_of_a_long_log_record_every_frame(tmp_path):
-    """``tensegrity run --mcap --rerun`` over 1,701 output frames (4x the Rerun buffers and some
+    """``tensegrity run --mcap --rerun`` over 1,701 output frames (34 Rerun batches and some
     20 MCAP chunks), then ``tensegrity replay --to-rerun`` of that log, as the user runs them
     (subprocesses, bounded in time): every frame in each file."""
     n = 1701
@@ -126,9 +124,9 @@ def test_run_and_replay_of_a_long_log_record_every_frame(tmp_path):
     assert rrd_times(out, 'strain/column_0') == expected
 
 
-def test_node_records_every_published_frame_to_both_files(tmp_path, monkeypatch):
+def test_node_records_every_published_frame_to_both_files(tmp_path):
     """The node at real_time_factor 0 with ``record_mcap`` and ``record_rerun``, its Rerun
-    recorder given two buffers (100 frames): 500 frames published, each one in both files."""
+    500 frames published (10 Rerun batches), each one in both files."""
     rclpy = pytest.importorskip('rclpy')
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.parameter import Parameter
@@ -137,7 +135,6 @@ def test_node_records_every_published_frame_to_both_files(tmp_path, monkeypatch)
     from solver.simulate.array import simulation_for
     from tensegrity_ros.node.demo import spin_until
     from tensegrity_ros.node.node import TensegritySim
-    monkeypatch.setattr(RerunRecorder, 'n_buffers', 2)
     mcap, rrd = tmp_path / 'node.mcap', tmp_path / 'node.rrd'
     sim = simulation_for(Scene.load(FB).with_overrides(['structure.n_prisms=4']))
     ctx = rclpy.Context()
@@ -147,7 +144,7 @@ def test_node_records_every_published_frame_to_both_files(tmp_path, monkeypatch)
         node = TensegritySim(sim=sim, context=ctx, parameter_overrides=[
             Parameter('real_time_factor', value=0.0), Parameter('publish_rate_hz', value=500.0),
             Parameter('record_mcap', value=str(mcap)), Parameter('record_rerun', value=str(rrd))])
-        node.add_sink(frame_sink=lambda f: stamps.append(round(f.t * 1e9)))
+        node.add_sink(SimpleNamespace(frame=lambda f: stamps.append(round(f.t * 1e9))))
         ex = SingleThreadedExecutor(context=ctx)
         ex.add_node(node)
         assert within(180, spin_until, ex, lambda: len(stamps) >= 500, 120)

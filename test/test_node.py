@@ -1,3 +1,4 @@
+from types import SimpleNamespace
 """The node tensegrity_sim in a real rclpy context (own domain id): commands in over topics,
 messages out, services, malformed commands, divergence, pacing logic and parameters."""
 import os
@@ -15,8 +16,10 @@ from std_srvs.srv import SetBool, Trigger  # noqa: E402
 from solver.build.scene import Scene  # noqa: E402
 from solver.simulate.array import simulation_for  # noqa: E402
 from tensegrity_ros.node.demo import Commander, spin_until  # noqa: E402
-from tensegrity_ros.node.node import (DEFAULTS, FAST_WORK_FRACTION, MIN_WORK_FRACTION,  # noqa: E402
-                                 WORK_FRACTION, ParameterError, TensegritySim, check_parameters)
+from tensegrity_ros.node.node import (DEFAULTS, ParameterError, TensegritySim,  # noqa: E402
+                                      check_parameters)
+from tensegrity_ros.node.pacing import (FAST_WORK_FRACTION, MIN_WORK_FRACTION,  # noqa: E402
+                                        WORK_FRACTION)
 
 DOMAIN = 10 + os.getpid() % 20
 N_PRISMS = 10
@@ -36,7 +39,8 @@ class Ros:
         overrides = [Parameter(k, value=v) for k, v in values.items()]
         self.node = TensegritySim(sim=sim, context=self.ctx, parameter_overrides=overrides)
         self.sunk = []
-        self.node.add_sink(sink=lambda topic, msg, ns: self.sunk.append((topic, msg, ns)))
+        self.node.add_sink(SimpleNamespace(
+            message=lambda topic, msg, ns: self.sunk.append((topic, msg, ns))))
         self.cmd = Commander(context=self.ctx)
         self.ex = SingleThreadedExecutor(context=self.ctx)
         self.ex.add_node(self.node)
@@ -249,9 +253,10 @@ def test_divergence_pauses_and_publishes_no_nan(ros):
 
 def test_pacing_logic(ros):
     node, sim = ros.node, ros.node.sim
-    node.period, node._publish_cost, node._step_cost = 0.005, 0.0, 1e-6
+    pacer = node.pacer
+    pacer.period, pacer.publish_cost, pacer.step_cost = 0.005, 0.0, 1e-6
     node.params['real_time_factor'] = 1.0
-    node._anchor_wall, node._anchor_t = 100.0, sim.t
+    pacer.anchor(sim.t, 100.0)
     assert node.steps_this_tick(100.01) == round(0.01 / sim.dt)
     node.params['real_time_factor'] = 2.5
     assert node.steps_this_tick(100.01) == round(0.025 / sim.dt)
@@ -261,16 +266,16 @@ def test_pacing_logic(ros):
     # less, so that the next one starts on time; one past its due time still steps a little
     left = 100.002 - 100.0
     assert node.steps_this_tick(100.0, deadline=100.002) == int(FAST_WORK_FRACTION * left / 1e-6)
-    node._publish_cost = 0.0005
+    pacer.publish_cost = 0.0005
     assert node.steps_this_tick(100.0, deadline=100.002) == int(
         (FAST_WORK_FRACTION * left - 0.0005) / 1e-6)
     assert node.steps_this_tick(100.0, deadline=99.0) == int(MIN_WORK_FRACTION * 0.005 / 1e-6)
-    node._publish_cost = 0.0
+    pacer.publish_cost = 0.0
     # a solver too slow for the requested factor: the tick does what fits in 90 % of a period
     node.params['real_time_factor'] = 1.0
-    node._step_cost = 1e-3
+    pacer.step_cost = 1e-3
     assert node.steps_this_tick(101.0) == int(WORK_FRACTION * 0.005 / 1e-3) == 4
-    assert node._anchor_wall == 101.0                          # no debt accumulated
+    assert pacer.anchor_wall == 101.0                          # no debt accumulated
 
 
 def test_parameters_file_matches_defaults_and_bad_values_named():
@@ -311,7 +316,7 @@ def test_commands_of_one_tick_are_validated_counted_and_the_last_one_applied(ros
     node = ros.node
     ros.call(ros.cmd.cli_running, SetBool.Request(data=False))
     for v in (0.01, 0.02, float('nan'), 0.03):
-        node._on_impact(messages.command_array([v], 'all'))
+        node.intake.impact(messages.command_array([v], 'all'))
     assert node.counts['rejected'] == 1 and node.counts['accepted'] == 0
     assert ros.spin(lambda: node.counts['accepted'] == 1)
     assert node.counts['superseded'] == 2 and node.counts['rejected'] == 1
@@ -339,7 +344,7 @@ def test_a_flood_within_one_tick_is_counted_whole_the_last_valid_one_applied_log
         def __getattr__(self, level):
             return lambda text, **kw: lines.append((level, text))
     monkeypatch.setattr(node, 'get_logger', lambda: Log())
-    node._logged.clear()
+    node.log.last.clear()
     before = dict(node.counts)
     rng = np.random.default_rng(19)
     n, last, n_bad = 500, {}, 0
@@ -347,18 +352,18 @@ def test_a_flood_within_one_tick_is_counted_whole_the_last_valid_one_applied_log
         u = rng.random()
         if u < 0.4:
             v = float(rng.uniform(-0.01, 0.01))
-            assert node._on_impact(messages.command_array([v], 'all'))
+            assert node.intake.impact(messages.command_array([v], 'all'))
             last['~/cmd/impact'] = v
         elif u < 0.8:
             p = float(rng.uniform(0.001, 0.01))
-            assert node._on_prestrain(messages.command_array([p], 'all'))
+            assert node.intake.prestrain(messages.command_array([p], 'all'))
             last['~/cmd/prestrain'] = p
         else:
             bad = [[float('nan')], [float('inf')], [11.0], [0.1, 0.1]][rng.integers(4)]
-            handler = node._on_impact if rng.random() < 0.5 else node._on_prestrain
+            handler = node.intake.impact if rng.random() < 0.5 else node.intake.prestrain
             assert not handler(messages.command_array(bad, 'all'))
             n_bad += 1
-    order = list(node._pending)                         # applied in this order at the tick
+    order = list(node.intake.pending)                         # applied in this order at the tick
     assert sorted(order) == sorted(last)
     assert ros.spin(lambda: node.counts['accepted'] == before['accepted'] + 2)
     d = {k: node.counts[k] - before[k] for k in ('accepted', 'superseded', 'rejected')}

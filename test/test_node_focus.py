@@ -65,11 +65,11 @@ def test_focus_plans_ramps_and_impacts_every_column_at_once(focused):
     node, ex, cmd, focus, scene = focused
     t_cmd = node.sim.t
     focus(0.02, 0.1)
-    assert spin_until(ex, lambda: node.focus is not None and node.focus['state'] == 'impacted',
+    assert spin_until(ex, lambda: (node.focus.current or {}).get('state') == 'impacted',
                       600)
     # the plan is the focusing design's for this scene, focus, speed and the scene's v0
     ref = lens.design(scene, (0.02, 0.1), SPEED, scene['loading.impact.v0'])
-    got = node.focus['plan']
+    got = node.focus.current['plan']
     p_ref = [c['prestrain'] for c in ref.columns]
     assert [c['prestrain'] for c in got['columns']] == pytest.approx(p_ref, rel=1e-12)
     # the delay law of the plan: targets follow -|F - X_i| / C
@@ -81,7 +81,7 @@ def test_focus_plans_ramps_and_impacts_every_column_at_once(focused):
     assert p_ref[0] == pytest.approx(p_ref[2], rel=1e-9) and p_ref[0] != p_ref[1]
     # ramped to the plan, impacted at the end of the ramp, every column moving
     np.testing.assert_allclose(node.sim.prestrain.mean(axis=1), p_ref, rtol=1e-9)
-    t_imp = node.focus['impact_sim_time_s']
+    t_imp = node.focus.current['impact_sim_time_s']
     assert t_imp - t_cmd == pytest.approx(RAMP, abs=2 * node.sim.dt + 0.05)
     assert t_imp >= t_cmd + RAMP - 1e-9
     assert spin_until(ex, lambda: node.sim.t > t_imp + 0.03, 60)
@@ -111,7 +111,7 @@ def test_unreachable_focus_and_bad_points_are_rejected_changing_nothing(focused)
         assert spin_until(ex, lambda: node.counts['rejected'] == k + 1, 120), args
         text = node.last_command[2]
         assert text.startswith('~/cmd/focus') and all(w in text for w in words), text
-    assert node.focus is None and np.array_equal(node.sim.prestrain, p0)
+    assert node.focus.current is None and np.array_equal(node.sim.prestrain, p0)
 
 
 def test_field_image_after_a_focus(focused):
@@ -121,14 +121,14 @@ def test_field_image_after_a_focus(focused):
     node, ex, cmd, focus, scene = focused
     images = []
     cmd.create_subscription(Image, f'{cmd.base}/field', images.append, 10)
-    assert spin_until(ex, lambda: node._pubs['~/field'].get_subscription_count() > 0, 30)
+    assert spin_until(ex, lambda: node.pubs['~/field'].get_subscription_count() > 0, 30)
     focus(0.02, 0.1)
-    assert spin_until(ex, lambda: node.focus is not None and node.focus['state'] == 'impacted',
+    assert spin_until(ex, lambda: (node.focus.current or {}).get('state') == 'impacted',
                       600)
-    t_imp = node.focus['impact_sim_time_s']
+    t_imp = node.focus.current['impact_sim_time_s']
     # an image stamped after the impact once the pulses have reached the bases (before that
     # the peak map is 0 everywhere)
-    assert spin_until(ex, lambda: node._record is not None and node._record.done, 120)
+    assert spin_until(ex, lambda: node.focus.record is not None and node.focus.record.done, 120)
     n_done = len(images)
     assert spin_until(ex, lambda: len(images) > n_done, 60)       # an image of the whole record
     m = images[-1]
@@ -158,8 +158,8 @@ def test_field_is_computed_only_when_someone_listens(focused):
     does, and an image follows; with field_rate_hz 0 nothing is published."""
     node, ex, cmd, focus, scene = focused
     focus(0.02, 0.1)
-    assert spin_until(ex, lambda: node._record is not None and node._record.done, 600)
-    assert node._record._peak.count == 0                      # nobody listened
+    assert spin_until(ex, lambda: node.focus.record is not None and node.focus.record.done, 600)
+    assert node.focus.record._peak.count == 0                      # nobody listened
 
     def rest():          # each impact from rest: impacts on top of each other collapse a prism
         node._on_reset(Trigger.Request(), Trigger.Response())
@@ -169,16 +169,16 @@ def test_field_is_computed_only_when_someone_listens(focused):
     cmd.impact([0.1])
     t = node.sim.t
     assert spin_until(ex, lambda: node.sim.t > t + 0.05, 60)
-    assert node._record is None
+    assert node.focus.record is None
     images = []
     cmd.create_subscription(Image, f'{cmd.base}/field', images.append, 10)
-    assert spin_until(ex, lambda: node._pubs['~/field'].get_subscription_count() > 0, 30)
+    assert spin_until(ex, lambda: node.pubs['~/field'].get_subscription_count() > 0, 30)
     rest()
     cmd.impact([0.1])
-    assert spin_until(ex, lambda: bool(images), 60) and node._record is not None
+    assert spin_until(ex, lambda: bool(images), 60) and node.focus.record is not None
     assert node.set_parameters([Parameter('field_rate_hz', value=0.0)])[0].successful
     rest()
     cmd.impact([0.1])
     t, n = node.sim.t, len(images)
     assert spin_until(ex, lambda: node.sim.t > t + 0.2, 60)
-    assert node._record is None and len(images) == n
+    assert node.focus.record is None and len(images) == n

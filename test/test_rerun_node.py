@@ -4,6 +4,7 @@ The node runs in a real rclpy context (own domain id, localhost only) as fast as
 published ``~/strain`` and ``~/nodes`` messages (captured through its sink hook) are compared with
 the recording read back by rerun's reader, across an impact command and a reset.
 """
+from types import SimpleNamespace
 import os
 
 import numpy as np
@@ -38,7 +39,8 @@ def test_node_records_what_it_publishes(tmp_path):
         node = TensegritySim(context=ctx, parameter_overrides=[
             Parameter(k, value=v) for k, v in params.items()])
         sunk = []
-        node.add_sink(sink=lambda topic, msg, ns: sunk.append((topic, msg, ns)))
+        node.add_sink(SimpleNamespace(
+            message=lambda topic, msg, ns: sunk.append((topic, msg, ns))))
         ex = SingleThreadedExecutor(context=ctx)
         ex.add_node(node)
 
@@ -46,7 +48,7 @@ def test_node_records_what_it_publishes(tmp_path):
             return [(ns, m) for topic, m, ns in sunk if topic.endswith(key)]
 
         assert spin_until(ex, lambda: len(published('/strain')) >= 5, 30)
-        node._on_impact(messages.command_array([0.1], 'all'))
+        node.intake.impact(messages.command_array([0.1], 'all'))
         assert spin_until(ex, lambda: len(published('/strain')) >= 40, 30)
         node._on_reset(Trigger.Request(), Trigger.Response())
         n = len(published('/strain'))

@@ -151,3 +151,51 @@ def measure_step_cost(sim, n=20):
     cost = (time.perf_counter() - t0) / n
     sim.reset()
     return cost
+
+
+def descriptor(name):
+    """The ``ParameterDescriptor`` of parameter ``name``: its description, read-only or not, its
+    range; types are checked by :func:`check_parameters` (dynamic typing)."""
+    from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
+    desc = ParameterDescriptor(description=DESCRIPTIONS[name], read_only=name in READ_ONLY,
+                               dynamic_typing=True)
+    if name in RANGES:
+        lo, hi = RANGES[name]
+        desc.floating_point_range = [FloatingPointRange(from_value=lo, to_value=hi)]
+    return desc
+
+
+def refusal(current, changes):
+    """Why a change of the running node's parameters (dict name -> new value) is refused, or
+    None: a parameter fixed while the node runs, or a value the start-up check would refuse."""
+    for name in changes:
+        if name in READ_ONLY:
+            return f'{name} {RESTART}'
+    try:
+        check_parameters(dict(current, **{n: v for n, v in changes.items() if n in current}))
+    except ParameterError as exc:
+        return str(exc)
+    return None
+
+
+class ThrottledLog:
+    """``log(kind, level, text)``: log ``text`` at ``level`` ('info', 'warning', 'error') unless a
+    line of the same ``kind`` went out less than ``interval_s`` ago. (rclpy's own
+    ``throttle_duration_sec`` inspects the caller's frame on every call, throttled or not: under
+    a flood of commands that was a quarter of the node's time.)"""
+
+    def __init__(self, logger, interval_s):
+        self.logger, self.interval_s = logger, interval_s
+        self.last = {}                 # kind -> wall time its line last went out
+
+    def __call__(self, kind, level, text):
+        now = time.monotonic()
+        if now - self.last.get(kind, -math.inf) < self.interval_s:
+            return
+        self.last[kind] = now
+        if level == 'error':           # one call site per severity (rclpy insists)
+            self.logger.error(text)
+        elif level == 'warning':
+            self.logger.warning(text)
+        else:
+            self.logger.info(text)

@@ -1,0 +1,120 @@
+"""What the node publishes: each frame (as CDR bytes written from the arrays, or message objects
+for a sink that needs them), the structure once per activation, and ``/diagnostics``.
+
+rclpy's conversion of message objects is the largest cost of publishing (markers 50x), so a
+frame goes out as the bytes of :mod:`tensegrity_ros.msgs.cdr` unless a recorder asks for objects.
+Markers go out at ``marker_rate_hz`` and only when someone listens or records.
+"""
+from __future__ import annotations
+
+import math
+import time
+
+from std_msgs.msg import String
+
+from tensegrity_ros.msgs import cdr, messages
+
+STRUCTURE_TOPIC = '~/structure'
+
+
+class Publishing:
+    """The publishing part of node ``node``; ``achieved_rtf`` and ``achieved_rate_hz`` are
+    measured over windows of at least 1 s, ``tick_max_s`` over a diagnostics period."""
+
+    def __init__(self, node):
+        self.node = node
+        self.last_marker = self.last_diag = -math.inf
+        self.achieved_rtf = self.achieved_rate_hz = self.tick_max_s = 0.0
+        self.restart_window(time.monotonic())
+
+    def restart_window(self, now):
+        """Measure the achieved rates from ``now`` on (activation, reset)."""
+        self._window = (now, self.node.sim.t, self.node.counts['frames'])
+
+    def markers_due(self, now):
+        """Markers are due at ``marker_rate_hz``, and only built when someone listens (a
+        subscriber or a sink of messages): they cost more than all other topics together."""
+        node = self.node
+        if not node.sinks.has('message') and \
+                node.pubs['~/markers'].get_subscription_count() == 0:
+            return False
+        return now - self.last_marker >= 1.0 / node.params['marker_rate_hz']
+
+    def structure(self):
+        """``~/structure``: the topology and the current cable rest lengths (JSON)."""
+        from tensegrity_ros.io.mcap_frames import structure_json
+        node, sim = self.node, self.node.sim
+        msg = String(data=structure_json(sim.network, sim.scene.name, sim.model.cable_rest_length))
+        node.pubs[STRUCTURE_TOPIC].publish(msg)
+        node.sinks.message(node.topics[STRUCTURE_TOPIC], msg,
+                           messages.stamp_to_ns(messages.sim_stamp(sim.t)))
+
+    def frame(self, now):
+        """Publish the current frame; a frame that is not finite is never published: the node
+        pauses and says why (returns False)."""
+        node = self.node
+        t0 = time.perf_counter()
+        frame = node.sim.frame()
+        markers = self.markers_due(now)
+        build = messages.frame_messages if node.sinks.wants_objects else cdr.frame_messages_cdr
+        stamp = messages.sim_stamp(frame.t)
+        try:
+            msgs = build(frame, node.sim.network, stamp=stamp, markers=markers,
+                         clock=node.params['use_sim_clock'], t_max=node.t_max)
+        except ValueError as exc:
+            node.pause(f'paused: {exc}')
+            return False
+        if markers:
+            self.last_marker = now
+        stamp_ns = messages.stamp_to_ns(stamp)
+        for key, msg in msgs.items():
+            node.pubs[key].publish(msg)
+            node.sinks.message(node.topics[key], msg, stamp_ns)
+        node.sinks.frame(frame)
+        node.counts['frames'] += 1
+        wall, t_sim, frames = self._window
+        if now - wall >= 1.0:
+            self.achieved_rtf = (frame.t - t_sim) / (now - wall)
+            self.achieved_rate_hz = (node.counts['frames'] - frames) / (now - wall)
+            self._window = (now, frame.t, node.counts['frames'])
+        node.pacer.published(time.perf_counter() - t0, markers)
+        return True
+
+    def diagnostics_values(self):
+        """The key/value pairs of ``/diagnostics`` (dict name -> float, int or str)."""
+        node, sim, intake = self.node, self.node.sim, self.node.intake
+        topic, verdict, detail = intake.last_command
+        counts = node.counts
+        return {
+            'sim_time_s': float(sim.t), 'steps': int(sim.step),
+            'running': str(node.running).lower(),
+            'real_time_factor_target': float(node.params['real_time_factor']),
+            'real_time_factor_achieved': float(self.achieved_rtf),
+            'publish_rate_hz_achieved': float(self.achieved_rate_hz),
+            'tick_max_ms': 1e3 * float(self.tick_max_s),
+            'energy_J': float(sim.energy()),
+            'constraint_error': float(sim.constraint_error()),
+            'frames_published': counts['frames'],
+            'commands_accepted': counts['accepted'],
+            'commands_rejected': counts['rejected'],
+            'commands_superseded': counts['superseded'],
+            'last_command_topic': topic, 'last_command': verdict, 'last_command_detail': detail,
+            'last_command_sim_time_s': (float(intake.last_command_t)
+                                        if math.isfinite(intake.last_command_t) else -1.0),
+            **node.focus.values(),
+        }
+
+    def diagnostics(self, now):
+        """``/diagnostics``: ERROR with the reason while paused by a problem, WARN after
+        rejected commands, else OK."""
+        node, intake = self.node, self.node.intake
+        self.last_diag = now
+        level = 2 if node.problem else 1 if intake.rejected_since else 0
+        message = node.problem or (f'rejected {intake.last_command[2]}' if intake.rejected_since
+                                   else 'running' if node.running else 'paused')
+        intake.rejected_since = 0
+        stamp = messages.sim_stamp(node.sim.t)
+        msg = messages.diagnostics_message(stamp, self.diagnostics_values(), level, message)
+        node.pubs['/diagnostics'].publish(msg)
+        node.sinks.message(node.topics['/diagnostics'], msg, messages.stamp_to_ns(stamp))
+        self.tick_max_s = 0.0          # tick_max_ms covers one diagnostics period
