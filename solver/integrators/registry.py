@@ -40,7 +40,6 @@ kernel takes other arguments after ``max_iter``, e.g. scratch arrays from
 """
 from __future__ import annotations
 
-from solver import status
 from solver.integrators.dopri import DOPRI54Projected
 from solver.integrators.implicit import ImplicitMidpoint
 from solver.integrators.rk4 import RK4, RK4Projected, Rattle
@@ -50,7 +49,6 @@ from solver.status import STEP_TOO_SMALL  # noqa: F401
 METHODS = {cls.name: cls for cls in (RK4Projected, RK4, Rattle, DOPRI54Projected,
                                      ImplicitMidpoint)}
 
-status_text = status.text
 
 
 def get(name, **options):

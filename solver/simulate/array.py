@@ -27,7 +27,8 @@ import numpy as np
 
 from solver.build.scene import Scene
 from solver.build.structures import build_network
-from solver.simulate.simulation import PRESTRAIN_RANGE, Frame, Simulation, SimulationDiverged
+from solver.simulate.loading import PRESTRAIN_RANGE
+from solver.simulate.simulation import Frame, Simulation, SimulationDiverged
 
 
 def simulation_for(scene, network=None, **options):

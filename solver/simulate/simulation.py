@@ -27,9 +27,9 @@ from solver.integrators import registry as integrators
 from solver.models import family as models
 from solver.analysis import observables
 from solver.build import structures
-from solver.build.scene import RANGES, Scene
+from solver.build.scene import Scene
+from solver.simulate.loading import Loading
 
-PRESTRAIN_RANGE = RANGES['prestrain']     # (lower, upper, lower inclusive): 0 < p <= 0.5
 
 
 class SimulationDiverged(RuntimeError):
@@ -60,7 +60,7 @@ class Frame:
     striker: np.ndarray | None = None
 
 
-class Simulation:
+class Simulation(Loading):
     def __init__(self, scene: Scene, network=None):
         self.scene = scene
         self.network = network if network is not None else structures.build_network(scene)
@@ -239,177 +239,6 @@ class Simulation:
         """Load full (n_cables,) rest lengths and EA; asymmetric ones expand ``sym3d``."""
         self._into_model('set_cables', rest, EA)
 
-    # -- commands -------------------------------------------------------------------------------
-    def impact_velocities(self, v0, columns=None, mode=None):
-        """Full (n_nodes, 3) velocities after an axial impact of ``v0`` m/s (positive compressive)
-        on the free-end level of the given columns: scalar or one value per addressed column."""
-        net = self.network
-        if net.levels.size == 0:
-            raise ValueError('impact needs a column structure (levels)')
-        cols = list(range(net.n_columns)) if columns is None else list(columns)
-        v0 = np.broadcast_to(np.asarray(v0, dtype=np.float64), (len(cols),)) if np.ndim(v0) == 0 \
-            else np.asarray(v0, dtype=np.float64)
-        if v0.shape != (len(cols),):
-            raise ValueError(f'impact: expected 1 or {len(cols)} values, got {v0.size}')
-        if not np.all(np.isfinite(v0)):
-            raise ValueError('impact: velocity is not finite')
-        mode = mode or self.scene['loading.impact.mode']
-        if mode == 'striker':
-            raise ValueError('impact: a striker impact sets no node velocities (use apply_impact)')
-        v = np.array(self.model.velocities())
-        x = np.array(self.model.positions())
-        kick = np.zeros_like(v)
-        for c, vc in zip(cols, v0):
-            kick[net.levels[c, -1], 2] = -vc
-        ke_target = observables.kinetic_energy(kick, net)
-        net_t, _ = dyn.pack(net)
-        ws = dyn.workspace_for(net)
-        status = dyn.project_velocities(x, kick, net_t, ws)
-        if status != dyn.OK:
-            raise ValueError(f'impact: {codes.text(status)}')
-        if mode == 'energy':
-            ke = observables.kinetic_energy(kick, net)
-            if ke > 0:
-                kick *= math.sqrt(ke_target / ke)
-        return v + kick
-
-    def _end_heights(self):
-        """Mean height m of each column's free-end level (n_columns,)."""
-        lev = self.network.levels
-        return np.asarray(self._full_state()[0])[lev[:, -1], 2].mean(axis=1)
-
-    def striker(self):
-        """(n_columns, 2) striker face height m and axial velocity m/s, or None without
-        strikers."""
-        st = extras.striker_state(self.model)
-        return st if len(st) else None
-
-    def _strike(self, v0, columns):
-        """Striker impact: each addressed column's striker gets the axial velocity ``-v0``
-        (towards the column); a striker out of contact is first placed on the free end (touching,
-        no overlap, so no energy changes)."""
-        m, net = self.model, self.network
-        ns = getattr(m, 'n_strikers', 0)
-        if not ns:
-            raise ValueError('impact: mode striker needs loading.impact.mode: striker in the '
-                             'scene (the strikers are built with the model)')
-        cols = list(range(net.n_columns)) if columns is None else list(columns)
-        if any(not 0 <= c < net.n_columns for c in cols):
-            raise ValueError(f'impact: columns must be indices 0..{net.n_columns - 1}')
-        v0 = np.broadcast_to(np.asarray(v0, dtype=np.float64), (len(cols),)) if np.ndim(v0) == 0 \
-            else np.asarray(v0, dtype=np.float64)
-        if v0.shape != (len(cols),):
-            raise ValueError(f'impact: expected 1 or {len(cols)} values, got {v0.size}')
-        if not np.all(np.isfinite(v0)):
-            raise ValueError('impact: velocity is not finite')
-        z_end = self._end_heights()
-        rows = m.x.shape[0] - ns
-        for c, vc in zip(cols, v0):
-            if m.x[rows + c, 2] >= z_end[c]:
-                m.x[rows + c, 2] = z_end[c]
-            m.v[rows + c, 2] = -vc
-        self._changed()
-
-    def apply_impact(self, v0, columns=None, mode=None):
-        """Impact the free end(s): the velocity jump is projected on the constraints (impulse, the
-        default) or, with ``mode='energy'``, also rescaled to the kinetic energy ``3 m v0^2 / 2``
-        per column; with ``mode='striker'`` (the scene's ``loading.impact.mode: striker``) each
-        column's striker is launched at ``v0`` against the free end instead. Returns the kinetic
-        energy added, J."""
-        before = self.energy()
-        if (mode or self.scene['loading.impact.mode']) == 'striker':
-            self._strike(v0, columns)
-            self._energy_ref = self.energy()
-            return self._energy_ref - before
-        if hasattr(self.model, 'impact'):           # chain1d: axial velocity on the end level
-            if columns not in (None, [0], (0,)):
-                raise ValueError('impact: chain1d has one column (0)')
-            if np.ndim(v0) != 0 or not math.isfinite(float(v0)):
-                raise ValueError('impact: chain1d takes one finite velocity')
-            self.model.impact(float(v0))
-            self._changed()
-            self._energy_ref = self.energy()
-            return self._energy_ref - before
-        v_new = self.impact_velocities(v0, columns, mode)
-        self._load(self.model.positions(), v_new)
-        self._energy_ref = self.energy()
-        return self._energy_ref - before
-
-    @property
-    def prestrain(self):
-        """Current cross prestrain per prism (n_columns, n_prisms) (a copy), None if not a
-        column."""
-        return None if self._prestrain is None else self._prestrain.copy()
-
-    @property
-    def prestrain_map(self):
-        """The :class:`~solver.build.structures.PrestrainMap` of the network (built on first
-        use)."""
-        if self._prestrain_map is None:
-            self._prestrain_map = structures.PrestrainMap(self.network)
-        return self._prestrain_map
-
-    def prestrain_target(self, p, columns=None):
-        """Per-prism prestrain (n_columns, n_prisms) of a command: ``p`` a scalar (all addressed
-        columns), one value per addressed column, or an (n_addressed, n_prisms) array; columns not
-        addressed keep their current (target) values. Raises ``ValueError`` naming the problem."""
-        if self._prestrain is None:
-            raise ValueError('prestrain needs a column structure built by the column builder')
-        net = self.network
-        cols = list(range(net.n_columns)) if columns is None else list(columns)
-        if not cols or any(not 0 <= c < net.n_columns for c in cols):
-            raise ValueError(f'prestrain: columns must be indices 0..{net.n_columns - 1}')
-        p = np.asarray(p, dtype=np.float64)
-        if p.ndim == 0:
-            p = np.full((len(cols), net.n_prisms), float(p))
-        elif p.shape == (len(cols),):
-            p = np.repeat(p[:, None], net.n_prisms, axis=1)
-        elif p.shape != (len(cols), net.n_prisms):
-            raise ValueError(f'prestrain: expected 1, {len(cols)} or {len(cols)} x {net.n_prisms} '
-                             f'values, got shape {p.shape}')
-        if not np.all(np.isfinite(p)):
-            raise ValueError('prestrain: value is not finite')
-        lo, hi, _ = PRESTRAIN_RANGE
-        if np.any(p <= lo) or np.any(p > hi):
-            bad = p[(p <= lo) | (p > hi)].flat[0]
-            raise ValueError(f'prestrain: {bad:g} is outside ({lo:g}, {hi:g}]')
-        target = self._ramp[3].copy() if self._ramp is not None else self._prestrain.copy()
-        target[cols] = p
-        return target
-
-    def apply_prestrain(self, p, columns=None, ramp_s=0.0):
-        """Change the cross prestrain of the addressed columns (see :meth:`prestrain_target`) by
-        changing the rest lengths of all their cables so that the reference geometry stays in
-        equilibrium (:class:`~solver.build.structures.PrestrainMap`), linearly in ``p`` over
-        ``ramp_s``
-        s of simulation time (0 = at once). A ramp in progress continues from where it is.
-        The actuator's work is added to the energy reference of the divergence check."""
-        target = self.prestrain_target(p, columns)
-        if not (math.isfinite(ramp_s) and ramp_s >= 0):
-            raise ValueError(f'prestrain: ramp duration {ramp_s!r} must be >= 0')
-        self.prestrain_map            # validate the network before changing anything
-        if ramp_s < self.dt:
-            self._ramp = None
-            self._set_prestrain(target)
-        else:
-            self._ramp = (self.t, float(ramp_s), self._prestrain.copy(), target)
-
-    def _set_prestrain(self, p):
-        e0 = self.energy()
-        EA = self.model.cable_EA
-        self._set_cables(self.prestrain_map.rest_lengths(p, EA), EA)
-        self._prestrain = np.array(p, dtype=np.float64)
-        self._energy_ref += self.energy() - e0
-
-    def _ramp_to(self, t):
-        t0, duration, p0, p1 = self._ramp
-        u = (t - t0) / duration
-        if u >= 1.0:
-            self._ramp = None
-            self._set_prestrain(p1)
-        else:
-            self._set_prestrain(p0 + max(u, 0.0) * (p1 - p0))
-
     def _integrate(self, n):
         """``n`` steps; while a prestrain ramp runs, one step at a time with rest lengths updated
         at the start of each step. Returns ``(steps, status)`` of the integrator."""
@@ -417,7 +246,7 @@ class Simulation:
         self._changed()
         if hasattr(m, 'advance'):                   # chain1d: its own state and kernel
             if self._ramp is not None:
-                return 0, models.CHAIN_CANNOT_RAMP
+                return 0, codes.CHAIN_CANNOT_RAMP
             return m.advance(self.dt, n)
         done = total = 0
         status = dyn.OK

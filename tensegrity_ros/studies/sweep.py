@@ -428,76 +428,6 @@ def execute(sweep, cluster=None, progress=None, task=run_point, on_row=None, chu
 
 
 # -- the plot -------------------------------------------------------------------------------------
-def plot(rows, keys, figure, path):
-    """A heat map of ``figure`` over the first two swept ``keys`` (a line over one key; a scatter
-    for scattered samples), diverged and failed points marked with a cross. Returns ``path``."""
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
-    fig, ax = plt.subplots(figsize=(6.4, 4.8))
-    bad = [r for r in rows if r.get('status') != 'ok']
-
-    def val(r):
-        v = r.get(figure)
-        return np.nan if v is None else float(v)
-
-    def axis_values(k):
-        vals = []
-        for r in rows:
-            if r[k] not in vals:
-                vals.append(r[k])
-        numeric = all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in vals)
-        return (sorted(vals) if numeric else vals), numeric
-
-    if len(keys) == 1:
-        k = keys[0]
-        xs, numeric = axis_values(k)
-        pos = {v: (v if numeric else i) for i, v in enumerate(xs)}
-        good = sorted((pos[r[k]], val(r)) for r in rows if r.get('status') == 'ok')
-        ax.plot([g[0] for g in good], [g[1] for g in good], 'o-', label=figure)
-        for r in bad:
-            ax.axvline(pos[r[k]], color='red', ls=':', lw=1)
-            ax.plot(pos[r[k]], min((g[1] for g in good if np.isfinite(g[1])), default=0.0),
-                    'rx', ms=9)
-        if not numeric:
-            ax.set_xticks(range(len(xs)), [str(v) for v in xs])
-        ax.set_xlabel(k)
-        ax.set_ylabel(figure)
-    else:
-        kx, ky = keys[0], keys[1]
-        xs, nx = axis_values(kx)
-        ys, ny = axis_values(ky)
-        if len(xs) * len(ys) <= len(rows) or not (nx and ny):
-            grid = np.full((len(ys), len(xs)), np.nan)
-            for r in rows:
-                if r.get('status') == 'ok':
-                    grid[ys.index(r[ky]), xs.index(r[kx])] = val(r)
-            im = ax.imshow(grid, origin='lower', aspect='auto', cmap='viridis',
-                           interpolation='nearest')
-            for r in bad:
-                ax.plot(xs.index(r[kx]), ys.index(r[ky]), 'rx', ms=10, mew=2)
-            ax.set_xticks(range(len(xs)), [f'{v:.4g}' if nx else str(v) for v in xs],
-                          rotation=45 if len(xs) > 6 else 0)
-            ax.set_yticks(range(len(ys)), [f'{v:.4g}' if ny else str(v) for v in ys])
-        else:                              # scattered (Latin-hypercube) samples
-            good = [r for r in rows if r.get('status') == 'ok' and np.isfinite(val(r))]
-            none = [r for r in rows if r.get('status') == 'ok' and not np.isfinite(val(r))]
-            im = ax.scatter([r[kx] for r in good], [r[ky] for r in good],
-                            c=[val(r) for r in good], cmap='viridis')
-            ax.scatter([r[kx] for r in none], [r[ky] for r in none], facecolors='none',
-                       edgecolors='grey', label=f'no {figure}')
-            ax.plot([r[kx] for r in bad], [r[ky] for r in bad], 'rx', ms=10, mew=2)
-        fig.colorbar(im, ax=ax, label=figure)
-        ax.set_xlabel(kx)
-        ax.set_ylabel(ky)
-    title = f'{figure}' + (f' ({len(bad)} diverged or failed: x)' if bad else '')
-    ax.set_title(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return str(path)
-
-
 # -- the command ----------------------------------------------------------------------------------
 def progress_bar(total, desc):
     """A tqdm bar on a terminal; nothing otherwise. Returns ``(update, close)``."""
@@ -548,5 +478,6 @@ def main(args):
           f'{counts["ok"]} ok, {counts["diverged"]} diverged, {counts["error"]} error')
     print(f'  table: {out / TABLE}, {out / CSV}')
     if args.plot:
-        print(f'  plot: {plot(rows, sweep.keys, args.plot, out / f"{args.plot}.png")}')
+        from tensegrity_ros.studies.plots import sweep_map
+        print(f'  plot: {sweep_map(rows, sweep.keys, args.plot, out / f"{args.plot}.png")}')
     return 0
