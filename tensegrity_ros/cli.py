@@ -253,7 +253,6 @@ def cmd_demo(args):
     """``tensegrity demo``: the node in a second process, an impact over the topic, a summary;
     with ``--focus X,Z`` a focus of the lens array instead (the plan, the arrivals the node
     measures, the focal gain)."""
-    import os
     domain = args.domain_id if args.domain_id is not None else (
         int(os.environ['ROS_DOMAIN_ID']) if os.environ.get('ROS_DOMAIN_ID') else None)
     if args.focus is not None:
@@ -265,16 +264,23 @@ def cmd_demo(args):
                                                          args.prestrain.split(',')]
     except ValueError:
         raise UserError('--v0 and --prestrain take numbers separated by commas') from None
+    out = args.out or 'runs/demo'
+    return _demo_report(lambda: run_demo(
+        args.scene or DEMO_SCENE, v0=v0, duration_s=args.duration, rtf=args.rtf, out_dir=out,
+        domain_id=domain, record=not args.no_record, prestrain=prestrain), format_summary, out)
+
+
+def _demo_report(run, format_lines, out):
+    """Run a demo on this machine only (DDS discovery on localhost), print its summary; exit
+    code 0 when the node exited cleanly."""
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     try:
-        summary = run_demo(args.scene or DEMO_SCENE, v0=v0, duration_s=args.duration,
-                           rtf=args.rtf, out_dir=args.out or 'runs/demo', domain_id=domain,
-                           record=not args.no_record, prestrain=prestrain)
+        summary = run()
     except RuntimeError as exc:
         raise UserError(f'demo: {exc}') from None
-    for line in format_summary(summary):
+    for line in format_lines(summary):
         print(line)
-    print(f'  summary: {args.out or "runs/demo"}/summary.json')
+    print(f'  summary: {out}/summary.json')
     return 0 if summary['node_exit_code'] == 0 else 1
 
 
@@ -283,8 +289,6 @@ FOCUS_SCENE = 'config/scenes/lens_focus.yaml'
 
 
 def _demo_focus(args, domain):
-    import os
-
     from solver.studies import lens
 
     from tensegrity_ros.node.demo import format_focus_summary, run_focus_demo
@@ -295,17 +299,9 @@ def _demo_focus(args, domain):
         raise UserError(f'--medium-speed: must be a positive number of m/s, got '
                         f'{args.medium_speed!r}')
     out = args.out or 'runs/demo_focus'
-    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-    try:
-        summary = run_focus_demo(focus, args.scene or FOCUS_SCENE, speed=args.medium_speed,
-                                 rtf=args.rtf, out_dir=out, domain_id=domain,
-                                 record=not args.no_record)
-    except RuntimeError as exc:
-        raise UserError(f'demo: {exc}') from None
-    for line in format_focus_summary(summary):
-        print(line)
-    print(f'  summary: {out}/summary.json')
-    return 0 if summary['node_exit_code'] == 0 else 1
+    return _demo_report(lambda: run_focus_demo(
+        focus, args.scene or FOCUS_SCENE, speed=args.medium_speed, rtf=args.rtf, out_dir=out,
+        domain_id=domain, record=not args.no_record), format_focus_summary, out)
 
 
 def cmd_sweep(args):

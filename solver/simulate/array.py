@@ -27,7 +27,7 @@ import numpy as np
 
 from solver.build.scene import Scene
 from solver.build.structures import build_network
-from solver.simulate.loading import PRESTRAIN_RANGE
+from solver.simulate.loading import prestrain_values, rest_length_values
 from solver.simulate.simulation import Frame, Simulation, SimulationDiverged
 
 
@@ -305,20 +305,7 @@ class ArraySimulation(Simulation):
         :meth:`Simulation.prestrain_target`)."""
         cols = self._columns(columns, 'prestrain')
         n_p = self.network.n_prisms
-        p = np.asarray(p, dtype=np.float64)
-        if p.ndim == 0:
-            p = np.full((len(cols), n_p), float(p))
-        elif p.shape == (len(cols),):
-            p = np.repeat(p[:, None], n_p, axis=1)
-        elif p.shape != (len(cols), n_p):
-            raise ValueError(f'prestrain: expected 1, {len(cols)} or {len(cols)} x {n_p} '
-                             f'values, got shape {p.shape}')
-        if not np.all(np.isfinite(p)):
-            raise ValueError('prestrain: value is not finite')
-        lo, hi, _ = PRESTRAIN_RANGE
-        if np.any(p <= lo) or np.any(p > hi):
-            bad = p[(p <= lo) | (p > hi)].flat[0]
-            raise ValueError(f'prestrain: {bad:g} is outside ({lo:g}, {hi:g}]')
+        p = prestrain_values(p, len(cols), n_p)
         target = self._targets()
         target[cols] = p
         return target
@@ -347,12 +334,7 @@ class ArraySimulation(Simulation):
         :meth:`Simulation.set_cable_rest_lengths`); a column whose set breaks its symmetry is
         expanded to ``full3d`` alone."""
         k = self._per[1]
-        rest = np.asarray(rest, dtype=np.float64)
-        if rest.shape != (self.network.n_cables,):
-            raise ValueError(f'cable rest lengths: expected {self.network.n_cables} values, got '
-                             f'shape {rest.shape}')
-        if not np.all(np.isfinite(rest)) or np.any(rest <= 0):
-            raise ValueError('cable rest lengths: every value must be finite and positive')
+        rest = rest_length_values(rest, self.network.n_cables)
         rows = [rest[c * k:(c + 1) * k] for c in range(self.n_columns)]
         self._dispatch(lambda c: rows[c].tobytes(),
                        lambda s, key: s.set_cable_rest_lengths(np.frombuffer(key)))

@@ -20,6 +20,50 @@ from solver.models import extras
 PRESTRAIN_RANGE = RANGES['prestrain']     # (lower, upper, lower inclusive): 0 < p <= 0.5
 
 
+def prestrain_values(p, n_cols, n_prisms):
+    """The (n_cols, n_prisms) prestrain of a command for ``n_cols`` addressed columns: ``p`` a
+    scalar, one value per column or the full array; raises ``ValueError`` naming the problem
+    (shape, a value that is not finite or outside the range of the scene key ``prestrain``)."""
+    p = np.asarray(p, dtype=np.float64)
+    if p.ndim == 0:
+        p = np.full((n_cols, n_prisms), float(p))
+    elif p.shape == (n_cols,):
+        p = np.repeat(p[:, None], n_prisms, axis=1)
+    elif p.shape != (n_cols, n_prisms):
+        raise ValueError(f'prestrain: expected 1, {n_cols} or {n_cols} x {n_prisms} values, got '
+                         f'shape {p.shape}')
+    if not np.all(np.isfinite(p)):
+        raise ValueError('prestrain: value is not finite')
+    lo, hi, _ = PRESTRAIN_RANGE
+    if np.any(p <= lo) or np.any(p > hi):
+        bad = p[(p <= lo) | (p > hi)].flat[0]
+        raise ValueError(f'prestrain: {bad:g} is outside ({lo:g}, {hi:g}]')
+    return p
+
+
+def impact_values(v0, n_cols):
+    """The impact velocities (n_cols,) m/s of a command: one value for every addressed column or
+    one each, finite."""
+    v0 = np.broadcast_to(np.asarray(v0, dtype=np.float64), (n_cols,)) if np.ndim(v0) == 0 \
+        else np.asarray(v0, dtype=np.float64)
+    if v0.shape != (n_cols,):
+        raise ValueError(f'impact: expected 1 or {n_cols} values, got {v0.size}')
+    if not np.all(np.isfinite(v0)):
+        raise ValueError('impact: velocity is not finite')
+    return v0
+
+
+def rest_length_values(rest, n_cables):
+    """Cable rest lengths (n_cables,) m of a command, checked: finite and positive."""
+    rest = np.asarray(rest, dtype=np.float64)
+    if rest.shape != (n_cables,):
+        raise ValueError(f'cable rest lengths: expected {n_cables} values, got shape '
+                         f'{rest.shape}')
+    if not np.all(np.isfinite(rest)) or np.any(rest <= 0):
+        raise ValueError('cable rest lengths: every value must be finite and positive')
+    return rest
+
+
 class Loading:
     """Impact and prestrain commands (a part of ``Simulation``)."""
 
@@ -30,12 +74,7 @@ class Loading:
         if net.levels.size == 0:
             raise ValueError('impact needs a column structure (levels)')
         cols = list(range(net.n_columns)) if columns is None else list(columns)
-        v0 = np.broadcast_to(np.asarray(v0, dtype=np.float64), (len(cols),)) if np.ndim(v0) == 0 \
-            else np.asarray(v0, dtype=np.float64)
-        if v0.shape != (len(cols),):
-            raise ValueError(f'impact: expected 1 or {len(cols)} values, got {v0.size}')
-        if not np.all(np.isfinite(v0)):
-            raise ValueError('impact: velocity is not finite')
+        v0 = impact_values(v0, len(cols))
         mode = mode or self.scene['loading.impact.mode']
         if mode == 'striker':
             raise ValueError('impact: a striker impact sets no node velocities (use apply_impact)')
@@ -79,12 +118,7 @@ class Loading:
         cols = list(range(net.n_columns)) if columns is None else list(columns)
         if any(not 0 <= c < net.n_columns for c in cols):
             raise ValueError(f'impact: columns must be indices 0..{net.n_columns - 1}')
-        v0 = np.broadcast_to(np.asarray(v0, dtype=np.float64), (len(cols),)) if np.ndim(v0) == 0 \
-            else np.asarray(v0, dtype=np.float64)
-        if v0.shape != (len(cols),):
-            raise ValueError(f'impact: expected 1 or {len(cols)} values, got {v0.size}')
-        if not np.all(np.isfinite(v0)):
-            raise ValueError('impact: velocity is not finite')
+        v0 = impact_values(v0, len(cols))
         z_end = self._end_heights()
         rows = m.x.shape[0] - ns
         for c, vc in zip(cols, v0):
@@ -142,20 +176,7 @@ class Loading:
         cols = list(range(net.n_columns)) if columns is None else list(columns)
         if not cols or any(not 0 <= c < net.n_columns for c in cols):
             raise ValueError(f'prestrain: columns must be indices 0..{net.n_columns - 1}')
-        p = np.asarray(p, dtype=np.float64)
-        if p.ndim == 0:
-            p = np.full((len(cols), net.n_prisms), float(p))
-        elif p.shape == (len(cols),):
-            p = np.repeat(p[:, None], net.n_prisms, axis=1)
-        elif p.shape != (len(cols), net.n_prisms):
-            raise ValueError(f'prestrain: expected 1, {len(cols)} or {len(cols)} x {net.n_prisms} '
-                             f'values, got shape {p.shape}')
-        if not np.all(np.isfinite(p)):
-            raise ValueError('prestrain: value is not finite')
-        lo, hi, _ = PRESTRAIN_RANGE
-        if np.any(p <= lo) or np.any(p > hi):
-            bad = p[(p <= lo) | (p > hi)].flat[0]
-            raise ValueError(f'prestrain: {bad:g} is outside ({lo:g}, {hi:g}]')
+        p = prestrain_values(p, len(cols), net.n_prisms)
         target = self._ramp[3].copy() if self._ramp is not None else self._prestrain.copy()
         target[cols] = p
         return target

@@ -28,7 +28,7 @@ from solver.models import family as models
 from solver.analysis import observables
 from solver.build import structures
 from solver.build.scene import Scene
-from solver.simulate.loading import Loading
+from solver.simulate.loading import Loading, rest_length_values
 
 
 
@@ -225,12 +225,7 @@ class Simulation(Loading):
         """Set the cable rest lengths (n_cables,) m directly (finite, positive). A set that breaks
         the 3-fold symmetry expands a ``sym3d`` run to ``full3d`` (same state, no jump). The
         change of stored energy is added to the divergence energy reference."""
-        rest = np.asarray(rest, dtype=np.float64)
-        if rest.shape != (self.network.n_cables,):
-            raise ValueError(f'cable rest lengths: expected {self.network.n_cables} values, got '
-                             f'shape {rest.shape}')
-        if not np.all(np.isfinite(rest)) or np.any(rest <= 0):
-            raise ValueError('cable rest lengths: every value must be finite and positive')
+        rest = rest_length_values(rest, self.network.n_cables)
         e0 = self.energy()
         self._set_cables(rest, self.model.cable_EA)
         self._energy_ref += self.energy() - e0
