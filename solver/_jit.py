@@ -58,7 +58,7 @@ numba.config.CACHE_DIR = str(CACHE_DIR)
 
 jit = numba.njit(cache=True, nogil=True)
 
-# Small helpers called inside member loops (``dynamics._rel``): inlined by numba itself. LLVM
+# Small helpers called inside member loops (``kernels.rotation.rel``): inlined by numba. LLVM
 # declines to inline a helper that reads module-level arrays (``ROT_C``/``ROT_S``), and the call
 # then costs ten times the loop body (constraint_error_arrays: 2.4 us instead of 0.27 us for 50
 # members).

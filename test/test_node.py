@@ -196,7 +196,7 @@ def test_malformed_commands_rejected_and_reported(ros):
             (ros.cmd.pub_impact if topic == 'impact' else ros.cmd.pub_prestrain).publish(msg)
             sent += 1
         assert ros.spin(lambda: node.counts['rejected'] == sent, 10), \
-            f'{node.counts} after {sent} commands ({node.last_command})'
+            f'{node.counts} after {sent} commands ({node.intake.last_command})'
     assert node.counts == {'accepted': 0, 'rejected': 1000, 'superseded': 0,
                            'frames': node.counts['frames']}
     now = [sim.model.positions(), sim.model.velocities(), sim.model.cable_rest_length,
@@ -299,7 +299,7 @@ def test_chain1d_model_rejects_prestrain_and_takes_impacts(tmp_path):
         assert r.node.sim.model.name == 'chain1d'
         r.cmd.prestrain([0.003])
         assert r.spin(lambda: r.node.counts['rejected'] == 1)
-        assert 'chain1d' in r.node.last_command[2]
+        assert 'chain1d' in r.node.intake.last_command[2]
         r.cmd.impact([0.1])
         assert r.spin(lambda: r.node.counts['accepted'] == 1)
         n = len(r.cmd.strain)
@@ -320,12 +320,12 @@ def test_commands_of_one_tick_are_validated_counted_and_the_last_one_applied(ros
     assert node.counts['rejected'] == 1 and node.counts['accepted'] == 0
     assert ros.spin(lambda: node.counts['accepted'] == 1)
     assert node.counts['superseded'] == 2 and node.counts['rejected'] == 1
-    assert node.last_command[2].startswith('impact v0 = [0.03] m/s')
+    assert node.intake.last_command[2].startswith('impact v0 = [0.03] m/s')
     from solver.simulate.array import simulation_for
     fresh = simulation_for(node.sim.scene)                    # the same impact on a fresh column
     added = fresh.apply_impact(0.03)
     np.testing.assert_allclose(node.sim.model.velocities(), fresh.model.velocities(), atol=1e-12)
-    assert f'+{added:.3g} J' in node.last_command[2]
+    assert f'+{added:.3g} J' in node.intake.last_command[2]
 
 
 def test_a_flood_within_one_tick_is_counted_whole_the_last_valid_one_applied_logged_once(
@@ -343,7 +343,7 @@ def test_a_flood_within_one_tick_is_counted_whole_the_last_valid_one_applied_log
     class Log:                                          # what the node hands to rclpy's logger
         def __getattr__(self, level):
             return lambda text, **kw: lines.append((level, text))
-    monkeypatch.setattr(node, 'get_logger', lambda: Log())
+    monkeypatch.setattr(node.log, 'logger', Log())
     node.log.last.clear()
     before = dict(node.counts)
     rng = np.random.default_rng(19)

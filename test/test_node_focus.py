@@ -109,7 +109,7 @@ def test_unreachable_focus_and_bad_points_are_rejected_changing_nothing(focused)
         k = node.counts['rejected']
         focus(*args)
         assert spin_until(ex, lambda: node.counts['rejected'] == k + 1, 120), args
-        text = node.last_command[2]
+        text = node.intake.last_command[2]
         assert text.startswith('~/cmd/focus') and all(w in text for w in words), text
     assert node.focus.current is None and np.array_equal(node.sim.prestrain, p0)
 

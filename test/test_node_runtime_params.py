@@ -137,7 +137,7 @@ def test_start_paused_waits_for_set_running_and_applies_commands_meanwhile():
         spin_until(ex, lambda: False, 0.5)
         assert node.sim.t == 0.0 and node.counts['frames'] == frames      # paused: no steps
         assert node.sim.frame().energy > 0                                # the impact is in
-        assert node.last_command_t == 0.0
+        assert node.intake.last_command_t == 0.0
         assert not node.running
         res = cmd.set_running(ex, True)
         assert res.success and res.message == 'running'

@@ -50,7 +50,7 @@ from solver.kernels import dynamics as dyn
 from solver._jit import jit
 from solver.integrators.base import Integrator
 from solver.kernels.banded import band_ldl_apply, band_ldl_factor
-from solver.kernels.rotation import ROT_C, ROT_S
+from solver.kernels.rotation import ROT_C, ROT_S, rel
 
 from solver.status import NEWTON_FAILED  # noqa: E402
 NEWTON_TOL = 1e-13          # on max |dx|, relative to the largest |position| of the start state
@@ -150,12 +150,8 @@ def dg_forces(x0, x1, net, act, f):
         a = cable_a[c]
         b = cable_b[c]
         cr, sr = _rot(cable_rot, c)
-        ax = cr * x0[b, 0] - sr * x0[b, 1] - x0[a, 0]
-        ay = sr * x0[b, 0] + cr * x0[b, 1] - x0[a, 1]
-        az = x0[b, 2] - x0[a, 2]
-        bx = cr * x1[b, 0] - sr * x1[b, 1] - x1[a, 0]
-        by = sr * x1[b, 0] + cr * x1[b, 1] - x1[a, 1]
-        bz = x1[b, 2] - x1[a, 2]
+        ax, ay, az = rel(x0, a, b, cable_rot, c)
+        bx, by, bz = rel(x1, a, b, cable_rot, c)
         s0 = math.sqrt(ax * ax + ay * ay + az * az)
         s1 = math.sqrt(bx * bx + by * by + bz * bz)
         L = rest[c]
@@ -239,12 +235,8 @@ def assemble_kkt(x0, x1, xm, h, nu, net, act, node_pos, con_pos, band):
         a = cable_a[c]
         b = cable_b[c]
         cr, sr = _rot(cable_rot, c)
-        ax = cr * x0[b, 0] - sr * x0[b, 1] - x0[a, 0]
-        ay = sr * x0[b, 0] + cr * x0[b, 1] - x0[a, 1]
-        az = x0[b, 2] - x0[a, 2]
-        bx = cr * x1[b, 0] - sr * x1[b, 1] - x1[a, 0]
-        by = sr * x1[b, 0] + cr * x1[b, 1] - x1[a, 1]
-        bz = x1[b, 2] - x1[a, 2]
+        ax, ay, az = rel(x0, a, b, cable_rot, c)
+        bx, by, bz = rel(x1, a, b, cable_rot, c)
         s0 = math.sqrt(ax * ax + ay * ay + az * az)
         s1 = math.sqrt(bx * bx + by * by + bz * bz)
         L = rest[c]

@@ -31,7 +31,7 @@ import math
 
 import numpy as np
 
-from solver._jit import jit
+from solver._jit import jit, jit_inline
 from solver.kernels.rotation import ROT_C, ROT_S
 
 
@@ -163,10 +163,11 @@ def extra_energy(x, v, ex):
     return e
 
 
-@jit
-def _gap_kink(g, gd, gdd, h, ignore):
+@jit_inline
+def gap_kink(g, gd, gdd, h, ignore):
     """Earliest time in ``(ignore, h)`` at which ``g + gd t + gdd t^2 / 2`` crosses 0; ``h`` if
-    none (the same quadratic model as :func:`solver.integrators.registry.next_kink`)."""
+    none: the quadratic Taylor model of a gap (a contact's overlap, a cable's ``s - L`` in
+    :func:`solver.kernels.kinks.next_kink`), its roots taken in the stable form."""
     disc = gd * gd - 2.0 * gdd * g
     if disc < 0.0:
         return h
@@ -192,7 +193,7 @@ def contact_kink(x, v, acc, ex, h, ignore):
             g = _level_z(x, levels, c, j) - _level_z(x, levels, c, j - 1) - stop_h[c, j - 1]
             gd = _level_z(v, levels, c, j) - _level_z(v, levels, c, j - 1)
             gdd = _level_z(acc, levels, c, j) - _level_z(acc, levels, c, j - 1)
-            h = _gap_kink(g, gd, gdd, h, ignore)
+            h = gap_kink(g, gd, gdd, h, ignore)
     top = levels.shape[1] - 1
     for s in range(st_row.shape[0]):
         r = st_row[s]
@@ -200,5 +201,5 @@ def contact_kink(x, v, acc, ex, h, ignore):
         g = x[r, 2] - _level_z(x, levels, c, top)
         gd = v[r, 2] - _level_z(v, levels, c, top)
         gdd = acc[r, 2] - _level_z(acc, levels, c, top)
-        h = _gap_kink(g, gd, gdd, h, ignore)
+        h = gap_kink(g, gd, gdd, h, ignore)
     return h

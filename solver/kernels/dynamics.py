@@ -42,12 +42,11 @@ import numpy as np
 
 from solver.kernels import massmatrix as mm
 from solver.kernels.banded import band_ldl_solve
-from solver._jit import jit, jit_inline
+from solver._jit import jit
 from solver.kernels.contact import NO_EXTRAS, axial_contacts, cable_forces_damped, extra_energy
-from solver.kernels.rotation import (ROT_C, ROT_S, add_constraint_forces_rot, assemble_band_rot,  # noqa: F401
-                      cable_forces_rot, member_vectors_rot)
-
-from solver.status import NONFINITE, NOT_CONVERGED, OK, SINGULAR  # noqa: E402,F401
+from solver.kernels.rotation import (ROT_C, ROT_S, add_constraint_forces_rot,  # noqa: F401
+                                     assemble_band_rot, cable_forces_rot, member_vectors_rot, rel)
+from solver.status import NONFINITE, NOT_CONVERGED, OK, SINGULAR  # noqa: F401
 
 
 NO_ROT = np.zeros(0, dtype=np.int64)
@@ -185,17 +184,6 @@ def _add_forces(lam, bvec, tail, head, rot, f):
         add_constraint_forces_rot(lam, bvec, tail, head, rot, f)
 
 
-@jit_inline
-def _rel(u, t, h, rot, c):
-    """``R^r u[h] - u[t]`` with ``r = rot[c]`` (r = 0 when ``rot`` is empty): a 3-tuple."""
-    if rot.shape[0] == 0:
-        return u[h, 0] - u[t, 0], u[h, 1] - u[t, 1], u[h, 2] - u[t, 2]
-    cr = ROT_C[rot[c]]
-    sr = ROT_S[rot[c]]
-    return (cr * u[h, 0] - sr * u[h, 1] - u[t, 0], sr * u[h, 0] + cr * u[h, 1] - u[t, 1],
-            u[h, 2] - u[t, 2])
-
-
 @jit
 def accelerations(x, v, net, act, ws, out):
     """Accelerations (n_nodes, 3) m/s^2 of the constrained system into ``out``; multipliers
@@ -230,8 +218,8 @@ def accelerations(x, v, net, act, ws, out):
     else:
         member_vectors_rot(x, tail, head, rot, bvec)
         for c in range(tail.shape[0]):
-            ax, ay, az = _rel(wf, tail[c], head[c], rot, c)
-            dx, dy, dz = _rel(v, tail[c], head[c], rot, c)
+            ax, ay, az = rel(wf, tail[c], head[c], rot, c)
+            dx, dy, dz = rel(v, tail[c], head[c], rot, c)
             lam[c] = -(bvec[c, 0] * ax + bvec[c, 1] * ay + bvec[c, 2] * az
                        + dx * dx + dy * dy + dz * dz)
         assemble_band_rot(bvec, coef3, band)
@@ -249,7 +237,7 @@ def constraint_error_arrays(x, tail, head, length, rot):
     ``net`` tuple (``rot`` empty for ``full3d``)."""
     worst = 0.0
     for c in range(tail.shape[0]):
-        dx, dy, dz = _rel(x, tail[c], head[c], rot, c)
+        dx, dy, dz = rel(x, tail[c], head[c], rot, c)
         L2 = length[c] * length[c]
         e = abs(0.5 * (dx * dx + dy * dy + dz * dz - L2)) / L2
         if not e <= worst:          # also catches NaN
@@ -282,16 +270,10 @@ def project_positions(x, net, ws, tol, max_iter):
             return OK
         if it == max_iter or not math.isfinite(worst):
             break
-        _assemble(bvec, coef, coef3, rot, band)
-        status = band_ldl_solve(band, lam)
+        status = _correct(x, lam, bvec, band, coef, coef3, rot, tail, head, f, wf, w_diag,
+                          partner, w_off)
         if status != OK:
             return status
-        f[:, :] = 0.0
-        _add_forces(lam, bvec, tail, head, rot, f)
-        apply_w(f, w_diag, partner, w_off, wf)
-        for p in range(x.shape[0]):
-            for i in range(3):
-                x[p, i] += wf[p, i]
     return NOT_CONVERGED
 
 
@@ -314,8 +296,16 @@ def project_velocities(x, v, net, ws):
                        + bvec[c, 2] * (v[h, 2] - v[t, 2]))
     else:
         for c in range(tail.shape[0]):
-            dx, dy, dz = _rel(v, tail[c], head[c], rot, c)
+            dx, dy, dz = rel(v, tail[c], head[c], rot, c)
             lam[c] = -(bvec[c, 0] * dx + bvec[c, 1] * dy + bvec[c, 2] * dz)
+    return _correct(v, lam, bvec, band, coef, coef3, rot, tail, head, f, wf, w_diag, partner,
+                    w_off)
+
+
+@jit
+def _correct(u, lam, bvec, band, coef, coef3, rot, tail, head, f, wf, w_diag, partner, w_off):
+    """The mass-weighted correction of both projections: solve ``A mu = lam`` (``lam`` becomes
+    mu), then ``u += W sum_c mu_c G_c``. Returns a status code."""
     _assemble(bvec, coef, coef3, rot, band)
     status = band_ldl_solve(band, lam)
     if status != OK:
@@ -323,9 +313,9 @@ def project_velocities(x, v, net, ws):
     f[:, :] = 0.0
     _add_forces(lam, bvec, tail, head, rot, f)
     apply_w(f, w_diag, partner, w_off, wf)
-    for p in range(x.shape[0]):
+    for p in range(u.shape[0]):
         for i in range(3):
-            v[p, i] += wf[p, i]
+            u[p, i] += wf[p, i]
     return OK
 
 
@@ -410,7 +400,7 @@ def _cable_energy(x, cable_a, cable_b, cable_rot, rest, EA, cable_mult):
     """``sum mult_c 1/2 EA_c / L_c (s_c - L_c)_+^2`` J (``cable_rot`` as in ``net``)."""
     e = 0.0
     for c in range(cable_a.shape[0]):
-        dx, dy, dz = _rel(x, cable_a[c], cable_b[c], cable_rot, c)
+        dx, dy, dz = rel(x, cable_a[c], cable_b[c], cable_rot, c)
         s = math.sqrt(dx * dx + dy * dy + dz * dz)
         if s > rest[c]:
             e += cable_mult[c] * 0.5 * EA[c] / rest[c] * (s - rest[c]) ** 2

@@ -4,7 +4,7 @@ import math
 
 from solver._jit import jit
 from solver.kernels import dynamics as dyn
-from solver.kernels.contact import contact_kink
+from solver.kernels.contact import contact_kink, gap_kink
 
 
 @jit
@@ -49,17 +49,7 @@ def next_kink(x, v, acc, net, act, h, ignore):
         g = s - rest[c]
         sd = bbd / s
         sdd = (bdbd + bbdd - sd * sd) / s
-        disc = sd * sd - 2.0 * sdd * g
-        if disc < 0.0:
-            continue
-        q = -0.5 * (sd + math.copysign(math.sqrt(disc), sd))
-        for r in range(2):
-            if r == 0:
-                t = q / (0.5 * sdd) if sdd != 0.0 else -1.0
-            else:
-                t = g / q if q != 0.0 else -1.0
-            if ignore < t < t_best:
-                t_best = t
+        t_best = gap_kink(g, sd, sdd, t_best, ignore)
     ex = act[3]
     if ex[2].shape[0] != 0 or ex[3].shape[0] != 0:      # stops and strikers (kernels.contact)
         t_best = contact_kink(x, v, acc, ex, t_best, ignore)

@@ -42,7 +42,7 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 
 from solver._jit import jit, jit_inline
-from solver.kernels.rotation import ROT_C, ROT_S
+from solver.kernels.rotation import ROT_C, ROT_S, rel
 
 from solver.status import BAD_WORKSPACE, NONFINITE, NOT_CONVERGED, OK, SINGULAR  # noqa: F401
 
@@ -233,16 +233,6 @@ def _grad_head(bx, by, bz, rot, c):
     return cr * bx + sr * by, cr * by - sr * bx, bz
 
 
-@jit_inline
-def _rel(u, t, h, rot, c):
-    if rot.shape[0] == 0:
-        return u[h, 0] - u[t, 0], u[h, 1] - u[t, 1], u[h, 2] - u[t, 2]
-    cr = ROT_C[rot[c]]
-    sr = ROT_S[rot[c]]
-    return (cr * u[h, 0] - sr * u[h, 1] - u[t, 0], sr * u[h, 0] + cr * u[h, 1] - u[t, 1],
-            u[h, 2] - u[t, 2])
-
-
 @jit
 def assemble(x, tail, head, rot, kkt, kws, bvec):
     """Fill ``kws[0]`` with the KKT matrix at positions ``x`` (member vectors into ``bvec``).
@@ -261,7 +251,7 @@ def assemble(x, tail, head, rot, kkt, kws, bvec):
         for i in range(3):
             band[p + i, q - p + kl] += m
     for c in range(tail.shape[0]):
-        bx, by, bz = _rel(x, tail[c], head[c], rot, c)
+        bx, by, bz = rel(x, tail[c], head[c], rot, c)
         bvec[c, 0] = bx
         bvec[c, 1] = by
         bvec[c, 2] = bz
@@ -301,7 +291,7 @@ def accelerations(x, v, f, tail, head, rot, kkt, kws, bvec, lam, out):
             for i in range(3):
                 rhs[u + i] = f[p, i]
     for c in range(tail.shape[0]):
-        dx, dy, dz = _rel(v, tail[c], head[c], rot, c)
+        dx, dy, dz = rel(v, tail[c], head[c], rot, c)
         rhs[con_u[c]] = -(dx * dx + dy * dy + dz * dz)
     status = _solve(kkt, kws)
     if status != OK:
@@ -335,7 +325,7 @@ def project_positions(x, tail, head, rot, length, kkt, kws, bvec, tol, max_iter)
     for it in range(max_iter + 1):
         worst = 0.0
         for c in range(tail.shape[0]):
-            dx, dy, dz = _rel(x, tail[c], head[c], rot, c)
+            dx, dy, dz = rel(x, tail[c], head[c], rot, c)
             L2 = length[c] * length[c]
             e = abs(0.5 * (dx * dx + dy * dy + dz * dz - L2)) / L2
             if not e <= worst:
@@ -379,7 +369,7 @@ def project_velocities(x, v, tail, head, rot, kkt, kws, bvec):
             rhs[u + 1] = 0.0
             rhs[u + 2] = 0.0
     for c in range(tail.shape[0]):
-        dx, dy, dz = _rel(v, tail[c], head[c], rot, c)
+        dx, dy, dz = rel(v, tail[c], head[c], rot, c)
         rhs[con_u[c]] = -(bvec[c, 0] * dx + bvec[c, 1] * dy + bvec[c, 2] * dz)
     status = _solve(kkt, kws)
     if status != OK:

@@ -12,11 +12,23 @@ import math
 
 import numpy as np
 
-from solver._jit import jit
+from solver._jit import jit, jit_inline
 
 # R^r = [[C[r], -S[r], 0], [S[r], C[r], 0], [0, 0, 1]]: rotation by 2 pi r / 3 about z
 ROT_C = np.array([1.0, -0.5, -0.5])
 ROT_S = np.array([0.0, math.sqrt(3.0) / 2.0, -math.sqrt(3.0) / 2.0])
+
+
+@jit_inline
+def rel(u, t, h, rot, c):
+    """``R^r u[h] - u[t]`` with ``r = rot[c]`` (r = 0 when ``rot`` is empty): a 3-tuple. Inlined
+    by numba where it is called (a call would cost more than the member loop around it)."""
+    if rot.shape[0] == 0:
+        return u[h, 0] - u[t, 0], u[h, 1] - u[t, 1], u[h, 2] - u[t, 2]
+    cr = ROT_C[rot[c]]
+    sr = ROT_S[rot[c]]
+    return (cr * u[h, 0] - sr * u[h, 1] - u[t, 0], sr * u[h, 0] + cr * u[h, 1] - u[t, 1],
+            u[h, 2] - u[t, 2])
 
 
 @jit

@@ -204,7 +204,7 @@ def run_demo(scene_file='config/scenes/fb_column.yaml', v0=(0.1,), duration_s=1.
     from solver.build.scene import Scene
     from solver.build.structures import build_network
 
-    from tensegrity_ros.node.node import find_config
+    from tensegrity_ros.node.params import find_config
 
     if domain_id is None:
         domain_id = demo_domain_id()
@@ -327,7 +327,7 @@ def run_focus_demo(focus, scene_file='config/scenes/lens_focus.yaml', speed=1.5,
     from solver.studies import lens
     from solver.build.scene import Scene
 
-    from tensegrity_ros.node.node import find_config
+    from tensegrity_ros.node.params import find_config
 
     if domain_id is None:
         domain_id = demo_domain_id()
