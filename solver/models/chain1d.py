@@ -45,6 +45,7 @@ import numpy as np
 
 from solver.kernels import dynamics as dyn
 from solver._jit import jit
+from solver.models.base import Model
 from solver.models.prism_law import (PrismLaw, poly_eval, cross_length, prism_energy, rigid_force,
                         table_law, twist)
 
@@ -171,10 +172,11 @@ def _chain_run(u, w, dt, n_steps, n_sub, h0, inv_m, f_ext, kind, rigid, lo, dh, 
     return n_steps, dyn.OK
 
 
-class Chain1D:
+class Chain1D(Model):
     """The 1D chain as a model of one column (see the module doc). State ``u``, ``w``
     (n_levels,)."""
     name = 'chain1d'
+    integrates_itself = True
 
     def __init__(self, network, f_ext=None):
         meta = network.meta

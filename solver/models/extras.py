@@ -83,7 +83,7 @@ def attach(model, spec, striker_state=None):
     where the strikers start (default: touching the free end, at rest). Sets
     ``model.n_strikers``."""
     net_full = model.network
-    reduced = getattr(model, 'reduced', None)
+    reduced = model.reduced
     if spec is None or not active_spec(spec):
         model.n_strikers = 0
         return model
@@ -150,7 +150,7 @@ def attach(model, spec, striker_state=None):
 
 def striker_state(model):
     """(n_strikers, 2) striker face height m and axial velocity m/s of a model (a copy)."""
-    ns = getattr(model, 'n_strikers', 0)
+    ns = model.n_strikers
     if not ns:
         return np.zeros((0, 2))
     return np.stack([model.x[-ns:, 2], model.v[-ns:, 2]], axis=1)

@@ -28,20 +28,7 @@ from __future__ import annotations
 import numpy as np
 
 from solver.kernels import dynamics as dyn
-
-
-class Model:
-    name = ''
-    summ = None
-
-    def __init__(self, network):
-        self.network = network
-
-    def positions(self):
-        raise NotImplementedError
-
-    def velocities(self):
-        raise NotImplementedError
+from solver.models.base import Model
 
 
 class Full3D(Model):

@@ -28,6 +28,7 @@ from scipy.spatial import cKDTree
 
 from solver.kernels import dynamics as dyn
 from solver._jit import jit
+from solver.models.base import Model
 from solver.kernels.rotation import ROT_C, ROT_S
 from solver.kernels import massmatrix
 from solver.build.network import (NetworkError, _band_order, _diagonal_inverse_mass, _inverse_mass,
@@ -255,7 +256,7 @@ def reduce_network(network, tol=1e-9):
         bar_mass=_ro(bmass, np.float64))
 
 
-class Sym3D:
+class Sym3D(Model):
     """One node per orbit of three (docs/physics.md section 6); state ``x``, ``v`` (n_orbits, 3).
 
     ``positions()``/``velocities()`` expand to the full network; :meth:`set_state` and

@@ -27,6 +27,7 @@ import numpy as np
 
 from solver.build.scene import Scene
 from solver.build.structures import build_network
+from solver.models.base import Model
 from solver.simulate.loading import prestrain_values, rest_length_values
 from solver.simulate.simulation import Frame, Simulation, SimulationDiverged
 
@@ -48,7 +49,7 @@ def wants_array(scene):
             and scene['model'] in ('auto', 'sym3d'))
 
 
-class _ArrayModel:
+class _ArrayModel(Model):
     """The model view of an array (what callers read of ``sim.model``): full arrays assembled
     from the columns' models; ``name`` the columns' model (``sym3d``, ``full3d`` or both joined
     by ``+``)."""

@@ -111,7 +111,7 @@ class Loading:
         (towards the column); a striker out of contact is first placed on the free end (touching,
         no overlap, so no energy changes)."""
         m, net = self.model, self.network
-        ns = getattr(m, 'n_strikers', 0)
+        ns = m.n_strikers
         if not ns:
             raise ValueError('impact: mode striker needs loading.impact.mode: striker in the '
                              'scene (the strikers are built with the model)')
@@ -138,7 +138,7 @@ class Loading:
             self._strike(v0, columns)
             self._energy_ref = self.energy()
             return self._energy_ref - before
-        if hasattr(self.model, 'impact'):           # chain1d: axial velocity on the end level
+        if self.model.integrates_itself:            # chain1d: axial velocity on the end level
             if columns not in (None, [0], (0,)):
                 raise ValueError('impact: chain1d has one column (0)')
             if np.ndim(v0) != 0 or not math.isfinite(float(v0)):

@@ -101,7 +101,7 @@ class Simulation(Loading):
             self.model = extras.attach(self._model_cls(net, f_ext=self.f_ext), self._extras)
             self.expanded = None
         self.model.set_state(net.x0, np.zeros((net.n_nodes, 3)))
-        ns = getattr(self.model, 'n_strikers', 0)
+        ns = self.model.n_strikers
         if ns:                                  # strikers back on the free ends, at rest
             self.model.x[-ns:, 2] = np.asarray(net.x0)[net.levels[:, -1], 2].mean(axis=1)
             self.model.v[-ns:] = 0.0
@@ -161,7 +161,7 @@ class Simulation(Loading):
 
     def _compute_summary(self):
         m, net = self.model, self.network
-        summ = getattr(m, 'summ', None)
+        summ = m.summ
         if summ is not None:                    # on the model's own (maybe reduced) state
             h = np.empty(self._heights_shape)
             finite, e, cerr, h_min = dyn.state_summary(m.x, m.v, m.net, m.act, summ, h)
@@ -172,7 +172,7 @@ class Simulation(Loading):
                                                            m.cable_EA, self._f_ext_or_none)
             e += contact.extra_energy(m.x, m.v, m.act[3])
             finite = finite and dyn.all_finite(m.x) and dyn.all_finite(m.v)
-        elif hasattr(m, 'advance'):               # chain1d: its own energy
+        elif m.integrates_itself:                 # chain1d: its own energy
             finite, e, h, cerr = (dyn.all_finite(x) and dyn.all_finite(v), m.energy(),
                                   observables.prism_heights(x, net.levels), m.constraint_error())
         else:
@@ -202,8 +202,7 @@ class Simulation(Loading):
             strikers = extras.striker_state(self.model)
             self.model = extras.attach(models.expand(self.model, f_ext=self.f_ext),
                                         self._extras, strikers if len(strikers) else None)
-            if hasattr(self.integrator, 'reset'):      # forget step-size history of sym3d
-                self.integrator.reset()
+            self.integrator.reset()                 # forget step-size history of sym3d
             self.expanded = reason
             self._changed()
 
@@ -239,7 +238,7 @@ class Simulation(Loading):
         at the start of each step. Returns ``(steps, status)`` of the integrator."""
         m = self.model
         self._changed()
-        if hasattr(m, 'advance'):                   # chain1d: its own state and kernel
+        if m.integrates_itself:                     # chain1d: its own state and kernel
             if self._ramp is not None:
                 return 0, codes.CHAIN_CANNOT_RAMP
             return m.advance(self.dt, n)
@@ -275,7 +274,7 @@ class Simulation(Loading):
         if n == 0:
             return 0
         m = self.model
-        summ = getattr(m, 'summ', None)
+        summ = m.summ
         if summ is None or self._ramp is not None:
             keep = self._keep()
             steps, status = self._integrate(n)
@@ -379,7 +378,7 @@ class Simulation(Loading):
         without a full state of rigid members)."""
         def compute():
             net = self.network
-            if not net.levels.size or hasattr(self.model, 'advance'):     # chain1d: none
+            if not net.levels.size or self.model.integrates_itself:       # chain1d: none
                 return np.zeros(net.n_columns)
             if getattr(self, '_base_force', None) is None:
                 from solver.analysis.support import BaseForce
