@@ -107,3 +107,28 @@ def test_help_is_plain_text():
         assert 'interfaces.md' not in text, f'{name}: cites interfaces.md in the help'
     for command in ('run', 'sweep', 'fit', 'lens', 'node', 'demo', 'replay', 'paper', 'bench'):
         assert command in names
+
+
+SOURCES = sorted(p for d in ('solver', 'tensegrity_ros', 'bench')
+                 for p in (ROOT / d).rglob('*.py'))
+
+
+@pytest.mark.parametrize('path', SOURCES, ids=lambda p: str(p.relative_to(ROOT)))
+def test_docstrings_have_no_history_of_the_making(path):
+    """Module, class and function docstrings describe the code as it is, like the docs."""
+    import ast
+    tree = ast.parse(path.read_text(encoding='utf-8'))
+    hits = []
+    for node in [tree] + [n for n in ast.walk(tree)
+                          if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef))]:
+        for line in (ast.get_docstring(node) or '').splitlines():
+            hits += [f'{getattr(node, "name", "module")}: {pattern}: {line.strip()[:100]}'
+                     for pattern in HISTORY if re.search(pattern, line, flags=re.I)]
+    assert not hits, f'{path.name}: history in docstrings:\n' + '\n'.join(hits)
+
+
+def test_the_docstring_check_catches_history(tmp_path):
+    path = tmp_path / 'old.py'
+    path.write_text('"""The recorder, which used to run in a helper process."""\n')
+    with pytest.raises(AssertionError, match='used to'):
+        test_docstrings_have_no_history_of_the_making(path)
