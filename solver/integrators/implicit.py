@@ -47,7 +47,7 @@ import math
 import numpy as np
 
 from solver.kernels import dynamics as dyn
-from solver._jit import jit
+from solver._jit import jit, jit_inline
 from solver.integrators.base import Integrator
 from solver.kernels.banded import band_ldl_apply, band_ldl_factor
 from solver.kernels.rotation import ROT_C, ROT_S, rel
@@ -138,6 +138,15 @@ def dg_density(s0, s1, L, k):
     return -k * e * e / den, 2.0 * s1 * k * e * e / (den * den)
 
 
+@jit_inline
+def _chords(x0, x1, a, b, cable_rot, c):
+    """A cable's vectors and lengths at both ends of a step (to the rotated image for sym3d)."""
+    ax, ay, az = rel(x0, a, b, cable_rot, c)
+    bx, by, bz = rel(x1, a, b, cable_rot, c)
+    return (ax, ay, az, bx, by, bz, math.sqrt(ax * ax + ay * ay + az * az),
+            math.sqrt(bx * bx + by * by + bz * bz))
+
+
 @jit
 def dg_forces(x0, x1, net, act, f):
     """``f`` = external forces + discrete-gradient cable forces ``gbar (d0 + d1) / 2`` between
@@ -150,12 +159,8 @@ def dg_forces(x0, x1, net, act, f):
         a = cable_a[c]
         b = cable_b[c]
         cr, sr = _rot(cable_rot, c)
-        ax, ay, az = rel(x0, a, b, cable_rot, c)
-        bx, by, bz = rel(x1, a, b, cable_rot, c)
-        s0 = math.sqrt(ax * ax + ay * ay + az * az)
-        s1 = math.sqrt(bx * bx + by * by + bz * bz)
-        L = rest[c]
-        g, _ = dg_density(s0, s1, L, EA[c] / L)
+        ax, ay, az, bx, by, bz, s0, s1 = _chords(x0, x1, a, b, cable_rot, c)
+        g, _ = dg_density(s0, s1, rest[c], EA[c] / rest[c])
         if g == 0.0:
             continue
         fx = 0.5 * g * (ax + bx)
@@ -235,12 +240,8 @@ def assemble_kkt(x0, x1, xm, h, nu, net, act, node_pos, con_pos, band):
         a = cable_a[c]
         b = cable_b[c]
         cr, sr = _rot(cable_rot, c)
-        ax, ay, az = rel(x0, a, b, cable_rot, c)
-        bx, by, bz = rel(x1, a, b, cable_rot, c)
-        s0 = math.sqrt(ax * ax + ay * ay + az * az)
-        s1 = math.sqrt(bx * bx + by * by + bz * bz)
-        L = rest[c]
-        g, dg = dg_density(s0, s1, L, EA[c] / L)
+        ax, ay, az, bx, by, bz, s0, s1 = _chords(x0, x1, a, b, cable_rot, c)
+        g, dg = dg_density(s0, s1, rest[c], EA[c] / rest[c])
         if g == 0.0 and dg == 0.0:
             continue
         dm[0], dm[1], dm[2] = 0.5 * (ax + bx), 0.5 * (ay + by), 0.5 * (az + bz)
