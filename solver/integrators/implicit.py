@@ -256,9 +256,7 @@ def assemble_kkt(x0, x1, xm, h, nu, net, act, node_pos, con_pos, band):
         t = tail[c]
         hd = head[c]
         cr, sr = _rot(rot, c)
-        bx = cr * xm[hd, 0] - sr * xm[hd, 1] - xm[t, 0]
-        by = sr * xm[hd, 0] + cr * xm[hd, 1] - xm[t, 1]
-        bz = xm[hd, 2] - xm[t, 2]
+        bx, by, bz = rel(xm, t, hd, rot, c)
         # constraint curvature: d/dx1 of G(xm)^T nu = nu / 2 * Hessian of g_c
         for i in range(3):
             for j in range(3):
@@ -301,9 +299,7 @@ def _residual(x, x0, v0, h, f, xm, nu, net, node_pos, con_pos, rhs):
         t = tail[c]
         hd = head[c]
         cr, sr = _rot(rot, c)
-        bx = cr * xm[hd, 0] - sr * xm[hd, 1] - xm[t, 0]
-        by = sr * xm[hd, 0] + cr * xm[hd, 1] - xm[t, 1]
-        bz = xm[hd, 2] - xm[t, 2]
+        bx, by, bz = rel(xm, t, hd, rot, c)
         nc = nu[c]
         qt = node_pos[t]
         qh = node_pos[hd]

@@ -32,7 +32,7 @@ import math
 import numpy as np
 
 from solver._jit import jit, jit_inline
-from solver.kernels.rotation import ROT_C, ROT_S
+from solver.kernels.rotation import ROT_C, ROT_S, add_pair_force
 
 
 def _empty(shape, dtype=np.float64):
@@ -75,15 +75,7 @@ def cable_forces_damped(x, v, cable_a, cable_b, cable_rot, rest, EA, damp, f):
             uz = v[b, 2] - v[a, 2]
             T = EA[c] / L * (s - L) + damp[c] * (dx * ux + dy * uy + dz * uz) / s
             if T > 0.0:
-                g = T / s
-                fx = g * dx
-                fy = g * dy
-                f[a, 0] += fx
-                f[a, 1] += fy
-                f[a, 2] += g * dz
-                f[b, 0] -= cr * fx + sr * fy
-                f[b, 1] -= cr * fy - sr * fx
-                f[b, 2] -= g * dz
+                add_pair_force(f, a, b, T / s, dx, dy, dz, cr, sr)
 
 
 @jit

@@ -31,6 +31,20 @@ def rel(u, t, h, rot, c):
             u[h, 2] - u[t, 2])
 
 
+@jit_inline
+def add_pair_force(f, a, b, g, dx, dy, dz, cr, sr):
+    """Add the force ``g (dx, dy, dz)`` of a member from node a to the image ``R^r x_b`` onto
+    node a, and its reaction, rotated back (``R^-r``), onto node b."""
+    fx = g * dx
+    fy = g * dy
+    f[a, 0] += fx
+    f[a, 1] += fy
+    f[a, 2] += g * dz
+    f[b, 0] -= cr * fx + sr * fy
+    f[b, 1] -= cr * fy - sr * fx
+    f[b, 2] -= g * dz
+
+
 @jit
 def cable_forces_rot(x, cable_a, cable_b, cable_rot, rest, EA, f):
     """:func:`cable_forces` for cables from ``x_a`` to the image ``R^r x_b``: the force on the
@@ -46,15 +60,7 @@ def cable_forces_rot(x, cable_a, cable_b, cable_rot, rest, EA, f):
         s = math.sqrt(dx * dx + dy * dy + dz * dz)
         L = rest[c]
         if s > L:
-            g = EA[c] / L * (s - L) / s
-            fx = g * dx
-            fy = g * dy
-            f[a, 0] += fx
-            f[a, 1] += fy
-            f[a, 2] += g * dz
-            f[b, 0] -= cr * fx + sr * fy
-            f[b, 1] -= cr * fy - sr * fx
-            f[b, 2] -= g * dz
+            add_pair_force(f, a, b, EA[c] / L * (s - L) / s, dx, dy, dz, cr, sr)
 
 
 @jit
