@@ -32,7 +32,7 @@ import math
 import numpy as np
 
 from solver._jit import jit, jit_inline
-from solver.kernels.rotation import ROT_C, ROT_S, add_pair_force, rel
+from solver.kernels.rotation import ROT_C, ROT_S, add_pair_force
 
 
 def _empty(shape, dtype=np.float64):
@@ -64,11 +64,15 @@ def cable_forces_damped(x, v, cable_a, cable_b, cable_rot, rest, EA, damp, f):
         if rotated:
             cr = ROT_C[cable_rot[c]]
             sr = ROT_S[cable_rot[c]]
-        dx, dy, dz = rel(x, a, b, cable_rot, c)
+        dx = cr * x[b, 0] - sr * x[b, 1] - x[a, 0]
+        dy = sr * x[b, 0] + cr * x[b, 1] - x[a, 1]
+        dz = x[b, 2] - x[a, 2]
         s = math.sqrt(dx * dx + dy * dy + dz * dz)
         L = rest[c]
         if s > L:
-            ux, uy, uz = rel(v, a, b, cable_rot, c)
+            ux = cr * v[b, 0] - sr * v[b, 1] - v[a, 0]
+            uy = sr * v[b, 0] + cr * v[b, 1] - v[a, 1]
+            uz = v[b, 2] - v[a, 2]
             T = EA[c] / L * (s - L) + damp[c] * (dx * ux + dy * uy + dz * uz) / s
             if T > 0.0:
                 add_pair_force(f, a, b, T / s, dx, dy, dz, cr, sr)

@@ -3,8 +3,8 @@ state to restore when a step fails. Shared by every explicit integrator family."
 import math
 
 from solver._jit import jit
+from solver.kernels import dynamics as dyn
 from solver.kernels.contact import contact_kink, gap_kink
-from solver.kernels.rotation import rel
 
 
 @jit
@@ -18,12 +18,29 @@ def next_kink(x, v, acc, net, act, h, ignore):
     cable_a, cable_b, cable_rot = net[7], net[8], net[10]
     rest = act[0]
     t_best = h
+    rotated = cable_rot.shape[0] > 0
     for c in range(cable_a.shape[0]):
         a = cable_a[c]
         b = cable_b[c]
-        dx, dy, dz = rel(x, a, b, cable_rot, c)         # to the image R^r x_b for sym3d
-        vx, vy, vz = rel(v, a, b, cable_rot, c)
-        ax, ay, az = rel(acc, a, b, cable_rot, c)
+        if rotated:         # a cable to the image R^r x_b (sym3d)
+            cr = dyn.ROT_C[cable_rot[c]]
+            sr = dyn.ROT_S[cable_rot[c]]
+            dx = cr * x[b, 0] - sr * x[b, 1] - x[a, 0]
+            dy = sr * x[b, 0] + cr * x[b, 1] - x[a, 1]
+            vx = cr * v[b, 0] - sr * v[b, 1] - v[a, 0]
+            vy = sr * v[b, 0] + cr * v[b, 1] - v[a, 1]
+            ax = cr * acc[b, 0] - sr * acc[b, 1] - acc[a, 0]
+            ay = sr * acc[b, 0] + cr * acc[b, 1] - acc[a, 1]
+        else:
+            dx = x[b, 0] - x[a, 0]
+            dy = x[b, 1] - x[a, 1]
+            vx = v[b, 0] - v[a, 0]
+            vy = v[b, 1] - v[a, 1]
+            ax = acc[b, 0] - acc[a, 0]
+            ay = acc[b, 1] - acc[a, 1]
+        dz = x[b, 2] - x[a, 2]
+        vz = v[b, 2] - v[a, 2]
+        az = acc[b, 2] - acc[a, 2]
         bb = dx * dx + dy * dy + dz * dz
         bbd = dx * vx + dy * vy + dz * vz
         bdbd = vx * vx + vy * vy + vz * vz

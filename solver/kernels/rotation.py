@@ -54,7 +54,9 @@ def cable_forces_rot(x, cable_a, cable_b, cable_rot, rest, EA, f):
         b = cable_b[c]
         cr = ROT_C[cable_rot[c]]
         sr = ROT_S[cable_rot[c]]
-        dx, dy, dz = rel(x, a, b, cable_rot, c)
+        dx = cr * x[b, 0] - sr * x[b, 1] - x[a, 0]
+        dy = sr * x[b, 0] + cr * x[b, 1] - x[a, 1]
+        dz = x[b, 2] - x[a, 2]
         s = math.sqrt(dx * dx + dy * dy + dz * dz)
         L = rest[c]
         if s > L:
