@@ -18,37 +18,43 @@ KINDS = ('message', 'frame', 'event', 'field', 'close')
 
 
 class FanOut:
-    """The sinks of a node or a run. ``on_error(sink, exc)`` is told of a sink that failed."""
+    """The sinks of a node or a run. ``on_error(sink, exc)`` is told of a sink that failed. The
+    sinks of each kind are listed once when a sink is added or dropped (a frame's messages pass
+    here several hundred times a second)."""
 
     def __init__(self, on_error=None):
         self.on_error = on_error
         self.sinks = []
+        self._index()
+
+    def _index(self):
+        self._by_kind = {kind: tuple((s, getattr(s, kind)) for s in self.sinks
+                                     if callable(getattr(s, kind, None))) for kind in KINDS}
+        self.wants_objects = any(not getattr(s, 'takes_bytes', False)
+                                 for s, _ in self._by_kind['message'])
 
     def add(self, sink):
         self.sinks.append(sink)
+        self._index()
         return sink
 
     def has(self, kind):
         """Whether any sink takes ``kind`` (one of :data:`KINDS`)."""
-        return any(callable(getattr(s, kind, None)) for s in self.sinks)
-
-    @property
-    def wants_objects(self):
-        """Whether a sink takes messages as objects (not CDR bytes)."""
-        return any(callable(getattr(s, 'message', None)) and not getattr(s, 'takes_bytes', False)
-                   for s in self.sinks)
+        return bool(self._by_kind[kind])
 
     def _call(self, kind, *args):
-        for sink in list(self.sinks):
-            fn = getattr(sink, kind, None)
-            if not callable(fn):
-                continue
+        for sink, fn in self._by_kind[kind]:
             try:
                 fn(*args)
             except Exception as exc:    # a broken recorder must not stop the simulation
-                self.sinks.remove(sink)
-                if self.on_error is not None:
-                    self.on_error(sink, exc)
+                self._drop(sink, exc)
+
+    def _drop(self, sink, exc):
+        if sink in self.sinks:
+            self.sinks.remove(sink)
+            self._index()
+        if self.on_error is not None:
+            self.on_error(sink, exc)
 
     def message(self, topic, msg, stamp_ns):
         self._call('message', topic, msg, stamp_ns)
@@ -64,15 +70,15 @@ class FanOut:
 
     def close(self):
         """Close every sink once (each in turn, whatever the others do); the list is emptied."""
-        sinks, self.sinks = self.sinks, []
-        for sink in sinks:
-            fn = getattr(sink, 'close', None)
-            if callable(fn):
-                try:
-                    fn()
-                except Exception as exc:
-                    if self.on_error is not None:
-                        self.on_error(sink, exc)
+        closers = self._by_kind['close']
+        self.sinks = []
+        self._index()
+        for sink, fn in closers:
+            try:
+                fn()
+            except Exception as exc:
+                if self.on_error is not None:
+                    self.on_error(sink, exc)
 
 
 class McapSink:
