@@ -1,7 +1,7 @@
 """Cost of the ROS 2 node against the bare solver, measured side by side in one process.
 
     python -m bench.node_overhead [--scene config/scenes/fb_column.yaml] [--window 3] [--rounds 3]
-                                  [--no-subscriber] [--out bench/results]
+                                  [--no-subscriber] [--record] [--out bench/results]
 
 Each round measures, one after the other on the same wave (an impact at the start of each window):
 
@@ -27,6 +27,7 @@ import os
 import statistics
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -121,8 +122,9 @@ def cost_breakdown(node, n=200):
 
 
 def measure(scene='config/scenes/fb_column.yaml', window_s=3.0, rounds=3, subscriber=True,
-            publish_rate_hz=200.0, domain_id=None, model='', log=print):
-    """Run the rounds; returns a dict of medians and per-round figures."""
+            publish_rate_hz=200.0, domain_id=None, model='', log=print, record=None):
+    """Run the rounds; returns a dict of medians and per-round figures. ``record``: a folder
+    where the node records MCAP and Rerun (``record_mcap``, ``record_rerun``) all along."""
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.parameter import Parameter
@@ -146,6 +148,9 @@ def measure(scene='config/scenes/fb_column.yaml', window_s=3.0, rounds=3, subscr
                       model=model)
         sim = load_simulation(dict(params, integrator='', dt=0.0))
         bare_sim = load_simulation(dict(params, integrator='', dt=0.0))
+        if record is not None:
+            params.update(record_mcap=str(Path(record) / 'node.mcap'),
+                          record_rerun=str(Path(record) / 'node.rrd'))
         node = TensegritySim(sim=sim, context=ctx,
                              parameter_overrides=[Parameter(k, value=v)
                                                   for k, v in params.items()])
@@ -187,7 +192,7 @@ def measure(scene='config/scenes/fb_column.yaml', window_s=3.0, rounds=3, subscr
 
     return {
         'scene': scene, 'model': sim.model.name, 'window_s': window_s, 'rounds': rounds,
-        'subscriber': subscriber,
+        'subscriber': subscriber, 'recording': record is not None,
         'publish_rate_hz': publish_rate_hz, 'steps_per_frame': chunk,
         'bare_rtf': med(('bare', 'rtf')),
         'node_rtf0_rtf': med(('node_rtf0', 'rtf')), 'node_rtf0_rate_hz': med(('node_rtf0',
@@ -212,10 +217,13 @@ def main(argv=None):
     ap.add_argument('--rounds', type=int, default=3)
     ap.add_argument('--model', default='', help='model override (default: the scene\'s)')
     ap.add_argument('--no-subscriber', action='store_true')
+    ap.add_argument('--record', action='store_true',
+                    help='the node records MCAP and Rerun (to a temporary folder) all along')
     ap.add_argument('--out', default='bench/results')
     args = ap.parse_args(argv)
-    res = measure(args.scene, args.window, args.rounds, subscriber=not args.no_subscriber,
-                  model=args.model)
+    with tempfile.TemporaryDirectory() as tmp:
+        res = measure(args.scene, args.window, args.rounds, subscriber=not args.no_subscriber,
+                      model=args.model, record=tmp if args.record else None)
     print(f"{res['model']}: bare solver {res['bare_rtf']:.2f}x real time; node rtf=0: "
           f"{res['node_rtf0_rtf']:.2f}x"
           f" at {res['node_rtf0_rate_hz']:.0f} Hz = {res['ratio_rtf0_bare']:.3f} of the bare "
@@ -225,7 +233,8 @@ def main(argv=None):
           f"{res['node_rtf1_rate_hz']:.0f} Hz (longest tick {res['tick_max_ms_rtf1']:.1f} ms)")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    name = f"node_overhead_{res['model']}{'' if res['subscriber'] else '_nosub'}.json"
+    name = (f"node_overhead_{res['model']}{'' if res['subscriber'] else '_nosub'}"
+            f"{'_record' if res['recording'] else ''}.json")
     (out / name).write_text(json.dumps(res, indent=2))
     print(out / name)
     return 0
