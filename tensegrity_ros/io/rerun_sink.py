@@ -184,6 +184,7 @@ class RerunRecorder:
         self._n = self._wave_n = 0
         self._lo = self._hi = None                    # strain extremes per column so far
         self._impact_t = None
+        self._commands = []                           # (t s, text, level) not yet sent
         self._last_t = None
         self._last_flush = self._last_wave = time.monotonic()
         self.n_frames = self.n_commands = self.n_restarts = self.n_fields = 0
@@ -244,7 +245,7 @@ class RerunRecorder:
                 raise ValueError(f'rerun: frame at t = {t:g} s has non-finite {name} (or beyond '
                                  f'float32); not recorded')
         if self._last_t is not None and t <= self._last_t:       # the clock went back: a reset
-            self.flush(wave=True)
+            self.flush()
             self._wave_n = 0
             self.n_restarts += 1
         i = self._n
@@ -260,19 +261,20 @@ class RerunRecorder:
 
     def command(self, t, text, level=None):
         """A command (or any event) as a text entry at simulation time ``t`` s on ``commands``;
-        ``level`` defaults to WARN for texts starting with 'rejected' or 'paused', else INFO. The
-        frames buffered before it are sent first, so the log keeps their order."""
+        ``level`` defaults to WARN for texts starting with 'rejected' or 'paused', else INFO.
+        Commands are sent together with the frames (at the latest ``max_latency_s`` after the
+        last batch, also while no frame comes), in the order they were given."""
         self._open()
         if not math.isfinite(t):
             raise ValueError(f'rerun: command time {t} is not finite')
         text = str(text)
         if text.startswith('impact') or ': impact ' in text:     # the heat map starts here
             self._impact_t = float(t)
-        self.flush()
-        self.stream.set_time(TIMELINE, duration=_ns(t))
-        self.stream.log('commands', rr.TextLog(text, level=level or (
+        self._commands.append((float(t), text, level or (
             'WARN' if text.startswith(('rejected', 'paused')) else 'INFO')))
         self.n_commands += 1
+        if time.monotonic() - self._last_flush > self.max_latency_s:
+            self.flush()
 
     def field(self, t, peak, pressure=None, scale=None):
         """The field in the medium at simulation time ``t`` s: ``peak`` (n_z, n_x), the peak
@@ -307,6 +309,12 @@ class RerunRecorder:
         self._last_flush = time.monotonic()
         if n:
             self._send(n)
+        if self._commands:
+            times, texts, levels = zip(*self._commands)
+            self._commands = []
+            rr.send_columns('commands', [rr.TimeColumn(TIMELINE, duration=_ns(times))],
+                            rr.TextLog.columns(text=list(texts), level=list(levels)),
+                            recording=self.stream)
         if self._wave_n and (wave or self._last_flush - self._last_wave >= self.wave_period_s):
             self._log_wave()
 
