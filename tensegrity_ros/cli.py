@@ -37,8 +37,8 @@ def _open_mcap(stack, frame_sinks, scene, sim, path):
     stack.enter_context(signals_as_interrupt())
     recorder = stack.enter_context(McapRecorder(
         path, metadata=network_metadata(sim.network, scene.name)))
-    log = FrameLog(recorder, sim.network, marker_every=marker_every(scene['run.output_dt']))
-    v0, columns = scene['loading.impact.v0'], scene['loading.impact.columns']
+    log = FrameLog(recorder, sim.network, marker_every=marker_every(scene.run.output_dt))
+    v0, columns = scene.loading.impact.v0, scene.loading.impact.columns
     if v0:
         detail = f'impact v0 = {v0:g} m/s (scene {scene.name})'
         if columns is None:
@@ -55,11 +55,11 @@ def _open_rerun(stack, frame_sinks, scene, sim, path=None, url=None):
     closed by ``stack``. Logs the impact applied before the run as a command event."""
     from tensegrity_ros.io.rerun_sink import RerunRecorder
     recorder = stack.enter_context(RerunRecorder(sim.network, path, connect=url))
-    v0 = scene['loading.impact.v0']
+    v0 = scene.loading.impact.v0
     if v0:
-        columns = scene['loading.impact.columns']
-        recorder.command(sim.t, f'impact v0 = {v0:g} m/s on '
-                                f'{"all columns" if columns is None else f"columns {columns}"}')
+        columns = scene.loading.impact.columns
+        where = 'all columns' if columns is None else f'columns {list(columns)}'
+        recorder.command(sim.t, f'impact v0 = {v0:g} m/s on {where}')
     frame_sinks.append(recorder.frame)
     return str(path) if path is not None else url
 
@@ -84,7 +84,7 @@ def cmd_run(args):
     outputs, ctx = {}, {}
 
     def setup(stack, scene, sim):
-        t_end, output_dt = scene['run.t_end'], scene['run.output_dt']
+        t_end, output_dt = scene.run.t_end, scene.run.output_dt
         out_dir = Path(args.out) if args.out else None
         if out_dir is None and (args.plot or args.mcap or args.rerun):
             out_dir = Path('runs') / scene.name
@@ -111,7 +111,7 @@ def cmd_run(args):
 
     point = simulate(args.scene, run_overrides(args), setup=setup)
     scene, rec, out_dir = point.scene, point.record, ctx['out_dir']
-    v0 = scene['loading.impact.v0']
+    v0 = scene.loading.impact.v0
     if args.plot:
         from tensegrity_ros.studies.plots import strain_wave
         outputs['plot'] = str(strain_wave(rec, out_dir / 'strain_wave.png',
@@ -214,7 +214,7 @@ def cmd_lens(args):
                         f'{args.medium_speed!r}')
     focus = lens.parse_focus(args.focus)
     scene = Scene.load(args.scene)
-    v0 = scene['loading.impact.v0'] if args.v0 is None else args.v0
+    v0 = scene.loading.impact.v0 if args.v0 is None else args.v0
     if not (-10.0 <= v0 <= 10.0) or v0 == 0:
         raise UserError(f'--v0: {v0!r} m/s must be nonzero and within [-10, 10]')
     recorder = None

@@ -72,7 +72,7 @@ def test_auto_falls_back_to_full3d_and_sym3d_on_request_names_the_problem():
     # two columns: not symmetric about z as one network, each column about its own axis
     assert simulation_for(scene.with_overrides(['model=full3d'])).model.name == 'full3d'
     assert simulation_for(scene).model.name == 'sym3d'
-    assert models.choose('auto', build_network(scene), scene.data) is models.Full3D
+    assert models.choose('auto', build_network(scene), scene) is models.Full3D
     with pytest.raises(ValueError, match='sym3d'):
         simulation_for(scene.with_overrides(['model=sym3d']), network=build_network(scene))
     assert simulation_for(_scene('fb_column', 'model=chain1d')).model.name == 'chain1d'

@@ -123,3 +123,29 @@ def test_solver_imports_without_ros_mcap_or_rerun():
     res = subprocess.run([sys.executable, '-c', code], cwd=ROOT, capture_output=True, text=True,
                          env=dict(os.environ, PYTHONPATH=str(ROOT)), timeout=300)
     assert res.returncode == 0, res.stderr
+
+
+def test_typed_sections_have_exactly_the_keys_of_the_defaults():
+    """Every section record (solver/build/sections.py) has the keys of its section of
+    DEFAULTS, no more and no fewer, and a loaded scene's records hold the file's values."""
+    from dataclasses import fields
+
+    from solver.build import sections
+    from solver.build.scene import DEFAULTS, STRUCTURE_DEFAULTS
+
+    def names(cls):
+        return {f.name for f in fields(cls)}
+    for name, cls in sections.SECTIONS.items():
+        assert names(cls) == set(DEFAULTS[name]), name
+    for builder, cls in sections.STRUCTURES.items():
+        assert names(cls) == set(STRUCTURE_DEFAULTS[builder]), builder
+    assert names(sections.Loading) == set(DEFAULTS['loading'])
+    assert names(sections.Impact) == set(DEFAULTS['loading']['impact'])
+    scene = Scene.load(SCENES / 'fb_column.yaml').with_overrides(
+        ['run.t_end=0.7', 'loading.impact.columns=[0]', 'structure.n_prisms=7'])
+    assert scene.run.t_end == 0.7 == scene['run.t_end']
+    assert scene.loading.impact.columns == (0,) and scene.structure.n_prisms == 7
+    with pytest.raises(AttributeError):
+        scene.run.t_ned
+    with pytest.raises(Exception):
+        scene.run.t_end = 1.0                 # frozen: a scene is changed by with_overrides

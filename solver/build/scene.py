@@ -12,6 +12,8 @@ from pathlib import Path
 
 import yaml
 
+from solver.build import sections
+
 
 class SceneError(ValueError):
     """A scene file or override that cannot be used; the message names the key."""
@@ -253,11 +255,18 @@ def validate(raw):
 
 
 class Scene:
-    """A validated scene: read-only nested values, ``scene['integrator.dt']`` or ``scene.data``."""
+    """A validated scene. The code reads its typed sections (:mod:`solver.build.sections`):
+    ``scene.run.t_end``, ``scene.loading.impact.v0``, ``scene.structure``, ``scene.prestrain``;
+    ``scene['run.t_end']`` (dotted keys, as users write them) and ``scene.data`` (a copy of the
+    nested dict) serve overrides and files."""
 
     def __init__(self, data, source=None):
         self._data = validate(data)
         self.source = source
+        for name in ('structure', 'materials', 'loading', 'integrator', 'run', 'contact',
+                     'divergence', 'outputs', 'lens'):
+            setattr(self, name, sections.record(name, self._data[name]))
+        self.prestrain, self.model = self._data['prestrain'], self._data['model']
 
     @classmethod
     def load(cls, path):

@@ -265,22 +265,20 @@ class PrestrainMap:
 
 def build_network(scene):
     """The :class:`~solver.build.network.Network` a scene describes."""
-    s = scene['structure']
-    m = scene['materials']
-    builder = s.pop('builder')
-    if builder == 'column':
+    s, m = scene.structure, scene.materials
+    if s.builder == 'column':
         return column(
-            n_prisms=s['n_prisms'], radius=s['radius'], h0=s['h0'], cable_E=m['cable_E'],
-            cable_radius=m['cable_radius'], unit_mass=m['unit_mass'], bar_mass=m['bar_mass'],
-            prestrain=scene['prestrain'], bases=s['bases'], stacking=s['stacking'],
-            rigid_bases_as=s['rigid_bases_as'], kappa=s['kappa'], n_columns=s['n_columns'],
-            column_spacing=s['column_spacing'], clamped_levels=tuple(s['clamped_levels']),
-            handedness=s['handedness'], bar_mass_fraction=m['bar_mass_fraction'],
-            mass_placement=s['mass_placement'], end_mass=m['end_mass'])
-    EA = m['cable_E'] * math.pi * m['cable_radius'] ** 2
-    rest = s['cable_rest_length']
-    return explicit(s['nodes'], s['bars'], s['cables'], s['node_mass'], EA,
-                               cable_rest_length=rest,
-                               prestrain=None if rest is not None else scene['prestrain'],
-                               rigid_edges=s['rigid_edges'], clamped=s['clamped'],
-                               bar_mass=m['bar_mass'])
+            n_prisms=s.n_prisms, radius=s.radius, h0=s.h0, cable_E=m.cable_E,
+            cable_radius=m.cable_radius, unit_mass=m.unit_mass, bar_mass=m.bar_mass,
+            prestrain=scene.prestrain, bases=s.bases, stacking=s.stacking,
+            rigid_bases_as=s.rigid_bases_as, kappa=s.kappa, n_columns=s.n_columns,
+            column_spacing=s.column_spacing, clamped_levels=tuple(s.clamped_levels),
+            handedness=s.handedness, bar_mass_fraction=m.bar_mass_fraction,
+            mass_placement=s.mass_placement, end_mass=m.end_mass)
+    EA = m.cable_E * math.pi * m.cable_radius ** 2
+    rest = None if s.cable_rest_length is None else list(s.cable_rest_length)
+    return explicit([list(p) for p in s.nodes], [list(b) for b in s.bars],
+                    [list(c) for c in s.cables], s.node_mass, EA, cable_rest_length=rest,
+                    prestrain=None if rest is not None else scene.prestrain,
+                    rigid_edges=[list(e) for e in s.rigid_edges], clamped=list(s.clamped),
+                    bar_mass=m.bar_mass)

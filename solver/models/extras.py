@@ -14,17 +14,17 @@ def active_spec(spec):
     return spec['damp'] is not None or spec['stop_h'] is not None or spec['strikers']
 
 
-def cable_damping(scene_data, network):
+def cable_damping(scene, network):
     """Per-cable damping coefficients (n_cables,) N s/m of a scene, or None when zero:
     ``materials.cable_damping`` for every cable, or from ``materials.cable_damping_ratio`` zeta as
     ``c = 2 zeta sqrt(k m)``, ``k = EA / L`` of the cable and ``m`` the unit mass."""
-    mat = scene_data['materials']
-    c, zeta = float(mat['cable_damping']), float(mat['cable_damping_ratio'])
+    mat = scene.materials
+    c, zeta = float(mat.cable_damping), float(mat.cable_damping_ratio)
     if c > 0:
         return np.full(network.n_cables, c)
     if zeta > 0:
         k = np.asarray(network.cable_EA) / np.asarray(network.cable_rest_length)
-        return 2.0 * zeta * np.sqrt(k * float(mat['unit_mass']))
+        return 2.0 * zeta * np.sqrt(k * float(mat.unit_mass))
     return None
 
 
@@ -45,21 +45,21 @@ def stop_heights(network, tolerance):
     return np.full((network.n_columns, network.n_prisms), stop)
 
 
-def scene_extras(scene_data, network):
+def scene_extras(scene, network):
     """What a scene switches on, for :func:`attach`: a dict with ``damp`` (full (n_cables,) or
     None), ``stop_h`` ((n_columns, n_prisms) or None), ``strikers`` (bool), ``par`` (6,)."""
-    imp = scene_data['loading']['impact']
-    lock = scene_data['contact']['lock'] != 'none'
-    strikers = imp['mode'] == 'striker'
+    imp = scene.loading.impact
+    lock = scene.contact.lock != 'none'
+    strikers = imp.mode == 'striker'
     if (lock or strikers) and not network.levels.size:
         key = 'contact.lock' if lock else 'loading.impact.mode'
         raise ValueError(f'{key}: needs a column structure (levels)')
-    par = np.array([scene_data['contact']['stiffness'], imp['contact_stiffness'],
-                    1.0 if imp['contact'] == 'linear' else 1.5,
+    par = np.array([scene.contact.stiffness, imp.contact_stiffness,
+                    1.0 if imp.contact == 'linear' else 1.5,
                     float(network.levels.shape[2]) if network.levels.size else 3.0,
-                    imp['striker_mass'], scene_data['loading']['gravity']])
-    return {'damp': cable_damping(scene_data, network),
-            'stop_h': stop_heights(network, scene_data['contact']['tolerance']) if lock else None,
+                    imp.striker_mass, scene.loading.gravity])
+    return {'damp': cable_damping(scene, network),
+            'stop_h': stop_heights(network, scene.contact.tolerance) if lock else None,
             'strikers': strikers, 'par': par}
 
 

@@ -88,19 +88,19 @@ MODELS = {cls.name: cls for cls in (Full3D, Sym3D, Chain1D)}
 
 
 
-def symmetric_loading(scene_data):
+def symmetric_loading(scene):
     """Whether the scene's loading keeps the 3-fold symmetry about z: gravity acts along z and
     every impact is axial on a whole level (always true for the loads a scene can describe);
     returns (bool, reason)."""
     return True, 'axial impact on whole levels, gravity along z'
 
 
-def choose(requested, network, scene_data):
+def choose(requested, network, scene):
     """The model class for a scene. ``auto`` picks the cheapest exact model: ``sym3d`` when the
     network is 3-fold symmetric about z (structure, materials, supports) and the loading is too,
     ``full3d`` otherwise. ``chain1d`` is an approximation and is used only when asked for."""
     if requested == 'auto':
-        ok, _ = symmetric_loading(scene_data)
+        ok, _ = symmetric_loading(scene)
         if ok:
             try:
                 reduce_network(network)

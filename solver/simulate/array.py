@@ -44,9 +44,8 @@ def simulation_for(scene, network=None, **options):
 def wants_array(scene):
     """Whether ``scene`` runs as an :class:`ArraySimulation`: a column-builder structure with more
     than one column and ``model`` ``auto`` or ``sym3d``."""
-    s = scene.data['structure']
-    return (s.get('builder') == 'column' and s.get('n_columns', 1) > 1
-            and scene['model'] in ('auto', 'sym3d'))
+    s = scene.structure
+    return s.builder == 'column' and s.n_columns > 1 and scene.model in ('auto', 'sym3d')
 
 
 class _ArrayModel(Model):
@@ -117,7 +116,7 @@ class ArraySimulation(Simulation):
         self.n_columns = nc = net.n_columns
         self._per = (cnet.n_nodes, cnet.n_cables)
         self._offset = np.zeros((nc, 3))
-        self._offset[:, 0] = np.arange(nc) * scene['structure.column_spacing']
+        self._offset[:, 0] = np.arange(nc) * scene.structure.column_spacing
         self._check_layout(cnet)
         self.dedup = bool(dedup)
         self._proto = proto
@@ -295,7 +294,7 @@ class ArraySimulation(Simulation):
             raise ValueError(f'impact: expected 1 or {len(cols)} values, got {v0.size}')
         if not np.all(np.isfinite(v)):
             raise ValueError('impact: velocity is not finite')
-        mode = mode or self.scene['loading.impact.mode']
+        mode = mode or self.scene.loading.impact.mode
         value = dict(zip(cols, v.tolist()))
         before = self.energy()
         self._dispatch(value.get, lambda s, key: s.apply_impact(key, mode=mode))

@@ -75,7 +75,7 @@ class Loading:
             raise ValueError('impact needs a column structure (levels)')
         cols = list(range(net.n_columns)) if columns is None else list(columns)
         v0 = impact_values(v0, len(cols))
-        mode = mode or self.scene['loading.impact.mode']
+        mode = mode or self.scene.loading.impact.mode
         if mode == 'striker':
             raise ValueError('impact: a striker impact sets no node velocities (use apply_impact)')
         v = np.array(self.model.velocities())
@@ -134,7 +134,7 @@ class Loading:
         column's striker is launched at ``v0`` against the free end instead. Returns the kinetic
         energy added, J."""
         before = self.energy()
-        if (mode or self.scene['loading.impact.mode']) == 'striker':
+        if (mode or self.scene.loading.impact.mode) == 'striker':
             self._strike(v0, columns)
             self._energy_ref = self.energy()
             return self._energy_ref - before

@@ -134,9 +134,9 @@ def prepare(scene, overrides=()):
     sim = simulation_for(scene)
     sim.advance(sim.dt)          # compile (or load cached) kernels outside the timed loop
     sim.reset()
-    v0 = scene['loading.impact.v0']
+    v0 = scene.loading.impact.v0
     if v0:
-        sim.apply_impact(v0, scene['loading.impact.columns'])
+        sim.apply_impact(v0, scene.loading.impact.columns)
     return scene, sim
 
 
@@ -150,6 +150,6 @@ def simulate(scene, overrides=(), setup=None):
     scene, sim = prepare(scene, overrides)
     with contextlib.ExitStack() as stack:
         on_frame, progress = setup(stack, scene, sim) if setup is not None else (None, None)
-        rec = run(sim, scene['run.t_end'], scene['run.output_dt'], on_frame=on_frame,
+        rec = run(sim, scene.run.t_end, scene.run.output_dt, on_frame=on_frame,
                   progress=progress)
     return Point(scene, sim, rec, summary(scene, sim, rec))

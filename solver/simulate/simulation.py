@@ -66,31 +66,31 @@ class Simulation(Loading):
         self.network = network if network is not None else structures.build_network(scene)
         levels = self.network.levels
         self._heights_shape = (levels.shape[0], max(levels.shape[1] - 1, 0))
-        g = scene['loading.gravity']
+        g = scene.loading.gravity
         f_ext = np.zeros((self.network.n_nodes, 3))
         if g:
             f_ext[:, 2] = -g * self.network.gravity_mass()
             f_ext[self.network.clamped] = 0.0
         self.f_ext = f_ext
         self._f_ext_or_none = f_ext if np.any(f_ext) else None
-        self._model_cls = models.choose(scene['model'], self.network, scene.data)
-        self._extras = extras.scene_extras(scene.data, self.network)
+        self._model_cls = models.choose(scene.model, self.network, scene)
+        self._extras = extras.scene_extras(scene, self.network)
         if self._model_cls is models.Chain1D and extras.active_spec(self._extras):
             raise ValueError('model chain1d: has no strikers, prism stops or cable damping; use '
                              'model full3d or sym3d')
         self.model = extras.attach(self._model_cls(self.network, f_ext=f_ext), self._extras)
         self.expanded = None            # why a sym3d run was expanded to full3d, if it was
-        it = scene['integrator']
-        self.integrator = integrators.get(it['method'], rtol=it['rtol'], atol=it['atol'])
-        self.dt = it['dt']
-        self.tol = it['projection_tol']
-        self.max_iter = it['projection_max_iter']
-        self.kinks = it['land_on_kinks']
-        self.div = scene['divergence']
+        it = scene.integrator
+        self.integrator = integrators.get(it.method, rtol=it.rtol, atol=it.atol)
+        self.dt = it.dt
+        self.tol = it.projection_tol
+        self.max_iter = it.projection_max_iter
+        self.kinks = it.land_on_kinks
+        self.div = scene.divergence
         self._twist_sign = None
-        rigid = scene.data['structure'].get('bases') == 'rigid'
-        self._check_twist = self.div['bar_crossing'] == 'all' or (
-            self.div['bar_crossing'] == 'rigid' and rigid)
+        rigid = getattr(scene.structure, 'bases', None) == 'rigid'
+        self._check_twist = self.div.bar_crossing == 'all' or (
+            self.div.bar_crossing == 'rigid' and rigid)
         self.reset()
 
     # -- state ----------------------------------------------------------------------------------
@@ -130,7 +130,6 @@ class Simulation(Loading):
         m.ws = _copy_arrays(self.model.ws)
         integ = new.integrator = copy.copy(self.integrator)
         integ.set_state(copy.deepcopy(self.integrator.get_state()))
-        new.div = dict(self.div)
         new._cache = {}
         new._plan = (None, None)
         new._prestrain = None if self._prestrain is None else self._prestrain.copy()
@@ -322,13 +321,13 @@ class Simulation(Loading):
         if status != dyn.OK:
             quantity, hint = codes.DIAGNOSIS.get(status, ('state', codes.HINT_STEP))
             return quantity, codes.text(status), hint
-        if not err <= self.div['constraint_error']:
-            return ('constraint error', f'{err:.3g} exceeds {self.div["constraint_error"]:g}',
+        if not err <= self.div.constraint_error:
+            return ('constraint error', f'{err:.3g} exceeds {self.div.constraint_error:g}',
                     codes.HINT_CONSTRAINT)
         growth = (e - self._energy_ref) / max(abs(self._energy_ref), 1e-300)
-        if not growth <= self.div['energy_growth']:
+        if not growth <= self.div.energy_growth:
             return ('energy', f'grew by {growth:.3g} (relative), limit '
-                              f'{self.div["energy_growth"]:g}', codes.HINT_ENERGY)
+                              f'{self.div.energy_growth:g}', codes.HINT_ENERGY)
         net = self.network
         if net.levels.size:
             if h.size and not h_min > 0.0:

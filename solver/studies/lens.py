@@ -45,7 +45,7 @@ def cache_dir():
 
 
 def prestrain_range(scene):
-    lo, hi, n = scene['lens.prestrain_min'], scene['lens.prestrain_max'], scene['lens.grid']
+    lo, hi, n = scene.lens.prestrain_min, scene.lens.prestrain_max, scene.lens.grid
     if not lo < hi:
         raise LensError(f'lens.prestrain_min ({lo:g}) must be below lens.prestrain_max ({hi:g})')
     return lo, hi, n
@@ -53,7 +53,7 @@ def prestrain_range(scene):
 
 def base_x(scene):
     """x (m) of each column's base (axis) in the column builder's layout."""
-    return np.arange(scene['structure.n_columns']) * scene['structure.column_spacing']
+    return np.arange(scene.structure.n_columns) * scene.structure.column_spacing
 
 
 SAMPLE_S = 1e-3          # base forces are sampled every this many seconds (whole steps)
@@ -88,7 +88,7 @@ def simulate(scene, prestrain, v0, on_frame=None, frame_dt=None):
     sim = simulation_for(scene)
     sim.apply_prestrain(np.asarray(prestrain, dtype=np.float64))
     sim.apply_impact(v0)
-    t, b = record_base(sim, scene['run.t_end'], on_frame, frame_dt)
+    t, b = record_base(sim, scene.run.t_end, on_frame, frame_dt)
     arrivals = np.array([pulse_arrival(t, b[:, c]).time_s for c in range(b.shape[1])])
     return t, b, arrivals
 
@@ -127,7 +127,7 @@ def arrival_map(scene, v0, directory=None):
     _, _, arrival = simulate(probe, grid, v0)
     if not np.all(np.isfinite(arrival)):
         bad = grid[~np.isfinite(arrival)]
-        raise LensError(f'lens: no pulse reaches the base by run.t_end = {scene["run.t_end"]:g} s '
+        raise LensError(f'lens: no pulse reaches the base by run.t_end = {scene.run.t_end:g} s '
                         f'at prestrain {bad[0]:g} (v0 = {v0:g} m/s): lengthen run.t_end')
     try:
         directory.mkdir(parents=True, exist_ok=True)
@@ -187,7 +187,7 @@ def design(scene, focus, speed, v0, directory=None):
         raise LensError(f'lens: the focus must be finite with depth Z > 0, got ({X:g}, {Z:g})')
     if not (math.isfinite(speed) and speed > 0):
         raise LensError(f'lens: the medium speed must be a positive number, got {speed!r}')
-    if scene['structure.builder'] != 'column' or scene['structure.n_columns'] < 2:
+    if scene.structure.builder != 'column' or scene.structure.n_columns < 2:
         raise LensError('lens: the scene must be an array of at least two columns')
     lo, hi, _ = prestrain_range(scene)
     amap = arrival_map(scene, v0, directory)

@@ -24,7 +24,7 @@ def grid_extent(xs, zs):
 
 def is_array(scene):
     """A scene whose columns can be a lens: the column builder, two columns or more."""
-    return scene['structure.builder'] == 'column' and scene['structure.n_columns'] >= 2
+    return scene.structure.builder == 'column' and scene.structure.n_columns >= 2
 
 
 def image_grid(scene):

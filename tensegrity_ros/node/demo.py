@@ -374,7 +374,7 @@ def run_focus_demo(focus, scene_file='config/scenes/lens_focus.yaml', speed=1.5,
         info['plan_s'] = time.monotonic() - w0 - info['startup_s']
         cmd.set_running(ex, True)
         w1 = time.monotonic()
-        window = float(scene['run.t_end']) + 0.5
+        window = float(scene.run.t_end) + 0.5
         spin_until(ex, lambda: any(d[2].get('focus_measured') == 'true'
                                    for d in cmd.diagnostics[n_diag:]),
                    window / max(rtf, 0.05) * 3.0 + 60.0)
@@ -403,7 +403,7 @@ def run_focus_demo(focus, scene_file='config/scenes/lens_focus.yaml', speed=1.5,
     v0 = float(d['focus_v0'])
     p_u = float(np.mean(prestrain))
     tu, bu, _ = lens.simulate(scene, np.full(len(xs), p_u), v0)
-    ref = field.focus_report(tu, bu, xs, focus, speed, scene['structure.column_spacing'], dims,
+    ref = field.focus_report(tu, bu, xs, focus, speed, scene.structure.column_spacing, dims,
                              plane=False)
     p_f = float(d['focus_peak_pressure'])
     image = cmd.fields[-1][1] if cmd.fields else None

@@ -48,7 +48,7 @@ class Focus:
         if sim.model.name == 'chain1d':
             raise CommandError('~/cmd/focus: the chain1d model cannot change its prestrain; use '
                                'model auto, full3d or sym3d')
-        v0 = float(sim.scene['loading.impact.v0'])
+        v0 = float(sim.scene.loading.impact.v0)
         if not v0 > 0:
             raise CommandError('~/cmd/focus: the scene has no impact velocity '
                                '(loading.impact.v0 > 0) to plan for')
@@ -108,7 +108,7 @@ class Focus:
                 node.params['field_rate_hz'] <= 0 or not self._field_wanted())):
             return
         self.record = ImpactRecord(node.sim, node.params['medium_speed_m_s'],
-                                   float(node.sim.scene['run.t_end']), focus)
+                                   float(node.sim.scene.run.t_end), focus)
         self._last_field = -math.inf
         self._field_sent_t = None
 

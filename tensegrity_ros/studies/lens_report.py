@@ -34,12 +34,12 @@ def result(scene, focus, speed, v0, dims=2, recorder=None):
 
     from solver.studies import lens
     plan = lens.design(scene, focus, speed, v0)
-    frame_dt = scene['run.output_dt']
+    frame_dt = scene.run.output_dt
     t, b = lens.check(scene, plan, None if recorder is None else recorder.frame, frame_dt)
     p_uniform = float(np.mean([c['prestrain'] for c in plan.columns]))
     tu, bu, _ = lens.simulate(scene, np.full(len(plan.columns), p_uniform), v0)
     xs_b = lens.base_x(scene)
-    spacing = scene['structure.column_spacing']
+    spacing = scene.structure.column_spacing
     rep = field.focus_report(t, b, xs_b, focus, speed, spacing, dims)
     rep_u = field.focus_report(tu, bu, xs_b, focus, speed, spacing, dims)
     X, Z = focus
