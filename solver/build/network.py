@@ -54,6 +54,11 @@ def _ro(a, dtype):
     return a
 
 
+def length_of(array):
+    """A read-only property: the length of the record's array ``array`` (``n_nodes``, ...)."""
+    return property(lambda self: len(getattr(self, array)), doc=f'len({array})')
+
+
 @dataclass(frozen=True)
 class Network:
     x0: np.ndarray
@@ -82,25 +87,11 @@ class Network:
     meta: dict = field(default_factory=dict)
     kkt: tuple = massmatrix.NO_KKT
 
-    @property
-    def n_nodes(self):
-        return len(self.x0)
-
-    @property
-    def n_bars(self):
-        return len(self.bar_a)
-
-    @property
-    def n_edges(self):
-        return len(self.edge_a)
-
-    @property
-    def n_cables(self):
-        return len(self.cable_a)
-
-    @property
-    def n_constraints(self):
-        return len(self.con_tail)
+    n_nodes = length_of('x0')
+    n_bars = length_of('bar_a')
+    n_edges = length_of('edge_a')
+    n_cables = length_of('cable_a')
+    n_constraints = length_of('con_tail')
 
     @property
     def n_columns(self):

@@ -160,12 +160,11 @@ class RK4Projected(Integrator):
     checked = staticmethod(_rk4_projected_checked)
 
 
-class RK4(Integrator):
+class RK4(RK4Projected):
     """Classical RK4 without projection: bar lengths drift (shown, not hidden). Steps land on
     kinks."""
     name = 'rk4'
-    order = 4
-    evaluations_per_step = 4
+    projected = False
     kernel = staticmethod(_rk4_run)
     checked = staticmethod(_rk4_checked)
 

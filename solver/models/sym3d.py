@@ -31,8 +31,8 @@ from solver._jit import jit
 from solver.models.base import Model
 from solver.kernels.rotation import ROT_C, ROT_S
 from solver.kernels import massmatrix
-from solver.build.network import (NetworkError, _band_order, _diagonal_inverse_mass, _inverse_mass,
-    _ro)
+from solver.build.network import (NetworkError, _band_order, _diagonal_inverse_mass,
+                                   _inverse_mass, _ro, length_of)
 
 R3 = np.array([[-0.5, -math.sqrt(3.0) / 2.0, 0.0], [math.sqrt(3.0) / 2.0, -0.5, 0.0],
                [0.0, 0.0, 1.0]])
@@ -89,13 +89,8 @@ class ReducedNetwork:
     bar_b: np.ndarray = field(default_factory=lambda: massmatrix.EMPTY_I)
     bar_mass: np.ndarray = field(default_factory=lambda: massmatrix.EMPTY_F)
 
-    @property
-    def n_nodes(self):
-        return len(self.x0)
-
-    @property
-    def n_constraints(self):
-        return len(self.con_tail)
+    n_nodes = length_of('x0')
+    n_constraints = length_of('con_tail')
 
 
 def _node_map(x0, tol):
