@@ -245,7 +245,7 @@ def test_divergence_pauses_and_publishes_no_nan(ros):
     assert sim.t == t                                          # paused, last good state kept
     assert np.all(np.isfinite(sim.model.positions()))
     # a corrupted state (NaN) is never published either: the node pauses instead
-    sim.div['constraint_error'] = 1e-6
+    sim.div = dataclasses.replace(sim.div, constraint_error=1e-6)
     ros.call(ros.cmd.cli_running, SetBool.Request(data=True))
     sim.model.x[5, 0] = np.nan
     assert ros.spin(lambda: not node.running, 10)
