@@ -6,13 +6,11 @@
 The same simulation runs from its impact to ``run.t_end`` at ``run.output_dt``, alternately plain
 and recording (recorder opened, the impact command, every frame's messages built by
 :mod:`tensegrity_ros.msgs.messages` and written, file closed), ``repeats`` pairs after one
-discarded
-warm-up pair. Reports the overhead ``recorded / plain - 1`` of wall and process CPU time (all
-threads) as the median over pairs, the file size per simulated second and per frame, and the time
-:func:`~tensegrity_ros.io.mcap_reader.load_run` takes relative to the plain run. Only ratios
-measured in
-the same process are reported: the machine may be busy. The figures go to ``--out`` (JSON) with
-the host's load average at the start.
+discarded warm-up pair. Reports the overhead ``recorded / plain - 1`` of wall and process CPU time
+(all threads) as the median over pairs, the file size per simulated second and per frame, and the
+time :func:`~tensegrity_ros.io.mcap_reader.load_run` takes relative to the plain run. Only ratios
+measured in the same process are reported: the machine may be busy. The figures go to ``--out``
+(JSON) with the host's load average at the start.
 """
 from __future__ import annotations
 

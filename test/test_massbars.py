@@ -1,8 +1,7 @@
 """Massive bars that share nodes (the banded mass-matrix system of solver.kernels.massmatrix) and
-the mass
-placement options, each against an independent reference: the dense NumPy KKT twin
-(test/twins.py), rigid-body mechanics of a single rod derived here, invariants (total mass,
-energy, rest at t = 0, the constraints) and the full model against the symmetric reduction."""
+the mass placement options, each against an independent reference: the dense NumPy KKT twin
+(test/twins.py), rigid-body mechanics of a single rod derived here, invariants (total mass, energy,
+rest at t = 0, the constraints) and the full model against the symmetric reduction."""
 import math
 
 import numpy as np

@@ -1,12 +1,12 @@
 """The field the columns send into a host medium: a stated, cheap model.
 
 The bases of the columns lie on the surface ``z = 0`` of a homogeneous, linear, lossless acoustic
-medium of wave speed ``C`` (m/s) that fills ``z > 0`` (depth ``z``, m; the array along ``x``).
-Each base pushes on the medium with its base force ``B_i(t)`` (N, :mod:`solver.analysis.support`),
-normal
-to the surface: in the far field a normal force radiates as a dipole, with a pressure that follows
-the rate of change of the force and the obliquity ``cos theta_i = z / R_i``. The model's pressure
-(in units of N/s per spreading length, up to the medium's constant factor) is the delay-and-sum
+medium of wave speed ``C`` (m/s) that fills ``z > 0`` (depth ``z``, m; the array along ``x``). Each
+base pushes on the medium with its base force ``B_i(t)`` (N, :mod:`solver.analysis.support`),
+normal to the surface: in the far field a normal force radiates as a dipole, with a pressure that
+follows the rate of change of the force and the obliquity ``cos theta_i = z / R_i``. The model's
+pressure (in units of N/s per spreading length, up to the medium's constant factor) is the
+delay-and-sum
 
     p(r, t) = sum_i cos theta_i  s_i(t - R_i / C) / g(R_i),    s_i = dB_i/dt,  R_i = |r - X_i|,
 

@@ -310,9 +310,8 @@ def first_passage(times, strain, h0, t_ref=0.5):
 
 def prism_twists(x, levels):
     """Relative twist (n_columns, n_prisms) rad in (-pi, pi] of the top base of each prism about
-    its
-    bottom base (node 0 of each level about the level's centroid, in the xy plane). Its sign stays
-    that of the reference twist (+-150 deg) unless the bars cross: through 180 deg (past the
+    its bottom base (node 0 of each level about the level's centroid, in the xy plane). Its sign
+    stays that of the reference twist (+-150 deg) unless the bars cross: through 180 deg (past the
     rigid-base lock) or through 0. ``x`` (n_nodes, 3) m, ``levels`` (n_columns, n_levels, 3)."""
     centre = x[levels].mean(axis=2)                       # (n_columns, n_levels, 3)
     r = x[levels[:, :, 0]] - centre

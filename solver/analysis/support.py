@@ -1,12 +1,11 @@
 """What a column delivers to its support: the axial base force and the pulse arrival there.
 
 The base force of a column is the axial reaction at its clamped base level, N, positive when the
-column pushes down on the support (compressive): minus the z sum of the member forces that act
-on the nodes of that level (cable tensions and the bars' constraint forces, the multipliers of
+column pushes down on the support (compressive): minus the z sum of the member forces that act on
+the nodes of that level (cable tensions and the bars' constraint forces, the multipliers of
 :func:`solver.kernels.dynamics.accelerations`). Rigid members whose two nodes are clamped carry
-nothing
-(they are not constraints of the network). The base level of a column is its lowest level whose
-three nodes are all clamped; a column without one has no base force (0).
+nothing (they are not constraints of the network). The base level of a column is its lowest level
+whose three nodes are all clamped; a column without one has no base force (0).
 
 Momentum balance of a column (what the tests check): the support is the only body outside the
 free nodes that members touch, so ``d P_z / dt = B + F_ext,z`` with ``P_z`` the column's axial
@@ -108,9 +107,8 @@ class Arrival:
     peak (linear interpolation between samples); ``peak_time_s`` and ``peak_N`` (deviation from
     rest, N, positive) of that peak; ``rise_s``, the width at half height of the largest rate
     ``dB/dt`` on that rise (the duration of the pulse as the field of :mod:`solver.analysis.field`
-    sees
-    it); ``precursor_N`` (<= 0), the largest pull on the support before the arrival. NaN when no
-    compressive pulse arrived."""
+    sees it); ``precursor_N`` (<= 0), the largest pull on the support before the arrival. NaN when
+    no compressive pulse arrived."""
     time_s: float
     peak_time_s: float
     peak_N: float

@@ -27,8 +27,7 @@ Shapes and units (SI):
 - Massive bars that share nodes (class k for the masses, e.g. columns on shared bases): the
   inverse mass is not node-local; ``kkt`` holds the layout of the banded saddle-point system of
   :mod:`solver.kernels.massmatrix` (empty arrays otherwise), and ``w_diag`` is then only the
-  inverse of
-  the diagonal of M (used for nothing but the constraint ordering).
+  inverse of the diagonal of M (used for nothing but the constraint ordering).
 - ``levels`` (n_columns, n_levels, 3) int64: node indices of each base level of each column (empty
 for
   networks that are not columns); ``h0`` m: reference prism height.

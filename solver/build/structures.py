@@ -5,10 +5,10 @@ stacked on
   shared bases, flexible (FB) or rigid (RB) bases; a single prism is ``n_prisms=1``.
 - :func:`explicit`: any network given as nodes, bars, cables (and optional rigid edges).
 
-To add a structure: write a function returning a :class:`~solver.build.network.Network` whose
-cable rest
-lengths put it at rest (check 1 of docs/physics.md section 7), register it in :data:`BUILDERS`,
-and list its parameters with their defaults in :data:`solver.build.scene.STRUCTURE_DEFAULTS`.
+To add a structure: write a function returning a :class:`~solver.build.network.Network` whose cable
+rest lengths put it at rest (check 1 of docs/physics.md section 7), register it in
+:data:`BUILDERS`, and list its parameters with their defaults in
+:data:`solver.build.scene.STRUCTURE_DEFAULTS`.
 """
 from __future__ import annotations
 

@@ -149,9 +149,9 @@ def dopri_checked(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, rtol, a
 
 class DOPRI54Projected(Integrator):
     """Adaptive Dormand-Prince 5(4) (see :mod:`solver.integrators.dopri`): ``dt`` is the initial
-    and largest
-    step, ``rtol``/``atol`` the error tolerances. Seven force evaluations per accepted step (six
-    plus a fresh first stage after the projection); ``stats()`` counts steps and evaluations."""
+    and largest step, ``rtol``/``atol`` the error tolerances. Seven force evaluations per accepted
+    step (six plus a fresh first stage after the projection); ``stats()`` counts steps and
+    evaluations."""
     name = 'dopri54_projected'
     order = 5
     projected = True

@@ -36,9 +36,8 @@ Properties: order 2; for a linear spring A-stable without damping (the step is a
 ``2 atan(omega h / 2)``) and the quadratic energy is conserved; the energy never rises.
 
 Two levels as in :mod:`solver.kernels.dynamics`: :func:`layout` (Python) orders the unknowns and
-sizes
-the band, the ``@jit`` kernels take arrays and tuples. Networks with massive bars (a non-diagonal
-mass matrix) are refused.
+sizes the band, the ``@jit`` kernels take arrays and tuples. Networks with massive bars (a
+non-diagonal mass matrix) are refused.
 """
 from __future__ import annotations
 
@@ -418,9 +417,8 @@ def midpoint_checked(x, v, dt, n_steps, net, act, ws, tol, max_iter, node_pos, c
 class ImplicitMidpoint(Integrator):
     """Implicit midpoint rule with the rigid members as unknown forces, for stiff scenes (see
     :mod:`solver.integrators.implicit`): order 2, A-stable, symmetric; Newton on a banded KKT
-    system each
-    step, then projection. Fixed steps (no kink landing). ``stats()`` counts Newton iterations,
-    factorisations and force evaluations. Massive bars are refused."""
+    system each step, then projection. Fixed steps (no kink landing). ``stats()`` counts Newton
+    iterations, factorisations and force evaluations. Massive bars are refused."""
     name = 'implicit_midpoint'
     order = 2
     projected = True

@@ -20,9 +20,8 @@ one):
   ``integrator.atol``), ``dt`` is the initial and largest step; projection after every accepted
   step, steps land on kinks.
 - ``implicit_midpoint``: the implicit midpoint rule with the bar forces as unknowns
-  (:mod:`solver.integrators.implicit`), for stiff scenes: order 2, A-stable, Newton on a banded
-  KKT system
-  per step, then projection; fixed steps.
+  (:mod:`solver.integrators.implicit`), for stiff scenes: order 2, A-stable, Newton on a banded KKT
+  system per step, then projection; fixed steps.
 
 To add a method: in a new file of ``solver/integrators/``, write an ``@jit`` kernel ``_my_run(x,
 v, dt, n_steps, net, act, ws, tol, max_iter,

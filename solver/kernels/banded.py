@@ -1,7 +1,7 @@
 """Banded LDL^T solves of symmetric systems given by their lower band (``band[i, k] = A[i, i-k]``),
 in place and without pivoting: the constraint systems of the dynamics (positive definite) and the
-KKT systems of the implicit step (indefinite). Square-root-free: the factor keeps the unit lower
-L off the diagonal and ``1 / d_i`` on it (one division per row keeps the dependency chain short).
+KKT systems of the implicit step (indefinite). Square-root-free: the factor keeps the unit lower L
+off the diagonal and ``1 / d_i`` on it (one division per row keeps the dependency chain short).
 """
 import math
 

@@ -17,8 +17,7 @@ on the image is rotated back onto the node. ``con_coef3`` (n_con, bw + 1, 3) rep
 ``A[c, c-k] = coef3[c, k] . (b_c^z b_d^z, b_c^x b_d^x + b_c^y b_d^y, b_c^y b_d^x - b_c^x b_d^y)``.
 With empty arrays every kernel takes the plain path (r = 0), so ``full3d`` pays nothing for them.
 ``kkt`` is the layout of the mass-matrix system of :mod:`solver.kernels.massmatrix` (massive bars
-that
-share nodes); its arrays are empty for every other network, and the kernels then take the
+that share nodes); its arrays are empty for every other network, and the kernels then take the
 node-local inverse mass path unchanged.
 
 ``act`` tuple (actuation, mutable by commands)::
@@ -27,8 +26,7 @@ node-local inverse mass path unchanged.
 
 ``extras``: cable damping, strikers and prism stops (:mod:`solver.kernels.contact`); all empty
 (:data:`solver.kernels.contact.NO_EXTRAS`) unless a scene asks for them, and then the kernels take
-the code
-path they take without them.
+the code path they take without them.
 
 ``ws`` workspace tuple (scratch, preallocated once): see :func:`workspace`.
 
@@ -82,8 +80,7 @@ def workspace(n_nodes, n_con, bandwidth, kkt_dims=None):
 
 def workspace_for(network):
     """:func:`workspace` sized for ``network`` (a :class:`~solver.build.network.Network` or a
-    reduced
-    one), including the scratch of its mass-matrix system."""
+    reduced one), including the scratch of its mass-matrix system."""
     kkt = getattr(network, 'kkt', mm.NO_KKT)
     return workspace(network.n_nodes, network.n_constraints, network.bandwidth, kkt[5])
 

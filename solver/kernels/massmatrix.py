@@ -4,11 +4,9 @@ A bar of mass ``m_b`` is a uniform rigid rod: its kinetic energy ``m_b / 6 (|v_a
 |v_b|^2)`` gives the mass matrix ``M = C_B^T m C_B / 12 + C_R^T m C_R`` (``C_R = |C_B| / 2``), i.e.
 the rod block ``[[m_b/3, m_b/6], [m_b/6, m_b/3]]`` on the bar's two nodes, plus the lumped node
 masses on the diagonal (physics of :mod:`solver.kernels.dynamics`). When two massive bars share a
-node
-(columns on shared bases: each bar chain is a tridiagonal block of M), ``M^-1`` is a full matrix
-within each chain, so the constraint matrix ``J M^-1 J^T`` of :mod:`solver.kernels.dynamics` is
-full too.
-This module keeps the mass matrix and solves the saddle-point (KKT) system itself::
+node (columns on shared bases: each bar chain is a tridiagonal block of M), ``M^-1`` is a full
+matrix within each chain, so the constraint matrix ``J M^-1 J^T`` of :mod:`solver.kernels.dynamics`
+is full too. This module keeps the mass matrix and solves the saddle-point (KKT) system itself::
 
     [ M (x) I3   -J^T ] [ a   ]   [ f         ]
     [ J           0   ] [ lam ] = [ -|b'|^2   ]

@@ -10,8 +10,8 @@ three members of an orbit become one. A rigid base triangle becomes ONE member f
 likewise.
 
 The reduced system is the full one restricted to the symmetric subspace (Lagrangian divided by 3),
-so node masses, multipliers and cable tensions are those of the full model and its trajectories
-are the full model's, to round-off. The kernels of :mod:`solver.kernels.dynamics` and
+so node masses, multipliers and cable tensions are those of the full model and its trajectories are
+the full model's, to round-off. The kernels of :mod:`solver.kernels.dynamics` and
 :mod:`solver.integrators.registry` run it unchanged through the rotation slots of the ``net``
 tuple.
 
@@ -256,9 +256,8 @@ class Sym3D(Model):
 
     ``positions()``/``velocities()`` expand to the full network; :meth:`set_state` and
     :meth:`set_cables` take full arrays and raise :class:`NotSymmetric` (changing nothing) when
-    they are not symmetric, which is the cue for :class:`~solver.simulate.simulation.Simulation`
-    to expand
-    the run to ``full3d``."""
+    they are not symmetric, which is the cue for :class:`~solver.simulate.simulation.Simulation` to
+    expand the run to ``full3d``."""
     name = 'sym3d'
 
     def __init__(self, network, f_ext=None, reduced=None):

@@ -4,10 +4,9 @@ columns that are alike.
 The column builder lays out column ``c`` as column 0 moved by ``c * column_spacing`` along x, and
 no member joins two columns: the columns are independent systems. :class:`ArraySimulation` runs
 each as a one-column :class:`~solver.simulate.simulation.Simulation` of its own (``model: auto``
-then
-picks the exact 3-fold reduction ``sym3d`` about the column's own axis), and columns that have had
-the same commands share one simulation (a *group*). A command that treats the columns of a group
-differently splits it: the group's simulation is copied, state, cables, prestrain ramp and
+then picks the exact 3-fold reduction ``sym3d`` about the column's own axis), and columns that have
+had the same commands share one simulation (a *group*). A command that treats the columns of a
+group differently splits it: the group's simulation is copied, state, cables, prestrain ramp and
 integrator history included, so every copy continues exactly as the shared one would have. A
 command that breaks a column's symmetry (asymmetric rest lengths or state) expands only that
 column's simulation to ``full3d`` (the one-column simulation does this itself).

@@ -185,9 +185,8 @@ class Loading:
         """Change the cross prestrain of the addressed columns (see :meth:`prestrain_target`) by
         changing the rest lengths of all their cables so that the reference geometry stays in
         equilibrium (:class:`~solver.build.structures.PrestrainMap`), linearly in ``p`` over
-        ``ramp_s``
-        s of simulation time (0 = at once). A ramp in progress continues from where it is.
-        The actuator's work is added to the energy reference of the divergence check."""
+        ``ramp_s`` s of simulation time (0 = at once). A ramp in progress continues from where it
+        is. The actuator's work is added to the energy reference of the divergence check."""
         target = self.prestrain_target(p, columns)
         if not (math.isfinite(ramp_s) and ramp_s >= 0):
             raise ValueError(f'prestrain: ramp duration {ramp_s!r} must be >= 0')

@@ -4,8 +4,7 @@ The bases of an array lie on the surface ``z = 0`` of a host medium of wave spee
 ``i`` has its base at ``X_i = (x_i, 0)``. Pulses that leave the bases at ``T_i = T0 - |F - X_i| /
 C`` meet at the focus ``F = (X, Z)`` at ``T0``. The arrival time of a column's solitary pulse at
 its base (:func:`solver.analysis.support.pulse_arrival`: the largest compression of the record,
-which the
-scene's ``run.t_end`` must hold, and nothing larger after it) depends on its prestrain;
+which the scene's ``run.t_end`` must hold, and nothing larger after it) depends on its prestrain;
 :func:`arrival_map` measures it with the solver itself on a grid of prestrains over the scene's
 ``lens`` range, for the scene and the impact velocity, and keeps it on disk. :func:`design`
 picks ``T0`` in the middle of the interval where every target lies within the map's range (the
@@ -63,8 +62,7 @@ def record_base(sim, t_end, on_frame=None, frame_dt=None):
     """Base force of every column every :data:`SAMPLE_S` (whole integrator steps) from now to
     ``t_end`` s: ``(times (n_t,), forces (n_t, n_columns))``. ``on_frame(frame)``: called with
     :meth:`~solver.simulate.simulation.Simulation.frame` now and every ``frame_dt`` s (a whole
-    number of
-    samples)."""
+    number of samples)."""
     t, b = [sim.t], [sim.base_force()]
     every = max(1, int(round(SAMPLE_S / sim.dt)))
     n = int(round((t_end - sim.t) / (every * sim.dt)))

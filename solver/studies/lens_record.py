@@ -1,7 +1,7 @@
 """The node's record of an array's base forces after an impact and the field in the host medium it
 gives (:mod:`solver.analysis.field`): what ``~/field`` publishes, what a Rerun recording shows of
-the
-field, and what ``/diagnostics`` report of a focus once its pulses have arrived. No ROS imports.
+the field, and what ``/diagnostics`` report of a focus once its pulses have arrived. No ROS
+imports.
 """
 from __future__ import annotations
 
@@ -33,11 +33,10 @@ def image_grid(scene):
 
 
 class ImpactRecord:
-    """The base force of every column every :data:`solver.studies.lens.SAMPLE_S` (whole steps)
-    from an
-    impact (the simulation's time now) for ``duration_s`` s, and the peak pressure map in a
-    medium of speed ``speed`` m/s on :func:`image_grid` (2D spreading), grown from the record
-    when asked (:meth:`peak_map`). ``focus``: ``(X, Z)`` m of a focus plan, whose figures
+    """The base force of every column every :data:`solver.studies.lens.SAMPLE_S` (whole steps) from
+    an impact (the simulation's time now) for ``duration_s`` s, and the peak pressure map in a
+    medium of speed ``speed`` m/s on :func:`image_grid` (2D spreading), grown from the record when
+    asked (:meth:`peak_map`). ``focus``: ``(X, Z)`` m of a focus plan, whose figures
     :meth:`measure` gives once the record is complete."""
 
     def __init__(self, sim, speed, duration_s, focus=None):
@@ -105,10 +104,8 @@ class ImpactRecord:
     def measure(self, targets):
         """The figures of a complete record of a focus: per column the arrival at the base
         (:func:`solver.analysis.support.pulse_arrival`, as the design times it; the record's first
-        sample
-        as rest) and its
-        residual against ``targets`` (s after the impact, the plan's delay law), and the peak
-        pressure at the focus (``max_t p`` at F, model units)."""
+        sample as rest) and its residual against ``targets`` (s after the impact, the plan's delay
+        law), and the peak pressure at the focus (``max_t p`` at F, model units)."""
         t, b = np.array(self.times) - self.t0, np.array(self.forces)
         arrivals = [pulse_arrival(t, b[:, c]).time_s for c in range(b.shape[1])]
         X, Z = self.focus

@@ -3,8 +3,8 @@
 :class:`FrameLog` turns solver frames into the messages the node publishes, built by the same
 :mod:`tensegrity_ros.msgs.messages` functions, under the same topic names, and writes them to a
 :class:`~tensegrity_ros.io.mcap_writer.McapRecorder`; so a log is the same whichever way it was
-made.
-Commands applied by the command line (the impact) are logged as the node would log them on receipt.
+made. Commands applied by the command line (the impact) are logged as the node would log them on
+receipt.
 """
 from __future__ import annotations
 
@@ -126,10 +126,9 @@ class FrameLog:
                        M.stamp_to_ns(stamp))
 
     def command(self, key, values, label, frame, detail=''):
-        """Log a command (``'~/cmd/impact'`` or ``'~/cmd/prestrain'``) applied at ``frame``
-        (a :class:`solver.simulate.simulation.Frame`, for its time and the diagnostics), as the
-        node logs
-        one it receives and accepts: the command, then a ``/diagnostics`` saying so."""
+        """Log a command (``'~/cmd/impact'`` or ``'~/cmd/prestrain'``) applied at ``frame`` (a
+        :class:`solver.simulate.simulation.Frame`, for its time and the diagnostics), as the node
+        logs one it receives and accepts: the command, then a ``/diagnostics`` saying so."""
         if key not in M.COMMANDS:
             raise ValueError(f'unknown command topic {key!r}')
         self.rec.write(self.topic(key), M.command_array(values, label),

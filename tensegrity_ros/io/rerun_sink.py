@@ -360,9 +360,8 @@ class RerunRecorder:
             self._wave_n += n
 
     def _log_wave(self, static=False):
-        """The heat map and its colour scale of every column: at the time of the last frame,
-        or (``static``, on close) for every time, so the whole wave shows wherever the cursor
-        is."""
+        """The heat map and its colour scale of every column: at the time of the last frame, or
+        (``static``, on close) for every time, so the whole wave shows wherever the cursor is."""
         self._last_wave = time.monotonic()
         n, w = self._wave_n, self.wave_window
         order = np.arange(n) if n <= w else np.r_[n % w:w, 0:n % w]       # oldest first

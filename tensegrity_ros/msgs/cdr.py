@@ -1,13 +1,11 @@
 """The node's frame messages serialized straight from NumPy arrays (CDR, little endian).
 
 Building a ``visualization_msgs/MarkerArray`` of ~900 ``geometry_msgs/Point`` objects and having
-rclpy convert them back to C costs milliseconds per message; the same bytes written from the
-arrays cost tens of microseconds. :func:`marker_array_cdr` returns the serialized form of exactly
-what :func:`tensegrity_ros.msgs.messages.marker_array` builds (a test deserializes one and
-compares it
-to the other), ready for ``Publisher.publish(bytes)``. :func:`frame_messages_cdr` does the same
-for every message of a frame (:func:`tensegrity_ros.msgs.messages.frame_messages`): the conversion
-of
+rclpy convert them back to C costs milliseconds per message; the same bytes written from the arrays
+cost tens of microseconds. :func:`marker_array_cdr` returns the serialized form of exactly what
+:func:`tensegrity_ros.msgs.messages.marker_array` builds (a test deserializes one and compares it
+to the other), ready for ``Publisher.publish(bytes)``. :func:`frame_messages_cdr` does the same for
+every message of a frame (:func:`tensegrity_ros.msgs.messages.frame_messages`): the conversion of
 message objects to C inside ``publish`` is the largest cost of publishing at 200 Hz.
 
 Encoding: XCDR1 (plain CDR) little endian, as ROS 2's Fast DDS writes it: a 4-byte encapsulation

@@ -3,8 +3,7 @@ ROS I/O.
 
 Each parser takes the data and layout of a ``std_msgs/Float64MultiArray`` and returns values ready
 for :class:`solver.simulate.simulation.Simulation`, or raises :class:`CommandError` whose message
-names the
-problem. Nothing is changed by a parser; a rejected command changes nothing.
+names the problem. Nothing is changed by a parser; a rejected command changes nothing.
 
 ``~/cmd/impact``: ``v0`` m/s, positive compressive, ``|v0| <= 10``; 1 value (every column) or one
 per column. ``~/cmd/prestrain``: cross prestrain ``0 < p <= 0.5``; 1 value (every column), one per

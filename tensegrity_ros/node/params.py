@@ -1,7 +1,6 @@
 """Parameters of the node ``tensegrity_sim``: defaults (mirrored by ``config/node.yaml``), checks,
 and the :class:`~solver.simulate.simulation.Simulation` they describe. No ROS imports: usable by
-tests and
-tools without a ROS context."""
+tests and tools without a ROS context."""
 from __future__ import annotations
 
 import math

@@ -27,9 +27,8 @@ def field_grid(base_x):
 
 def result(scene, focus, speed, v0, dims=2, recorder=None):
     """The plan, its check, the field's figures at the focus (solver.analysis.field.focus_report)
-    and the
-    focal gain of a focus, the maps for the plot (a dict). ``recorder``: a RerunRecorder of the
-    array (:func:`recorder`) that gets the check run's frames and the field over time."""
+    and the focal gain of a focus, the maps for the plot (a dict). ``recorder``: a RerunRecorder of
+    the array (:func:`recorder`) that gets the check run's frames and the field over time."""
     from solver.analysis import field
 
     from solver.studies import lens
@@ -74,8 +73,8 @@ def result(scene, focus, speed, v0, dims=2, recorder=None):
 def record_field(recorder, t, b, base_x, speed, dims, frame_dt):
     """The field over ``sim_time`` into ``recorder``: at every frame time the peak pressure up to
     then (solver.analysis.field.PeakMap on the recorded base forces) and the pressure then, and
-    once more
-    when the record's end has passed the whole grid, all over the largest peak pressure."""
+    once more when the record's end has passed the whole grid, all over the largest peak
+    pressure."""
     from solver.analysis import field
     xs, zs = field_grid(base_x)
     X, Z = np.meshgrid(xs, zs)

@@ -51,11 +51,10 @@ def strain_wave_figure(rec, title='', column=0, snapshots=(0.1, 0.3, 0.5, 0.7, 0
 
 def lens_field(result, path):
     """The peak pressure in the medium (the model of :mod:`solver.analysis.field`) of the designed
-    array
-    next to the same array at uniform prestrain, the bases and the focus marked, and the peak
+    array next to the same array at uniform prestrain, the bases and the focus marked, and the peak
     pressure of both across the focal depth with one column spacing either side of the focus
-    shaded. ``result``: the dict of ``tensegrity lens`` (with its ``_field`` maps). Writes a
-    PNG; returns ``path``."""
+    shaded. ``result``: the dict of ``tensegrity lens`` (with its ``_field`` maps). Writes a PNG;
+    returns ``path``."""
     import matplotlib
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt

@@ -2,11 +2,10 @@
 Dask distributed; one row per point in a Parquet table and a CSV file.
 
 Each point is one :func:`solver.simulate.runner.simulate` call, the function ``tensegrity run``
-uses, so a
-row holds the figures of that point's ``tensegrity run --json`` summary under their dotted names
-(``pulse.amplitude``, ``energy_drift_rel``). Rows are appended to ``rows.jsonl`` as they complete
-(the table is rewritten from it), so an interrupted sweep keeps every finished point and a rerun
-of the same command runs only the points that are missing.
+uses, so a row holds the figures of that point's ``tensegrity run --json`` summary under their
+dotted names (``pulse.amplitude``, ``energy_drift_rel``). Rows are appended to ``rows.jsonl`` as
+they complete (the table is rewritten from it), so an interrupted sweep keeps every finished point
+and a rerun of the same command runs only the points that are missing.
 """
 from __future__ import annotations
 
@@ -191,10 +190,9 @@ def empty_figures():
 
 def run_point(scene, overrides, pid=None):
     """One row: ``scene`` (a :class:`solver.build.scene.Scene`) with ``overrides`` (``{key:
-    value}``,
-    applied in order) run by :func:`solver.simulate.runner.simulate`. Never raises for a failed
-    run: the
-    row's ``status`` is ``ok``, ``diverged`` or ``error`` with a one-line ``reason``."""
+    value}``, applied in order) run by :func:`solver.simulate.runner.simulate`. Never raises for a
+    failed run: the row's ``status`` is ``ok``, ``diverged`` or ``error`` with a one-line
+    ``reason``."""
     from solver.simulate.runner import simulate
     from solver.simulate.simulation import SimulationDiverged
     wall0, cpu0 = time.perf_counter(), time.process_time()
