@@ -71,49 +71,15 @@ def _ns(t):
     return np.rint(np.asarray(t, dtype=np.float64) * 1e9).astype('timedelta64[ns]')
 
 
-class TensorRows:
-    """Rows of 1-D ``TensorData`` (what ``rr.BarChart(row)`` logs as its values), one per row of
-    ``values`` (n_rows, k), built as one Arrow array: ``rr.BarChart`` converts row by row in
-    Python (1.5 ms a row) and rerun-sdk batches no tensors. The Arrow type is read off a public
-    ``rr.BarChart``."""
-    TYPE = next(b.as_arrow_array().type for b in rr.BarChart([0.0]).as_component_batches()
-                if b.component_descriptor() == rr.BarChart.descriptor_values())
-
-    def __init__(self, values):
-        self.values = np.ascontiguousarray(values, dtype=np.float64)
-
-    def as_arrow_array(self):
-        n, k = self.values.shape
-        union = self.TYPE.field('buffer').type
-        f64 = [f.name for f in union].index('F64')
-        children = [pa.nulls(0, f.type) if pa.types.is_null(f.type) else pa.array([], f.type)
-                    for f in union]
-        children[f64] = pa.ListArray.from_arrays(pa.array(np.arange(n + 1, dtype=np.int32) * k),
-                                                 pa.array(self.values.ravel()),
-                                                 type=union[f64].type)
-        buffer = pa.UnionArray.from_buffers(union, n, [
-            None, pa.py_buffer(np.full(n, union.type_codes[f64], np.int8)),
-            pa.py_buffer(np.arange(n, dtype=np.int32))], children=children)
-        shape = pa.ListArray.from_arrays(pa.array(np.arange(n + 1, dtype=np.int32)),
-                                         pa.array(np.full(n, k, np.uint64)),
-                                         type=self.TYPE.field('shape').type)
-        return pa.StructArray.from_arrays(
-            [shape, pa.nulls(n, self.TYPE.field('names').type), buffer], fields=list(self.TYPE))
+def _arrow_type(archetype, descriptor):
+    """The Arrow type rerun-sdk gives the component ``descriptor`` of a public ``archetype``."""
+    return next(b.as_arrow_array().type for b in archetype.as_component_batches()
+                if b.component_descriptor() == descriptor)
 
 
-def Segments(points, n_rows):
-    """A ``LineStrips3D:strips`` column of two-point strips, ``points`` (n_rows * k, 2, 3)
-    float32, ``k`` strips a row, built as one Arrow array (rerun-sdk converts strip by strip)."""
-    strips = next(b for b in rr.LineStrips3D([[[0.0, 0.0, 0.0], [1.0, 1.0, 1.0]]])
-                  .as_component_batches()
-                  if b.component_descriptor() == rr.LineStrips3D.descriptor_strips())
-    kind = strips.as_arrow_array().type
-    flat = pa.array(np.ascontiguousarray(points, dtype=np.float32).ravel())
-    array = pa.ListArray.from_arrays(
-        pa.array(np.arange(len(points) + 1, dtype=np.int32) * 2),
-        pa.FixedSizeListArray.from_arrays(flat, type=kind.value_type), type=kind)
-    return rr.ComponentColumn(rr.LineStrips3D.descriptor_strips(), _Arrow(array),
-                              lengths=np.full(n_rows, len(points) // max(n_rows, 1), np.int32))
+STRIPS_TYPE = _arrow_type(rr.LineStrips3D([[[0.0, 0.0, 0.0], [1.0, 1.0, 1.0]]]),
+                          rr.LineStrips3D.descriptor_strips())
+TENSOR_TYPE = _arrow_type(rr.BarChart([0.0]), rr.BarChart.descriptor_values())
 
 
 class _Arrow:
@@ -124,6 +90,41 @@ class _Arrow:
 
     def as_arrow_array(self):
         return self.array
+
+
+def segments(points, n_rows):
+    """A ``LineStrips3D:strips`` column of two-point strips, ``points`` (n_rows * k, 2, 3), ``k``
+    strips a row, built as one Arrow array (rerun-sdk converts strip by strip)."""
+    flat = pa.array(np.ascontiguousarray(points, dtype=np.float32).ravel())
+    array = pa.ListArray.from_arrays(
+        pa.array(np.arange(len(points) + 1, dtype=np.int32) * 2),
+        pa.FixedSizeListArray.from_arrays(flat, type=STRIPS_TYPE.value_type), type=STRIPS_TYPE)
+    return rr.ComponentColumn(rr.LineStrips3D.descriptor_strips(), _Arrow(array),
+                              lengths=np.full(n_rows, len(points) // max(n_rows, 1), np.int32))
+
+
+def tensor_rows(values):
+    """A ``BarChart:values`` column of 1-D ``TensorData`` rows, one per row of ``values``
+    (n_rows, k), built as one Arrow array: ``rr.BarChart`` converts row by row in Python (1.5 ms
+    a row) and rerun-sdk batches no tensors."""
+    values = np.ascontiguousarray(values, dtype=np.float64)
+    n, k = values.shape
+    union = TENSOR_TYPE.field('buffer').type
+    f64 = [f.name for f in union].index('F64')
+    children = [pa.nulls(0, f.type) if pa.types.is_null(f.type) else pa.array([], f.type)
+                for f in union]
+    children[f64] = pa.ListArray.from_arrays(pa.array(np.arange(n + 1, dtype=np.int32) * k),
+                                             pa.array(values.ravel()), type=union[f64].type)
+    buffer = pa.UnionArray.from_buffers(union, n, [
+        None, pa.py_buffer(np.full(n, union.type_codes[f64], np.int8)),
+        pa.py_buffer(np.arange(n, dtype=np.int32))], children=children)
+    shape = pa.ListArray.from_arrays(pa.array(np.arange(n + 1, dtype=np.int32)),
+                                     pa.array(np.full(n, k, np.uint64)),
+                                     type=TENSOR_TYPE.field('shape').type)
+    array = pa.StructArray.from_arrays(
+        [shape, pa.nulls(n, TENSOR_TYPE.field('names').type), buffer], fields=list(TENSOR_TYPE))
+    return rr.ComponentColumn(rr.BarChart.descriptor_values(), _Arrow(array),
+                              lengths=np.ones(n, np.int32))
 
 
 class RerunRecorder:
@@ -182,7 +183,8 @@ class RerunRecorder:
         self._wave = np.empty((n_col, network.n_prisms, self.wave_window))
         self._wave_t = np.empty(self.wave_window)
         self._n = self._wave_n = 0
-        self._lo = self._hi = None                    # strain extremes per column so far
+        self._lo = np.full(n_col, np.inf)             # strain extremes per column so far
+        self._hi = np.full(n_col, -np.inf)
         self._impact_t = None
         self._commands = []                           # (t s, text, level) not yet sent
         self._last_t = None
@@ -330,23 +332,18 @@ class RerunRecorder:
             [net.n_nodes] * n))
         if net.n_bars:
             bars = np.stack([x[:, net.bar_a], x[:, net.bar_b]], axis=2).reshape(-1, 2, 3)
-            put('world/bars', [Segments(bars, n)])
+            put('world/bars', [segments(bars, n)])
         if net.n_cables:
             cables = np.stack([x[:, net.cable_a], x[:, net.cable_b]], axis=2).reshape(-1, 2, 3)
-            put('world/cables', [Segments(cables, n)] + list(rr.LineStrips3D.columns(
+            put('world/cables', [segments(cables, n)] + list(rr.LineStrips3D.columns(
                 colors=packed_colors(self._tension[:n], self.tension_scale))
                 .partition([net.n_cables] * n)))
         n_p = net.n_prisms
         for c in range(self._wave.shape[0]):
             s = self._s[:n, c].copy()
             put(f'strain/column_{c}', rr.Scalars.columns(scalars=s.ravel()).partition([n_p] * n))
-            put(f'strain_profile/column_{c}', [rr.ComponentColumn(
-                rr.BarChart.descriptor_values(), TensorRows(s), lengths=np.ones(n, np.int32))])
-            lo, hi = s.min(), s.max()
-            if self._lo is None:
-                self._lo, self._hi = np.full(self._wave.shape[0], lo), np.full(
-                    self._wave.shape[0], hi)
-            self._lo[c], self._hi[c] = min(self._lo[c], lo), max(self._hi[c], hi)
+            put(f'strain_profile/column_{c}', [tensor_rows(s)])
+            self._lo[c], self._hi[c] = min(self._lo[c], s.min()), max(self._hi[c], s.max())
         for c in range(self._n_base):
             put(f'base_force/column_{c}', rr.Scalars.columns(scalars=self._base[:n, c].copy()))
         put('energy', rr.Scalars.columns(scalars=self._scalars[:n, 1].copy()))
@@ -395,7 +392,7 @@ class RerunRecorder:
             self.flush()
             if self._wave_n:
                 self._log_wave(static=True)
-            for c in range(len(self._lo) if self._lo is not None else 0):
+            for c in range(len(self._lo) if self.n_frames else 0):
                 # two invisible bars at the run's strain extremes: the chart keeps its y range
                 self.stream.log(f'strain_profile/column_{c}/range', rr.BarChart(
                     [float(self._lo[c]), float(self._hi[c])], abscissa=[0.0, 0.0],

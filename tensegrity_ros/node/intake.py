@@ -14,8 +14,8 @@ from rclpy.callback_groups import CallbackGroup
 
 from tensegrity_ros.msgs import messages
 from tensegrity_ros.node import commands
+from tensegrity_ros.node.params import LOG_THROTTLE_S
 
-LOG_THROTTLE_S = 1.0             # a repeated rejected-command event: at most once per this long
 MAX_TAKE = 100                   # commands per topic taken at the start of a tick, at most
 
 

@@ -39,9 +39,9 @@ from tensegrity_ros.msgs import messages, style
 from tensegrity_ros.node.focus import FIELD_TOPIC, Focus
 from tensegrity_ros.node.intake import Intake, TakenByTick
 from tensegrity_ros.node.pacing import Pacer
-from tensegrity_ros.node.params import (DEFAULTS, ParameterError, ThrottledLog, check_parameters,
-                                        descriptor, load_simulation, measure_step_cost, refusal,
-                                        unknown_parameters)
+from tensegrity_ros.node.params import (DEFAULTS, LOG_THROTTLE_S, ParameterError, ThrottledLog,
+                                        check_parameters, descriptor, load_simulation,
+                                        measure_step_cost, refusal, unknown_parameters)
 from tensegrity_ros.node.publishing import STRUCTURE_TOPIC, Publishing
 
 QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
@@ -54,7 +54,6 @@ STRUCTURE_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
 QOS_OVERRIDES = QoSOverridingOptions(policy_kinds=(
     QoSPolicyKind.HISTORY, QoSPolicyKind.DEPTH, QoSPolicyKind.RELIABILITY,
     QoSPolicyKind.DURABILITY))
-LOG_THROTTLE_S = 1.0             # a repeated log line: at most once per this many seconds
 
 
 def _qos(base=QOS):

@@ -177,6 +177,9 @@ def refusal(current, changes):
     return None
 
 
+LOG_THROTTLE_S = 1.0             # a repeated log line or event: at most once per this long
+
+
 class ThrottledLog:
     """``log(kind, level, text)``: log ``text`` at ``level`` ('info', 'warning', 'error') unless a
     line of the same ``kind`` went out less than ``interval_s`` ago. (rclpy's own
