@@ -325,11 +325,29 @@ def cmd_fit(args):
         raise UserError(str(exc)) from None
 
 
+def _study_options(p, seed_help):
+    """The options sweeps and fits share: run length, Dask workers or scheduler, seed."""
+    p.add_argument('--t-end', type=float, help='simulated time of every run, s')
+    p.add_argument('--workers', type=int,
+                   help='local worker processes (default: one per core; 1 = in this process)')
+    p.add_argument('--scheduler', metavar='ADDRESS',
+                   help='an existing Dask scheduler, e.g. tcp://HOST:8786')
+    p.add_argument('--seed', type=int, default=0, help=seed_help + ' (default 0)')
+
+
+def _scene_command(sub, name, func, help, scene_help='scene YAML file'):
+    """A sub-command that reads a scene file: its parser, with the scene argument."""
+    p = sub.add_parser(name, help=help)
+    p.add_argument('scene', help=scene_help)
+    p.set_defaults(func=func)
+    return p
+
+
 def build_parser():
     parser = argparse.ArgumentParser(prog='tensegrity', description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest='command', required=True)
-    p = sub.add_parser('run', help='run a scene headless and summarise the strain wave')
-    p.add_argument('scene', help='scene YAML file (config/scenes/*.yaml)')
+    p = _scene_command(sub, 'run', cmd_run, 'run a scene headless and summarise the strain wave',
+                       'scene YAML file (config/scenes/*.yaml)')
     p.add_argument('--set', action='append', metavar='KEY=VALUE',
                    help='override a scene value, e.g. integrator.dt=2e-4 (repeatable)')
     p.add_argument('--v0', type=float, help='impact velocity, m/s (positive = compressive)')
@@ -345,39 +363,26 @@ def build_parser():
                    const='rerun+http://127.0.0.1:9876/proxy',
                    help='stream the run to a running Rerun viewer (default URL %(const)s)')
     p.add_argument('--json', action='store_true', help='print the summary as one JSON object')
-    p.set_defaults(func=cmd_run)
-    p = sub.add_parser('sweep', help='one run per point of a grid of scene values, on Dask; '
-                       'a Parquet and CSV table')
-    p.add_argument('scene', help='scene YAML file')
+    p = _scene_command(sub, 'sweep', cmd_sweep, 'one run per point of a grid of scene values, '
+                       'on Dask; a Parquet and CSV table')
     p.add_argument('--grid', action='append', metavar='KEY=V1,V2|KEY=START:STOP:N',
                    help='a swept scene key (as --set names it): listed values, N values from '
                         'START to STOP, or START:STOP with --samples (repeatable)')
     p.add_argument('--samples', type=int, metavar='N',
                    help='N Latin-hypercube points over the START:STOP ranges')
-    p.add_argument('--seed', type=int, default=0, help='seed of --samples (default 0)')
     p.add_argument('--out', help='output directory (default runs/sweeps/SCENE)')
-    p.add_argument('--workers', type=int,
-                   help='local worker processes (default: one per core; 1 = in this process)')
-    p.add_argument('--scheduler', metavar='ADDRESS',
-                   help='an existing Dask scheduler, e.g. tcp://HOST:8786')
-    p.add_argument('--t-end', type=float, help='simulated time of every run, s')
+    _study_options(p, 'seed of --samples')
     p.add_argument('--plot', metavar='FIGURE',
                    help='heat map of FIGURE (e.g. pulse.amplitude) over the first two keys')
-    p.set_defaults(func=cmd_sweep)
-    p = sub.add_parser('fit', help='scene values that reproduce target figures (differential '
-                       'evolution on Dask)')
-    p.add_argument('scene', help='scene YAML file')
+    p = _scene_command(sub, 'fit', cmd_fit, 'scene values that reproduce target figures '
+                       '(differential evolution on Dask)')
     p.add_argument('--target', required=True, metavar='TARGET.yaml',
                    help='cases: [{set: {...}, figures: {...}, weights: {...}}, ...]')
     p.add_argument('--free', action='append', metavar='KEY=LO:HI',
                    help='a continuous scene key and its bounds (repeatable)')
     p.add_argument('--choice', action='append', metavar='KEY=A,B',
                    help='a discrete scene key and its values (repeatable)')
-    p.add_argument('--t-end', type=float, help='simulated time of every run, s')
-    p.add_argument('--workers', type=int,
-                   help='local worker processes (default: one per core; 1 = in this process)')
-    p.add_argument('--scheduler', metavar='ADDRESS', help='an existing Dask scheduler')
-    p.add_argument('--seed', type=int, default=0, help='seed of the optimiser (default 0)')
+    _study_options(p, 'seed of the optimiser')
     p.add_argument('--popsize', type=int, default=8,
                    help='population per free dimension (default 8)')
     p.add_argument('--maxiter', type=int, default=20, help='generations at most (default 20)')
@@ -386,7 +391,6 @@ def build_parser():
     p.add_argument('--json', action='store_true', help='print the result as one JSON object')
     p.add_argument('--write-scene', metavar='OUT.yaml',
                    help='write the scene with the best values')
-    p.set_defaults(func=cmd_fit)
     p = sub.add_parser('replay', help='republish an MCAP log over ROS 2 (with /clock), or '
                        'convert it to a Rerun recording')
     p.add_argument('log', metavar='RUN.mcap', help='MCAP log (tensegrity run --mcap, node)')
@@ -415,9 +419,9 @@ def build_parser():
                         'unit_bases, materials.bar_mass_fraction=0.3, loading.impact.mode='
                         'striker, contact.lock=penalty (repeatable; skips the chain1d rows)')
     p.set_defaults(func=cmd_paper)
-    p = sub.add_parser('lens', help='focus the pulses of an array into a host medium: one '
-                       'prestrain per column on the delay law of a focus, checked by simulation')
-    p.add_argument('scene', help='scene YAML of an array (config/scenes/lens_focus.yaml)')
+    p = _scene_command(sub, 'lens', cmd_lens, 'focus the pulses of an array into a host '
+                       'medium: one prestrain per column on the delay law of a focus, checked by '
+                       'simulation', 'scene YAML of an array (config/scenes/lens_focus.yaml)')
     p.add_argument('--focus', required=True, metavar='X,Z',
                    help='focus in the medium, m (x along the array, depth z > 0)')
     p.add_argument('--medium-speed', type=float, required=True, metavar='C',
@@ -430,7 +434,6 @@ def build_parser():
                    help='record the check run and the field over sim_time to a Rerun file')
     p.add_argument('--out', help='output directory (default runs/<scene>_lens)')
     p.add_argument('--json', action='store_true', help='print one JSON object')
-    p.set_defaults(func=cmd_lens)
     p = sub.add_parser('node', help='the ROS 2 node tensegrity_sim (as tensegrity_node)')
     p.add_argument('--ros-args', dest='ros_args', nargs=argparse.REMAINDER,
                    help='ROS arguments: --ros-args -p NAME:=VALUE --params-file config/node.yaml')

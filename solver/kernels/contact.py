@@ -32,7 +32,7 @@ import math
 import numpy as np
 
 from solver._jit import jit, jit_inline
-from solver.kernels.rotation import ROT_C, ROT_S, add_pair_force
+from solver.kernels.rotation import add_pair_force, cable_chord, image_chord
 
 
 def _empty(shape, dtype=np.float64):
@@ -55,24 +55,12 @@ def cable_forces_damped(x, v, cable_a, cable_b, cable_rot, rest, EA, damp, f):
     ``T = max(EA (s - L) / L + damp ds/dt, 0)``. ``cable_rot`` empty: plain cables; otherwise
     cables to the rotated image ``R^r x_b`` (the force on the image rotated back, as
     :func:`solver.kernels.rotation.cable_forces_rot`)."""
-    rotated = cable_rot.shape[0] > 0
     for c in range(cable_a.shape[0]):
-        a = cable_a[c]
-        b = cable_b[c]
-        cr = 1.0
-        sr = 0.0
-        if rotated:
-            cr = ROT_C[cable_rot[c]]
-            sr = ROT_S[cable_rot[c]]
-        dx = cr * x[b, 0] - sr * x[b, 1] - x[a, 0]
-        dy = sr * x[b, 0] + cr * x[b, 1] - x[a, 1]
-        dz = x[b, 2] - x[a, 2]
+        a, b, cr, sr, dx, dy, dz = cable_chord(x, cable_a, cable_b, cable_rot, c)
         s = math.sqrt(dx * dx + dy * dy + dz * dz)
         L = rest[c]
         if s > L:
-            ux = cr * v[b, 0] - sr * v[b, 1] - v[a, 0]
-            uy = sr * v[b, 0] + cr * v[b, 1] - v[a, 1]
-            uz = v[b, 2] - v[a, 2]
+            ux, uy, uz = image_chord(v, a, b, cr, sr)
             T = EA[c] / L * (s - L) + damp[c] * (dx * ux + dy * uy + dz * uz) / s
             if T > 0.0:
                 add_pair_force(f, a, b, T / s, dx, dy, dz, cr, sr)
@@ -85,6 +73,12 @@ def _level_z(x, levels, c, j):
     for i in range(k):
         z += x[levels[c, j, i], 2]
     return z / k
+
+
+@jit_inline
+def _stop_overlap(x, levels, stop_h, c, j):
+    """Overlap m of stop ``j - 1`` of column ``c``: its height minus the level gap (> 0: shut)."""
+    return stop_h[c, j - 1] - (_level_z(x, levels, c, j) - _level_z(x, levels, c, j - 1))
 
 
 @jit
@@ -111,16 +105,13 @@ def axial_contacts(x, ex, f):
     share = 1.0 / par[3]
     kl = par[0]
     for c in range(stop_h.shape[0]):
-        z_prev = _level_z(x, levels, c, 0)
         for j in range(1, levels.shape[1]):
-            z = _level_z(x, levels, c, j)
-            d = stop_h[c, j - 1] - (z - z_prev)
+            d = _stop_overlap(x, levels, stop_h, c, j)
             if d > 0.0:
                 F = kl * d * share
                 for i in range(k):
                     f[levels[c, j, i], 2] += F
                     f[levels[c, j - 1, i], 2] -= F
-            z_prev = z
     top = levels.shape[1] - 1
     for s in range(st_row.shape[0]):
         c = st_col[s]
@@ -138,13 +129,10 @@ def extra_energy(x, v, ex):
     levels, stop_h, st_row, st_col, par = ex[1], ex[2], ex[3], ex[4], ex[5]
     e = 0.0
     for c in range(stop_h.shape[0]):
-        z_prev = _level_z(x, levels, c, 0)
         for j in range(1, levels.shape[1]):
-            z = _level_z(x, levels, c, j)
-            d = stop_h[c, j - 1] - (z - z_prev)
+            d = _stop_overlap(x, levels, stop_h, c, j)
             if d > 0.0:
                 e += 0.5 * par[0] * d * d
-            z_prev = z
     top = levels.shape[1] - 1
     for s in range(st_row.shape[0]):
         r = st_row[s]

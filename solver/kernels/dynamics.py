@@ -43,7 +43,8 @@ from solver.kernels.banded import band_ldl_solve
 from solver._jit import jit
 from solver.kernels.contact import NO_EXTRAS, axial_contacts, cable_forces_damped, extra_energy
 from solver.kernels.rotation import (ROT_C, ROT_S, add_constraint_forces_rot,  # noqa: F401
-                                     assemble_band_rot, cable_forces_rot, member_vectors_rot, rel)
+                                     assemble_band_rot, cable_forces_rot,
+                                     constraint_error_arrays, member_vectors_rot, rel)
 from solver.status import NONFINITE, NOT_CONVERGED, OK, SINGULAR  # noqa: F401
 
 
@@ -226,20 +227,6 @@ def accelerations(x, v, net, act, ws, out):
     _add_forces(lam, bvec, tail, head, rot, f)
     apply_w(f, w_diag, partner, w_off, out)
     return OK
-
-
-@jit
-def constraint_error_arrays(x, tail, head, length, rot):
-    """max_c |g_c| / L_c^2 with ``g_c = (|b_c|^2 - L_c^2) / 2`` (dimensionless), members as in the
-    ``net`` tuple (``rot`` empty for ``full3d``)."""
-    worst = 0.0
-    for c in range(tail.shape[0]):
-        dx, dy, dz = rel(x, tail[c], head[c], rot, c)
-        L2 = length[c] * length[c]
-        e = abs(0.5 * (dx * dx + dy * dy + dz * dz - L2)) / L2
-        if not e <= worst:          # also catches NaN
-            worst = e
-    return worst
 
 
 @jit

@@ -40,7 +40,7 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 
 from solver._jit import jit, jit_inline
-from solver.kernels.rotation import ROT_C, ROT_S, rel
+from solver.kernels.rotation import ROT_C, ROT_S, constraint_error_arrays, rel
 
 from solver.status import BAD_WORKSPACE, NONFINITE, NOT_CONVERGED, OK, SINGULAR  # noqa: F401
 
@@ -51,6 +51,9 @@ EMPTY_F.setflags(write=False)
 NO_DIMS = np.zeros(3, dtype=np.int64)
 NO_DIMS.setflags(write=False)
 NO_KKT = (EMPTY_I, EMPTY_I, EMPTY_I, EMPTY_I, EMPTY_F, NO_DIMS)
+
+
+NO_FORCE = np.zeros((0, 3))
 
 
 def needs_kkt(bars, bar_mass):
@@ -275,25 +278,43 @@ def _solve(kkt, kws):
     return band_lu_solve(kws[0], kws[1], kws[3], kws[2], dims[0], dims[1], dims[2])
 
 
+@jit_inline
+def _node_rhs(node_u, rhs, f, n):
+    """Node rows of the right-hand side: ``f`` (zeros when ``f`` has no rows)."""
+    for p in range(n):
+        u = node_u[p]
+        if u >= 0:
+            for i in range(3):
+                rhs[u + i] = f[p, i] if f.shape[0] else 0.0
+
+
 @jit
-def accelerations(x, v, f, tail, head, rot, kkt, kws, bvec, lam, out):
-    """Accelerations into ``out`` and multipliers into ``lam`` for the nodal forces ``f``."""
+def _solve_velocity_rows(x, v, f, tail, head, rot, kkt, kws, bvec, projection):
+    """Assemble at ``x`` and solve with node rows ``f`` and member rows ``-|R v_h - v_t|^2``
+    (accelerations) or ``-b . (R v_h - v_t)`` (``projection``: the velocity projection)."""
     status = assemble(x, tail, head, rot, kkt, kws, bvec)
     if status != OK:
         return status
     node_u, con_u = kkt[0], kkt[1]
     rhs = kws[2]
-    for p in range(x.shape[0]):
-        u = node_u[p]
-        if u >= 0:
-            for i in range(3):
-                rhs[u + i] = f[p, i]
+    _node_rhs(node_u, rhs, f, x.shape[0])
     for c in range(tail.shape[0]):
         dx, dy, dz = rel(v, tail[c], head[c], rot, c)
-        rhs[con_u[c]] = -(dx * dx + dy * dy + dz * dz)
-    status = _solve(kkt, kws)
+        if projection:
+            rhs[con_u[c]] = -(bvec[c, 0] * dx + bvec[c, 1] * dy + bvec[c, 2] * dz)
+        else:
+            rhs[con_u[c]] = -(dx * dx + dy * dy + dz * dz)
+    return _solve(kkt, kws)
+
+
+@jit
+def accelerations(x, v, f, tail, head, rot, kkt, kws, bvec, lam, out):
+    """Accelerations into ``out`` and multipliers into ``lam`` for the nodal forces ``f``."""
+    status = _solve_velocity_rows(x, v, f, tail, head, rot, kkt, kws, bvec, False)
     if status != OK:
         return status
+    node_u, con_u = kkt[0], kkt[1]
+    rhs = kws[2]
     for p in range(x.shape[0]):
         u = node_u[p]
         for i in range(3):
@@ -321,13 +342,7 @@ def project_positions(x, tail, head, rot, length, kkt, kws, bvec, tol, max_iter)
     node_u, con_u = kkt[0], kkt[1]
     rhs = kws[2]
     for it in range(max_iter + 1):
-        worst = 0.0
-        for c in range(tail.shape[0]):
-            dx, dy, dz = rel(x, tail[c], head[c], rot, c)
-            L2 = length[c] * length[c]
-            e = abs(0.5 * (dx * dx + dy * dy + dz * dz - L2)) / L2
-            if not e <= worst:
-                worst = e
+        worst = constraint_error_arrays(x, tail, head, length, rot)
         if worst < tol:
             return OK
         if it == max_iter or not math.isfinite(worst):
@@ -335,12 +350,7 @@ def project_positions(x, tail, head, rot, length, kkt, kws, bvec, tol, max_iter)
         status = assemble(x, tail, head, rot, kkt, kws, bvec)
         if status != OK:
             return status
-        for p in range(x.shape[0]):
-            u = node_u[p]
-            if u >= 0:
-                rhs[u] = 0.0
-                rhs[u + 1] = 0.0
-                rhs[u + 2] = 0.0
+        _node_rhs(node_u, rhs, NO_FORCE, x.shape[0])
         for c in range(tail.shape[0]):
             L2 = length[c] * length[c]
             rhs[con_u[c]] = -0.5 * (bvec[c, 0] ** 2 + bvec[c, 1] ** 2 + bvec[c, 2] ** 2 - L2)
@@ -355,21 +365,7 @@ def project_positions(x, tail, head, rot, length, kkt, kws, bvec, tol, max_iter)
 def project_velocities(x, v, tail, head, rot, kkt, kws, bvec):
     """Mass-weighted projection of velocities with the full mass matrix:
     ``[M -J^T; J 0] [dv; mu] = [0; -J v]``, ``v += dv``."""
-    status = assemble(x, tail, head, rot, kkt, kws, bvec)
-    if status != OK:
-        return status
-    node_u, con_u = kkt[0], kkt[1]
-    rhs = kws[2]
-    for p in range(x.shape[0]):
-        u = node_u[p]
-        if u >= 0:
-            rhs[u] = 0.0
-            rhs[u + 1] = 0.0
-            rhs[u + 2] = 0.0
-    for c in range(tail.shape[0]):
-        dx, dy, dz = rel(v, tail[c], head[c], rot, c)
-        rhs[con_u[c]] = -(bvec[c, 0] * dx + bvec[c, 1] * dy + bvec[c, 2] * dz)
-    status = _solve(kkt, kws)
+    status = _solve_velocity_rows(x, v, NO_FORCE, tail, head, rot, kkt, kws, bvec, True)
     if status != OK:
         return status
     _apply_correction(v, kkt, kws)
