@@ -53,7 +53,7 @@ BAR_TOL = 1e-9
 # The solver's divergence guard (energy growth 1e-3, constraint error 1e-6 by default) stops runs
 # whose strain may still be within the target; MuJoCo and SciPy have no such guard, so here the
 # strain error alone decides (the guard still stops blow-ups).
-GUARD = [('divergence.energy_growth', 0.1), ('divergence.constraint_error', 1e-3)]
+GUARD = [('divergence.energy_error', 0.1), ('divergence.constraint_error', 1e-3)]
 
 
 def fb_scene(overrides=()):

@@ -52,7 +52,9 @@ DEFAULTS = {
     'structure': COLUMN_DEFAULTS,
     'materials': {'cable_E': 5.48e6, 'cable_radius': 1.4e-4, 'unit_mass': 0.0249, 'bar_mass': 0.0,
                   'bar_mass_fraction': 0.0, 'end_mass': 0.0, 'cable_damping': 0.0,
-                  'cable_damping_ratio': 0.0},
+                  'cable_damping_ratio': 0.0,
+                  # bars as steel rods 0.2 mm thick (what touches in a prism: docs/physics.md)
+                  'bar_radius': 1.0e-4, 'bar_E': 2.0e11, 'bar_poisson': 0.3},
     'prestrain': 0.002,
     'loading': {'impact': {'v0': 0.1, 'mode': 'impulse', 'columns': None,
                            'striker_mass': 0.0249, 'contact': 'linear',
@@ -62,8 +64,9 @@ DEFAULTS = {
     'integrator': {'method': 'rk4_projected', 'dt': 5e-4, 'projection_tol': 1e-12,
                    'projection_max_iter': 3, 'land_on_kinks': True, 'rtol': 1e-8, 'atol': 1e-10},
     'run': {'t_end': 1.2, 'output_dt': 0.005},
-    'contact': {'lock': 'none', 'stiffness': 1.0e5, 'tolerance': 0.05},
-    'divergence': {'energy_growth': 1e-3, 'constraint_error': 1e-6, 'bar_crossing': 'rigid'},
+    'contact': {'bars': 'hertz', 'resolution': 40, 'lock': 'none', 'stiffness': 1.0e5,
+                'tolerance': 0.05},
+    'divergence': {'energy_error': 1e-4, 'constraint_error': 1e-6, 'bar_crossing': 'rigid'},
     'outputs': {'dir': None},
     # the focusing design (solver/studies/lens.py): the prestrain range it may use, the grid of
     # its map
@@ -83,6 +86,8 @@ CHOICES = {
     # a penalty stop between the two levels of each prism, at the rigid-base lock (flexible
     # bases: where the bases meet) plus contact.tolerance * h0
     'contact.lock': ('none', 'penalty'),
+    # the bars of each prism touch with their thickness: Hertz contact of crossed rods, or not
+    'contact.bars': ('hertz', 'none'),
     'model': ('auto', 'full3d', 'sym3d', 'chain1d'),
     # stop when a prism twists through 180 deg (its bars cross): in rigid-base columns only (the
     # lock), in every column, or never
@@ -108,6 +113,10 @@ RANGES = {
     'loading.impact.striker_mass': (0.0, math.inf, False),
     'loading.impact.contact_stiffness': (0.0, math.inf, False),
     'contact.stiffness': (0.0, math.inf, False),
+    'contact.resolution': (4, 100000, True),
+    'materials.bar_radius': (0.0, math.inf, False),
+    'materials.bar_E': (0.0, math.inf, False),
+    'materials.bar_poisson': (0.0, 0.5, True),
     'contact.tolerance': (0.0, 1.0, False),
     'prestrain': (0.0, 0.5, False),
     'loading.impact.v0': (-10.0, 10.0, True),
@@ -121,7 +130,7 @@ RANGES = {
     'lens.prestrain_min': (0.0, 0.5, False),
     'lens.prestrain_max': (0.0, 0.5, False),
     'lens.grid': (3, 200, True),
-    'divergence.energy_growth': (0.0, math.inf, False),
+    'divergence.energy_error': (0.0, math.inf, False),
     'divergence.constraint_error': (0.0, math.inf, False),
 }
 

@@ -50,6 +50,9 @@ class Materials:
     end_mass: float
     cable_damping: float
     cable_damping_ratio: float
+    bar_radius: float
+    bar_E: float
+    bar_poisson: float
 
 
 @dataclass(frozen=True)
@@ -87,6 +90,8 @@ class Run:
 
 @dataclass(frozen=True)
 class Contact:
+    bars: str
+    resolution: int
     lock: str
     stiffness: float
     tolerance: float
@@ -94,7 +99,7 @@ class Contact:
 
 @dataclass(frozen=True)
 class Divergence:
-    energy_growth: float
+    energy_error: float
     constraint_error: float
     bar_crossing: str
 

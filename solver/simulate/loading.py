@@ -136,8 +136,7 @@ class Loading:
         before = self.energy()
         if (mode or self.scene.loading.impact.mode) == 'striker':
             self._strike(v0, columns)
-            self._energy_ref = self.energy()
-            return self._energy_ref - before
+            return self._add_work(before)
         if self.model.integrates_itself:            # chain1d: axial velocity on the end level
             if columns not in (None, [0], (0,)):
                 raise ValueError('impact: chain1d has one column (0)')
@@ -145,12 +144,10 @@ class Loading:
                 raise ValueError('impact: chain1d takes one finite velocity')
             self.model.impact(float(v0))
             self._changed()
-            self._energy_ref = self.energy()
-            return self._energy_ref - before
+            return self._add_work(before)
         v_new = self.impact_velocities(v0, columns, mode)
         self._load(self.model.positions(), v_new)
-        self._energy_ref = self.energy()
-        return self._energy_ref - before
+        return self._add_work(before)
 
     @property
     def prestrain(self):
@@ -202,7 +199,7 @@ class Loading:
         EA = self.model.cable_EA
         self._set_cables(self.prestrain_map.rest_lengths(p, EA), EA)
         self._prestrain = np.array(p, dtype=np.float64)
-        self._energy_ref += self.energy() - e0
+        self._add_work(e0)
 
     def _ramp_to(self, t):
         t0, duration, p0, p1 = self._ramp

@@ -117,7 +117,8 @@ class Simulation(Loading):
         self._ramp = None               # (t0, duration, p_start, p_target) of a prestrain ramp
         if net.levels.size and net.meta.get('builder') == 'column':
             self._prestrain = np.full((net.n_columns, net.n_prisms), float(net.meta['prestrain']))
-        self._energy_ref = self.energy()
+        self._energy_ref = self._energy_0 = self.energy()
+        self._energy_scale = abs(self._energy_ref)
 
     def clone(self):
         """An independent copy that continues exactly as this simulation would (state, cables,
@@ -183,6 +184,29 @@ class Simulation(Loading):
         """Total energy of the current state, J."""
         return self._summary()[1]
 
+    def _balance(self, e):
+        scale = max(abs(self._energy_ref), abs(e), self._energy_scale, 1e-300)
+        return (e - self._energy_ref) / scale
+
+    def energy_error(self):
+        """Energy balance error of the current state (signed, relative): ``(E - E_0 - W) / S``,
+        ``E`` the energy now (kinetic, cable, contact, striker), ``W`` the work of every command
+        since the reset (impacts, prestrain changes, rest lengths), ``S`` the largest of ``|E|``,
+        ``|E_0 + W|`` seen so far. Checked against ``divergence.energy_error`` in both
+        directions after every :meth:`advance`."""
+        return self._balance(self.energy())
+
+    def energy_work(self):
+        """Work J put in by commands since the reset (the ledger's ``W``)."""
+        return self._energy_ref - self._energy_0
+
+    def _add_work(self, before):
+        """Book the change of energy since ``before`` J as the work of a command."""
+        after = self.energy()
+        self._energy_ref += after - before
+        self._energy_scale = max(self._energy_scale, abs(after), abs(self._energy_ref))
+        return after - before
+
     def constraint_error(self):
         """Relative constraint error of the current state."""
         return self._summary()[3]
@@ -226,7 +250,7 @@ class Simulation(Loading):
         rest = rest_length_values(rest, self.network.n_cables)
         e0 = self.energy()
         self._set_cables(rest, self.model.cable_EA)
-        self._energy_ref += self.energy() - e0
+        self._add_work(e0)
 
     def _set_cables(self, rest, EA):
         """Load full (n_cables,) rest lengths and EA; asymmetric ones expand ``sym3d``."""
@@ -285,7 +309,7 @@ class Simulation(Loading):
                     m.x, m.net, m.act, m.ws, self.tol, self.max_iter, self.kinks, kb, summ))
             kb = plan[2]
             keep = (kb[0], kb[1], m.act[0], self._prestrain, self._ramp, self._energy_ref,
-                    integ.get_state())
+                    integ.get_state(), self._energy_scale)
             h = np.empty(self._heights_shape)
             steps, status, finite, e, cerr, h_min = integ.checked(m.x, m.v, float(self.dt), n,
                                                                   *plan[3], h)
@@ -294,6 +318,7 @@ class Simulation(Loading):
         if problem is not None:
             self._restore(keep)
             raise self._locate(n, keep, problem)
+        self._energy_scale = max(self._energy_scale, abs(self._summary()[1]))
         self.t += n * self.dt
         self.step += n
         self.steps_taken += steps
@@ -303,13 +328,14 @@ class Simulation(Loading):
     def _keep(self):
         m = self.model
         return (m.x.copy(), m.v.copy(), m.act[0].copy(), self._prestrain, self._ramp,
-                self._energy_ref, self.integrator.get_state())
+                self._energy_ref, self.integrator.get_state(), self._energy_scale)
 
     def _restore(self, keep):
         m = self.model
         m.x[:], m.v[:], m.act[0][:] = keep[:3]
         self._prestrain, self._ramp, self._energy_ref = keep[3:6]
         self.integrator.set_state(keep[6])
+        self._energy_scale = keep[7]
         self._changed()
 
     def _check(self, status):
@@ -324,10 +350,11 @@ class Simulation(Loading):
         if not err <= self.div.constraint_error:
             return ('constraint error', f'{err:.3g} exceeds {self.div.constraint_error:g}',
                     codes.HINT_CONSTRAINT)
-        growth = (e - self._energy_ref) / max(abs(self._energy_ref), 1e-300)
-        if not growth <= self.div.energy_growth:
-            return ('energy', f'grew by {growth:.3g} (relative), limit '
-                              f'{self.div.energy_growth:g}', codes.HINT_ENERGY)
+        err = self._balance(e)
+        if not abs(err) <= self.div.energy_error:
+            return ('energy balance', f'{"gained" if err > 0 else "lost"} {abs(err):.3g} of the '
+                                      f'energy scale (limit {self.div.energy_error:g})',
+                    codes.HINT_ENERGY)
         net = self.network
         if net.levels.size:
             if h.size and not h_min > 0.0:
