@@ -11,7 +11,8 @@ import sys
 
 from bench.main import main as bench_main
 
-CHOICES = ('work_precision', 'stability', 'stiff', 'peers', 'rerun', 'sweep', 'soak', 'array')
+CHOICES = ('work_precision', 'stability', 'stiff', 'peers', 'rerun', 'sweep', 'soak', 'array',
+           'trains')
 
 
 def parser():
@@ -26,7 +27,8 @@ def parser():
                         'work_precision and stability (both also run them); rerun: the cost of '
                         'a Rerun recording, sweep: the parallel efficiency of a 64-point sweep, '
                         'soak: the node under a command flood for 10 minutes, array: arrays of '
-                        'columns per column (these four only on request)')
+                        'columns per column, trains: pulse trains and strong impacts on the '
+                        'default columns (these five only on request)')
     return p
 
 

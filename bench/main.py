@@ -40,6 +40,9 @@ def main(out_dir='bench/results', quick=False, peers=False, only=None, log=print
     if only is not None and 'rerun' in only:
         from . import rerun_overhead
         written += rerun_overhead.main(out, quick=quick, log=log)
+    if only is not None and 'trains' in only:          # pulse trains, strong impacts
+        from . import trains
+        written += trains.main(out, quick=quick, log=log)
     if only is not None and 'soak' in only:
         from . import soak
         written += soak.main(out, quick=quick, log=log)

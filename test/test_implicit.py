@@ -15,8 +15,9 @@ from solver.simulate.simulation import SimulationDiverged
 from solver.simulate.array import simulation_for
 
 ROOT = Path(__file__).resolve().parents[1]
-PRISM = Scene.load(ROOT / 'config' / 'scenes' / 'prism.yaml')
-RB = Scene.load(ROOT / 'config' / 'scenes' / 'rb_column.yaml')
+# the midpoint step refuses bar contact (test_bar_contact_is_refused): line bars here
+PRISM = Scene.load(ROOT / 'config' / 'scenes' / 'prism.yaml').with_overrides(['contact.bars=none'])
+RB = Scene.load(ROOT / 'config' / 'scenes' / 'rb_column.yaml').with_overrides(['contact.bars=none'])
 STIFF = ['structure.n_prisms=10', 'structure.rigid_bases_as=stiff_cables', 'structure.kappa=1e4',
          'run.output_dt=0.016']
 
@@ -76,7 +77,7 @@ def test_massive_bars_sharing_nodes_are_refused_too():
     system, which the midpoint step does not solve: refused before any step, not run wrongly."""
     scene = Scene.load(ROOT / 'config' / 'scenes' / 'fb_column.yaml').with_overrides(
         ['structure.n_prisms=3', 'materials.bar_mass_fraction=0.3', 'model=full3d',
-         'integrator=implicit_midpoint'])
+         'integrator=implicit_midpoint', 'contact.bars=none'])
     sim = simulation_for(scene)
     assert not np.any(sim.network.partner >= 0)        # not the class-1 rod blocks
     with pytest.raises(ValueError, match='massive bars'):
@@ -188,8 +189,11 @@ def test_full_and_reduced_models_agree():
 
 # -- stiff scene ----------------------------------------------------------------------------------
 def _survives(method, dt, t_end=0.16):
+    # stability, not accuracy (near its limit RK4 damps: 12 % of the energy gone in 4 ms at
+    # 0.2 ms): only an energy that doubles or vanishes counts
     sim = simulation_for(RB.with_overrides(STIFF + ['model=sym3d', f'integrator={method}',
-                                                f'integrator.dt={dt}']))
+                                                f'integrator.dt={dt}',
+                                                'divergence.energy_error=1.0']))
     sim.apply_impact(0.1)
     try:
         sim.advance(t_end)
@@ -206,13 +210,15 @@ def test_stable_step_at_least_10x_that_of_rk4_projected_on_the_stiff_column():
     assert _survives('implicit_midpoint', 4e-3)
 
 
-@pytest.mark.parametrize('sets', [['materials.cable_damping=0.01'], ['contact.lock=penalty'],
+@pytest.mark.parametrize('sets', [['contact.bars=hertz'], ['materials.cable_damping=0.01'],
+                                  ['contact.lock=penalty'],
                                   ['loading.impact.mode=striker']])
 def test_forces_outside_the_midpoint_step_are_refused(sets):
     """Cable damping, prism stops and strikers are not part of the midpoint step: refused with
     a clear error instead of being silently left out."""
     scene = Scene.load(ROOT / 'config' / 'scenes' / 'fb_column.yaml').with_overrides(
-        ['structure.n_prisms=3', 'model=full3d', 'integrator=implicit_midpoint', *sets])
+        ['structure.n_prisms=3', 'model=full3d', 'integrator=implicit_midpoint',
+         'contact.bars=none', *sets])
     sim = simulation_for(scene)
     with pytest.raises(ValueError, match='not part of its step'):
         sim.advance(sim.dt)

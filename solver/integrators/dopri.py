@@ -22,6 +22,7 @@ import numpy as np
 from solver.kernels import dynamics as dyn
 from solver._jit import jit
 from solver.integrators.base import Integrator
+from solver.kernels.barcontact import contact_step
 from solver.kernels.kinks import keep_state, next_kink
 from solver.status import STEP_TOO_SMALL
 
@@ -107,6 +108,8 @@ def dopri_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, rtol, atol,
         h = min(h_prop, total - t)
         if kinks:
             h = next_kink(x, v, kv[0], net, act, h, 1e-3 * h)
+        if act[3][6].shape[0] != 0:       # bars that touch
+            h = contact_step(x, v, kv[0], act[3][6], act[3][1], act[3][7], h)
         status = _stages(x, v, h, A, net, act, ws, kx, kv, xs, vs)
         hstate[3] += 6
         err = _error_norm(x, v, xs, vs, h, E, kx, kv, rtol, atol) if status == dyn.OK else np.inf

@@ -458,6 +458,12 @@ class ImplicitMidpoint(Integrator):
         """The step has no cable damping, prism stops or strikers (``act[3]``): refuse them
         rather than run without them."""
         ex = act[3] if len(act) > 3 else ()
+        if len(ex) > 6 and np.asarray(ex[6]).size:
+            raise ValueError('implicit_midpoint: bar contact (contact.bars: hertz) is not part of '
+                             'its step: its discrete gradient conserves the cable energy only, '
+                             'and its long fixed steps cannot resolve a contact lasting '
+                             'microseconds; use rk4_projected or dopri54_projected, or set '
+                             'contact.bars: none')
         if any(np.asarray(ex[i]).size for i in (0, 2, 3) if i < len(ex)):
             raise ValueError('implicit_midpoint: cable damping, prism stops (contact.lock) and '
                              'strikers are not part of its step; use rk4_projected or '

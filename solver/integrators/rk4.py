@@ -5,6 +5,7 @@ from __future__ import annotations
 from solver._jit import jit
 from solver.integrators.base import Integrator
 from solver.kernels import dynamics as dyn
+from solver.kernels.barcontact import contact_step
 from solver.kernels.kinks import keep_state, next_kink
 
 
@@ -55,6 +56,8 @@ def _rk4_advance(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, project)
         status = dyn.accelerations(x, v, net, act, ws, a1)
         if status == dyn.OK and kinks:
             h = next_kink(x, v, a1, net, act, h, 1e-3 * dt)
+        if status == dyn.OK and act[3][6].shape[0] != 0:       # bars that touch
+            h = contact_step(x, v, a1, act[3][6], act[3][1], act[3][7], h)
         if status == dyn.OK:
             status = _rk4_step(x, v, h, a1, net, act, ws)
         if project and status == dyn.OK:

@@ -4,10 +4,12 @@ Everything here enters the dynamics through one tuple, the fourth slot of the ``
 :mod:`solver.kernels.dynamics` (``act[3]``, "extras")::
 
     (damp (n_cables,) N s/m, levels (n_columns, n_levels, k) node indices,
-     stop_h (n_columns, n_prisms) m, st_row (n_strikers,), st_col (n_strikers,), par (6,))
+     stop_h (n_columns, n_prisms) m, st_row (n_strikers,), st_col (n_strikers,), par (6,),
+     pairs (n_pairs, 8), bpar (6,))
 
 ``par = (k_stop N/m, k_contact, contact exponent (1 linear, 1.5 Hertz), nodes per level of the
-full network, striker mass kg, gravity m/s^2)``. Empty arrays switch a part off: with all of them
+full network, striker mass kg, gravity m/s^2)``; ``pairs`` and ``bpar``: the bar pairs of
+:mod:`solver.kernels.barcontact`. Empty arrays switch a part off: with all of them
 empty (:data:`NO_EXTRAS`, what :func:`solver.kernels.dynamics.pack` gives) the kernels of
 :mod:`solver.kernels.dynamics` take exactly the code path they take without this module.
 
@@ -41,12 +43,13 @@ def _empty(shape, dtype=np.float64):
 
 
 NO_EXTRAS = (_empty(0), _empty((0, 0, 1), np.int64), _empty((0, 0)), _empty(0, np.int64),
-             _empty(0, np.int64), _empty(6))
+             _empty(0, np.int64), _empty(6), _empty((0, 8), np.int64), _empty(6))
 
 
 def active(extras):
     """Whether an extras tuple switches anything on."""
-    return bool(extras[0].shape[0] or extras[2].size or extras[3].shape[0])
+    return bool(extras[0].shape[0] or extras[2].size or extras[3].shape[0]
+                or extras[6].shape[0])
 
 
 @jit

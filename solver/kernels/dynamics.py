@@ -41,6 +41,7 @@ import numpy as np
 from solver.kernels import massmatrix as mm
 from solver.kernels.banded import band_ldl_solve
 from solver._jit import jit
+from solver.kernels.barcontact import bar_energy, bar_forces, base_energy, base_forces
 from solver.kernels.contact import NO_EXTRAS, axial_contacts, cable_forces_damped, extra_energy
 from solver.kernels.rotation import (ROT_C, ROT_S, add_constraint_forces_rot,  # noqa: F401
                                      assemble_band_rot, cable_forces_rot,
@@ -199,6 +200,9 @@ def accelerations(x, v, net, act, ws, out):
         cable_forces_rot(x, cable_a, cable_b, net[10], rest, EA, f)
     if ex[2].shape[0] != 0 or ex[3].shape[0] != 0:      # prism stops, strikers
         axial_contacts(x, ex, f)
+    if ex[6].shape[0] != 0:                             # bars touching (kernels.barcontact)
+        bar_forces(x, ex[6], ex[7], f)
+        base_forces(x, ex[1], ex[7], f)
     if net[12][0].shape[0] != 0:        # massive bars sharing nodes: the banded KKT system
         return mm.accelerations(x, v, f, tail, head, rot, net[12], ws[11], bvec, lam, out)
     apply_w(f, w_diag, partner, w_off, wf)
@@ -444,6 +448,8 @@ def state_summary(x, v, net, act, summ, heights):
     ex = act[3]
     if ex[2].shape[0] != 0 or ex[3].shape[0] != 0:      # strikers, prism stops
         e += extra_energy(x, v, ex)
+    if ex[6].shape[0] != 0:
+        e += bar_energy(x, ex[6], ex[7]) + base_energy(x, ex[1], ex[7])
     return (all_finite(x) and all_finite(v), e,
             constraint_error_arrays(x, net[3], net[4], net[5], net[9]),
             level_heights(x, levels, heights))

@@ -5,13 +5,87 @@ import math
 
 import numpy as np
 
+from solver.kernels import barcontact
 from solver.kernels import dynamics as dyn
 from solver.kernels.contact import NO_EXTRAS
 
 
 def active_spec(spec):
     """Whether a :func:`scene_extras` dict switches anything on."""
-    return spec['damp'] is not None or spec['stop_h'] is not None or spec['strikers']
+    return (spec['damp'] is not None or spec['stop_h'] is not None or spec['strikers']
+            or spec.get('pairs') is not None)
+
+
+def bar_pairs(network):
+    """The pairs of bars that can touch, as full node indices (n_pairs, 4) ``a_lo, a_hi, b_lo,
+    b_hi`` (lower level first): the three pairs of each prism's bars, and each bar of a prism
+    against the bars of the prism above that do not share its node (where a flattened prism's
+    bars meet its neighbour's). None without prisms."""
+    levels = np.asarray(network.levels)
+    if not levels.size or not network.n_bars:
+        return None
+    level_of = {}
+    for c in range(levels.shape[0]):
+        for j in range(levels.shape[1]):
+            for n in levels[c, j]:
+                level_of[int(n)] = (c, j)
+    prisms = {}
+    for a, b in zip(np.asarray(network.bar_a), np.asarray(network.bar_b)):
+        (ca, ja), (cb, jb) = level_of[int(a)], level_of[int(b)]
+        if ca != cb or abs(ja - jb) != 1:
+            continue
+        lo, hi = (int(a), int(b)) if ja < jb else (int(b), int(a))
+        prisms.setdefault((ca, min(ja, jb)), []).append((lo, hi))
+    pairs = []
+    for (c, j), bars in prisms.items():
+        pairs += [bars[i] + bars[k] for i in range(len(bars)) for k in range(i + 1, len(bars))]
+        pairs += [a + b for a in bars for b in prisms.get((c, j + 1), ()) if not set(a) & set(b)]
+    return np.array(pairs, dtype=np.int64).reshape(-1, 4) if pairs else None
+
+
+def _bar_contact(scene, network):
+    """``(pairs, bpar)`` of the scene's bar contact (:mod:`solver.kernels.barcontact`), or
+    ``(None, None)`` with ``contact.bars: none`` or no prisms."""
+    pairs = bar_pairs(network) if scene.contact.bars != 'none' else None
+    if pairs is None:
+        return None, None
+    mat = scene.materials
+    mass = np.asarray(network.node_mass)[~np.asarray(network.clamped, bool)]
+    mass = mass[mass > 0]
+    m_min = float(mass.min()) if mass.size else float(network.total_mass) / network.n_nodes
+    bpar = np.array([2.0 * mat.bar_radius,
+                     barcontact.hertz_constant(mat.bar_radius, mat.bar_E, mat.bar_poisson),
+                     1.0, m_min, float(scene.contact.resolution),
+                     float(network.levels.shape[2])])
+    return pairs, bpar
+
+
+def _model_pairs(pairs, reduced):
+    """``pairs`` (full node indices) as the kernel's (n, 8) node/rotation rows of a model: all
+    rotations 0 in ``full3d``; in ``sym3d`` one pair per orbit of three under the rotation (its
+    ends as representatives and rotations), and the energy multiplicity 3."""
+    if reduced is None:
+        rows = np.zeros((len(pairs), 8), dtype=np.int64)
+        rows[:, 0::2] = pairs
+        return rows, 1.0
+    rep, rot = np.asarray(reduced.node_rep), np.asarray(reduced.node_rot)
+    node = {(int(rep[n]), int(rot[n])): n for n in range(len(rep))}
+
+    def image(n):                       # the node R x_n
+        return node[(int(rep[n]), (int(rot[n]) + 1) % 3)]
+
+    seen, rows = set(), []
+    for pair in pairs:
+        pair = tuple(int(n) for n in pair)
+        key = frozenset((pair[:2], pair[2:]))
+        if key in seen:
+            continue
+        img = pair
+        for _ in range(3):
+            seen.add(frozenset((img[:2], img[2:])))
+            img = tuple(image(n) for n in img)
+        rows.append([v for n in pair for v in (rep[n], rot[n])])
+    return np.array(rows, dtype=np.int64).reshape(-1, 8), 3.0
 
 
 def cable_damping(scene, network):
@@ -58,9 +132,20 @@ def scene_extras(scene, network):
                     1.0 if imp.contact == 'linear' else 1.5,
                     float(network.levels.shape[2]) if network.levels.size else 3.0,
                     imp.striker_mass, scene.loading.gravity])
+    pairs, bpar = _bar_contact(scene, network)
     return {'damp': cable_damping(scene, network),
             'stop_h': stop_heights(network, scene.contact.tolerance) if lock else None,
-            'strikers': strikers, 'par': par}
+            'strikers': strikers, 'par': par, 'pairs': pairs, 'bpar': bpar}
+
+
+def _pair_slots(spec, reduced):
+    """The two bar-contact slots of the extras tuple for a model (``reduced`` or None)."""
+    if spec.get('pairs') is None:
+        return NO_EXTRAS[6], NO_EXTRAS[7]
+    rows, mult = _model_pairs(spec['pairs'], reduced)
+    bpar = spec['bpar'].copy()
+    bpar[2] = mult
+    return rows, bpar
 
 
 def network_extras(spec, network):
@@ -72,7 +157,8 @@ def network_extras(spec, network):
     stop_h = NO_EXTRAS[2] if spec['stop_h'] is None else np.array(spec['stop_h'], np.float64)
     levels = np.ascontiguousarray(network.levels, dtype=np.int64) if network.levels.size \
         else NO_EXTRAS[1]
-    return (damp, levels, stop_h, NO_EXTRAS[3], NO_EXTRAS[4], spec['par'].copy())
+    return (damp, levels, stop_h, NO_EXTRAS[3], NO_EXTRAS[4], spec['par'].copy(),
+            *_pair_slots(spec, None))
 
 
 def attach(model, spec, striker_state=None):
@@ -106,7 +192,8 @@ def attach(model, spec, striker_state=None):
     rows = np.arange(n, n + ns, dtype=np.int64)
     if not levels.size:
         levels = NO_EXTRAS[1]
-    ex = (damp, levels, stop_h, rows, np.arange(ns, dtype=np.int64), spec['par'].copy())
+    ex = (damp, levels, stop_h, rows, np.arange(ns, dtype=np.int64), spec['par'].copy(),
+          *_pair_slots(spec, reduced))
     if ns and len(model.net) > 12 and np.asarray(model.net[12][0]).shape[0]:
         raise ValueError('loading.impact.mode: striker is not available with massive bars that '
                          'share nodes (materials.bar_mass_fraction, materials.bar_mass): the '

@@ -1,0 +1,113 @@
+"""Pulse trains and strong impacts on the default columns (docs/physics.md section 7.1).
+
+    python -m bench --only trains [--quick]
+
+Writes ``trains.json`` (one row per case: impacts applied, time reached, smallest prism height
+over h0, largest energy balance error, steps, wall time, status) and ``train_strain.png`` (the
+strain of every prism over time under a train of impacts on ``fb_column``)."""
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from solver.build.scene import Scene
+from solver.simulate.array import simulation_for
+from solver.simulate.simulation import SimulationDiverged
+
+ROOT = Path(__file__).resolve().parents[1]
+TRAINS = [('fb_column', 0.1, 0.01, 200), ('fb_column', 0.15, 0.05, 200),
+          ('rb_column', 0.1, 0.01, 200), ('rb_column', 0.15, 0.05, 200)]
+SINGLES = [(name, v0) for name in ('fb_column', 'rb_column') for v0 in (0.3, 1.0, 2.0)]
+
+
+def train(name, v0, period, count, t_end=None, overrides=(), strain=None):
+    """Impacts of ``v0`` every ``period`` s, ``count`` of them, then to ``t_end`` (default: one
+    period after the last); the row of the case. ``strain``: a list that gets each frame's
+    strain (n_prisms,) of column 0."""
+    scene = Scene.load(ROOT / 'config' / 'scenes' / f'{name}.yaml').with_overrides(list(overrides))
+    sim = simulation_for(scene)
+    out_dt = scene.run.output_dt
+    t_end = count * period if t_end is None else t_end
+    per = max(int(round(period / out_dt)), 1)
+    row = {'scene': name, 'v0': v0, 'period_s': period, 'count': count,
+           'overrides': list(overrides), 'impacts': 0}
+    h_min, err, t0, status = np.inf, 0.0, time.perf_counter(), 'ok'
+    try:
+        for k in range(int(round(t_end / out_dt))):
+            if k % per == 0 and row['impacts'] < count:
+                sim.apply_impact(v0)
+                row['impacts'] += 1
+            sim.advance(out_dt)
+            f = sim.frame()
+            h_min = min(h_min, float(np.min(1.0 / (1.0 - f.strain))))
+            err = max(err, abs(sim.energy_error()))
+            if strain is not None:
+                strain.append(f.strain[0].copy())
+    except SimulationDiverged as exc:
+        status = str(exc)
+    row.update({'t_reached_s': sim.t, 'h_min_over_h0': h_min, 'balance_error_max': err,
+                'steps': sim.step, 'steps_taken': sim.steps_taken,
+                'wall_s': time.perf_counter() - t0, 'status': status})
+    return row
+
+
+def convergence(name, v0=1.0, t_end=0.5):
+    """Amplitude and speed of the leading pulse at the scene's dt and at half of it."""
+    from solver.simulate.runner import simulate
+    figs = []
+    for scale in (1.0, 0.5):
+        scene = Scene.load(ROOT / 'config' / 'scenes' / f'{name}.yaml')
+        dt = scene.integrator.dt * scale
+        point = simulate(scene, [f'loading.impact.v0={v0}', f'run.t_end={t_end}',
+                                 f'integrator.dt={dt}'])
+        figs.append((point.summary['pulse']['amplitude'], point.summary['pulse']['speed_m_s']))
+    (a1, s1), (a2, s2) = figs
+    return {'scene': name, 'v0': v0, 'amplitude': a2, 'speed_m_s': s2,
+            'amplitude_change': abs(a1 - a2) / abs(a2), 'speed_change': abs(s1 - s2) / abs(s2)}
+
+
+def plot(strain, out_dt, path):
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    s = np.array(strain)
+    fig, ax = plt.subplots(figsize=(7, 3.6))
+    im = ax.imshow(s.T, aspect='auto', origin='lower', cmap='viridis_r',
+                   extent=(0, len(s) * out_dt, -0.5, s.shape[1] - 0.5),
+                   vmin=np.percentile(s, 1), vmax=0)
+    ax.set_xlabel('time (s)')
+    ax.set_ylabel('prism (0: clamped base)')
+    ax.set_title('fb_column, 10 impacts of 0.1 m/s every 50 ms: strain')
+    fig.colorbar(im, ax=ax, label='strain (h - h0) / h')
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main(out, quick=False, log=print):
+    out = Path(out)
+    rows = []
+    for name, v0, period, count in TRAINS:
+        row = train(name, v0, period, 20 if quick else count)
+        log(f'{name} {count} x {v0} m/s every {period * 1e3:g} ms: {row["status"]}, '
+            f'{row["impacts"]} impacts, h_min/h0 {row["h_min_over_h0"]:.3f}, balance error '
+            f'{row["balance_error_max"]:.2e}, {row["wall_s"]:.1f} s')
+        rows.append(row)
+    for name, v0 in SINGLES:
+        row = train(name, v0, 1.0, 1, t_end=0.2 if quick else 1.0)
+        log(f'{name} one impact of {v0} m/s, 1 s: {row["status"]}, h_min/h0 '
+            f'{row["h_min_over_h0"]:.3f}, balance error {row["balance_error_max"]:.2e}')
+        rows.append(row)
+    conv = [] if quick else [convergence(name) for name in ('fb_column', 'rb_column')]
+    for c in conv:
+        log(f'{c["scene"]} at 1 m/s, dt halved: amplitude {c["amplitude_change"]:.2%}, speed '
+            f'{c["speed_change"]:.2%}')
+    strain = []
+    train('fb_column', 0.1, 0.05, 10, t_end=0.8, strain=strain)
+    plot(strain, 0.005, out / 'train_strain.png')
+    path = out / 'trains.json'
+    path.write_text(json.dumps({'rows': rows, 'convergence': conv}, indent=1, default=float))
+    return [path, out / 'train_strain.png']

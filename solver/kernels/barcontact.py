@@ -1,0 +1,274 @@
+"""Contact between the bars of a prism: rods of radius ``r_b`` that touch when the closest distance
+of their axes reaches ``D = 2 r_b`` (docs/physics.md section 9).
+
+A pair is two bar segments given by their end nodes, each end a node and a rotation index (the
+node's image ``R^r x_node``; all 0 in ``full3d``)::
+
+    pairs (n_pairs, 8) int64: a_lo, ra_lo, a_hi, ra_hi, b_lo, rb_lo, b_hi, rb_hi
+    bpar (6,): D m, k N/m^1.5, energy multiplicity, smallest node mass kg, steps per contact,
+               nodes per level of the full network
+
+The law is Hertz's for two crossed rods of equal radius and material (effective radius ``r_b``):
+``F = k d^1.5`` at overlap ``d = D - dist``, ``k = 4/3 E* sqrt(r_b)``, ``E* = E / (2 (1 - nu^2))``,
+energy ``2 k d^2.5 / 5``; the force acts along the line of the closest points, on each bar at its
+closest point, shared by its two end nodes by the lever rule (exact for a massless rigid bar). In
+``sym3d`` one pair stands for the three of an orbit: its forces on the images are rotated back onto
+the representatives (they are then the forces of the other two pairs), its energy counts 3 times.
+
+:func:`contact_step` sizes the steps around a contact: a pair that could touch within the step is
+approached in steps that close at most half of its gap (conservative advancement), and while a
+pair touches steps are ``T / steps``, ``T`` the Hertz contact duration ``2.94 d_max / u`` of the
+pair's approach speed ``u`` (with the energy it already stores) against the smallest node mass.
+Far from contact nothing changes: the step is returned as given.
+
+**Bases.** The two bases of a prism cannot pass through each other: when its height (mean z of
+its upper level minus that of its lower, ``levels`` of the extras tuple) falls below ``D`` (the
+thickness of the bars lying flat between them), each joint of the upper level rests on the lower
+base as one more crossed-rod contact, ``F = k d^1.5`` per node at overlap ``d = D - h``, energy
+``2 k d^2.5 / 5`` per node of the full network.
+"""
+import math
+
+import numpy as np
+
+from solver._jit import jit, jit_inline
+from solver.kernels.rotation import ROT_C, ROT_S
+
+NO_PAIRS = np.zeros((0, 8), dtype=np.int64)
+NO_BPAR = np.zeros(6)
+
+
+def hertz_constant(radius, E, poisson):
+    """``k`` N/m^1.5 of two crossed rods of radius ``radius`` m, modulus ``E`` Pa."""
+    return 4.0 / 3.0 * E / (2.0 * (1.0 - poisson * poisson)) * math.sqrt(radius)
+
+
+@jit_inline
+def _point(u, node, r):
+    if r == 0:
+        return u[node, 0], u[node, 1], u[node, 2]
+    c = ROT_C[r]
+    s = ROT_S[r]
+    return c * u[node, 0] - s * u[node, 1], s * u[node, 0] + c * u[node, 1], u[node, 2]
+
+
+@jit_inline
+def _push(f, node, r, gx, gy, gz):
+    """``f[node] += R^-r g``."""
+    c = ROT_C[r]
+    s = ROT_S[r]
+    f[node, 0] += c * gx + s * gy
+    f[node, 1] += c * gy - s * gx
+    f[node, 2] += gz
+
+
+@jit_inline
+def _clamp01(a):
+    return 0.0 if a < 0.0 else (1.0 if a > 1.0 else a)
+
+
+@jit
+def segment_params(ax, ay, az, ux, uy, uz, bx, by, bz, wx, wy, wz):
+    """``(s, t)`` in [0, 1]^2 of the closest points ``a + s u``, ``b + t w`` of two segments of
+    non-zero length (Ericson, Real-Time Collision Detection, 5.1.9)."""
+    rx, ry, rz = ax - bx, ay - by, az - bz
+    a = ux * ux + uy * uy + uz * uz
+    e = wx * wx + wy * wy + wz * wz
+    f = wx * rx + wy * ry + wz * rz
+    c = ux * rx + uy * ry + uz * rz
+    b = ux * wx + uy * wy + uz * wz
+    denom = a * e - b * b
+    s = _clamp01((b * f - c * e) / denom) if denom > 1e-14 * a * e else 0.0
+    t = (b * s + f) / e
+    if t < 0.0:
+        t = 0.0
+        s = _clamp01(-c / a)
+    elif t > 1.0:
+        t = 1.0
+        s = _clamp01((b - c) / a)
+    return s, t
+
+
+@jit_inline
+def _pair(x, pairs, i):
+    """Closest points of pair ``i``: ``(s, t, n)`` with ``n = P - Q`` (from bar b to bar a)."""
+    p = pairs[i]
+    a0x, a0y, a0z = _point(x, p[0], p[1])
+    a1x, a1y, a1z = _point(x, p[2], p[3])
+    b0x, b0y, b0z = _point(x, p[4], p[5])
+    b1x, b1y, b1z = _point(x, p[6], p[7])
+    ux, uy, uz = a1x - a0x, a1y - a0y, a1z - a0z
+    wx, wy, wz = b1x - b0x, b1y - b0y, b1z - b0z
+    s, t = segment_params(a0x, a0y, a0z, ux, uy, uz, b0x, b0y, b0z, wx, wy, wz)
+    nx = a0x + s * ux - b0x - t * wx
+    ny = a0y + s * uy - b0y - t * wy
+    nz = a0z + s * uz - b0z - t * wz
+    if nx * nx + ny * ny + nz * nz < 1e-30:     # axes meet: push along their common normal
+        nx, ny, nz = uy * wz - uz * wy, uz * wx - ux * wz, ux * wy - uy * wx
+        scale = 1e-300 / math.sqrt(nx * nx + ny * ny + nz * nz + 1e-300)
+        nx, ny, nz = nx * scale, ny * scale, nz * scale
+    return s, t, nx, ny, nz
+
+
+@jit_inline
+def _rel_velocity(v, p, s, t):
+    """Velocity of the closest point of bar a minus that of bar b."""
+    a0x, a0y, a0z = _point(v, p[0], p[1])
+    a1x, a1y, a1z = _point(v, p[2], p[3])
+    b0x, b0y, b0z = _point(v, p[4], p[5])
+    b1x, b1y, b1z = _point(v, p[6], p[7])
+    return ((1.0 - s) * a0x + s * a1x - (1.0 - t) * b0x - t * b1x,
+            (1.0 - s) * a0y + s * a1y - (1.0 - t) * b0y - t * b1y,
+            (1.0 - s) * a0z + s * a1z - (1.0 - t) * b0z - t * b1z)
+
+
+@jit
+def bar_forces(x, pairs, bpar, f):
+    """Add the contact forces of the touching pairs to ``f``; returns how many pairs touch."""
+    D = bpar[0]
+    k = bpar[1]
+    touching = 0
+    for i in range(pairs.shape[0]):
+        s, t, nx, ny, nz = _pair(x, pairs, i)
+        dist = math.sqrt(nx * nx + ny * ny + nz * nz)
+        if dist >= D:
+            continue
+        touching += 1
+        d = D - dist
+        g = k * d * math.sqrt(d) / max(dist, 1e-300)
+        gx, gy, gz = g * nx, g * ny, g * nz
+        p = pairs[i]
+        _push(f, p[0], p[1], (1.0 - s) * gx, (1.0 - s) * gy, (1.0 - s) * gz)
+        _push(f, p[2], p[3], s * gx, s * gy, s * gz)
+        _push(f, p[4], p[5], -(1.0 - t) * gx, -(1.0 - t) * gy, -(1.0 - t) * gz)
+        _push(f, p[6], p[7], -t * gx, -t * gy, -t * gz)
+    return touching
+
+
+@jit_inline
+def _level_z(u, levels, c, j):
+    z = 0.0
+    for i in range(levels.shape[2]):
+        z += u[levels[c, j, i], 2]
+    return z / levels.shape[2]
+
+
+@jit
+def base_forces(x, levels, bpar, f):
+    """Add the forces of the prisms whose bases touch (height below ``D``) to ``f``."""
+    D, k = bpar[0], bpar[1]
+    for c in range(levels.shape[0]):
+        for j in range(1, levels.shape[1]):
+            d = D - (_level_z(x, levels, c, j) - _level_z(x, levels, c, j - 1))
+            if d > 0.0:
+                F = k * d * math.sqrt(d)
+                for i in range(levels.shape[2]):
+                    f[levels[c, j, i], 2] += F
+                    f[levels[c, j - 1, i], 2] -= F
+
+
+@jit
+def base_energy(x, levels, bpar):
+    """Energy J stored where bases touch (every node of the full network counted)."""
+    D = bpar[0]
+    e = 0.0
+    for c in range(levels.shape[0]):
+        for j in range(1, levels.shape[1]):
+            d = D - (_level_z(x, levels, c, j) - _level_z(x, levels, c, j - 1))
+            if d > 0.0:
+                e += 0.4 * bpar[1] * d * d * math.sqrt(d)
+    return bpar[5] * e
+
+
+@jit_inline
+def _resolve(gap, V, A, u2, h, bpar):
+    """The step for one contact: ``h`` (unchanged: it cannot touch within ``h``), else the
+    conservative approach step or the contact step ``T / steps``, whichever is longer."""
+    h_safe = 0.0
+    if gap > 0.0:
+        if 1.25 * (V * h + 0.5 * A * h * h) < gap:
+            return h
+        c = 0.4 * gap                   # 1.25 (V h + A h^2 / 2) = gap / 2
+        h_safe = 2.0 * c / (V + math.sqrt(V * V + 2.0 * A * c)) if V + A > 0.0 else h
+    u = max(math.sqrt(u2), 1e-9)
+    d_max = (1.25 * bpar[3] * u * u / bpar[1]) ** 0.4
+    return min(h, max(h_safe, 2.94 * d_max / u / bpar[4]))
+
+
+@jit
+def bar_energy(x, pairs, bpar):
+    """Energy J stored in the touching pairs (times the multiplicity ``bpar[2]``)."""
+    D = bpar[0]
+    e = 0.0
+    for i in range(pairs.shape[0]):
+        s, t, nx, ny, nz = _pair(x, pairs, i)
+        dist = math.sqrt(nx * nx + ny * ny + nz * nz)
+        if dist < D:
+            d = D - dist
+            e += 0.4 * bpar[1] * d * d * math.sqrt(d)
+    return bpar[2] * e
+
+
+@jit
+def closest_gap(x, pairs, bpar):
+    """Smallest ``dist - D`` m over the pairs (< 0: an overlap); inf without pairs."""
+    g_min = math.inf
+    for i in range(pairs.shape[0]):
+        s, t, nx, ny, nz = _pair(x, pairs, i)
+        g = math.sqrt(nx * nx + ny * ny + nz * nz) - bpar[0]
+        if g < g_min:
+            g_min = g
+    return g_min
+
+
+@jit_inline
+def _reach(u, p):
+    """Largest relative speed (or acceleration) between an end of bar a and an end of bar b."""
+    best = 0.0
+    for i in (0, 2):
+        ax, ay, az = _point(u, p[i], p[i + 1])
+        for j in (4, 6):
+            bx, by, bz = _point(u, p[j], p[j + 1])
+            r = (ax - bx) ** 2 + (ay - by) ** 2 + (az - bz) ** 2
+            if r > best:
+                best = r
+    return math.sqrt(best)
+
+
+@jit
+def contact_step(x, v, acc, pairs, levels, bpar, h):
+    """The step to take from the state ``x, v`` (accelerations ``acc``) instead of ``h``: ``h``
+    when no pair of bars and no two bases can touch within it, otherwise shortened (see the
+    module's text).
+
+    The distance of two segments changes by at most the largest change of ``a_i - b_j`` over
+    their ends (every point of a segment is a convex combination of its ends), so a pair at gap
+    ``g`` cannot touch within ``h`` while ``1.25 (V h + A h^2 / 2) < g`` (``V``, ``A`` the largest
+    relative end speed and acceleration; 1.25 covers the Taylor remainder). A pair that could
+    is approached in steps that close at most half its gap, and never shorter than the contact
+    step ``T / steps``."""
+    D, k, m = bpar[0], bpar[1], bpar[3]
+    h_new = h
+    for i in range(pairs.shape[0]):
+        p = pairs[i]
+        s, t, nx, ny, nz = _pair(x, pairs, i)
+        dist = math.sqrt(nx * nx + ny * ny + nz * nz)
+        gap = dist - D
+        if gap > 0.0:
+            u2 = _reach(v, p) ** 2
+        else:
+            d = -gap
+            vx, vy, vz = _rel_velocity(v, p, s, t)
+            rate = (nx * vx + ny * vy + nz * vz) / max(dist, 1e-300)
+            u2 = rate * rate + 0.8 * k * d * d * math.sqrt(d) / m
+        h_new = _resolve(gap, math.sqrt(u2), _reach(acc, p), u2, h_new, bpar)
+    for c in range(levels.shape[0]):
+        for j in range(1, levels.shape[1]):
+            gap = _level_z(x, levels, c, j) - _level_z(x, levels, c, j - 1) - D
+            rate = _level_z(v, levels, c, j) - _level_z(v, levels, c, j - 1)
+            accel = _level_z(acc, levels, c, j) - _level_z(acc, levels, c, j - 1)
+            u2 = rate * rate
+            if gap <= 0.0:
+                u2 += 0.8 * k * (-gap) ** 2.5 / m
+            h_new = _resolve(gap, abs(rate), abs(accel), u2, h_new, bpar)
+    return h_new
