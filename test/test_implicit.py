@@ -15,9 +15,11 @@ from solver.simulate.simulation import SimulationDiverged
 from solver.simulate.array import simulation_for
 
 ROOT = Path(__file__).resolve().parents[1]
-# the midpoint step refuses bar contact (test_bar_contact_is_refused): line bars here
-PRISM = Scene.load(ROOT / 'config' / 'scenes' / 'prism.yaml').with_overrides(['contact.bars=none'])
-RB = Scene.load(ROOT / 'config' / 'scenes' / 'rb_column.yaml').with_overrides(['contact.bars=none'])
+# the midpoint step refuses bar contact (test_forces_outside_the_midpoint_step_are_refused):
+# line bars here
+LINE_BARS = ['contact.bars=none']
+PRISM = Scene.load(ROOT / 'config' / 'scenes' / 'prism.yaml').with_overrides(LINE_BARS)
+RB = Scene.load(ROOT / 'config' / 'scenes' / 'rb_column.yaml').with_overrides(LINE_BARS)
 STIFF = ['structure.n_prisms=10', 'structure.rigid_bases_as=stiff_cables', 'structure.kappa=1e4',
          'run.output_dt=0.016']
 
