@@ -54,7 +54,7 @@ def train(name, v0, period, count, t_end=None, overrides=(), strain=None):
     return row
 
 
-def convergence(name, v0=1.0, t_end=0.5):
+def convergence(name, v0=1.0, t_end=1.0):
     """Amplitude and speed of the leading pulse at the scene's dt and at half of it."""
     from solver.simulate.runner import simulate
     figs = []

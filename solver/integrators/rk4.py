@@ -5,7 +5,7 @@ from __future__ import annotations
 from solver._jit import jit
 from solver.integrators.base import Integrator
 from solver.kernels import dynamics as dyn
-from solver.kernels.barcontact import contact_step
+from solver.kernels.barcontact import contact_step, touching
 from solver.kernels.kinks import keep_state, next_kink
 
 
@@ -43,22 +43,55 @@ def _rk4_step(x, v, h, a1, net, act, ws):
 
 
 @jit
+def _contact_aware_step(x, v, h, a1, net, act, ws):
+    """One RK4 step from a state whose accelerations ``a1`` were just evaluated, with bar
+    contact on (:mod:`solver.kernels.barcontact`): the plain step of ``h`` when no contact can
+    start within it; when one could, the plain step is still tried and kept if none of its
+    evaluations and not its end state met a contact (so a near miss changes nothing); otherwise,
+    and while a contact lasts, the step of :func:`~solver.kernels.barcontact.contact_step`.
+    Returns (status, the step taken)."""
+    ex = act[3]
+    touched_at_start = ex[8][0] > 0.0
+    h_c = contact_step(x, v, a1, ex[6], ex[1], ex[7], h, ex[8])
+    if h_c >= h:
+        return _rk4_step(x, v, h, a1, net, act, ws), h
+    if not touched_at_start:
+        saved = ex[9]
+        saved[0, :, :] = x
+        saved[1, :, :] = v
+        status = _rk4_step(x, v, h, a1, net, act, ws)
+        if status == dyn.OK and ex[8][0] == 0.0 and not touching(x, ex[6], ex[1], ex[7]):
+            ex[8][1] = -1.0     # the slack was for the shorter step: scan again
+            ex[8][2] = 1.0
+            return status, h
+        x[:, :] = saved[0]
+        v[:, :] = saved[1]
+    return _rk4_step(x, v, h_c, a1, net, act, ws), h_c
+
+
+@jit
 def _rk4_advance(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, project):
     """Advance by ``n_steps * dt`` with classical RK4; with ``kinks`` a step is shortened to land
     on the next cable slack/taut transition, with ``project`` positions and velocities are
     projected on the rigid members after every step. Returns (RK4 steps taken, status)."""
     a1 = ws[10]
+    ex = act[3]
+    if ex[6].shape[0] != 0:
+        ex[8][1] = -1.0         # the contact scan starts afresh (kernels.barcontact)
+        ex[8][2] = 1.0
     total = n_steps * dt
     t = 0.0
     steps = 0
     while total - t > 1e-9 * dt:
         h = min(dt, total - t)
+        if ex[6].shape[0] != 0:
+            ex[8][0] = 0.0          # contacts met from here on (kernels.barcontact)
         status = dyn.accelerations(x, v, net, act, ws, a1)
         if status == dyn.OK and kinks:
             h = next_kink(x, v, a1, net, act, h, 1e-3 * dt)
-        if status == dyn.OK and act[3][6].shape[0] != 0:       # bars that touch
-            h = contact_step(x, v, a1, act[3][6], act[3][1], act[3][7], h)
-        if status == dyn.OK:
+        if status == dyn.OK and ex[6].shape[0] != 0:
+            status, h = _contact_aware_step(x, v, h, a1, net, act, ws)
+        elif status == dyn.OK:
             status = _rk4_step(x, v, h, a1, net, act, ws)
         if project and status == dyn.OK:
             status = dyn.project_positions(x, net, ws, tol, max_iter)

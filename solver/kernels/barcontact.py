@@ -155,16 +155,20 @@ def _level_z(u, levels, c, j):
 
 @jit
 def base_forces(x, levels, bpar, f):
-    """Add the forces of the prisms whose bases touch (height below ``D``) to ``f``."""
+    """Add the forces of the prisms whose bases touch (height below ``D``) to ``f``; returns
+    how many touch."""
     D, k = bpar[0], bpar[1]
+    touching = 0
     for c in range(levels.shape[0]):
         for j in range(1, levels.shape[1]):
             d = D - (_level_z(x, levels, c, j) - _level_z(x, levels, c, j - 1))
             if d > 0.0:
+                touching += 1
                 F = k * d * math.sqrt(d)
                 for i in range(levels.shape[2]):
                     f[levels[c, j, i], 2] += F
                     f[levels[c, j - 1, i], 2] -= F
+    return touching
 
 
 @jit
@@ -210,6 +214,18 @@ def bar_energy(x, pairs, bpar):
 
 
 @jit
+def touching(x, pairs, levels, bpar):
+    """Whether any pair of bars or any two bases touch in the state ``x``."""
+    if closest_gap(x, pairs, bpar) < 0.0:
+        return True
+    for c in range(levels.shape[0]):
+        for j in range(1, levels.shape[1]):
+            if _level_z(x, levels, c, j) - _level_z(x, levels, c, j - 1) < bpar[0]:
+                return True
+    return False
+
+
+@jit
 def closest_gap(x, pairs, bpar):
     """Smallest ``dist - D`` m over the pairs (< 0: an overlap); inf without pairs."""
     g_min = math.inf
@@ -235,8 +251,39 @@ def _reach(u, p):
     return math.sqrt(best)
 
 
+@jit_inline
+def _largest(u):
+    best = 0.0
+    for p in range(u.shape[0]):
+        r = u[p, 0] * u[p, 0] + u[p, 1] * u[p, 1] + u[p, 2] * u[p, 2]
+        if r > best:
+            best = r
+    return math.sqrt(best)
+
+
 @jit
-def contact_step(x, v, acc, pairs, levels, bpar, h):
+def contact_step(x, v, acc, pairs, levels, bpar, h, state):
+    """:func:`scan_step` where a contact could start within ``h``, else ``h``, cheaply: the
+    smallest gap of the last scan, less what every node could have moved since (twice the
+    largest node speed and acceleration bound any relative motion), is kept in ``state[1]``
+    (negative: scan now; an integrator sets it so when it starts from a state it did not
+    make). ``state[2]`` 0 tells the force evaluations of the step that no contact can act (they
+    skip the pairs), 1 that they must look."""
+    V = 2.0 * _largest(v)
+    A = 2.0 * _largest(acc)
+    reach = 1.25 * (V * h + 0.5 * A * h * h)
+    if state[1] > reach:
+        state[1] -= reach
+        state[2] = 0.0          # no contact force within this step: not evaluated
+        return h
+    h_new, g_min = scan_step(x, v, acc, pairs, levels, bpar, h)
+    state[1] = g_min - 1.25 * (V * h_new + 0.5 * A * h_new * h_new)
+    state[2] = 1.0 if state[1] <= 0.0 else 0.0
+    return h_new
+
+
+@jit
+def scan_step(x, v, acc, pairs, levels, bpar, h):
     """The step to take from the state ``x, v`` (accelerations ``acc``) instead of ``h``: ``h``
     when no pair of bars and no two bases can touch within it, otherwise shortened (see the
     module's text).
@@ -246,14 +293,16 @@ def contact_step(x, v, acc, pairs, levels, bpar, h):
     ``g`` cannot touch within ``h`` while ``1.25 (V h + A h^2 / 2) < g`` (``V``, ``A`` the largest
     relative end speed and acceleration; 1.25 covers the Taylor remainder). A pair that could
     is approached in steps that close at most half its gap, and never shorter than the contact
-    step ``T / steps``."""
+    step ``T / steps``. Returns (the step, the smallest gap m)."""
     D, k, m = bpar[0], bpar[1], bpar[3]
     h_new = h
+    g_min = math.inf
     for i in range(pairs.shape[0]):
         p = pairs[i]
         s, t, nx, ny, nz = _pair(x, pairs, i)
         dist = math.sqrt(nx * nx + ny * ny + nz * nz)
         gap = dist - D
+        g_min = min(g_min, gap)
         if gap > 0.0:
             u2 = _reach(v, p) ** 2
         else:
@@ -265,10 +314,11 @@ def contact_step(x, v, acc, pairs, levels, bpar, h):
     for c in range(levels.shape[0]):
         for j in range(1, levels.shape[1]):
             gap = _level_z(x, levels, c, j) - _level_z(x, levels, c, j - 1) - D
+            g_min = min(g_min, gap)
             rate = _level_z(v, levels, c, j) - _level_z(v, levels, c, j - 1)
             accel = _level_z(acc, levels, c, j) - _level_z(acc, levels, c, j - 1)
             u2 = rate * rate
             if gap <= 0.0:
                 u2 += 0.8 * k * (-gap) ** 2.5 / m
             h_new = _resolve(gap, abs(rate), abs(accel), u2, h_new, bpar)
-    return h_new
+    return h_new, g_min

@@ -138,14 +138,15 @@ def scene_extras(scene, network):
             'strikers': strikers, 'par': par, 'pairs': pairs, 'bpar': bpar}
 
 
-def _pair_slots(spec, reduced):
-    """The two bar-contact slots of the extras tuple for a model (``reduced`` or None)."""
+def _pair_slots(spec, reduced, n_rows):
+    """The four bar-contact slots of the extras tuple for a model (``reduced`` or None) whose
+    state has ``n_rows`` rows."""
     if spec.get('pairs') is None:
-        return NO_EXTRAS[6], NO_EXTRAS[7]
+        return NO_EXTRAS[6:]
     rows, mult = _model_pairs(spec['pairs'], reduced)
     bpar = spec['bpar'].copy()
     bpar[2] = mult
-    return rows, bpar
+    return rows, bpar, np.array([0.0, -1.0, 1.0]), np.zeros((2, n_rows, 3))
 
 
 def network_extras(spec, network):
@@ -158,7 +159,7 @@ def network_extras(spec, network):
     levels = np.ascontiguousarray(network.levels, dtype=np.int64) if network.levels.size \
         else NO_EXTRAS[1]
     return (damp, levels, stop_h, NO_EXTRAS[3], NO_EXTRAS[4], spec['par'].copy(),
-            *_pair_slots(spec, None))
+            *_pair_slots(spec, None, network.n_nodes))
 
 
 def attach(model, spec, striker_state=None):
@@ -193,7 +194,7 @@ def attach(model, spec, striker_state=None):
     if not levels.size:
         levels = NO_EXTRAS[1]
     ex = (damp, levels, stop_h, rows, np.arange(ns, dtype=np.int64), spec['par'].copy(),
-          *_pair_slots(spec, reduced))
+          *_pair_slots(spec, reduced, n + ns))
     if ns and len(model.net) > 12 and np.asarray(model.net[12][0]).shape[0]:
         raise ValueError('loading.impact.mode: striker is not available with massive bars that '
                          'share nodes (materials.bar_mass_fraction, materials.bar_mass): the '
