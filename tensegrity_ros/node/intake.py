@@ -89,8 +89,7 @@ class Intake:
         node = self.node
         if node.running:
             return
-        why = ('paused by a divergence' if node.problem else
-               'paused (~/set_running false or start_paused)')
+        why = 'paused by a divergence' if node.problem else 'paused'
         raise Paused(f'{key}: {why}, not applied (commands would stack on the frozen state); '
                      f'send ~/set_running true first')
 

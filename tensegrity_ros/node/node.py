@@ -343,9 +343,9 @@ class TensegritySim(LifecycleNode):
         if action == 'pause':
             self.pause(f'paused: {text}')
             return
-        why = f'{text}; reset to the rest state at t = 0 (on_divergence: reset)'
-        self.log('divergence', 'error', why)
-        self.sinks.event(self.sim.t, why)
+        self.log('divergence', 'error',
+                 f'{text}; reset to the rest state at t = 0 (on_divergence: reset)')
+        self.sinks.event(self.sim.t, f'diverged, reset to the rest state: {text}')
         t_before = self.sim.t
         self._reset_simulation()
         self.publishing.time_jump(t_before, self.sim.t)
