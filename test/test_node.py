@@ -30,8 +30,8 @@ SMALL = ['structure.n_prisms=%d' % N_PRISMS]
 class Ros:
     """One context, the node and a commander in one executor."""
 
-    def __init__(self, tmp_path, sim=None, **params):
-        scene = Scene.load('config/scenes/fb_column.yaml').with_overrides(SMALL)
+    def __init__(self, tmp_path, sim=None, sets=(), **params):
+        scene = Scene.load('config/scenes/fb_column.yaml').with_overrides(SMALL + list(sets))
         path = tmp_path / 'small.yaml'
         path.write_text(yaml.safe_dump(scene.data))
         self.ctx = rclpy.Context()
