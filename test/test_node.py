@@ -30,8 +30,8 @@ SMALL = ['structure.n_prisms=%d' % N_PRISMS]
 class Ros:
     """One context, the node and a commander in one executor."""
 
-    def __init__(self, tmp_path, sim=None, **params):
-        scene = Scene.load('config/scenes/fb_column.yaml').with_overrides(SMALL)
+    def __init__(self, tmp_path, sim=None, sets=(), **params):
+        scene = Scene.load('config/scenes/fb_column.yaml').with_overrides(SMALL + list(sets))
         path = tmp_path / 'small.yaml'
         path.write_text(yaml.safe_dump(scene.data))
         self.ctx = rclpy.Context()
@@ -232,24 +232,29 @@ def _finite_outputs(sunk):
                        for kv in msg.status[0].values)
 
 
-def test_divergence_pauses_and_publishes_no_nan(ros):
-    node, sim = ros.node, ros.node.sim
-    ros.cmd.impact([0.1])
-    assert ros.spin(lambda: sim.t > 0.02)
-    sim.div = dataclasses.replace(sim.div, constraint_error=1e-300)   # every step diverges
-    assert ros.spin(lambda: not node.running, 10)
-    assert 'diverged' in node.problem
-    assert ros.spin(lambda: any(d[0] == 2 for d in ros.cmd.diagnostics), 5)
-    t = sim.t
-    ros.spin(lambda: False, 0.2)
-    assert sim.t == t                                          # paused, last good state kept
-    assert np.all(np.isfinite(sim.model.positions()))
-    # a corrupted state (NaN) is never published either: the node pauses instead
-    sim.div = dataclasses.replace(sim.div, constraint_error=1e-6)
-    ros.call(ros.cmd.cli_running, SetBool.Request(data=True))
-    sim.model.x[5, 0] = np.nan
-    assert ros.spin(lambda: not node.running, 10)
-    _finite_outputs(ros.sunk)
+def test_divergence_pauses_with_on_divergence_pause_and_publishes_no_nan(tmp_path):
+    ros = Ros(tmp_path, on_divergence='pause')
+    try:
+        node, sim = ros.node, ros.node.sim
+        ros.cmd.impact([0.1])
+        assert ros.spin(lambda: sim.t > 0.02)
+        sim.div = dataclasses.replace(sim.div, constraint_error=1e-300)  # every step diverges
+        assert ros.spin(lambda: not node.running, 10)
+        assert 'diverged' in node.problem and node.divergences == 1
+        assert ros.spin(lambda: any(d[0] == 2 for d in ros.cmd.diagnostics), 5)
+        t = sim.t
+        ros.spin(lambda: False, 0.2)
+        assert sim.t == t                                      # paused, last good state kept
+        assert np.all(np.isfinite(sim.model.positions()))
+        # a corrupted state (NaN) is never published either: the node pauses instead
+        sim.div = dataclasses.replace(sim.div, constraint_error=1e-6)
+        ros.call(ros.cmd.cli_running, SetBool.Request(data=True))
+        sim.model.x[5, 0] = np.nan
+        assert ros.spin(lambda: not node.running, 10)
+        assert 'finite' in node.problem and node.divergences == 2
+        _finite_outputs(ros.sunk)
+    finally:
+        ros.close()
 
 
 def test_pacing_logic(ros):
@@ -285,7 +290,8 @@ def test_parameters_file_matches_defaults_and_bad_values_named():
     (params,) = [v['ros__parameters'] for v in raw.values()]
     assert params == DEFAULTS
     for name, value in [('publish_rate_hz', 0.0), ('real_time_factor', -1.0),
-                        ('marker_rate_hz', float('nan')), ('scene_file', 3), ('dt', -1e-3)]:
+                        ('marker_rate_hz', float('nan')), ('scene_file', 3), ('dt', -1e-3),
+                        ('on_divergence', 'stop')]:
         with pytest.raises(ParameterError, match=name):
             check_parameters(dict(DEFAULTS, **{name: value}))
     assert check_parameters(dict(DEFAULTS, dt=0))['dt'] == 0.0
@@ -315,11 +321,15 @@ def test_commands_of_one_tick_are_validated_counted_and_the_last_one_applied(ros
     once, the last valid impact is applied, the two before it are counted as superseded."""
     from tensegrity_ros.msgs import messages
     node = ros.node
-    ros.call(ros.cmd.cli_running, SetBool.Request(data=False))
-    for v in (0.01, 0.02, float('nan'), 0.03):
-        node.intake.impact(messages.command_array([v], 'all'))
-    assert node.counts['rejected'] == 1 and node.counts['accepted'] == 0
-    assert ros.spin(lambda: node.counts['accepted'] == 1)
+    node.timer.cancel()               # no tick: nothing steps between the commands and the check
+    try:
+        for v in (0.01, 0.02, float('nan'), 0.03):
+            node.intake.impact(messages.command_array([v], 'all'))
+        assert node.counts['rejected'] == 1 and node.counts['accepted'] == 0
+        node.intake.apply()           # what the next tick does first
+    finally:
+        node.timer.reset()
+    assert node.counts['accepted'] == 1
     assert node.counts['superseded'] == 2 and node.counts['rejected'] == 1
     assert node.intake.last_command[2].startswith('impact v0 = [0.03] m/s')
     from solver.simulate.array import simulation_for
@@ -337,7 +347,7 @@ def test_a_flood_within_one_tick_is_counted_whole_the_last_valid_one_applied_log
     instead of one per command."""
     from tensegrity_ros.msgs import messages
     node, sim = ros.node, ros.node.sim
-    ros.call(ros.cmd.cli_running, SetBool.Request(data=False))
+    node.timer.cancel()                                 # no tick until the check below
     node.params['prestrain_ramp_s'] = 0.0               # applied at once: checked at once
     lines = []
 
@@ -366,7 +376,9 @@ def test_a_flood_within_one_tick_is_counted_whole_the_last_valid_one_applied_log
             n_bad += 1
     order = list(node.intake.pending)                         # applied in this order at the tick
     assert sorted(order) == sorted(last)
-    assert ros.spin(lambda: node.counts['accepted'] == before['accepted'] + 2)
+    node.intake.apply()                                       # what the next tick does first
+    node.timer.reset()
+    assert node.counts['accepted'] == before['accepted'] + 2
     d = {k: node.counts[k] - before[k] for k in ('accepted', 'superseded', 'rejected')}
     assert d['rejected'] == n_bad and sum(d.values()) == n
     fresh = simulation_for(sim.scene)                       # the last ones on a fresh column

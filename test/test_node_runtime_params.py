@@ -89,6 +89,17 @@ def test_bad_values_are_refused_with_a_reason_and_change_nothing(running, name, 
     assert node.get_parameter(name).value == before[name]
 
 
+def test_on_divergence_changes_at_once_and_a_bad_value_is_refused_naming_the_choices(running):
+    node, ex, set_, describe = running
+    res = set_('on_divergence', 'stop')
+    assert not res.successful
+    assert res.reason == "on_divergence: must be one of reset, pause, got 'stop'"
+    assert node.params['on_divergence'] == 'reset' == node.get_parameter('on_divergence').value
+    assert set_('on_divergence', 'pause').successful and node.params['on_divergence'] == 'pause'
+    (desc,) = describe(['on_divergence']).descriptors
+    assert not desc.read_only and desc.additional_constraints == 'one of: reset, pause'
+
+
 @pytest.mark.parametrize('name,value', [('scene_file', '/nope.yaml'), ('dt', 1e-4),
                                         ('model', 'full3d'), ('record_mcap', '/tmp/x.mcap')])
 def test_parameters_fixed_at_start_up_are_refused(running, name, value):
@@ -118,7 +129,7 @@ def test_unknown_start_up_parameter_exits_2_naming_it():
     assert 'publish_rate' in out and 'publish_rate_hz' in out and 'Traceback' not in out
 
 
-def test_start_paused_waits_for_set_running_and_applies_commands_meanwhile():
+def test_start_paused_waits_for_set_running_and_rejects_commands_meanwhile():
     from tensegrity_ros.node.demo import Commander
     ctx = rclpy.Context()
     rclpy.init(context=ctx, domain_id=DOMAIN)
@@ -131,16 +142,19 @@ def test_start_paused_waits_for_set_running_and_applies_commands_meanwhile():
     ex.add_node(cmd)
     try:
         assert spin_until(ex, lambda: cmd.connected(paused=True), 30)
-        frames = node.counts['frames']
+        frames, energy = node.counts['frames'], node.sim.energy()
         cmd.impact([0.1])
-        assert spin_until(ex, lambda: node.counts['accepted'] == 1, 10)
+        assert spin_until(ex, lambda: node.counts['rejected'] == 1, 10)
         spin_until(ex, lambda: False, 0.5)
         assert node.sim.t == 0.0 and node.counts['frames'] == frames      # paused: no steps
-        assert node.sim.frame().energy > 0                                # the impact is in
-        assert node.intake.last_command_t == 0.0
-        assert not node.running
+        assert node.sim.energy() == energy                                # no impact stacked
+        assert node.counts['accepted'] == 0 and not node.running
+        key, verdict, detail = node.intake.last_command
+        assert (key, verdict) == ('~/cmd/impact', 'rejected') and 'set_running true' in detail
         res = cmd.set_running(ex, True)
         assert res.success and res.message == 'running'
+        cmd.impact([0.1])                                     # running: accepted
+        assert spin_until(ex, lambda: node.counts['accepted'] == 1, 10)
         assert spin_until(ex, lambda: node.sim.t > 0.01 and cmd.strain, 30)
     finally:
         ex.shutdown()

@@ -263,7 +263,8 @@ class RerunRecorder:
 
     def command(self, t, text, level=None):
         """A command (or any event) as a text entry at simulation time ``t`` s on ``commands``;
-        ``level`` defaults to WARN for texts starting with 'rejected' or 'paused', else INFO.
+        ``level`` defaults to ERROR for texts starting with 'diverged', WARN for 'rejected' or
+        'paused', else INFO.
         Commands are sent together with the frames (at the latest ``max_latency_s`` after the
         last batch, also while no frame comes), in the order they were given."""
         self._open()
@@ -273,6 +274,7 @@ class RerunRecorder:
         if text.startswith('impact') or ': impact ' in text:     # the heat map starts here
             self._impact_t = float(t)
         self._commands.append((float(t), text, level or (
+            'ERROR' if text.startswith('diverged') else
             'WARN' if text.startswith(('rejected', 'paused')) else 'INFO')))
         self.n_commands += 1
         if time.monotonic() - self._last_flush > self.max_latency_s:

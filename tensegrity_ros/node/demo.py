@@ -3,10 +3,11 @@
 :class:`Commander` is an ordinary rclpy node: it publishes ``~/cmd/impact``, ``~/cmd/prestrain``
 and ``~/cmd/focus`` of the simulation node, listens to its ``~/strain``, ``~/field`` and
 ``/diagnostics`` and calls its services. :func:`run_demo` starts the node paused in a second
-process, commands an impact over the topic, starts the node's clock, collects the strain wave for
-a while, stops the node with SIGINT and returns a summary dict whose figures come from the float64
-``~/strain`` topic. :func:`run_focus_demo` does the same with a focus on a lens array: the plan and
-the arrivals the node measures come from ``/diagnostics``, the field from ``~/field``.
+process, starts the node's clock once both sides are connected, commands an impact over the topic
+(a paused node rejects commands), collects the strain wave for a while, stops the node with SIGINT
+and returns a summary dict whose figures come from the float64 ``~/strain`` topic.
+:func:`run_focus_demo` does the same with a focus on a lens array: the plan and the arrivals the
+node measures come from ``/diagnostics``, the field from ``~/field``.
 """
 from __future__ import annotations
 
@@ -191,11 +192,12 @@ def _recorder_available(module):
 def run_demo(scene_file='config/scenes/fb_column.yaml', v0=(0.1,), duration_s=1.2, rtf=1.0,
              out_dir='runs/demo', domain_id=None, record=True, prestrain=None,
              publish_rate_hz=200.0, connect_timeout_s=120.0):
-    """Start the node (second process) paused, wait for it, optionally start it and command a
-    prestrain (per column, waiting for its ramp), command an impact ``v0`` (1 value or one per
-    column) over the topic, start the node's clock (so that without a prestrain the impact lands
-    at t = 0), collect ``~/strain`` (float64, stamped through ``~/nodes``, see
-    :func:`stamped_strain`) for ``duration_s`` s of simulation time, stop the node with SIGINT.
+    """Start the node (second process) paused, wait for it, start its clock (so that the impact
+    lands a tick or two after t = 0, whenever the node came up; a paused node rejects commands),
+    optionally command a prestrain (per column, waiting for its ramp), command an impact ``v0``
+    (1 value or one per column) over the topic, collect ``~/strain`` (float64, stamped through
+    ``~/nodes``, see :func:`stamped_strain`) for ``duration_s`` s of simulation time after the
+    impact, stop the node with SIGINT.
     ``domain_id`` None: :func:`demo_domain_id`. Returns the summary dict (also written to
     ``out_dir/summary.json``)."""
     import json
@@ -235,15 +237,14 @@ def run_demo(scene_file='config/scenes/fb_column.yaml', v0=(0.1,), duration_s=1.
             raise RuntimeError('the node did not come up within '
                                f'{connect_timeout_s:g} s (exit code {proc.poll()})')
         info['startup_s'] = time.monotonic() - w0
-        running = False
+        cmd.set_running(ex, True)
         if prestrain is not None:
-            cmd.set_running(ex, True)
-            running = True
             spin_until(ex, lambda: bool(cmd.clouds), 30.0)
             cmd.prestrain(prestrain, 'all' if np.size(prestrain) == 1 else 'column')
             t_p = cmd.clouds[-1][0] if cmd.clouds else 0.0
             spin_until(ex, lambda: bool(cmd.clouds) and cmd.clouds[-1][0] >= t_p + 0.2, 30.0)
-        n_diag = len(cmd.diagnostics)
+        n_diag, n_c = len(cmd.diagnostics), len(cmd.clouds)
+        w1 = time.monotonic()                  # the node runs on while the answer comes
         cmd.impact(v0, 'all' if len(v0) == 1 else 'column')
 
         def accepted():
@@ -253,14 +254,10 @@ def run_demo(scene_file='config/scenes/fb_column.yaml', v0=(0.1,), duration_s=1.
         if not accepted() or accepted()[0][2]['last_command'] != 'accepted':
             raise RuntimeError(f'impact not accepted: {accepted()[:1]}')
         t_imp = float(accepted()[0][2]['last_command_sim_time_s'])     # when it was applied
-        n_c = len(cmd.clouds)
-        w1 = time.monotonic()
-        if not running:
-            cmd.set_running(ex, True)
         spin_until(ex, lambda: bool(cmd.clouds) and cmd.clouds[-1][0] >= t_imp + duration_s,
                    duration_s / max(rtf, 0.05) * 3.0 + 30.0)
         info['wall_s'] = time.monotonic() - w1
-        info['frames'] = len(cmd.clouds) - n_c
+        info['frames'] = sum(t >= t_imp for t, _ in cmd.clouds[n_c:])
     finally:
         code, output = stop_process(proc)
         ex.shutdown()
@@ -314,12 +311,13 @@ def run_focus_demo(focus, scene_file='config/scenes/lens_focus.yaml', speed=1.5,
                    out_dir='runs/demo_focus', domain_id=None, record=True, dims=2,
                    connect_timeout_s=120.0, plan_timeout_s=600.0):
     """The lens over ROS 2: start the node (second process) paused with ``medium_speed_m_s`` =
-    ``speed``, command ``~/cmd/focus`` at ``focus`` = (X, Z) m, start its clock, wait until the
-    node has measured the arrivals of its own run (``focus_measured`` on ``/diagnostics``, the
-    scene's ``run.t_end`` after the impact), keep the last ``~/field`` image, stop the node. The
-    focal gain is the node's peak pressure at F over that of the same array at the mean
-    prestrain, simulated here (solver.studies.lens.simulate; the same field model, 2D). Returns the
-    summary dict (also ``out_dir/summary.json``)."""
+    ``speed``, start its clock once connected, command ``~/cmd/focus`` at ``focus`` = (X, Z) m
+    (the node does not step while it plans), wait until the node has measured the arrivals of
+    its own run (``focus_measured`` on ``/diagnostics``, the scene's ``run.t_end`` after the
+    impact), keep the last ``~/field`` image, stop the node. The focal gain is the node's peak
+    pressure at F over that of the same array at the mean prestrain, simulated here
+    (solver.studies.lens.simulate; the same field model, 2D). Returns the summary dict (also
+    ``out_dir/summary.json``)."""
     import json
 
     from solver.analysis import field
@@ -360,6 +358,7 @@ def run_focus_demo(focus, scene_file='config/scenes/lens_focus.yaml', speed=1.5,
             raise RuntimeError('the node did not come up within '
                                f'{connect_timeout_s:g} s (exit code {proc.poll()})')
         info['startup_s'] = time.monotonic() - w0
+        cmd.set_running(ex, True)
         n_diag = len(cmd.diagnostics)
         cmd.focus(*focus)
 
@@ -372,7 +371,6 @@ def run_focus_demo(focus, scene_file='config/scenes/lens_focus.yaml', speed=1.5,
                 f'no answer within {plan_timeout_s:g} s'
             raise RuntimeError(f'focus not accepted: {detail}')
         info['plan_s'] = time.monotonic() - w0 - info['startup_s']
-        cmd.set_running(ex, True)
         w1 = time.monotonic()
         window = float(scene.run.t_end) + 0.5
         spin_until(ex, lambda: any(d[2].get('focus_measured') == 'true'

@@ -52,6 +52,7 @@ class Focus:
         if not v0 > 0:
             raise CommandError('~/cmd/focus: the scene has no impact velocity '
                                '(loading.impact.v0 > 0) to plan for')
+        node.intake.refuse_if_paused('~/cmd/focus')        # before the (costly) plan
         speed = node.params['medium_speed_m_s']
         try:
             plan = lens.design(sim.scene, (x, z), speed, v0)

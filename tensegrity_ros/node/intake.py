@@ -3,7 +3,9 @@
 The executor never runs the command subscriptions (:class:`TakenByTick`); each tick takes every
 command waiting (:meth:`Intake.take`), validates, counts and records each one, and applies the
 last valid one per topic (:meth:`Intake.apply`; the others count as superseded), so a flood of
-commands cannot starve the simulation and no command races a step.
+commands cannot starve the simulation and no command races a step. While the node is paused, a
+valid command is rejected (:meth:`Intake.paused`): applied to the frozen state, impacts would
+stack up unseen until the clock starts.
 """
 from __future__ import annotations
 
@@ -17,6 +19,10 @@ from tensegrity_ros.node import commands
 from tensegrity_ros.node.params import LOG_THROTTLE_S
 
 MAX_TAKE = 100                   # commands per topic taken at the start of a tick, at most
+
+
+class Paused(commands.CommandError):
+    """A valid command that arrived while the node is paused; the message says why."""
 
 
 class TakenByTick(CallbackGroup):
@@ -65,6 +71,7 @@ class Intake:
                            messages.stamp_to_ns(messages.sim_stamp(node.sim.t)))
         try:
             apply = check()
+            self.refuse_if_paused(key)
         except (commands.CommandError, ValueError) as exc:
             self.reject(key, exc)
             ok = False
@@ -76,13 +83,24 @@ class Intake:
         self.cmd_wall += time.perf_counter() - w0
         return ok
 
+    def refuse_if_paused(self, key):
+        """Raise :class:`Paused` while the node is paused: a command is then rejected, never
+        applied to the frozen state."""
+        node = self.node
+        if node.running:
+            return
+        why = 'paused by a divergence' if node.problem else 'paused'
+        raise Paused(f'{key}: {why}, not applied (commands would stack on the frozen state); '
+                     f'send ~/set_running true first')
+
     def reject(self, key, exc):
         node = self.node
         text = str(exc) if str(exc).startswith('~/') else f'{key}: {exc}'
         self.counts['rejected'] += 1
         self.rejected_since += 1
         self.last_command = (key, 'rejected', text)
-        node.log('rejected', 'warning', f'rejected {text}')
+        node.log('paused command' if isinstance(exc, Paused) else 'rejected', 'warning',
+                 f'rejected {text}')
         now = time.monotonic()
         if now - self._last_reject_event >= LOG_THROTTLE_S:       # events: throttled as well
             self._last_reject_event = now
@@ -100,11 +118,13 @@ class Intake:
                 handler(got[0])
 
     def apply(self):
-        """Apply the last valid command per topic that arrived since the previous tick."""
+        """Apply the last valid command per topic that arrived since the previous tick (rejected
+        if the node was paused since it arrived)."""
         node = self.node
         pending, self.pending = self.pending, {}
         for key, apply in pending.items():
             try:
+                self.refuse_if_paused(key)
                 detail = apply()
             except (commands.CommandError, ValueError) as exc:
                 self.reject(key, exc)

@@ -176,6 +176,7 @@ class TensegritySim(LifecycleNode):
         self.cross_prism = sim.prestrain_map.cross_prism if sim.prestrain is not None else None
         self.t_max = style.reference_tension_scale(net)
         self.running, self.problem = not self.params['start_paused'], ''
+        self.divergences, self.last_divergence = 0, None
         self.pacer = Pacer(self.period, step_cost)
         self.intake, self.focus = Intake(self), Focus(self)
         self.counts = self.intake.counts
@@ -308,12 +309,13 @@ class TensegritySim(LifecycleNode):
                 try:
                     self.focus.advance(n)
                 except SimulationDiverged as exc:
-                    self.focus.record = None
-                    self.pause(f'paused: {exc}')
-                    return
-                self.pacer.stepped(n, time.perf_counter() - t0)
-                self.publishing.frame(now)
-                self.focus.after_steps(now)
+                    self.diverged(str(exc), exc.t)
+                    if self.running:                # reset: the rest state goes out at once
+                        self.publishing.frame(now)
+                else:
+                    self.pacer.stepped(n, time.perf_counter() - t0)
+                    self.publishing.frame(now)
+                    self.focus.after_steps(now)
         self.intake.cmd_wall = 0.0
         if now - self.publishing.last_diag >= 1.0 / self.params['diagnostics_rate_hz']:
             self.publishing.diagnostics(now)
@@ -326,14 +328,42 @@ class TensegritySim(LifecycleNode):
         self.sinks.event(self.sim.t, why)
         self.publishing.diagnostics(time.monotonic())
 
-    # -- services -------------------------------------------------------------------------------
-    def _on_reset(self, request, response):
-        self.intake.take()             # commands that came before the reset, then the reset
-        self.intake.apply()
+    def diverged(self, text, t):
+        """The simulation diverged at simulation time ``t`` (``text``: the solver's
+        :class:`SimulationDiverged`, or a frame that is not finite; the state is the last good
+        one). Counted and kept for ``/diagnostics``; then ``on_divergence``: ``pause`` stops the
+        clock (:meth:`pause`), ``reset`` puts the simulation back to its rest state (t = 0) and
+        the node steps and publishes on. Either way an ERROR log line and an ERROR
+        ``/diagnostics`` status name the divergence at once."""
+        self.focus.record = None
+        action = self.params['on_divergence']
+        self.divergences += 1
+        self.last_divergence = {'wall': time.monotonic(), 'sim_time_s': float(t), 'text': text,
+                                'action': action, 'reported': False}
+        if action == 'pause':
+            self.pause(f'paused: {text}')
+            return
+        self.log('divergence', 'error',
+                 f'{text}; reset to the rest state at t = 0 (on_divergence: reset)')
+        self.sinks.event(self.sim.t, f'diverged, reset to the rest state: {text}')
+        t_before = self.sim.t
+        self._reset_simulation()
+        self.publishing.time_jump(t_before, self.sim.t)
+        self.publishing.diagnostics(time.monotonic())
+
+    def _reset_simulation(self):
+        """The simulation at its rest state, t = 0; a planned focus impact dropped; the pace
+        counts from now."""
         self.sim.reset()
         self.focus.reset()
         self.problem = ''
         self.pacer.anchor(self.sim.t, time.monotonic())
+
+    # -- services -------------------------------------------------------------------------------
+    def _on_reset(self, request, response):
+        self.intake.take()             # commands that came before the reset, then the reset
+        self.intake.apply()
+        self._reset_simulation()
         self.publishing.restart_window(time.monotonic())
         self.sinks.event(self.sim.t, 'reset')
         if self.active:                # frames go out only while active

@@ -30,6 +30,7 @@ DEFAULTS = {
     'autostart': True,           # configure and activate at start-up (else: ~/change_state)
     'medium_speed_m_s': 1.0,     # wave speed of the host medium for ~/cmd/focus
     'field_rate_hz': 2.0,        # ~/field per wall second (arrays, after an impact); 0 = none
+    'on_divergence': 'reset',    # reset: back to rest, keep publishing; pause: stop until resumed
 }
 DESCRIPTIONS = {
     'scene_file': 'scene YAML (absolute, relative to the working directory, or to the package)',
@@ -45,8 +46,8 @@ DESCRIPTIONS = {
     'prestrain_ramp_s': 'simulation time over which a prestrain command is ramped, s',
     'diagnostics_rate_hz': '/diagnostics per wall second (with command counters; also at once '
                            'on a pause)',
-    'start_paused': 'start with the simulation paused (commands are still applied); '
-                    '~/set_running true starts the clock',
+    'start_paused': 'start with the simulation paused (impact, prestrain and focus commands '
+                    'are rejected while paused); ~/set_running true starts the clock',
     'autostart': 'configure and activate the managed node at start-up; false: it waits '
                  'unconfigured for ~/change_state',
     'medium_speed_m_s': 'wave speed of the host medium below the bases (z > 0) for ~/cmd/focus, '
@@ -54,6 +55,9 @@ DESCRIPTIONS = {
     'field_rate_hz': '~/field (32FC1 peak pressure map in the medium since the last impact of an '
                      'array) per wall second, computed only when subscribed or recorded; 0 = '
                      'none',
+    'on_divergence': 'what a divergence of the simulation does: reset (back to the rest state, '
+                     'the node keeps publishing) or pause (stop until ~/set_running true); '
+                     'either way an ERROR log line and /diagnostics name it',
 }
 POSITIVE = ('publish_rate_hz', 'marker_rate_hz', 'diagnostics_rate_hz', 'medium_speed_m_s')
 NON_NEGATIVE = ('real_time_factor', 'prestrain_ramp_s', 'dt', 'field_rate_hz')
@@ -67,6 +71,11 @@ RANGES = {'publish_rate_hz': (1e-3, 10000.0), 'marker_rate_hz': (1e-3, 10000.0),
           'diagnostics_rate_hz': (1e-3, 1000.0), 'real_time_factor': (0.0, 1e6),
           'prestrain_ramp_s': (0.0, 1e3), 'dt': (0.0, 1.0), 'medium_speed_m_s': (1e-6, 1e5),
           'field_rate_hz': (0.0, 1000.0)}
+# string parameters with a fixed set of values
+CHOICES = {'on_divergence': ('reset', 'pause')}
+# after a divergence that reset the simulation, /diagnostics stay at WARN naming it this long
+# (wall seconds; the status right at the divergence is ERROR)
+DIVERGENCE_HOLD_S = 10.0
 # names the node accepts besides its own (rclpy's)
 ROS_NAMES = ('use_sim_time', 'start_type_description_service')
 
@@ -118,6 +127,10 @@ def check_parameters(values):
     for name, (lo, hi) in RANGES.items():
         if not lo <= values[name] <= hi:
             raise ParameterError(f'{name}: must be within [{lo:g}, {hi:g}], got {values[name]!r}')
+    for name, valid in CHOICES.items():
+        if values[name] not in valid:
+            raise ParameterError(f'{name}: must be one of {", ".join(valid)}, got '
+                                 f'{values[name]!r}')
     return values
 
 
@@ -161,6 +174,8 @@ def descriptor(name):
     if name in RANGES:
         lo, hi = RANGES[name]
         desc.floating_point_range = [FloatingPointRange(from_value=lo, to_value=hi)]
+    if name in CHOICES:
+        desc.additional_constraints = 'one of: ' + ', '.join(CHOICES[name])
     return desc
 
 

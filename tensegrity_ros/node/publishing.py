@@ -13,6 +13,7 @@ import time
 from std_msgs.msg import String
 
 from tensegrity_ros.msgs import cdr, messages
+from tensegrity_ros.node.params import DIVERGENCE_HOLD_S
 
 STRUCTURE_TOPIC = '~/structure'
 
@@ -30,6 +31,12 @@ class Publishing:
     def restart_window(self, now):
         """Measure the achieved rates from ``now`` on (activation, reset)."""
         self._window = (now, self.node.sim.t, self.node.counts['frames'])
+
+    def time_jump(self, t_before, t_after):
+        """The simulation time jumped (a reset after a divergence): the window keeps measuring
+        the publish rate and counts the simulated time done before the jump."""
+        wall, t_sim, frames = self._window
+        self._window = (wall, t_sim + t_after - t_before, frames)
 
     def markers_due(self, now):
         """Markers are due at ``marker_rate_hz``, and only built when someone listens (a
@@ -50,19 +57,20 @@ class Publishing:
                            messages.stamp_to_ns(messages.sim_stamp(sim.t)))
 
     def frame(self, now):
-        """Publish the current frame; a frame that is not finite is never published: the node
-        pauses and says why (returns False)."""
+        """Publish the current frame; a frame that is not finite is never published: it is a
+        divergence (the node resets or pauses, ``on_divergence``, and says why; returns
+        False)."""
         node = self.node
         t0 = time.perf_counter()
-        frame = node.sim.frame()
         markers = self.markers_due(now)
         build = messages.frame_messages if node.sinks.wants_objects else cdr.frame_messages_cdr
-        stamp = messages.sim_stamp(frame.t)
         try:
+            frame = node.sim.frame()            # (its base force fails on a broken state)
+            stamp = messages.sim_stamp(frame.t)
             msgs = build(frame, node.sim.network, stamp=stamp, markers=markers,
                          clock=node.params['use_sim_clock'], t_max=node.t_max)
         except ValueError as exc:
-            node.pause(f'paused: {exc}')
+            node.diverged(f'the state gives no finite frame: {exc}', node.sim.t)
             return False
         if markers:
             self.last_marker = now
@@ -84,6 +92,7 @@ class Publishing:
         """The key/value pairs of ``/diagnostics`` (dict name -> float, int or str)."""
         node, sim, intake = self.node, self.node.sim, self.node.intake
         topic, verdict, detail = intake.last_command
+        div = node.last_divergence
         counts = node.counts
         return {
             'sim_time_s': float(sim.t), 'steps': int(sim.step),
@@ -93,6 +102,7 @@ class Publishing:
             'publish_rate_hz_achieved': float(self.achieved_rate_hz),
             'tick_max_ms': 1e3 * float(self.tick_max_s),
             'energy_J': float(sim.energy()),
+            **energy_balance(sim),
             'constraint_error': float(sim.constraint_error()),
             'frames_published': counts['frames'],
             'commands_accepted': counts['accepted'],
@@ -101,20 +111,52 @@ class Publishing:
             'last_command_topic': topic, 'last_command': verdict, 'last_command_detail': detail,
             'last_command_sim_time_s': (float(intake.last_command_t)
                                         if math.isfinite(intake.last_command_t) else -1.0),
+            'on_divergence': node.params['on_divergence'],
+            'divergences': node.divergences,
+            'last_divergence': div['text'] if div else 'none',
+            'last_divergence_sim_time_s': div['sim_time_s'] if div else -1.0,
             **node.focus.values(),
         }
 
+    def status(self, now):
+        """``(level, message)`` of ``/diagnostics``: ERROR with the reason while paused by a
+        problem, and once right at a divergence the node reset after; WARN naming the last
+        divergence for ``DIVERGENCE_HOLD_S`` after it, else WARN after rejected commands; else
+        OK."""
+        node, intake = self.node, self.node.intake
+        div = node.last_divergence
+        if div is not None and not div['reported']:
+            div['reported'] = True
+            if not node.problem:
+                return 2, f'diverged: {div["text"]}; reset to the rest state'
+        if node.problem:
+            return 2, node.problem
+        if div is not None and now - div['wall'] < DIVERGENCE_HOLD_S:
+            return 1, (f'last divergence {now - div["wall"]:.0f} s ago ({div["action"]}): '
+                       f'{div["text"]}')
+        if intake.rejected_since:
+            return 1, f'rejected {intake.last_command[2]}'
+        return 0, 'running' if node.running else 'paused'
+
     def diagnostics(self, now):
-        """``/diagnostics``: ERROR with the reason while paused by a problem, WARN after
-        rejected commands, else OK."""
+        """``/diagnostics`` with the :meth:`status` and :meth:`diagnostics_values`."""
         node, intake = self.node, self.node.intake
         self.last_diag = now
-        level = 2 if node.problem else 1 if intake.rejected_since else 0
-        message = node.problem or (f'rejected {intake.last_command[2]}' if intake.rejected_since
-                                   else 'running' if node.running else 'paused')
+        level, message = self.status(now)
         intake.rejected_since = 0
         stamp = messages.sim_stamp(node.sim.t)
         msg = messages.diagnostics_message(stamp, self.diagnostics_values(), level, message)
         node.pubs['/diagnostics'].publish(msg)
         node.sinks.message(node.topics['/diagnostics'], msg, messages.stamp_to_ns(stamp))
         self.tick_max_s = 0.0          # tick_max_ms covers one diagnostics period
+
+
+def energy_balance(sim):
+    """``energy_work_J`` (work of the commands since the reset) and ``energy_balance_error``
+    (signed, relative: the solver's ``Simulation.energy_error``) of ``sim``; NaN (``n/a`` on
+    ``/diagnostics``) for a simulation without an energy ledger (an array of columns)."""
+    try:
+        work, error = float(sim.energy_work()), float(sim.energy_error())
+    except AttributeError:          # ArraySimulation keeps no ledger of its own
+        work = error = math.nan
+    return {'energy_work_J': work, 'energy_balance_error': error}
