@@ -264,6 +264,15 @@ class ArraySimulation(Simulation):
     def constraint_error(self):
         return float(max(g.sim.constraint_error() for g in self.groups))
 
+    def energy_error(self):
+        """The energy balance error of the group furthest off (each group keeps its own ledger
+        and is checked against it)."""
+        return max((g.sim.energy_error() for g in self.groups), key=abs)
+
+    def energy_work(self):
+        """Work J put in by commands since the reset, all groups."""
+        return float(sum(g.sim.energy_work() for g in self.groups))
+
     def base_force(self):
         out = np.empty(self.n_columns)
         for g in self.groups:

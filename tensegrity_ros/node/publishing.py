@@ -153,10 +153,7 @@ class Publishing:
 
 def energy_balance(sim):
     """``energy_work_J`` (work of the commands since the reset) and ``energy_balance_error``
-    (signed, relative: the solver's ``Simulation.energy_error``) of ``sim``; NaN (``n/a`` on
-    ``/diagnostics``) for a simulation without an energy ledger (an array of columns)."""
-    try:
-        work, error = float(sim.energy_work()), float(sim.energy_error())
-    except AttributeError:          # ArraySimulation keeps no ledger of its own
-        work = error = math.nan
-    return {'energy_work_J': work, 'energy_balance_error': error}
+    (signed, relative: the solver's ``Simulation.energy_error``; an array of columns: the group
+    furthest off) of ``sim``."""
+    return {'energy_work_J': float(sim.energy_work()),
+            'energy_balance_error': float(sim.energy_error())}
