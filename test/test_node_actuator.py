@@ -2,7 +2,7 @@
 it is paused are rejected and never stacked on the frozen state; a divergence resets it to rest
 (``on_divergence`` reset, the default) and it keeps publishing, or pauses it (``pause``); a bad
 ``on_divergence`` is refused naming the valid values; and a flood of mixed commands at 1,000/s
-with MCAP recording keeps it publishing at 180 frames/s or more, finite, never paused."""
+with MCAP recording keeps it publishing, finite, never paused (its rate: bench.soak --actuator)."""
 import os
 import time
 
@@ -219,5 +219,10 @@ def test_a_flood_of_mixed_commands_keeps_the_node_publishing_finite_never_paused
           f"{r['last_divergence']}")
     assert r['sent']['total'] >= 2700
     assert r['commands']['rejected'] > 0 and r['commands']['accepted'] > 0
-    verdict = actuator_verdict(r)
+    # the rate against its 180 frames/s target is the command's figure (bench.soak --actuator:
+    # tests assert no wall-clock speed); here: publishing goes on (a stall would leave a
+    # handful of frames), nothing non-finite, never paused, and no divergence at all
+    verdict = [row for row in actuator_verdict(r) if not row[0].startswith('frames per wall')]
     assert all(ok for _, ok, _ in verdict), verdict
+    assert r['frames_per_s'] >= 10.0
+    assert r['divergences'] == 0
