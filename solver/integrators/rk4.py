@@ -5,7 +5,7 @@ from __future__ import annotations
 from solver._jit import jit
 from solver.integrators.base import Integrator
 from solver.kernels import dynamics as dyn
-from solver.kernels.barcontact import contact_step, touching
+from solver.kernels.barcontact import contact_step, passed_clear
 from solver.kernels.kinks import keep_state, next_kink
 
 
@@ -43,29 +43,36 @@ def _rk4_step(x, v, h, a1, net, act, ws):
 
 
 @jit
-def _contact_aware_step(x, v, h, a1, net, act, ws):
-    """One RK4 step from a state whose accelerations ``a1`` were just evaluated, with bar
-    contact on (:mod:`solver.kernels.barcontact`): the plain step of ``h`` when no contact can
-    start within it; when one could, the plain step is still tried and kept if none of its
-    evaluations and not its end state met a contact (so a near miss changes nothing); otherwise,
-    and while a contact lasts, the step of :func:`~solver.kernels.barcontact.contact_step`.
-    Returns (status, the step taken)."""
+def _contact_aware_step(x, v, h, a1, net, act, ws, met):
+    """One RK4 step from a state whose accelerations ``a1`` were just evaluated (``met``: the
+    contact count before that evaluation), with bar contact on
+    (:mod:`solver.kernels.barcontact`): the plain step of ``h`` when no contact can start within
+    it; when one could, the plain step is still tried, with the contact forces looked for, and
+    kept if none of its evaluations met a contact and it surely passed clear of every contact
+    (:func:`~solver.kernels.barcontact.passed_clear`: a near miss changes nothing); otherwise,
+    and while a contact lasts, the step of
+    :func:`~solver.kernels.barcontact.contact_step`. Returns (status, the step taken)."""
     ex = act[3]
-    touched_at_start = ex[8][0] > 0.0
+    touched_at_start = ex[8][0] > met
     h_c = contact_step(x, v, a1, ex[6], ex[1], ex[7], h, ex[8])
     if h_c >= h:
         return _rk4_step(x, v, h, a1, net, act, ws), h
+    flag = ex[8][2]
     if not touched_at_start:
         saved = ex[9]
         saved[0, :, :] = x
         saved[1, :, :] = v
+        before = ex[8][0]
+        ex[8][2] = 1.0
         status = _rk4_step(x, v, h, a1, net, act, ws)
-        if status == dyn.OK and ex[8][0] == 0.0 and not touching(x, ex[6], ex[1], ex[7]):
+        if status == dyn.OK and ex[8][0] == before and passed_clear(
+                saved[0], saved[1], a1, x, ex[6], ex[1], ex[7], h):
             ex[8][1] = -1.0     # the slack was for the shorter step: scan again
-            ex[8][2] = 1.0
             return status, h
         x[:, :] = saved[0]
         v[:, :] = saved[1]
+        ex[8][0] = before
+        ex[8][2] = flag
     return _rk4_step(x, v, h_c, a1, net, act, ws), h_c
 
 
@@ -84,13 +91,12 @@ def _rk4_advance(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, project)
     steps = 0
     while total - t > 1e-9 * dt:
         h = min(dt, total - t)
-        if ex[6].shape[0] != 0:
-            ex[8][0] = 0.0          # contacts met from here on (kernels.barcontact)
+        met = ex[8][0]              # contacts met so far (kernels.barcontact)
         status = dyn.accelerations(x, v, net, act, ws, a1)
         if status == dyn.OK and kinks:
             h = next_kink(x, v, a1, net, act, h, 1e-3 * dt)
         if status == dyn.OK and ex[6].shape[0] != 0:
-            status, h = _contact_aware_step(x, v, h, a1, net, act, ws)
+            status, h = _contact_aware_step(x, v, h, a1, net, act, ws, met)
         elif status == dyn.OK:
             status = _rk4_step(x, v, h, a1, net, act, ws)
         if project and status == dyn.OK:

@@ -214,6 +214,34 @@ def bar_energy(x, pairs, bpar):
 
 
 @jit
+def passed_clear(x0, v0, a0, x1, pairs, levels, bpar, h):
+    """Whether a step of ``h`` from ``x0`` (velocities ``v0``, accelerations ``a0``) to ``x1``
+    surely met no contact: every pair's (and every prism's base) gap is positive at both ends
+    and their sum exceeds what the pair could have closed and reopened within the step,
+    ``2 (V h + A h^2 / 2)`` (a contact shorter than the step may fall between its force
+    evaluations)."""
+    D = bpar[0]
+    for i in range(pairs.shape[0]):
+        s, t, nx, ny, nz = _pair(x0, pairs, i)
+        g0 = math.sqrt(nx * nx + ny * ny + nz * nz) - D
+        s, t, nx, ny, nz = _pair(x1, pairs, i)
+        g1 = math.sqrt(nx * nx + ny * ny + nz * nz) - D
+        p = pairs[i]
+        reach = 2.0 * (_reach(v0, p) * h + 0.5 * _reach(a0, p) * h * h)
+        if g0 <= 0.0 or g1 <= 0.0 or g0 + g1 <= reach:
+            return False
+    for c in range(levels.shape[0]):
+        for j in range(1, levels.shape[1]):
+            g0 = _level_z(x0, levels, c, j) - _level_z(x0, levels, c, j - 1) - D
+            g1 = _level_z(x1, levels, c, j) - _level_z(x1, levels, c, j - 1) - D
+            rate = abs(_level_z(v0, levels, c, j) - _level_z(v0, levels, c, j - 1))
+            accel = abs(_level_z(a0, levels, c, j) - _level_z(a0, levels, c, j - 1))
+            if g0 <= 0.0 or g1 <= 0.0 or g0 + g1 <= 2.0 * (rate * h + 0.5 * accel * h * h):
+                return False
+    return True
+
+
+@jit
 def touching(x, pairs, levels, bpar):
     """Whether any pair of bars or any two bases touch in the state ``x``."""
     if closest_gap(x, pairs, bpar) < 0.0:
@@ -265,19 +293,20 @@ def _largest(u):
 def contact_step(x, v, acc, pairs, levels, bpar, h, state):
     """:func:`scan_step` where a contact could start within ``h``, else ``h``, cheaply: the
     smallest gap of the last scan, less what every node could have moved since (twice the
-    largest node speed and acceleration bound any relative motion), is kept in ``state[1]``
+    largest node speed and acceleration bound any relative motion; a factor 2 over the Taylor
+    terms covers how fast the accelerations change within a step), is kept in ``state[1]``
     (negative: scan now; an integrator sets it so when it starts from a state it did not
     make). ``state[2]`` 0 tells the force evaluations of the step that no contact can act (they
     skip the pairs), 1 that they must look."""
     V = 2.0 * _largest(v)
     A = 2.0 * _largest(acc)
-    reach = 1.25 * (V * h + 0.5 * A * h * h)
+    reach = 2.0 * (V * h + 0.5 * A * h * h)
     if state[1] > reach:
         state[1] -= reach
         state[2] = 0.0          # no contact force within this step: not evaluated
         return h
     h_new, g_min = scan_step(x, v, acc, pairs, levels, bpar, h)
-    state[1] = g_min - 1.25 * (V * h_new + 0.5 * A * h_new * h_new)
+    state[1] = g_min - 2.0 * (V * h_new + 0.5 * A * h_new * h_new)
     state[2] = 1.0 if state[1] <= 0.0 else 0.0
     return h_new
 

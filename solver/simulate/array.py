@@ -269,6 +269,10 @@ class ArraySimulation(Simulation):
         and is checked against it)."""
         return max((g.sim.energy_error() for g in self.groups), key=abs)
 
+    @property
+    def contacts_met(self):
+        return sum(g.sim.contacts_met for g in self.groups)
+
     def energy_work(self):
         """Work J put in by commands since the reset, all groups."""
         return float(sum(g.sim.energy_work() for g in self.groups))

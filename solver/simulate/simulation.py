@@ -110,6 +110,8 @@ class Simulation(Loading):
             self.model.x[-ns:, 2] = np.asarray(net.x0)[net.levels[:, -1], 2].mean(axis=1)
             self.model.v[-ns:] = 0.0
         self.model.set_cables(net.cable_rest_length, net.cable_EA)
+        if self.contacts_met:
+            self.model.act[3][8][0] = 0.0
         self._cache = {}
         self._plan = (None, None)
         self.t = 0.0
@@ -200,6 +202,15 @@ class Simulation(Loading):
         :meth:`advance`: in both directions, or, with cable damping (whose loss is not booked),
         against gains only."""
         return self._balance(self.energy())
+
+    @property
+    def contacts_met(self):
+        """How many force evaluations met a touching pair of bars or two touching bases since
+        the reset (0 without bar contact): whether contact acted in a run."""
+        act = getattr(self.model, 'act', ())
+        if len(act) < 4 or not act[3][6].shape[0]:
+            return 0
+        return int(act[3][8][0])
 
     def energy_work(self):
         """Work J put in by commands since the reset (the ledger's ``W``)."""
