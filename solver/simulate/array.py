@@ -264,6 +264,19 @@ class ArraySimulation(Simulation):
     def constraint_error(self):
         return float(max(g.sim.constraint_error() for g in self.groups))
 
+    def energy_error(self):
+        """The energy balance error of the column furthest from balance (signed, relative to
+        that column's own scale: :meth:`Simulation.energy_error`)."""
+        return float(max((g.sim.energy_error() for g in self.groups), key=abs))
+
+    def energy_work(self):
+        """Work J put in by commands since the reset, every column."""
+        return float(sum(len(g.columns) * g.sim.energy_work() for g in self.groups))
+
+    @property
+    def bar_contact(self):
+        return self.groups[0].sim.bar_contact
+
     def base_force(self):
         out = np.empty(self.n_columns)
         for g in self.groups:
