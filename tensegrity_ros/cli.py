@@ -29,38 +29,45 @@ def _progress(total, desc):
     return bar.update, bar.close
 
 
-def _open_mcap(stack, frame_sinks, scene, sim, path):
+def _open_mcap(stack, sinks, scene, sim, path):
     """Record the run to ``path`` (MCAP, the node's topics); closed by ``stack``, also on SIGTERM.
-    Logs the impact command applied before the run, then every output frame."""
+    Logs each impact as the command the node would receive, then every output frame."""
+    from solver.simulate.runner import run_frame
     from tensegrity_ros.io.mcap_frames import FrameLog, marker_every, network_metadata
     from tensegrity_ros.io.mcap_writer import McapRecorder, signals_as_interrupt
     stack.enter_context(signals_as_interrupt())
     recorder = stack.enter_context(McapRecorder(
         path, metadata=network_metadata(sim.network, scene.name)))
     log = FrameLog(recorder, sim.network, marker_every=marker_every(scene.run.output_dt))
-    v0, columns = scene.loading.impact.v0, scene.loading.impact.columns
-    if v0:
-        detail = f'impact v0 = {v0:g} m/s (scene {scene.name})'
-        if columns is None:
-            log.command('~/cmd/impact', [v0], 'all', sim.frame(), detail)
-        else:
-            per_column = [v0 if c in list(columns) else 0.0 for c in range(sim.network.n_columns)]
-            log.command('~/cmd/impact', per_column, 'column', sim.frame(), detail)
-    frame_sinks.append(log.frame)
+    columns = scene.loading.impact.columns
+
+    def impact(i, entry):
+        v0 = entry['v0_m_s']
+        values = [v0] if columns is None else [v0 if c in columns else 0.0
+                                               for c in range(sim.network.n_columns)]
+        log.command('~/cmd/impact', values, 'all' if columns is None else 'column', run_frame(sim),
+                    f'impact v0 = {v0:g} m/s (scene {scene.name})')
+    sinks['impact'].append(impact)
+    sinks['frame'].append(log.frame)
     return str(path)
 
 
-def _open_rerun(stack, frame_sinks, scene, sim, path=None, url=None):
+def _open_rerun(stack, sinks, scene, sim, path=None, url=None):
     """Record the run to a Rerun ``.rrd`` at ``path`` and/or stream it to the viewer at ``url``;
-    closed by ``stack``. Logs the impact applied before the run as a command event."""
+    closed by ``stack``. Logs each impact as a command event: the first starts with ``impact``
+    (the heat map starts there), the later ones of a train with ``train impact``."""
+    from solver.simulate.runner import ImpactTrain
     from tensegrity_ros.io.rerun_sink import RerunRecorder
     recorder = stack.enter_context(RerunRecorder(sim.network, path, connect=url))
-    v0 = scene.loading.impact.v0
-    if v0:
-        columns = scene.loading.impact.columns
-        where = 'all columns' if columns is None else f'columns {list(columns)}'
-        recorder.command(sim.t, f'impact v0 = {v0:g} m/s on {where}')
-    frame_sinks.append(recorder.frame)
+    n, columns = len(ImpactTrain(scene.loading.impact, sim.dt)), scene.loading.impact.columns
+    where = 'all columns' if columns is None else f'columns {list(columns)}'
+
+    def impact(i, entry):
+        text = f'v0 = {entry["v0_m_s"]:g} m/s on {where}'
+        recorder.command(entry['t_s'], f'impact {text}' + (f' (1 of {n})' if n > 1 else '')
+                         if i == 0 else f'train impact {i + 1} of {n}: {text}')
+    sinks['impact'].append(impact)
+    sinks['frame'].append(recorder.frame)
     return str(path) if path is not None else url
 
 
@@ -93,7 +100,7 @@ def cmd_run(args):
         ctx['out_dir'] = out_dir
         update, close = _progress(frame_count(t_end, output_dt) - 1, scene.name)
         stack.callback(close)
-        frame_sinks = []
+        sinks = {'frame': [], 'impact': []}
         if args.mcap:
             from tensegrity_ros.io import mcap_frames as mcap_run, mcap_writer as recording  # noqa: F401
         # The objects of the imports and the set-up (some 160 000) are moved out of the garbage
@@ -101,13 +108,13 @@ def cmd_run(args):
         # to fall in the run (with a Rerun recording: in the recorder's start, measured)
         gc.freeze()
         if args.mcap:
-            outputs['mcap'] = _open_mcap(stack, frame_sinks, scene, sim, out_dir / 'run.mcap')
+            outputs['mcap'] = _open_mcap(stack, sinks, scene, sim, out_dir / 'run.mcap')
         if args.rerun or args.rerun_connect:
-            outputs['rerun'] = _open_rerun(stack, frame_sinks, scene, sim,
+            outputs['rerun'] = _open_rerun(stack, sinks, scene, sim,
                                            out_dir / 'run.rrd' if args.rerun else None,
                                            args.rerun_connect)
-        on_frame = (lambda f: [sink(f) for sink in frame_sinks]) if frame_sinks else None
-        return on_frame, update
+        return (lambda f: [sink(f) for sink in sinks['frame']]), update, \
+            (lambda i, e: [sink(i, e) for sink in sinks['impact']])
 
     point = simulate(args.scene, run_overrides(args), setup=setup)
     scene, rec, out_dir = point.scene, point.record, ctx['out_dir']
@@ -130,6 +137,8 @@ def cmd_run(args):
               f"{result['wall_time_s']:.2f} s ({result['real_time_factor'] or 0:.1f}x real time)")
         print(f"  energy drift {result['energy_drift_rel']:.2e} /s, constraint error "
               f"{result['constraint_error_rel']:.2e}")
+        print(f"  energy balance error {result['energy_balance_error']:.2e} (largest), work "
+              f"{result['energy_work_J']:.3e} J in {len(result['impacts'])} impact(s)")
         if p and p['amplitude'] is None:
             print(f"  pulse: none found by t = {result['t_end']:g} s")
         elif p:

@@ -309,3 +309,32 @@ def test_to_rerun_without_network_converts_topic_by_topic(net, frames, tmp_path)
                 nodes[ti] = np.array(p)
     assert sorted(nodes) == [int(round(f.t * 1e9)) for f in frames]
     np.testing.assert_array_equal(nodes[0], frames[0].positions.astype(np.float32))
+
+
+def test_run_cli_logs_each_impact_of_a_train_and_the_balance_error(tmp_path, capsys):
+    """``tensegrity run --mcap`` of a train of 3: a received ``cmd/impact`` at each impact's time,
+    ``energy_balance_error`` in the headless ``/diagnostics``, and a series of it in the
+    conversion to Rerun."""
+    from pathlib import Path
+
+    from tensegrity_ros.cli import main
+    from tensegrity_ros.io.convert import to_rerun
+    fb = Path(__file__).resolve().parents[1] / 'config' / 'scenes' / 'fb_column.yaml'
+    assert main(['run', str(fb), '--set', 'structure.n_prisms=4', '--set',
+                 'loading.impact.count=3', '--set', 'loading.impact.period=0.0075', '--t-end',
+                 '0.02', '--out', str(tmp_path), '--mcap', '--json']) == 0
+    out = json.loads(capsys.readouterr().out)
+    log = McapLog(out['outputs']['mcap'])
+    impacts, balance = [], []
+    for m in log.messages():
+        if m.topic.endswith('/cmd/impact'):
+            impacts.append((m.log_time_ns, list(log.decode(m).data)))
+        elif m.type_name == 'diagnostic_msgs/msg/DiagnosticArray':
+            values = {kv.key: kv.value for kv in log.decode(m).status[0].values}
+            balance.append(float(values['energy_balance_error']))
+    assert impacts == [(0, [0.1]), (7_500_000, [0.1]), (15_000_000, [0.1])]
+    assert balance and max(abs(b) for b in balance) < 1e-4
+    assert 0 < out['energy_balance_error'] < 1e-4
+    pytest.importorskip('rerun.chunk')
+    to_rerun(out['outputs']['mcap'], tmp_path / 'run.rrd')
+    assert _rrd_columns(tmp_path / 'run.rrd', '/energy_balance_error', 'Scalars:scalars')

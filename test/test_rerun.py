@@ -144,6 +144,8 @@ def test_values_equal_the_solver_frames_at_chosen_times(recorded):
                                       f.strain[0])
         assert at(data['/energy'], f.t, 'Scalars:scalars')[0] == f.energy
         assert at(data['/constraint_error'], f.t, 'Scalars:scalars')[0] == f.constraint_error
+        assert at(data['/energy_balance_error'], f.t, 'Scalars:scalars')[0] == \
+            f.energy_balance_error
     assert frames[-1].strain.min() < -1e-3        # the wave is in the data compared
 
 
@@ -270,6 +272,34 @@ def test_run_cli_records_what_the_solver_computes(tmp_path, capsys):
                                                                                 rel=1e-12)
     text = flat(data['/commands']['rows'][0][1]['TextLog:text'])[0]
     assert text.startswith(f"impact v0 = {scene['loading.impact.v0']:g} m/s")
+
+
+def test_run_cli_records_a_train_and_the_energy_balance_error(tmp_path, capsys):
+    """A train of 3 impacts: each is a command at its time (only the first starts the heat map),
+    and the balance error of every frame is a series; frames without it (the node's) record
+    none."""
+    import json
+
+    from tensegrity_ros.cli import main
+    args = ['run', str(FB), '--set', 'structure.n_prisms=4', '--set', 'loading.impact.count=3',
+            '--set', 'loading.impact.period=0.0075', '--t-end', '0.02', '--out', str(tmp_path),
+            '--rerun', '--json']
+    assert main(args) == 0
+    out = json.loads(capsys.readouterr().out)
+    data = read(out['outputs']['rerun'])
+    texts = [(t, flat(r['TextLog:text'])[0]) for t, r in data['/commands']['rows']]
+    assert texts == [(0, 'impact v0 = 0.1 m/s on all columns (1 of 3)'),
+                     (7_500_000, 'train impact 2 of 3: v0 = 0.1 m/s on all columns'),
+                     (15_000_000, 'train impact 3 of 3: v0 = 0.1 m/s on all columns')]
+    rows = data['/energy_balance_error']['rows']
+    assert [t for t, _ in rows] == [k * 5_000_000 for k in range(5)]
+    errors = [abs(flat(r['Scalars:scalars'])[0]) for _, r in rows]
+    assert max(errors) == out['energy_balance_error'] and 0 < max(errors) < 1e-4
+    sim = simulation_for(Scene.load(FB).with_overrides(['structure.n_prisms=4']))
+    with RerunRecorder(sim.network, tmp_path / 'plain.rrd') as rec:
+        rec.frame(sim.frame())                           # a Frame: no balance error
+    assert '/energy_balance_error' not in read(tmp_path / 'plain.rrd') or \
+        not read(tmp_path / 'plain.rrd')['/energy_balance_error']['rows']
 
 
 def test_connect_needs_a_listening_viewer(tmp_path):
@@ -476,7 +506,8 @@ def test_the_stored_blueprint_holds_the_paper_style_views(recorded):
         ('3D', 'world'), ('TextDocument', 'legend'), ('BarChart', 'strain_profile/column_0'),
         ('Tensor', 'wave/column_0'), ('Tensor', 'wave_scale/column_0'),
         ('TimeSeries', 'base_force'), ('TimeSeries', 'energy'),
-        ('TimeSeries', 'constraint_error'), ('TextLog', 'commands')}
+        ('TimeSeries', 'energy_balance_error'), ('TimeSeries', 'constraint_error'),
+        ('TextLog', 'commands')}
 
 
 def test_bar_chart_is_the_strain_per_prism_of_each_frame(recorded):

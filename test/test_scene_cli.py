@@ -14,7 +14,7 @@ ROOT = Path(__file__).resolve().parents[1]
 SCENES = ROOT / 'config' / 'scenes'
 
 
-@pytest.mark.parametrize('name', ['prism', 'fb_column', 'rb_column'])
+@pytest.mark.parametrize('name', ['prism', 'fb_column', 'rb_column', 'fb_train'])
 def test_shipped_scenes_load(name):
     scene = Scene.load(SCENES / f'{name}.yaml')
     assert scene.name == name
@@ -74,11 +74,46 @@ def test_run_json_summary_has_the_documented_keys(tmp_path):
     out = json.loads(res.stdout)
     for key in ('scene', 'model', 'integrator', 'dt', 't_end', 'n_nodes', 'n_bars', 'n_cables',
                 'steps', 'wall_time_s', 'real_time_factor', 'energy_drift_rel',
-                'constraint_error_rel', 'pulse', 'outputs'):
+                'constraint_error_rel', 'pulse', 'outputs', 'impacts', 'energy_work_J',
+                'energy_balance_error', 'bar_contact'):
         assert key in out
     assert out['n_nodes'] == 6 and out['n_bars'] == 3 and out['n_cables'] == 9
     assert out['t_end'] == pytest.approx(0.05)
     assert json.loads((tmp_path / 'summary.json').read_text())['scene'] == 'prism'
+
+
+def _run_json(capsys, *args):
+    from tensegrity_ros import cli
+    capsys.readouterr()
+    assert cli.main(['run', *args, '--json']) == 0
+    return json.loads(capsys.readouterr().out)
+
+
+def test_run_applies_a_train_of_impacts_and_reports_the_ledger(capsys):
+    """5 impacts of 0.1 m/s every 20 ms on a 10-prism FB column: each at its time, their work
+    is the ledger's, the balance error is small; the same train as times and velocities gives the
+    same summary; the text output prints the balance error."""
+    fb, short = str(SCENES / 'fb_column.yaml'), ['--set', 'structure.n_prisms=10', '--t-end',
+                                                   '0.1']
+    out = _run_json(capsys, fb, *short, '--set', 'loading.impact.period=0.02', '--set',
+                    'loading.impact.count=5')
+    assert [i['t_s'] for i in out['impacts']] == pytest.approx([0, 0.02, 0.04, 0.06, 0.08],
+                                                               abs=1e-12)
+    assert [i['v0_m_s'] for i in out['impacts']] == [0.1] * 5
+    assert sum(i['work_J'] for i in out['impacts']) == pytest.approx(out['energy_work_J'],
+                                                                     rel=1e-12)
+    assert 0 <= out['energy_balance_error'] < 1e-4 and out['bar_contact'] == 'hertz'
+    listed = _run_json(capsys, fb, *short, '--set', 'loading.impact.times=[0, .02, .04, .06, .08]',
+                       '--set', 'loading.impact.velocities=[0.1, 0.1, 0.1, 0.1, 0.1]')
+    timing = ('wall_time_s', 'real_time_factor')
+    assert {k: v for k, v in listed.items() if k not in timing} == \
+        {k: v for k, v in out.items() if k not in timing}
+    from tensegrity_ros import cli
+    assert cli.main(['run', fb, *short, '--set', 'loading.impact.count=5', '--set',
+                     'loading.impact.period=0.02']) == 0
+    text = capsys.readouterr().out
+    assert f"energy balance error {out['energy_balance_error']:.2e} (largest)" in text
+    assert 'in 5 impact(s)' in text
 
 
 def test_a_run_too_short_for_a_pulse_gives_strict_json_with_nulls(tmp_path):
@@ -104,6 +139,9 @@ def test_a_run_too_short_for_a_pulse_gives_strict_json_with_nulls(tmp_path):
     (('run', str(SCENES / 'prism.yaml'), '--set', 'integrator=euler'), 'euler'),
     (('run', str(SCENES / 'prism.yaml'), '--prestrain', '2'), 'prestrain'),
     (('run', str(SCENES / 'prism.yaml'), '--set', 'integrator.dt=3e-4'), 'whole multiple'),
+    (('run', str(SCENES / 'fb_train.yaml'), '--t-end', '0.5'), 'loading.impact.period: the last'),
+    (('run', str(SCENES / 'fb_column.yaml'), '--set', 'loading.impact.times=[0, 0.1]', '--set',
+      'loading.impact.velocities=[0.1]'), 'loading.impact.velocities'),
 ])
 def test_user_errors_are_one_line_without_traceback(args, needle):
     res = _cli(*args)

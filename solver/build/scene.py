@@ -58,7 +58,10 @@ DEFAULTS = {
     'prestrain': 0.002,
     'loading': {'impact': {'v0': 0.1, 'mode': 'impulse', 'columns': None,
                            'striker_mass': 0.0249, 'contact': 'linear',
-                           'contact_stiffness': 1.0e4},
+                           'contact_stiffness': 1.0e4,
+                           # a train: count impacts every period s from t = 0, or one impact at
+                           # each of times s (velocities m/s, null: every one v0)
+                           'period': 0.0, 'count': 1, 'times': None, 'velocities': None},
                 'gravity': 0.0},
     'model': 'auto',
     'integrator': {'method': 'rk4_projected', 'dt': 5e-4, 'projection_tol': 1e-12,
@@ -120,6 +123,8 @@ RANGES = {
     'contact.tolerance': (0.0, 1.0, False),
     'prestrain': (0.0, 0.5, False),
     'loading.impact.v0': (-10.0, 10.0, True),
+    'loading.impact.period': (0.0, 1e6, True),
+    'loading.impact.count': (1, 1000000, True),
     'integrator.dt': (0.0, 0.1, False),
     'integrator.projection_tol': (0.0, 1e-3, False),
     'integrator.projection_max_iter': (1, 100, True),
@@ -223,6 +228,63 @@ def _merge(defaults, given, prefix=''):
     return out
 
 
+def _numbers(key, values, what):
+    """``values`` (a list from the scene) as floats: each a finite number (YAML 1.1 reads 5e-2,
+    without a dot, as a string), else a SceneError."""
+    if not isinstance(values, list) or not values:
+        raise SceneError(f'{key}: expected a non-empty list of {what} (or null), got {values!r}')
+    out = []
+    for v in values:
+        try:
+            x = float(v) if isinstance(v, (str, int, float)) and not isinstance(v, bool) else None
+        except ValueError:
+            x = None
+        if x is None or not math.isfinite(x):
+            raise SceneError(f'{key}: {v!r} is not a finite number ({what})')
+        out.append(x)
+    return out
+
+
+def _check_train(imp, t_end):
+    """Check the train keys of ``loading.impact`` (``imp``, merged) against ``run.t_end``; the
+    times and velocities become lists of floats."""
+    slack = t_end * (1.0 + 1e-9) + 1e-12           # (count - 1) * period rounds up at times
+    times, velocities = imp['times'], imp['velocities']
+    if times is None:
+        if velocities is not None:
+            raise SceneError('loading.impact.velocities: needs loading.impact.times (one velocity '
+                             'per time)')
+        count, period = imp['count'], imp['period']
+        if count > 1 and not period > 0:
+            raise SceneError(f'loading.impact.period: must be > 0 for loading.impact.count = '
+                             f'{count} impacts')
+        if (count - 1) * period > slack:
+            raise SceneError(f'loading.impact.period: the last of {count} impacts every '
+                             f'{period:g} s is at {(count - 1) * period:g} s, after run.t_end = '
+                             f'{t_end:g} s')
+        return
+    if imp['count'] != 1 or imp['period'] != 0.0:
+        raise SceneError('loading.impact.times: give either loading.impact.times or '
+                         'loading.impact.period and count, not both')
+    times = imp['times'] = _numbers('loading.impact.times', times, 'times in s')
+    bad = [t for t in times if not 0.0 <= t <= slack]
+    if bad:
+        raise SceneError(f'loading.impact.times: {bad[0]:g} s is outside [0, run.t_end = '
+                         f'{t_end:g} s]')
+    if any(b < a for a, b in zip(times, times[1:])):
+        raise SceneError(f'loading.impact.times: must be sorted, earliest first, got {times!r}')
+    if velocities is not None:
+        velocities = imp['velocities'] = _numbers('loading.impact.velocities', velocities,
+                                                  'velocities in m/s')
+        if len(velocities) != len(times):
+            raise SceneError(f'loading.impact.velocities: {len(velocities)} given for '
+                             f'{len(times)} loading.impact.times (one per time)')
+        lo, hi, _ = RANGES['loading.impact.v0']
+        bad = [v for v in velocities if not lo <= v <= hi]
+        if bad:
+            raise SceneError(f'loading.impact.velocities: {bad[0]:g} is outside [{lo}, {hi}]')
+
+
 def validate(raw):
     """Merge a raw mapping onto the defaults and check every key; returns a plain nested dict."""
     if raw is None:
@@ -246,6 +308,7 @@ def validate(raw):
                                                  for c in cols):
             raise SceneError(f'loading.impact.columns: expected a list of column indices '
                              f'0..{n_col - 1} or null, got {cols!r}')
+    _check_train(imp, data['run']['t_end'])
     mat = data['materials']
     if not 0.0 <= mat['bar_mass_fraction'] < 1.0:     # [0, 1): RANGES has no open upper end
         raise SceneError(f'materials.bar_mass_fraction: {mat["bar_mass_fraction"]!r} is outside '

@@ -63,6 +63,17 @@ class Impact:
     striker_mass: float
     contact: str
     contact_stiffness: float
+    period: float
+    count: int
+    times: tuple | None
+    velocities: tuple | None
+
+    def train(self):
+        """The impacts ``((t s, v0 m/s), ...)`` in time order: ``count`` of ``v0`` every
+        ``period`` s from t = 0, or one at each of ``times`` (of ``velocities``, or all ``v0``)."""
+        if self.times is None:
+            return tuple((k * self.period, self.v0) for k in range(self.count))
+        return tuple(zip(self.times, self.velocities or (self.v0,) * len(self.times)))
 
 
 @dataclass(frozen=True)

@@ -265,17 +265,21 @@ class ArraySimulation(Simulation):
         return float(max(g.sim.constraint_error() for g in self.groups))
 
     def energy_error(self):
-        """The energy balance error of the group furthest off (each group keeps its own ledger
-        and is checked against it)."""
-        return max((g.sim.energy_error() for g in self.groups), key=abs)
+        """The energy balance error of the column furthest from balance (signed, relative to
+        that column's own scale: :meth:`Simulation.energy_error`)."""
+        return float(max((g.sim.energy_error() for g in self.groups), key=abs))
+
+    def energy_work(self):
+        """Work J put in by commands since the reset, every column."""
+        return float(sum(len(g.columns) * g.sim.energy_work() for g in self.groups))
+
+    @property
+    def bar_contact(self):
+        return self.groups[0].sim.bar_contact
 
     @property
     def contacts_met(self):
         return sum(g.sim.contacts_met for g in self.groups)
-
-    def energy_work(self):
-        """Work J put in by commands since the reset, all groups."""
-        return float(sum(g.sim.energy_work() for g in self.groups))
 
     def base_force(self):
         out = np.empty(self.n_columns)

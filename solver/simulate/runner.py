@@ -1,22 +1,25 @@
-"""Headless runs: a scene from its impact to ``t_end``, recorded at ``output_dt``; the summary."""
+"""Headless runs: a scene from its impact (or train of impacts) to ``t_end``, recorded at
+``output_dt``; the summary."""
 from __future__ import annotations
 
 import contextlib
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
 from solver.analysis import observables, support
 from solver.build.scene import Scene
-from solver.simulate.simulation import Simulation
+from solver.simulate.simulation import Frame, Simulation
 from solver.simulate.array import simulation_for
 
 
 @dataclass
 class RunRecord:
     """Everything a run recorded. ``times`` (n_t,) s, ``strain`` (n_t, n_columns, n_prisms),
-    ``energy`` (n_t,) J, ``constraint_error`` (n_t,), ``wall_time_s`` of the time stepping only."""
+    ``energy`` (n_t,) J, ``constraint_error`` (n_t,), ``energy_balance_error`` (n_t,) (signed,
+    relative: :meth:`Simulation.energy_error`), ``wall_time_s`` of the time stepping only,
+    ``impacts``: ``{'t_s', 'v0_m_s', 'work_J'}`` of each impact the run applied."""
     times: np.ndarray
     strain: np.ndarray
     energy: np.ndarray
@@ -26,6 +29,54 @@ class RunRecord:
     steps_taken: int
     pulses: list = field(default_factory=list)
     base_force: np.ndarray = None       # (n_t, n_columns) N, positive compressive
+    energy_balance_error: np.ndarray = None
+    impacts: list = field(default_factory=list)
+
+
+@dataclass
+class RunFrame(Frame):
+    """A :class:`~solver.simulate.simulation.Frame` of a headless run with the energy balance
+    error of its state (signed, relative: :meth:`Simulation.energy_error`); the recorders log it
+    where a frame carries it."""
+    energy_balance_error: float = 0.0
+
+
+def run_frame(sim: Simulation):
+    """The current :meth:`Simulation.frame` of ``sim`` as a :class:`RunFrame`."""
+    frame = sim.frame()
+    values = {f.name: getattr(frame, f.name) for f in fields(frame)}
+    values['energy_balance_error'] = float(sim.energy_error())
+    return RunFrame(**values)
+
+
+class ImpactTrain:
+    """The impacts of a scene's ``loading.impact`` (one, or a train) on the step grid of ``dt``:
+    an impact at ``t`` s lands on step ``round(t / dt)``; impacts of 0 m/s are left out. Each is
+    applied once, by :meth:`apply_due`; ``applied`` lists ``{'t_s', 'v0_m_s', 'work_J'}`` of
+    those applied, ``t_s`` the simulation time it was applied at."""
+
+    def __init__(self, impact, dt):
+        self.columns = impact.columns
+        self.impacts = [(int(round(t / dt)), float(v0)) for t, v0 in impact.train() if v0]
+        self.applied = []
+
+    def __len__(self):
+        return len(self.impacts)
+
+    def next_step(self):
+        """The step of the next impact to apply, or None when all are applied."""
+        i = len(self.applied)
+        return self.impacts[i][0] if i < len(self.impacts) else None
+
+    def apply_due(self, sim, on_impact=None):
+        """Apply every impact due at or before ``sim.step`` (:meth:`Simulation.apply_impact`),
+        calling ``on_impact(index, entry)`` after each (``entry`` as in ``applied``)."""
+        while (k := self.next_step()) is not None and k <= sim.step:
+            v0 = self.impacts[len(self.applied)][1]
+            work = sim.apply_impact(v0, self.columns)
+            self.applied.append({'t_s': float(sim.t), 'v0_m_s': v0, 'work_J': float(work)})
+            if on_impact is not None:
+                on_impact(len(self.applied) - 1, self.applied[-1])
 
 
 def frame_count(t_end, output_dt):
@@ -33,36 +84,56 @@ def frame_count(t_end, output_dt):
     return int(round(t_end / output_dt)) + 1
 
 
-def run(sim: Simulation, t_end, output_dt, on_frame=None, progress=None):
-    """Advance ``sim`` to ``t_end`` in ``output_dt`` intervals, calling ``on_frame(frame)`` at each
-    output time (including the first) and ``progress(n)`` with the steps of each interval."""
+def run(sim: Simulation, t_end, output_dt, on_frame=None, progress=None, train=None,
+        on_impact=None):
+    """Advance ``sim`` to ``t_end`` in ``output_dt`` intervals, calling ``on_frame(frame)`` (a
+    :class:`RunFrame`) at each output time (including the first) and ``progress(n)`` with the
+    steps of each interval. ``train`` (an :class:`ImpactTrain`): each impact is applied when the
+    clock reaches its step, within an interval as on a frame's time (before that frame is
+    taken); impacts after the last frame are not applied. ``on_impact`` as for
+    :meth:`ImpactTrain.apply_due`."""
     ratio = output_dt / sim.dt
     if abs(ratio - round(ratio)) > 1e-6 * ratio:       # advance() takes whole steps
         raise ValueError(f'run.output_dt: {output_dt:g} s is not a whole multiple of '
                          f'integrator.dt = {sim.dt:g} s')
+    per_frame = int(round(ratio))
     n_out = frame_count(t_end, output_dt) - 1
-    times, strain, energy, cerr, base = [], [], [], [], []
+    times, strain, energy, cerr, base, balance = [], [], [], [], [], []
+    wall = 0.0
 
-    def record(frame):
+    def record():
+        frame = run_frame(sim)
         times.append(frame.t)
         strain.append(frame.strain)
         energy.append(frame.energy)
         cerr.append(frame.constraint_error)
         base.append(frame.base_force)
+        balance.append(frame.energy_balance_error)
         if on_frame is not None:
             on_frame(frame)
 
-    record(sim.frame())
-    wall = 0.0
-    for _ in range(n_out):
+    def advance_to(step):
+        nonlocal wall
         t0 = time.perf_counter()
-        sim.advance(output_dt)
+        sim.advance((step - sim.step) * sim.dt)
         wall += time.perf_counter() - t0
-        record(sim.frame())
+
+    if train is not None:
+        train.apply_due(sim, on_impact)
+    record()
+    for _ in range(n_out):
+        end = sim.step + per_frame
+        while train is not None and (k := train.next_step()) is not None and k <= end:
+            advance_to(max(k, sim.step))
+            train.apply_due(sim, on_impact)
+        advance_to(end)
+        record()
         if progress is not None:
             progress(1)
     rec = RunRecord(np.array(times), np.array(strain), np.array(energy), np.array(cerr), wall,
-                    sim.step, sim.steps_taken, base_force=np.array(base))
+                    sim.step, sim.steps_taken, base_force=np.array(base),
+                    energy_balance_error=np.array(balance),
+                    impacts=list(train.applied) if train is not None else [])
     if sim.network.levels.size:
         rec.pulses = [observables.first_passage(rec.times, rec.strain[:, c], sim.network.h0)
                       for c in range(sim.network.n_columns)]
@@ -100,6 +171,12 @@ def summary(scene: Scene, sim: Simulation, rec: RunRecord, outputs=None):
         'real_time_factor': t_end / rec.wall_time_s if rec.wall_time_s > 0 else float('inf'),
         'energy_drift_rel': drift / t_end if t_end > 0 else drift,
         'constraint_error_rel': float(np.max(rec.constraint_error)),
+        # the energy ledger: the impacts applied, the work of every command, the largest
+        # |balance error| over the frames (docs/physics.md section 7.1)
+        'impacts': rec.impacts,
+        'energy_work_J': float(sim.energy_work()),
+        'energy_balance_error': float(np.max(np.abs(rec.energy_balance_error))),
+        'bar_contact': sim.bar_contact,
         'pulse': rec.pulses[0].as_dict() if rec.pulses else None,
         'pulses': [p.as_dict() for p in rec.pulses],
         'base': support.base_summary(rec.times, rec.base_force),
@@ -122,10 +199,9 @@ class Point:
     summary: dict
 
 
-def prepare(scene, overrides=()):
-    """``(scene, sim)``: ``scene`` (a :class:`Scene` or a path) with ``overrides`` (``KEY=VALUE``
-    strings or (key, value) pairs, applied in order) and its simulation, kernels compiled or
-    loaded, the scene's impact applied."""
+def _at_rest(scene, overrides):
+    """``(scene, sim)``: ``scene`` (a :class:`Scene` or a path) with ``overrides`` and its
+    simulation at rest at t = 0, kernels compiled or loaded."""
     if not isinstance(scene, Scene):
         scene = Scene.load(scene)
     overrides = list(overrides)
@@ -134,22 +210,31 @@ def prepare(scene, overrides=()):
     sim = simulation_for(scene)
     sim.advance(sim.dt)          # compile (or load cached) kernels outside the timed loop
     sim.reset()
-    v0 = scene.loading.impact.v0
-    if v0:
-        sim.apply_impact(v0, scene.loading.impact.columns)
+    return scene, sim
+
+
+def prepare(scene, overrides=()):
+    """``(scene, sim)``: ``scene`` (a :class:`Scene` or a path) with ``overrides`` (``KEY=VALUE``
+    strings or (key, value) pairs, applied in order) and its simulation, kernels compiled or
+    loaded, the scene's impacts at t = 0 applied (the later ones of a train: :func:`simulate`)."""
+    scene, sim = _at_rest(scene, overrides)
+    ImpactTrain(scene.loading.impact, sim.dt).apply_due(sim)
     return scene, sim
 
 
 def simulate(scene, overrides=(), setup=None):
-    """Scene + overrides -> simulation -> impact -> run to ``run.t_end`` -> summary: one run of
-    ``tensegrity run`` (and of each point of a sweep or a fit). ``setup(stack, scene, sim)``, when
-    given, is called after the impact inside a :class:`contextlib.ExitStack` that stays open for
-    the run; it returns ``(on_frame, progress)`` for :func:`run` (either may be None).
-    Raises :class:`~solver.simulate.simulation.SimulationDiverged` when the run diverges. Returns a
+    """Scene + overrides -> simulation -> impacts (one, or a train) while it runs to
+    ``run.t_end`` -> summary: one run of ``tensegrity run`` (and of each point of a sweep or a
+    fit). ``setup(stack, scene, sim)``, when given, is called before the first impact inside a
+    :class:`contextlib.ExitStack` that stays open for the run; it returns ``(on_frame, progress,
+    on_impact)`` for :func:`run` (any may be None). Raises
+    :class:`~solver.simulate.simulation.SimulationDiverged` when the run diverges. Returns a
     :class:`Point`."""
-    scene, sim = prepare(scene, overrides)
+    scene, sim = _at_rest(scene, overrides)
+    train = ImpactTrain(scene.loading.impact, sim.dt)
     with contextlib.ExitStack() as stack:
-        on_frame, progress = setup(stack, scene, sim) if setup is not None else (None, None)
+        on_frame, progress, on_impact = (setup(stack, scene, sim) if setup is not None
+                                         else (None, None, None))
         rec = run(sim, scene.run.t_end, scene.run.output_dt, on_frame=on_frame,
-                  progress=progress)
+                  progress=progress, train=train, on_impact=on_impact)
     return Point(scene, sim, rec, summary(scene, sim, rec))

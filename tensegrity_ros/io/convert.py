@@ -34,9 +34,9 @@ def to_rerun(path, out, application_id='tensegrity_ros', recording_id=None, stat
     A log that carries its network (``tensegrity_network`` metadata, written by the node and by
     ``tensegrity run --mcap``) goes through
     :class:`~tensegrity_ros.io.rerun_sink.RerunRecorder`, so the result has the layout of a live
-    recording (docs/interfaces.md section 6); energy and
-    constraint error come from ``/diagnostics``, held from the latest one (the first one before
-    it). Other logs get a generic conversion (:func:`to_rerun_generic`)."""
+    recording (docs/interfaces.md section 6); energy, constraint error and (when logged) the
+    energy balance error come from ``/diagnostics``, held from the latest one (the first one
+    before it). Other logs get a generic conversion (:func:`to_rerun_generic`)."""
     first = McapLog(path)
     diag = [(m.log_time_ns, _diag_values(first.decode(m))) for m in first.messages()
             if m.type_name == 'diagnostic_msgs/msg/DiagnosticArray']
@@ -60,7 +60,8 @@ def to_rerun(path, out, application_id='tensegrity_ros', recording_id=None, stat
                 rec.frame(SimpleNamespace(
                     t=stamp / 1e9, positions=pending[NODES], strain=pending[STRAIN],
                     tension=pending[TENSION], energy=values.get('energy_J', 0.0),
-                    constraint_error=values.get('constraint_error', 0.0)))
+                    constraint_error=values.get('constraint_error', 0.0),
+                    energy_balance_error=values.get('energy_balance_error')))
         for m in log.messages():
             leaf = m.topic.rsplit('/', 1)[-1]
             if m.log_time_ns != stamp:

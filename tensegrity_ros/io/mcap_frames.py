@@ -110,11 +110,15 @@ class FrameLog:
             self._diagnostics(frame, 'running')
 
     def diagnostics_values(self, frame):
-        """The node's ``/diagnostics`` keys that a headless run knows (no wall-clock pacing)."""
+        """The node's ``/diagnostics`` keys that a headless run knows (no wall-clock pacing), and
+        ``energy_balance_error`` when the frame carries it (a run's
+        :class:`~solver.simulate.runner.RunFrame`)."""
         topic, verdict, detail = self.last_command
+        balance = getattr(frame, 'energy_balance_error', None)
         return {'sim_time_s': float(frame.t), 'steps': int(frame.step), 'running': 'true',
                 'energy_J': float(frame.energy),
                 'constraint_error': float(frame.constraint_error),
+                **({} if balance is None else {'energy_balance_error': float(balance)}),
                 'frames_published': self.n_frames, 'commands_accepted': self.accepted,
                 'commands_rejected': 0, 'last_command_topic': topic, 'last_command': verdict,
                 'last_command_detail': detail}

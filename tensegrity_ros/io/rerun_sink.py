@@ -19,7 +19,8 @@ own threads encode and write. Entities:
 - ``wave/column_c`` Tensor (prism x time from the last impact: the last ``wave_window`` frames)
   and ``wave_scale/column_c`` (its colour scale), every ``wave_period_s`` wall seconds and, static,
   when the recording closes.
-- ``energy`` J and ``constraint_error`` Scalars; ``commands`` TextLog; ``legend`` TextDocument.
+- ``energy`` J, ``constraint_error`` and ``energy_balance_error`` (of the frames that carry
+  it: a headless run's) Scalars; ``commands`` TextLog; ``legend`` TextDocument.
 - ``field/peak_pressure`` and ``field/pressure`` Images (``L``, over ``field/scale``), for arrays
   given a ``field_grid``.
 """
@@ -33,13 +34,11 @@ import urllib.parse
 import numpy as np
 import pyarrow as pa
 import rerun as rr
-import rerun.blueprint as rrb
 
+from tensegrity_ros.io.rerun_layout import TIMELINE, blueprint, legend_markdown
 from tensegrity_ros.msgs.style import reference_tension_scale, tension_colors
 
 DEFAULT_URL = 'rerun+http://127.0.0.1:9876/proxy'
-TIMELINE = 'sim_time'
-COLORMAP = 'Spectral'
 PRISM_AXIS = 'prism (0: clamped end)'
 BAR_RGBA = (200, 200, 210, 255)
 NODE_RGBA = (240, 120, 40, 255)
@@ -179,7 +178,7 @@ class RerunRecorder:
         self._s = np.empty((b,) + self._shapes[1])
         self._tension = np.empty((b,) + self._shapes[2])
         self._base = np.zeros((b, self._n_base))
-        self._scalars = np.empty((b, 3))              # t, energy, constraint error
+        self._scalars = np.empty((b, 4))        # t, energy, constraint and balance errors
         self._wave = np.empty((n_col, network.n_prisms, self.wave_window))
         self._wave_t = np.empty(self.wave_window)
         self._n = self._wave_n = 0
@@ -223,6 +222,7 @@ class RerunRecorder:
             static=True)
         log('energy', rr.SeriesLines(names=['energy']), static=True)
         log('constraint_error', rr.SeriesLines(names=['constraint error']), static=True)
+        log('energy_balance_error', rr.SeriesLines(names=['energy balance error']), static=True)
         names = [f'prism {p}' for p in range(net.n_prisms)]
         for c in range(n_col):
             log(f'strain/column_{c}', rr.SeriesLines(names=names), static=True)
@@ -238,9 +238,11 @@ class RerunRecorder:
                              f'(positions {np.shape(x)}, strain {np.shape(strain)}, '
                              f'tension {np.shape(tension)}); not recorded')
         base = np.asarray(getattr(frame, 'base_force', ()), dtype=np.float64)
+        balance = getattr(frame, 'energy_balance_error', None)
         values = (('time', t), ('energy', frame.energy),
                   ('constraint error', frame.constraint_error), ('positions', x),
-                  ('strain', strain), ('tension', tension), ('base force', base))
+                  ('strain', strain), ('tension', tension), ('base force', base),
+                  ('energy balance error', 0.0 if balance is None else balance))
         for name, v in values:
             a = np.abs(np.asarray(v, dtype=np.float64))
             if not (np.isfinite(a).all() and (a <= F32_MAX).all()):
@@ -254,7 +256,8 @@ class RerunRecorder:
         self._x[i], self._s[i], self._tension[i] = x, strain, tension
         if self._n_base:            # a frame without base forces records 0
             self._base[i] = base if base.shape == (self._n_base,) else 0.0
-        self._scalars[i] = (t, frame.energy, frame.constraint_error)
+        self._scalars[i] = (t, frame.energy, frame.constraint_error,
+                            np.nan if balance is None else balance)
         self._last_t, self._n = t, i + 1
         self.n_frames += 1
         if self._n == self.flush_every or \
@@ -350,6 +353,11 @@ class RerunRecorder:
             put(f'base_force/column_{c}', rr.Scalars.columns(scalars=self._base[:n, c].copy()))
         put('energy', rr.Scalars.columns(scalars=self._scalars[:n, 1].copy()))
         put('constraint_error', rr.Scalars.columns(scalars=self._scalars[:n, 2].copy()))
+        has = np.isfinite(self._scalars[:n, 3])        # the frames that carry a balance error
+        if has.any():
+            rr.send_columns('energy_balance_error', [rr.TimeColumn(TIMELINE, duration=_ns(
+                t[has]))], rr.Scalars.columns(scalars=self._scalars[:n, 3][has]),
+                recording=self.stream)
         if self._wave.shape[0]:                        # the heat map's ring of frames
             w = self.wave_window
             keep = slice(max(0, n - w), n)
@@ -436,63 +444,3 @@ def heat_map_grid(times, impact_t=None):
         return t.copy(), np.arange(start, len(times))
     grid = t[0] + dt * np.arange(int(np.floor((t[-1] - t[0]) / dt + 1e-6)) + 1)
     return grid, np.searchsorted(times, grid + 1e-6 * dt, side='right') - 1
-
-
-def legend_markdown(tension_scale):
-    """The text of the ``legend`` entity: what the colours of the 3D view mean."""
-    return (f'**Cables**: tension T from blue (0 N) to red (T >= {tension_scale:.3g} N, twice '
-            f'the largest prestress tension); slack cables grey and translucent. '
-            f'**Bars** light grey, **nodes** orange. Heat map and bar chart: axial strain, '
-            f'negative in compression.')
-
-
-def blueprint(n_columns=1, field_grid=None):
-    """The default layout, as the paper's figures: on the left the 3D column above the colour
-    legend (with a ``field_grid``, the field in the medium between them); on the right the strain
-    per prism at the time cursor, the prism-by-``sim_time`` heat map and its scale, base force,
-    energy and constraint error side by side, and the command log. Several columns: one tab per
-    column for the bar chart and the heat map."""
-    def one_or_tabs(views):
-        return views[0] if len(views) == 1 else rrb.Tabs(*views)
-    mapping = rrb.archetypes.TensorScalarMapping(colormap=COLORMAP)
-    bars = [rrb.BarChartView(origin=f'strain_profile/column_{c}',
-                             name=f'strain per prism at the time cursor, column {c} '
-                                  f'(prism 0: clamped end)',
-                             plot_legend=rrb.archetypes.PlotLegend(visible=False))
-            for c in range(n_columns)]
-    waves = [rrb.Vertical(
-        rrb.TensorView(origin=f'wave/column_{c}',
-                       name=f'strain, prism x sim_time from the impact, column {c}',
-                       slice_selection=rrb.archetypes.TensorSliceSelection(
-                           width=rr.TensorDimensionSelection(1),
-                           height=rr.TensorDimensionSelection(0)),
-                       scalar_mapping=mapping, view_fit='fill'),
-        rrb.TensorView(origin=f'wave_scale/column_{c}', name='colour scale: strain',
-                       scalar_mapping=mapping, view_fit='fill'),
-        row_shares=[5, 1], name=f'column {c}') for c in range(n_columns)]
-    left = [rrb.Spatial3DView(origin='world', name='column, cables coloured by tension')]
-    shares = [6]
-    if field_grid is not None:
-        x0, x1, z0, z1 = field_grid
-        where = f'x {x0:.3g} to {x1:.3g} m across, depth {z0:.3g} to {z1:.3g} m down'
-        left.append(rrb.Horizontal(
-            rrb.Spatial2DView(origin='field/peak_pressure',
-                              name=f'peak pressure in the medium so far, {where}'),
-            rrb.Spatial2DView(origin='field/pressure',
-                              name='pressure at the time cursor (grey: zero)')))
-        shares = [4, 3]
-    left.append(rrb.TextDocumentView(origin='legend', name='colours'))
-    return rrb.Blueprint(
-        rrb.Horizontal(
-            rrb.Vertical(*left, row_shares=shares + [1]),
-            rrb.Vertical(
-                one_or_tabs(bars), one_or_tabs(waves),
-                rrb.Horizontal(rrb.TimeSeriesView(origin='base_force', name='base force, N'),
-                               rrb.TimeSeriesView(origin='energy', name='energy, J'),
-                               rrb.TimeSeriesView(origin='constraint_error',
-                                                  name='constraint error')),
-                rrb.TextLogView(origin='commands', name='commands'),
-                row_shares=[3, 4, 1.5, 1]),
-            column_shares=[2, 3]),
-        rrb.BlueprintPanel(state='collapsed'), rrb.SelectionPanel(state='collapsed'),
-        rrb.TimePanel(timeline=TIMELINE, state='collapsed'))

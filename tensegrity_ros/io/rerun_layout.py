@@ -1,0 +1,71 @@
+"""The layout of a Rerun recording (docs/rerun.md): the blueprint a recording carries and the
+text of its colour legend. :mod:`tensegrity_ros.io.rerun_sink` records into it."""
+from __future__ import annotations
+
+import rerun as rr
+import rerun.blueprint as rrb
+
+TIMELINE = 'sim_time'
+COLORMAP = 'Spectral'
+
+
+def legend_markdown(tension_scale):
+    """The text of the ``legend`` entity: what the colours of the 3D view mean."""
+    return (f'**Cables**: tension T from blue (0 N) to red (T >= {tension_scale:.3g} N, twice '
+            f'the largest prestress tension); slack cables grey and translucent. '
+            f'**Bars** light grey, **nodes** orange. Heat map and bar chart: axial strain, '
+            f'negative in compression.')
+
+
+def blueprint(n_columns=1, field_grid=None):
+    """The default layout, as the paper's figures: on the left the 3D column above the colour
+    legend (with a ``field_grid``, the field in the medium between them); on the right the strain
+    per prism at the time cursor, the prism-by-``sim_time`` heat map and its scale, base force,
+    energy, energy balance error and constraint error side by side, and the command log.
+    Several columns: one tab per column for the bar chart and the heat map."""
+    def one_or_tabs(views):
+        return views[0] if len(views) == 1 else rrb.Tabs(*views)
+    mapping = rrb.archetypes.TensorScalarMapping(colormap=COLORMAP)
+    bars = [rrb.BarChartView(origin=f'strain_profile/column_{c}',
+                             name=f'strain per prism at the time cursor, column {c} '
+                                  f'(prism 0: clamped end)',
+                             plot_legend=rrb.archetypes.PlotLegend(visible=False))
+            for c in range(n_columns)]
+    waves = [rrb.Vertical(
+        rrb.TensorView(origin=f'wave/column_{c}',
+                       name=f'strain, prism x sim_time from the impact, column {c}',
+                       slice_selection=rrb.archetypes.TensorSliceSelection(
+                           width=rr.TensorDimensionSelection(1),
+                           height=rr.TensorDimensionSelection(0)),
+                       scalar_mapping=mapping, view_fit='fill'),
+        rrb.TensorView(origin=f'wave_scale/column_{c}', name='colour scale: strain',
+                       scalar_mapping=mapping, view_fit='fill'),
+        row_shares=[5, 1], name=f'column {c}') for c in range(n_columns)]
+    left = [rrb.Spatial3DView(origin='world', name='column, cables coloured by tension')]
+    shares = [6]
+    if field_grid is not None:
+        x0, x1, z0, z1 = field_grid
+        where = f'x {x0:.3g} to {x1:.3g} m across, depth {z0:.3g} to {z1:.3g} m down'
+        left.append(rrb.Horizontal(
+            rrb.Spatial2DView(origin='field/peak_pressure',
+                              name=f'peak pressure in the medium so far, {where}'),
+            rrb.Spatial2DView(origin='field/pressure',
+                              name='pressure at the time cursor (grey: zero)')))
+        shares = [4, 3]
+    left.append(rrb.TextDocumentView(origin='legend', name='colours'))
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Vertical(*left, row_shares=shares + [1]),
+            rrb.Vertical(
+                one_or_tabs(bars), one_or_tabs(waves),
+                rrb.Horizontal(rrb.TimeSeriesView(origin='base_force', name='base force, N'),
+                               rrb.TimeSeriesView(origin='energy', name='energy, J'),
+                               rrb.TimeSeriesView(origin='energy_balance_error',
+                                                  name='energy balance error'),
+                               rrb.TimeSeriesView(origin='constraint_error',
+                                                  name='constraint error')),
+                rrb.TextLogView(origin='commands', name='commands'),
+                row_shares=[3, 4, 1.5, 1]),
+            column_shares=[2, 3]),
+        rrb.BlueprintPanel(state='collapsed'), rrb.SelectionPanel(state='collapsed'),
+        rrb.TimePanel(timeline=TIMELINE, state='collapsed'))
