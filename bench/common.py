@@ -30,9 +30,12 @@ def available_models(wanted=('sym3d', 'full3d')):
 
 
 def scene(column, model, method, dt, output_dt, t_end, prestrain=0.002, v0=0.1, rtol=None,
-          atol=None, kinks=True, divergence=None):
-    """The scene of one benchmark run (overrides of the shipped column scene)."""
-    over = [f'model={model}', f'integrator={method}', f'integrator.dt={dt!r}',
+          atol=None, kinks=True, divergence=None, bars='none'):
+    """The scene of one benchmark run (overrides of the shipped column scene). ``bars``: the
+    integrator benches compare methods on the paper's line bars by default (``implicit_midpoint``
+    refuses bar contact); the stability map's contact half passes ``hertz``."""
+    over = [f'contact.bars={bars}', f'model={model}', f'integrator={method}',
+            f'integrator.dt={dt!r}',
             f'run.output_dt={output_dt!r}', f'run.t_end={t_end!r}', f'prestrain={prestrain!r}',
             f'loading.impact.v0={v0!r}', f'integrator.land_on_kinks={str(kinks).lower()}']
     if rtol is not None:

@@ -59,17 +59,18 @@ ACCURATE = 1e-3
 LOOSE = {'energy_error': 0.1, 'constraint_error': 1e-3}
 DRIFT_ENERGY, DRIFT_CONSTRAINT = 1e-3, 1e-6
 CLASSES = ('accurate', 'inaccurate', 'drifting', 'diverged')
-SHORT = {'prism height': 'S', 'prism twist': 'L', 'energy': 'E', 'constraint error': 'C',
+SHORT = {'prism height': 'S', 'prism twist': 'L', 'energy balance': 'E', 'constraint error': 'C',
          'state': 'N', 'rigid members': 'R', 'constraint projection': 'P', 'step size': 'H'}
 
 
-# the contact map: the prism stops at their documented stiffness and tolerance
-# (solver/kernels/contact.py)
-CONTACT = ('contact.lock=penalty', 'contact.stiffness=100000.0', 'contact.tolerance=0.05')
-CONTACT_LABEL = 'prism stops: contact.lock penalty, stiffness 1e5 N/m, tolerance 0.05 h0'
-CONTACT_METHODS = ('rk4_projected', 'rk4', 'rattle', 'dopri54_projected')  # implicit refuses stops
+# the contact map: the scenes' own bar contact (solver/kernels/barcontact.py); the plain map
+# has line bars (PLAIN)
+CONTACT = ('contact.bars=hertz',)
+CONTACT_LABEL = 'bar contact: contact.bars hertz, bars 0.2 mm thick (the default)'
+PLAIN = ('contact.bars=none',)
+CONTACT_METHODS = ('rk4_projected', 'rk4', 'rattle', 'dopri54_projected')  # implicit refuses it
 CONTACT_DTS = (1.25e-4, 2.5e-4) + DTS
-CONTACT_V0S = (0.05, 0.1, 0.15, 0.2, 0.3, 0.5, 1.0)
+CONTACT_V0S = (0.05, 0.1, 0.15, 0.2, 0.3, 0.5, 1.0, 2.0)
 
 # stiff scenes: name -> (column, scene overrides); add a scene with one entry
 STIFF_SCENES = {
@@ -193,13 +194,14 @@ def classify(hist, ref):
 
 
 def run(quick=False, log=print, contact=False):
-    """The map without contact, or (``contact``) with the prism stops of :data:`CONTACT`, on
-    its own grid (:func:`_grid`). Returns rows; their ``contact`` column names the setting."""
+    """The map of line bars (:data:`PLAIN`), or (``contact``) with the bar contact of the
+    scenes (:data:`CONTACT`), on its own grid (:func:`_grid`). Returns rows; their ``contact``
+    column names the setting."""
     methods, dts, v0s, prestrains = _grid(quick, contact)
     model = common.available_models(('sym3d', 'full3d'))[0]
     t_end = T_END / 2 if quick else T_END
-    extra = list(CONTACT) if contact else []
-    label = CONTACT_LABEL if contact else 'none'
+    extra = list(CONTACT) if contact else list(PLAIN)
+    label = CONTACT_LABEL if contact else 'none (line bars)'
     rows = []
     for column in common.COLUMNS:
         for p in prestrains:

@@ -44,9 +44,10 @@ E = np.array([-71 / 57600, 0.0, 71 / 16695, -71 / 1920, 17253 / 339200, -22 / 52
 
 
 @jit
-def _stages(x, v, h, A, net, act, ws, kx, kv, xs, vs):
+def _stages(x, v, h, A, net, act, ws, kx, kv, xs, vs, pw):
     """Stages 2..7 of the step of size h from (x, v), given stage 1 in ``kx[0] = v``, ``kv[0] =
-    a(x, v)``. Stage 7 is evaluated at the 5th-order solution, left in ``xs``, ``vs``."""
+    a(x, v)``. Stage 7 is evaluated at the 5th-order solution, left in ``xs``, ``vs``. ``pw``:
+    the cable damping's power at each stage (``pw[0]`` given)."""
     n = x.shape[0]
     for s in range(1, 7):
         for p in range(n):
@@ -65,6 +66,7 @@ def _stages(x, v, h, A, net, act, ws, kx, kv, xs, vs):
         status = dyn.accelerations(xs, vs, net, act, ws, kv[s])
         if status != dyn.OK:
             return status
+        pw[s] = act[3][10][0] if act[3][10].shape[0] else 0.0
         kx[s, :, :] = vs
     return dyn.OK
 
@@ -97,6 +99,8 @@ def dopri_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, rtol, atol,
     accepted = 0
     h_prop = hstate[0] if 0.0 < hstate[0] <= dt else dt
     need_k1 = True
+    pw = np.zeros(7)                    # the cable damping's power at the stages
+    dis = act[3][10]
     if act[3][6].shape[0] != 0:
         act[3][8][1] = -1.0     # the contact scan starts afresh (kernels.barcontact)
         act[3][8][2] = 1.0
@@ -104,6 +108,7 @@ def dopri_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, rtol, atol,
         if need_k1:
             kx[0, :, :] = v
             status = dyn.accelerations(x, v, net, act, ws, kv[0])
+            pw[0] = dis[0] if dis.shape[0] else 0.0
             hstate[3] += 1
             if status != dyn.OK:
                 return accepted, status
@@ -113,12 +118,15 @@ def dopri_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, rtol, atol,
             h = next_kink(x, v, kv[0], net, act, h, 1e-3 * h)
         if act[3][6].shape[0] != 0:       # bars that touch
             h = contact_step(x, v, kv[0], act[3][6], act[3][1], act[3][7], h, act[3][8])
-        status = _stages(x, v, h, A, net, act, ws, kx, kv, xs, vs)
+        status = _stages(x, v, h, A, net, act, ws, kx, kv, xs, vs, pw)
         hstate[3] += 6
         err = _error_norm(x, v, xs, vs, h, E, kx, kv, rtol, atol) if status == dyn.OK else np.inf
         if err <= 1.0:
             x[:, :] = xs
             v[:, :] = vs
+            if dis.shape[0]:            # the damping's energy, with the 5th-order weights
+                for s in range(6):
+                    dis[1] += h * A[6, s] * pw[s]
             status = dyn.project_positions(x, net, ws, tol, max_iter)
             if status == dyn.OK:
                 status = dyn.project_velocities(x, v, net, ws)

@@ -15,6 +15,9 @@ def _rk4_step(x, v, h, a1, net, act, ws):
     acceleration ``a1 = a(x, v)``; the new state is left in ``x``, ``v``."""
     xs, vs, acc, xacc, vacc = ws[5], ws[6], ws[7], ws[8], ws[9]
     n = x.shape[0]
+    dis = act[3][10]                # damping: its power at each stage, Simpson-weighted
+    damped = act[3][0].shape[0] != 0
+    work = dis[0]
     xacc[:, :] = v
     vacc[:, :] = a1
     for p in range(n):
@@ -26,6 +29,8 @@ def _rk4_step(x, v, h, a1, net, act, ws):
         if status != dyn.OK:
             return status
         w = 1.0 if stage == 3 else 2.0
+        if damped:
+            work += w * dis[0]
         c = 0.5 * h if stage == 1 else h
         for p in range(n):
             for i in range(3):
@@ -38,6 +43,8 @@ def _rk4_step(x, v, h, a1, net, act, ws):
         for i in range(3):
             x[p, i] += h / 6.0 * xacc[p, i]
             v[p, i] += h / 6.0 * vacc[p, i]
+    if damped:
+        dis[1] += h / 6.0 * work
     return dyn.OK
 
 
@@ -63,6 +70,7 @@ def _contact_aware_step(x, v, h, a1, net, act, ws, met):
         saved[0, :, :] = x
         saved[1, :, :] = v
         before = ex[8][0]
+        power, dissipated = ex[10][0], ex[10][1]
         ex[8][2] = 1.0
         status = _rk4_step(x, v, h, a1, net, act, ws)
         if status == dyn.OK and ex[8][0] == before and passed_clear(
@@ -72,6 +80,9 @@ def _contact_aware_step(x, v, h, a1, net, act, ws, met):
         x[:, :] = saved[0]
         v[:, :] = saved[1]
         ex[8][0] = before
+        if ex[10].shape[0] != 0:        # the damping's ledger back to the step's start
+            ex[10][0] = power
+            ex[10][1] = dissipated
         ex[8][2] = flag
     return _rk4_step(x, v, h_c, a1, net, act, ws), h_c
 

@@ -5,13 +5,14 @@ Everything here enters the dynamics through one tuple, the fourth slot of the ``
 
     (damp (n_cables,) N s/m, levels (n_columns, n_levels, k) node indices,
      stop_h (n_columns, n_prisms) m, st_row (n_strikers,), st_col (n_strikers,), par (6,),
-     pairs (n_pairs, 8), bpar (6,), touched (3,), saved (2, n_nodes, 3))
+     pairs (n_pairs, 8), bpar (6,), touched (3,), saved (2, n_nodes, 3), dissipation (2,))
 
 ``par = (k_stop N/m, k_contact, contact exponent (1 linear, 1.5 Hertz), nodes per level of the
 full network, striker mass kg, gravity m/s^2)``; ``pairs`` and ``bpar``: the bar pairs of
 :mod:`solver.kernels.barcontact`; ``touched``: the contacts met by force evaluations, the
 contact scan's slack m and whether forces must look for contacts; ``saved`` holds the state a
-step started from (scratch of the integrators' contact steps).
+step started from (scratch of the integrators' contact steps); ``dissipation``: the power W the
+cable damping takes out at the last force evaluation and the energy J it took out so far.
 Empty arrays switch a part off: with all of them empty (:data:`NO_EXTRAS`, what
 :func:`solver.kernels.dynamics.pack` gives) the kernels of
 :mod:`solver.kernels.dynamics` take exactly the code path they take without this module.
@@ -47,7 +48,7 @@ def _empty(shape, dtype=np.float64):
 
 NO_EXTRAS = (_empty(0), _empty((0, 0, 1), np.int64), _empty((0, 0)), _empty(0, np.int64),
              _empty(0, np.int64), _empty(6), _empty((0, 8), np.int64), _empty(6),
-             _empty(3), _empty((2, 0, 3)))
+             _empty(3), _empty((2, 0, 3)), _empty(2))
 
 
 def active(extras):
@@ -57,20 +58,27 @@ def active(extras):
 
 
 @jit
-def cable_forces_damped(x, v, cable_a, cable_b, cable_rot, rest, EA, damp, f):
+def cable_forces_damped(x, v, cable_a, cable_b, cable_rot, rest, EA, damp, f, power):
     """Add tension-only cable forces with viscous damping to ``f``: for ``s > L``,
     ``T = max(EA (s - L) / L + damp ds/dt, 0)``. ``cable_rot`` empty: plain cables; otherwise
     cables to the rotated image ``R^r x_b`` (the force on the image rotated back, as
-    :func:`solver.kernels.rotation.cable_forces_rot`)."""
+    :func:`solver.kernels.rotation.cable_forces_rot`), each standing for the 3 of its orbit.
+    ``power[0]``: the power W the damping takes out, ``sum (T - T_elastic) ds/dt`` (>= 0)."""
+    mult = 3.0 if cable_rot.shape[0] > 0 else 1.0
+    p = 0.0
     for c in range(cable_a.shape[0]):
         a, b, cr, sr, dx, dy, dz = cable_chord(x, cable_a, cable_b, cable_rot, c)
         s = math.sqrt(dx * dx + dy * dy + dz * dz)
         L = rest[c]
         if s > L:
             ux, uy, uz = image_chord(v, a, b, cr, sr)
-            T = EA[c] / L * (s - L) + damp[c] * (dx * ux + dy * uy + dz * uz) / s
+            rate = (dx * ux + dy * uy + dz * uz) / s
+            elastic = EA[c] / L * (s - L)
+            T = max(elastic + damp[c] * rate, 0.0)
+            p += (T - elastic) * rate
             if T > 0.0:
                 add_pair_force(f, a, b, T / s, dx, dy, dz, cr, sr)
+    power[0] = mult * p
 
 
 @jit

@@ -193,7 +193,7 @@ def accelerations(x, v, net, act, ws, out):
     f, wf, bvec, band, lam = ws[0], ws[1], ws[2], ws[3], ws[4]
     f[:, :] = f_ext
     if ex[0].shape[0] != 0:                 # damped cables (solver.kernels.contact)
-        cable_forces_damped(x, v, cable_a, cable_b, net[10], rest, EA, ex[0], f)
+        cable_forces_damped(x, v, cable_a, cable_b, net[10], rest, EA, ex[0], f, ex[10])
     elif net[10].shape[0] == 0:
         cable_forces(x, cable_a, cable_b, rest, EA, f)
     else:

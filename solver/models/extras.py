@@ -142,11 +142,16 @@ def _pair_slots(spec, reduced, n_rows):
     """The four bar-contact slots of the extras tuple for a model (``reduced`` or None) whose
     state has ``n_rows`` rows."""
     if spec.get('pairs') is None:
-        return NO_EXTRAS[6:]
+        return NO_EXTRAS[6:10]
     rows, mult = _model_pairs(spec['pairs'], reduced)
     bpar = spec['bpar'].copy()
     bpar[2] = mult
     return rows, bpar, np.array([0.0, -1.0, 1.0]), np.zeros((2, n_rows, 3))
+
+
+def _dissipation_slot(spec):
+    """The extras slot of the cable damping's power and dissipated energy (its own per model)."""
+    return NO_EXTRAS[10] if spec['damp'] is None else np.zeros(2)
 
 
 def network_extras(spec, network):
@@ -159,7 +164,7 @@ def network_extras(spec, network):
     levels = np.ascontiguousarray(network.levels, dtype=np.int64) if network.levels.size \
         else NO_EXTRAS[1]
     return (damp, levels, stop_h, NO_EXTRAS[3], NO_EXTRAS[4], spec['par'].copy(),
-            *_pair_slots(spec, None, network.n_nodes))
+            *_pair_slots(spec, None, network.n_nodes), _dissipation_slot(spec))
 
 
 def attach(model, spec, striker_state=None):
@@ -194,7 +199,7 @@ def attach(model, spec, striker_state=None):
     if not levels.size:
         levels = NO_EXTRAS[1]
     ex = (damp, levels, stop_h, rows, np.arange(ns, dtype=np.int64), spec['par'].copy(),
-          *_pair_slots(spec, reduced, n + ns))
+          *_pair_slots(spec, reduced, n + ns), _dissipation_slot(spec))
     if ns and len(model.net) > 12 and np.asarray(model.net[12][0]).shape[0]:
         raise ValueError('loading.impact.mode: striker is not available with massive bars that '
                          'share nodes (materials.bar_mass_fraction, materials.bar_mass): the '
