@@ -2,6 +2,7 @@
 
     python -m tools.scene_summaries --out BEFORE.json        # write the summaries
     python -m tools.scene_summaries --compare BEFORE.json    # run again and list every difference
+    python -m tools.scene_summaries --out LINE.json --set contact.bars=none   # a setting for all
 
 A refactoring that must keep behaviour checks its work with this pair: the summaries of
 config/scenes/*.yaml before and after must be identical (bit for bit in every float) apart from
@@ -31,12 +32,13 @@ def _strip(value):
     return value
 
 
-def summaries(t_end: float) -> dict:
+def summaries(t_end: float, sets=()) -> dict:
     exe = Path(sys.executable).with_name('tensegrity')
     out = {}
     for scene in sorted((ROOT / 'config' / 'scenes').glob('*.yaml')):
-        proc = subprocess.run([str(exe), 'run', str(scene), '--json', '--t-end', str(t_end)],
-                              capture_output=True, text=True, cwd=ROOT)
+        extra = [arg for s in sets for arg in ('--set', s)]
+        proc = subprocess.run([str(exe), 'run', str(scene), '--json', '--t-end', str(t_end),
+                               *extra], capture_output=True, text=True, cwd=ROOT)
         out[scene.name] = (_strip(json.loads(proc.stdout)) if proc.returncode == 0
                            else {'exit': proc.returncode, 'stderr': proc.stderr.strip()})
     return out
@@ -58,8 +60,10 @@ def main(argv=None) -> int:
     parser.add_argument('--out', type=Path, help='write the summaries to this JSON file')
     parser.add_argument('--compare', type=Path, help='compare with summaries written before')
     parser.add_argument('--t-end', type=float, default=0.6, help='simulated time per scene, s')
+    parser.add_argument('--set', action='append', default=[], metavar='KEY=VALUE',
+                        help='a scene value for every scene (repeatable)')
     args = parser.parse_args(argv)
-    now = summaries(args.t_end)
+    now = summaries(args.t_end, args.set)
     if args.out:
         args.out.write_text(json.dumps(now, indent=1, sort_keys=True))
     if args.compare:
