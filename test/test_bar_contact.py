@@ -16,6 +16,7 @@ from solver.simulate.runner import simulate
 from solver.simulate.simulation import SimulationDiverged
 
 ROOT = Path(__file__).resolve().parents[1]
+ALL = np.full(1, -1, dtype=np.int64)       # bar_forces: look at every pair
 
 
 def _scene(name, *sets):
@@ -56,7 +57,7 @@ def _overlapping_prism():
 def test_contact_forces_are_minus_the_gradient_of_the_contact_energy():
     x, pairs, levels, bpar = _overlapping_prism()
     f = np.zeros_like(x)
-    n_touch = bc.bar_forces(x, pairs, bpar, f) + bc.base_forces(x, levels, bpar, f)
+    n_touch = bc.bar_forces(x, pairs, bpar, f, ALL) + bc.base_forces(x, levels, bpar, f)
     assert n_touch >= 4                     # three pairs of bars and the two bases
 
     def energy(y):
@@ -96,8 +97,10 @@ def test_reduced_contact_forces_and_energy_equal_the_full_ones():
     sym.model.set_state(x_f, np.zeros_like(x_f))
     x_r = np.array(sym.model.x)
     f_r, f_f = np.zeros_like(x_r), np.zeros_like(x_f)
-    n_r = bc.bar_forces(x_r, ex_r[6], ex_r[7], f_r) + bc.base_forces(x_r, ex_r[1], ex_r[7], f_r)
-    n_f = bc.bar_forces(x_f, ex_f[6], ex_f[7], f_f) + bc.base_forces(x_f, ex_f[1], ex_f[7], f_f)
+    n_r = (bc.bar_forces(x_r, ex_r[6], ex_r[7], f_r, ALL)
+           + bc.base_forces(x_r, ex_r[1], ex_r[7], f_r))
+    n_f = (bc.bar_forces(x_f, ex_f[6], ex_f[7], f_f, ALL)
+           + bc.base_forces(x_f, ex_f[1], ex_f[7], f_f))
     assert n_r > 0 and n_f > n_r
     reps = np.asarray(reduced.reps)
     scale = np.max(np.abs(f_f))

@@ -104,6 +104,7 @@ def dopri_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, rtol, atol,
     if act[3][6].shape[0] != 0:
         act[3][8][1] = -1.0     # the contact scan starts afresh (kernels.barcontact)
         act[3][8][2] = 1.0
+        act[3][11][0] = -1
     while total - t > 1e-9 * dt:
         if need_k1:
             kx[0, :, :] = v
@@ -117,7 +118,8 @@ def dopri_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, rtol, atol,
         if kinks:
             h = next_kink(x, v, kv[0], net, act, h, 1e-3 * h)
         if act[3][6].shape[0] != 0:       # bars that touch
-            h = contact_step(x, v, kv[0], act[3][6], act[3][1], act[3][7], h, act[3][8])
+            h = contact_step(x, v, kv[0], act[3][6], act[3][1], act[3][7], h, act[3][8],
+                             act[3][11])
         status = _stages(x, v, h, A, net, act, ws, kx, kv, xs, vs, pw)
         hstate[3] += 6
         err = _error_norm(x, v, xs, vs, h, E, kx, kv, rtol, atol) if status == dyn.OK else np.inf

@@ -61,7 +61,7 @@ def _contact_aware_step(x, v, h, a1, net, act, ws, met):
     :func:`~solver.kernels.barcontact.contact_step`. Returns (status, the step taken)."""
     ex = act[3]
     touched_at_start = ex[8][0] > met
-    h_c = contact_step(x, v, a1, ex[6], ex[1], ex[7], h, ex[8])
+    h_c = contact_step(x, v, a1, ex[6], ex[1], ex[7], h, ex[8], ex[11])
     if h_c >= h:
         return _rk4_step(x, v, h, a1, net, act, ws), h
     flag = ex[8][2]
@@ -76,6 +76,7 @@ def _contact_aware_step(x, v, h, a1, net, act, ws, met):
         if status == dyn.OK and ex[8][0] == before and passed_clear(
                 saved[0], saved[1], a1, x, ex[6], ex[1], ex[7], h):
             ex[8][1] = -1.0     # the slack was for the shorter step: scan again
+            ex[11][0] = -1
             return status, h
         x[:, :] = saved[0]
         v[:, :] = saved[1]
@@ -97,6 +98,7 @@ def _rk4_advance(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, project)
     if ex[6].shape[0] != 0:
         ex[8][1] = -1.0         # the contact scan starts afresh (kernels.barcontact)
         ex[8][2] = 1.0
+        ex[11][0] = -1
     total = n_steps * dt
     t = 0.0
     steps = 0

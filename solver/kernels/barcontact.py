@@ -123,12 +123,16 @@ def _rel_velocity(v, p, s, t):
 
 
 @jit
-def bar_forces(x, pairs, bpar, f):
-    """Add the contact forces of the touching pairs to ``f``; returns how many pairs touch."""
+def bar_forces(x, pairs, bpar, f, active):
+    """Add the contact forces of the touching pairs to ``f``; returns how many pairs touch.
+    ``active``: ``active[0]`` < 0 looks at every pair, else only at the ``active[0]`` pairs
+    listed after it (those the last scan found could touch: see :func:`scan_step`)."""
     D = bpar[0]
     k = bpar[1]
     touching = 0
-    for i in range(pairs.shape[0]):
+    n = pairs.shape[0] if active[0] < 0 else active[0]
+    for q in range(n):
+        i = q if active[0] < 0 else active[q + 1]
         s, t, nx, ny, nz = _pair(x, pairs, i)
         dist = math.sqrt(nx * nx + ny * ny + nz * nz)
         if dist >= D:
@@ -290,7 +294,7 @@ def _largest(u):
 
 
 @jit
-def contact_step(x, v, acc, pairs, levels, bpar, h, state):
+def contact_step(x, v, acc, pairs, levels, bpar, h, state, active):
     """:func:`scan_step` where a contact could start within ``h``, else ``h``, cheaply: the
     smallest gap of the last scan, less what every node could have moved since (twice the
     largest node speed and acceleration bound any relative motion; a factor 2 over the Taylor
@@ -305,14 +309,14 @@ def contact_step(x, v, acc, pairs, levels, bpar, h, state):
         state[1] -= reach
         state[2] = 0.0          # no contact force within this step: not evaluated
         return h
-    h_new, g_min = scan_step(x, v, acc, pairs, levels, bpar, h)
+    h_new, g_min = scan_step(x, v, acc, pairs, levels, bpar, h, active)
     state[1] = g_min - 2.0 * (V * h_new + 0.5 * A * h_new * h_new)
     state[2] = 1.0 if state[1] <= 0.0 else 0.0
     return h_new
 
 
 @jit
-def scan_step(x, v, acc, pairs, levels, bpar, h):
+def scan_step(x, v, acc, pairs, levels, bpar, h, active):
     """The step to take from the state ``x, v`` (accelerations ``acc``) instead of ``h``: ``h``
     when no pair of bars and no two bases can touch within it, otherwise shortened (see the
     module's text).
@@ -322,10 +326,13 @@ def scan_step(x, v, acc, pairs, levels, bpar, h):
     ``g`` cannot touch within ``h`` while ``1.25 (V h + A h^2 / 2) < g`` (``V``, ``A`` the largest
     relative end speed and acceleration; 1.25 covers the Taylor remainder). A pair that could
     is approached in steps that close at most half its gap, and never shorter than the contact
-    step ``T / steps``. Returns (the step, the smallest gap m)."""
+    step ``T / steps``. The pairs that could touch within ``h`` (gap below twice the Taylor
+    reach) are listed in ``active`` for the force evaluations. Returns (the step, the smallest
+    gap m)."""
     D, k, m = bpar[0], bpar[1], bpar[3]
     h_new = h
     g_min = math.inf
+    count = 0
     for i in range(pairs.shape[0]):
         p = pairs[i]
         s, t, nx, ny, nz = _pair(x, pairs, i)
@@ -334,12 +341,19 @@ def scan_step(x, v, acc, pairs, levels, bpar, h):
         g_min = min(g_min, gap)
         if gap > 0.0:
             u2 = _reach(v, p) ** 2
+            A = _reach(acc, p)
+            if gap <= 2.0 * (math.sqrt(u2) * h + 0.5 * A * h * h):
+                count += 1
+                active[count] = i
         else:
+            count += 1
+            active[count] = i
             d = -gap
             vx, vy, vz = _rel_velocity(v, p, s, t)
             rate = (nx * vx + ny * vy + nz * vz) / max(dist, 1e-300)
             u2 = rate * rate + 0.8 * k * d * d * math.sqrt(d) / m
         h_new = _resolve(gap, math.sqrt(u2), _reach(acc, p), u2, h_new, bpar)
+    active[0] = count
     for c in range(levels.shape[0]):
         for j in range(1, levels.shape[1]):
             gap = _level_z(x, levels, c, j) - _level_z(x, levels, c, j - 1) - D

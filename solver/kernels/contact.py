@@ -5,14 +5,16 @@ Everything here enters the dynamics through one tuple, the fourth slot of the ``
 
     (damp (n_cables,) N s/m, levels (n_columns, n_levels, k) node indices,
      stop_h (n_columns, n_prisms) m, st_row (n_strikers,), st_col (n_strikers,), par (6,),
-     pairs (n_pairs, 8), bpar (6,), touched (3,), saved (2, n_nodes, 3), dissipation (2,))
+     pairs (n_pairs, 8), bpar (6,), touched (3,), saved (2, n_nodes, 3), dissipation (2,),
+     active (n_pairs + 1,))
 
 ``par = (k_stop N/m, k_contact, contact exponent (1 linear, 1.5 Hertz), nodes per level of the
 full network, striker mass kg, gravity m/s^2)``; ``pairs`` and ``bpar``: the bar pairs of
 :mod:`solver.kernels.barcontact`; ``touched``: the contacts met by force evaluations, the
 contact scan's slack m and whether forces must look for contacts; ``saved`` holds the state a
 step started from (scratch of the integrators' contact steps); ``dissipation``: the power W the
-cable damping takes out at the last force evaluation and the energy J it took out so far.
+cable damping takes out at the last force evaluation and the energy J it took out so far;
+``active``: the pairs the force evaluations look at.
 Empty arrays switch a part off: with all of them empty (:data:`NO_EXTRAS`, what
 :func:`solver.kernels.dynamics.pack` gives) the kernels of
 :mod:`solver.kernels.dynamics` take exactly the code path they take without this module.
@@ -48,7 +50,8 @@ def _empty(shape, dtype=np.float64):
 
 NO_EXTRAS = (_empty(0), _empty((0, 0, 1), np.int64), _empty((0, 0)), _empty(0, np.int64),
              _empty(0, np.int64), _empty(6), _empty((0, 8), np.int64), _empty(6),
-             _empty(3), _empty((2, 0, 3)), _empty(2))
+             _empty(3), _empty((2, 0, 3)), _empty(2),
+             np.full(1, -1, dtype=np.int64))
 
 
 def active(extras):

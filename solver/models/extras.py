@@ -149,6 +149,13 @@ def _pair_slots(spec, reduced, n_rows):
     return rows, bpar, np.array([0.0, -1.0, 1.0]), np.zeros((2, n_rows, 3))
 
 
+def _active_slot(spec):
+    """The extras slot listing the pairs the force evaluations look at (-1: all)."""
+    if spec.get('pairs') is None:
+        return NO_EXTRAS[11]
+    return np.full(len(spec['pairs']) + 1, -1, dtype=np.int64)
+
+
 def _dissipation_slot(spec):
     """The extras slot of the cable damping's power and dissipated energy (its own per model)."""
     return NO_EXTRAS[10] if spec['damp'] is None else np.zeros(2)
@@ -164,7 +171,8 @@ def network_extras(spec, network):
     levels = np.ascontiguousarray(network.levels, dtype=np.int64) if network.levels.size \
         else NO_EXTRAS[1]
     return (damp, levels, stop_h, NO_EXTRAS[3], NO_EXTRAS[4], spec['par'].copy(),
-            *_pair_slots(spec, None, network.n_nodes), _dissipation_slot(spec))
+            *_pair_slots(spec, None, network.n_nodes), _dissipation_slot(spec),
+            _active_slot(spec))
 
 
 def attach(model, spec, striker_state=None):
@@ -199,7 +207,7 @@ def attach(model, spec, striker_state=None):
     if not levels.size:
         levels = NO_EXTRAS[1]
     ex = (damp, levels, stop_h, rows, np.arange(ns, dtype=np.int64), spec['par'].copy(),
-          *_pair_slots(spec, reduced, n + ns), _dissipation_slot(spec))
+          *_pair_slots(spec, reduced, n + ns), _dissipation_slot(spec), _active_slot(spec))
     if ns and len(model.net) > 12 and np.asarray(model.net[12][0]).shape[0]:
         raise ValueError('loading.impact.mode: striker is not available with massive bars that '
                          'share nodes (materials.bar_mass_fraction, materials.bar_mass): the '
