@@ -273,13 +273,9 @@ class ArraySimulation(Simulation):
         """Work J put in by commands since the reset, every column."""
         return float(sum(len(g.columns) * g.sim.energy_work() for g in self.groups))
 
-    @property
-    def bar_contact(self):
-        return self.groups[0].sim.bar_contact
-
-    @property
-    def contacts_met(self):
-        return sum(g.sim.contacts_met for g in self.groups)
+    # the bar contact of the scene (every group has it), and the contacts met by every group
+    bar_contact = property(lambda self: self.groups[0].sim.bar_contact)
+    contacts_met = property(lambda self: sum(g.sim.contacts_met for g in self.groups))
 
     def base_force(self):
         out = np.empty(self.n_columns)
