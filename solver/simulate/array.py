@@ -412,7 +412,8 @@ class ArraySimulation(Simulation):
             energy[grp.columns] = f.energy
             cerr = max(cerr, f.constraint_error)
         return Frame(t=self.t, step=self.step, positions=x, strain=strain, tension=tension,
-                     energy=float(sum(energy.tolist())), constraint_error=cerr, base_force=base)
+                     energy=float(sum(energy.tolist())), constraint_error=cerr, base_force=base,
+                     energy_balance_error=float(self.energy_error()))
 
 
 def _renamed(exc, columns):

@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import contextlib
 import time
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from solver.analysis import observables, support
 from solver.build.scene import Scene
-from solver.simulate.simulation import Frame, Simulation
+from solver.simulate.simulation import Simulation
 from solver.simulate.array import simulation_for
 
 
@@ -33,20 +33,9 @@ class RunRecord:
     impacts: list = field(default_factory=list)
 
 
-@dataclass
-class RunFrame(Frame):
-    """A :class:`~solver.simulate.simulation.Frame` of a headless run with the energy balance
-    error of its state (signed, relative: :meth:`Simulation.energy_error`); the recorders log it
-    where a frame carries it."""
-    energy_balance_error: float = 0.0
-
-
 def run_frame(sim: Simulation):
-    """The current :meth:`Simulation.frame` of ``sim`` as a :class:`RunFrame`."""
-    frame = sim.frame()
-    values = {f.name: getattr(frame, f.name) for f in fields(frame)}
-    values['energy_balance_error'] = float(sim.energy_error())
-    return RunFrame(**values)
+    """The current :meth:`Simulation.frame` of ``sim`` (it carries the energy balance error)."""
+    return sim.frame()
 
 
 class ImpactTrain:
@@ -86,12 +75,12 @@ def frame_count(t_end, output_dt):
 
 def run(sim: Simulation, t_end, output_dt, on_frame=None, progress=None, train=None,
         on_impact=None):
-    """Advance ``sim`` to ``t_end`` in ``output_dt`` intervals, calling ``on_frame(frame)`` (a
-    :class:`RunFrame`) at each output time (including the first) and ``progress(n)`` with the
-    steps of each interval. ``train`` (an :class:`ImpactTrain`): each impact is applied when the
-    clock reaches its step, within an interval as on a frame's time (before that frame is
-    taken); impacts after the last frame are not applied. ``on_impact`` as for
-    :meth:`ImpactTrain.apply_due`."""
+    """Advance ``sim`` to ``t_end`` in ``output_dt`` intervals, calling ``on_frame(frame)``
+    (a :class:`~solver.simulate.simulation.Frame`) at each output time (including the first)
+    and ``progress(n)`` with the steps of each interval. ``train`` (an :class:`ImpactTrain`):
+    each impact is applied when the clock reaches its step, within an interval as on a frame's
+    time (before that frame is taken); impacts after the last frame are not applied.
+    ``on_impact`` as for :meth:`ImpactTrain.apply_due`."""
     ratio = output_dt / sim.dt
     if abs(ratio - round(ratio)) > 1e-6 * ratio:       # advance() takes whole steps
         raise ValueError(f'run.output_dt: {output_dt:g} s is not a whole multiple of '

@@ -48,7 +48,8 @@ class Frame:
     ``constraint_error`` (relative), ``t`` s, ``base_force`` (n_columns,) N: the axial
     reaction at each column's clamped base, positive compressive (:mod:`solver.analysis.support`;
     empty when not given); ``striker`` (n_columns, 2): each column's striker face height m
-    and axial velocity m/s (``loading.impact.mode: striker``), else None."""
+    and axial velocity m/s (``loading.impact.mode: striker``), else None;
+    ``energy_balance_error``: :meth:`Simulation.energy_error` of the state."""
     t: float
     step: int
     positions: np.ndarray
@@ -58,6 +59,7 @@ class Frame:
     constraint_error: float
     base_force: np.ndarray = field(default_factory=lambda: np.zeros(0))
     striker: np.ndarray | None = None
+    energy_balance_error: float = 0.0
 
 
 class Simulation(Loading):
@@ -467,7 +469,8 @@ class Simulation(Loading):
                      tension=observables.cable_tensions(x, net, self.model.cable_rest_length,
                                                         self.model.cable_EA),
                      energy=self.energy(), constraint_error=self.constraint_error(),
-                     base_force=np.array(self.base_force()), striker=self.striker())
+                     base_force=np.array(self.base_force()), striker=self.striker(),
+                     energy_balance_error=float(self.energy_error()))
 
 
 def _copy_arrays(value):

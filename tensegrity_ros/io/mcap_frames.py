@@ -111,8 +111,8 @@ class FrameLog:
 
     def diagnostics_values(self, frame):
         """The node's ``/diagnostics`` keys that a headless run knows (no wall-clock pacing), and
-        ``energy_balance_error`` when the frame carries it (a run's
-        :class:`~solver.simulate.runner.RunFrame`)."""
+        ``energy_balance_error`` when the frame carries it (every
+        :class:`~solver.simulate.simulation.Frame` does)."""
         topic, verdict, detail = self.last_command
         balance = getattr(frame, 'energy_balance_error', None)
         return {'sim_time_s': float(frame.t), 'steps': int(frame.step), 'running': 'true',
