@@ -29,13 +29,9 @@ base as one more crossed-rod contact, ``F = k d^1.5`` per node at overlap ``d = 
 """
 import math
 
-import numpy as np
-
 from solver._jit import jit, jit_inline
 from solver.kernels.rotation import ROT_C, ROT_S
 
-NO_PAIRS = np.zeros((0, 8), dtype=np.int64)
-NO_BPAR = np.zeros(6)
 
 
 def hertz_constant(radius, E, poisson):
@@ -245,30 +241,6 @@ def passed_clear(x0, v0, a0, x1, pairs, levels, bpar, h):
     return True
 
 
-@jit
-def touching(x, pairs, levels, bpar):
-    """Whether any pair of bars or any two bases touch in the state ``x``."""
-    if closest_gap(x, pairs, bpar) < 0.0:
-        return True
-    for c in range(levels.shape[0]):
-        for j in range(1, levels.shape[1]):
-            if _level_z(x, levels, c, j) - _level_z(x, levels, c, j - 1) < bpar[0]:
-                return True
-    return False
-
-
-@jit
-def closest_gap(x, pairs, bpar):
-    """Smallest ``dist - D`` m over the pairs (< 0: an overlap); inf without pairs."""
-    g_min = math.inf
-    for i in range(pairs.shape[0]):
-        s, t, nx, ny, nz = _pair(x, pairs, i)
-        g = math.sqrt(nx * nx + ny * ny + nz * nz) - bpar[0]
-        if g < g_min:
-            g_min = g
-    return g_min
-
-
 @jit_inline
 def _reach(u, p):
     """Largest relative speed (or acceleration) between an end of bar a and an end of bar b."""
@@ -339,9 +311,9 @@ def scan_step(x, v, acc, pairs, levels, bpar, h, active):
         dist = math.sqrt(nx * nx + ny * ny + nz * nz)
         gap = dist - D
         g_min = min(g_min, gap)
+        A = _reach(acc, p)
         if gap > 0.0:
             u2 = _reach(v, p) ** 2
-            A = _reach(acc, p)
             if gap <= 2.0 * (math.sqrt(u2) * h + 0.5 * A * h * h):
                 count += 1
                 active[count] = i
@@ -352,7 +324,7 @@ def scan_step(x, v, acc, pairs, levels, bpar, h, active):
             vx, vy, vz = _rel_velocity(v, p, s, t)
             rate = (nx * vx + ny * vy + nz * vz) / max(dist, 1e-300)
             u2 = rate * rate + 0.8 * k * d * d * math.sqrt(d) / m
-        h_new = _resolve(gap, math.sqrt(u2), _reach(acc, p), u2, h_new, bpar)
+        h_new = _resolve(gap, math.sqrt(u2), A, u2, h_new, bpar)
     active[0] = count
     for c in range(levels.shape[0]):
         for j in range(1, levels.shape[1]):
