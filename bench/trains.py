@@ -54,19 +54,44 @@ def train(name, v0, period, count, t_end=None, overrides=(), strain=None):
     return row
 
 
-def convergence(name, v0=1.0, t_end=1.0):
-    """Amplitude and speed of the leading pulse at the scene's dt and at half of it."""
+FIGURES = ('amplitude', 'speed_m_s', 'speed_snapshot_m_s')
+
+
+def convergence(name, v0=1.0, t_end=1.0, perturbations=3):
+    """How well the leading pulse's figures at ``v0`` are determined: their relative change when
+    dt is halved (``dt_half``), when dt is halved and ``contact.resolution`` doubled
+    (``refined``: every step control halved), and their largest relative change under
+    perturbations of v0 by 1e-9, 2e-9, ... (``conditioning``: what no step size can do better
+    than, as the response amplifies a change of the input)."""
     from solver.simulate.runner import simulate
-    figs = []
-    for scale in (1.0, 0.5):
-        scene = Scene.load(ROOT / 'config' / 'scenes' / f'{name}.yaml')
-        dt = scene.integrator.dt * scale
-        point = simulate(scene, [f'loading.impact.v0={v0}', f'run.t_end={t_end}',
-                                 f'integrator.dt={dt}'])
-        figs.append((point.summary['pulse']['amplitude'], point.summary['pulse']['speed_m_s']))
-    (a1, s1), (a2, s2) = figs
-    return {'scene': name, 'v0': v0, 'amplitude': a2, 'speed_m_s': s2,
-            'amplitude_change': abs(a1 - a2) / abs(a2), 'speed_change': abs(s1 - s2) / abs(s2)}
+    scene = Scene.load(ROOT / 'config' / 'scenes' / f'{name}.yaml')
+    dt, res = scene.integrator.dt, scene.contact.resolution
+
+    def figures(v, dt_, res_):
+        point = simulate(scene, [f'loading.impact.v0={v}', f'run.t_end={t_end}',
+                                 f'integrator.dt={dt_}', f'contact.resolution={res_}'])
+        pulse = point.summary['pulse'] or {}
+        return {k: pulse.get(k) for k in FIGURES}, point.summary['energy_balance_error']
+
+    def change(a, b):
+        return {k: (abs(a[k] - b[k]) / abs(b[k]) if a[k] is not None and b[k] else None)
+                for k in FIGURES}
+
+    base, err = figures(v0, dt, res)
+    half, _ = figures(v0, dt / 2, res)
+    refined, err_refined = figures(v0, dt / 2, 2 * res)
+    spread = {k: 0.0 for k in FIGURES}
+    for j in range(1, perturbations + 1):
+        for k, c in change(figures(v0 * (1 + j * 1e-9), dt, res)[0], base).items():
+            spread[k] = None if c is None or spread[k] is None else max(spread[k], c)
+    return {'scene': name, 'v0': v0, 'dt': dt, 'resolution': res, 'figures': base,
+            'balance_error': err, 'balance_error_refined': err_refined,
+            'dt_half': change(half, base), 'refined': change(refined, base),
+            'conditioning': spread}
+
+
+def _pct(x):
+    return 'n/a' if x is None else f'{x:.2%}'
 
 
 def plot(strain, out_dt, path):
@@ -101,10 +126,12 @@ def main(out, quick=False, log=print):
         log(f'{name} one impact of {v0} m/s, 1 s: {row["status"]}, h_min/h0 '
             f'{row["h_min_over_h0"]:.3f}, balance error {row["balance_error_max"]:.2e}')
         rows.append(row)
-    conv = [] if quick else [convergence(name) for name in ('fb_column', 'rb_column')]
+    conv = [] if quick else [convergence(name, v0) for name in ('fb_column', 'rb_column')
+                             for v0 in (0.3, 1.0)]
     for c in conv:
-        log(f'{c["scene"]} at 1 m/s, dt halved: amplitude {c["amplitude_change"]:.2%}, speed '
-            f'{c["speed_change"]:.2%}')
+        log(f'{c["scene"]} at {c["v0"]} m/s: ' + '; '.join(
+            f'{k} dt/2 {_pct(c["dt_half"][k])}, refined {_pct(c["refined"][k])}, '
+            f'v0 +1e-9 {_pct(c["conditioning"][k])}' for k in FIGURES))
     strain = []
     train('fb_column', 0.1, 0.05, 10, t_end=1.2, strain=strain)
     plot(strain, 0.005, out / 'train_strain.png')

@@ -169,3 +169,22 @@ def test_a_step_too_long_for_the_contact_is_stopped_by_the_energy_ledger():
             sim.advance(0.005)
     assert info.value.quantity == 'energy balance'
     assert '\n' not in str(info.value) and 'energy balance' in str(info.value)
+
+
+@pytest.mark.parametrize('name', ['fb_column', 'rb_column'])
+def test_pulse_figures_at_a_strong_impact_converge_as_the_step_is_halved(name):
+    """0.3 m/s (three times the paper's strongest impact; bars touch in both columns): halving dt
+    changes the leading pulse's amplitude, speed and snapshot speed by less than 1 %, and the
+    contacts are resolved by the same control at both steps. (At 1 m/s the figures are not
+    determined to 1 %: docs/physics.md section 7.1, `tensegrity bench --only trains`.)"""
+    figures = []
+    for scale in (1.0, 0.5):
+        scene = _scene(name)
+        point = simulate(scene, ['loading.impact.v0=0.3', 'run.t_end=0.6',
+                                 f'integrator.dt={scene.integrator.dt * scale}'])
+        assert point.sim.contacts_met > 0
+        assert point.summary['energy_balance_error'] < point.sim.div.energy_error
+        figures.append(point.summary['pulse'])
+    coarse, fine = figures
+    for key in ('amplitude', 'speed_m_s', 'speed_snapshot_m_s'):
+        assert math.isclose(coarse[key], fine[key], rel_tol=0.01), (key, coarse[key], fine[key])
