@@ -52,4 +52,4 @@ def test_lens_title_gives_the_offsets_in_spacings_and_metres():
               'peak_offset_spacings': 0.1, 'lateral_offset_spacings': 0.01}
     title = plots.lens_title(result, 0.03)
     assert title.endswith('across the focal depth 0.01 spacings (0.0003 m)'), title
-    assert 'field peak 0.10 column spacings (0.003 m) from the focus' in title
+    assert 'focal gain 1.42\nfield peak 0.10 column spacings (0.003 m) from the focus' in title

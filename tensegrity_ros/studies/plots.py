@@ -57,7 +57,7 @@ def lens_title(result, spacing):
     peak, lateral = result['peak_offset_spacings'], result['lateral_offset_spacings']
     return (f"peak pressure in the medium ({result['dims']}D), C = "
             f"{result['medium_speed_m_s']:g} m/s, focus ({X:g}, {Z:g}) m: focal gain "
-            f"{'n/a' if gain is None else f'{gain:.2f}'}; field peak {peak:.2f} column spacings "
+            f"{'n/a' if gain is None else f'{gain:.2f}'}\nfield peak {peak:.2f} column spacings "
             f"({peak * spacing:.2g} m) from the focus, across the focal depth {lateral:.2f} "
             f"spacings ({lateral * spacing:.2g} m)")
 
