@@ -1,12 +1,14 @@
 """The README's table of current figures, made from the result files of the commands it names.
 
     python -m tools.figures            # print each row's value as the result files give it
-    python -m tools.figures --check    # exit 1 naming every row whose README value differs
+    python -m tools.figures --check    # exit 1 naming every figure that differs from its file
     python -m tools.figures --write    # rewrite the value column of README.md from the files
 
 Each row of :data:`ROWS` names the figure (the start of the README row's first cell), the text of
 its value cell with ``{}`` for each number, and where each number comes from: a result file under
-``bench/results/`` (JSON key path or CSV row) and its format. ``test/test_docs.py`` runs the check.
+``bench/results/`` (JSON key path or CSV row) and its format. :data:`DOC_FIGURES` does the same for
+figures quoted in docs/, and docs/models.md's table of ``tensegrity paper --markdown`` is compared
+with ``bench/results/paper.json``. ``test/test_docs.py`` runs the checks.
 """
 from __future__ import annotations
 
@@ -173,6 +175,89 @@ ROWS = [
 ]
 
 
+def _paper_row(label, v0):
+    rows = [r for r in _json('paper.json')['rows'] if r['label'] == label and r['v0'] == v0]
+    if len(rows) != 1:
+        raise LookupError(f'paper.json: {len(rows)} rows {label} at v0 = {v0}')
+    return rows[0]
+
+
+def P(label, v0, key, spec='.3f'):
+    """A figure of a row of ``tensegrity paper --json`` (bench/results/paper.json)."""
+    return F(f'paper.json: {key} of {label} at v0 = {v0}',
+             lambda: fmt(_paper_row(label, v0)[key], spec))
+
+
+def _identified(v0, key, target, spec):
+    value = _json('paper_id/predict.json')['identified FB'][v0][key]
+    return fmt(value, spec) if target is None else fmt(100 * (value / target - 1), spec)
+
+
+def ID(v0, key, spec='.4f', target=None):
+    """paper_fb.yaml's figure at v0 (bench/results/paper_id/predict.json), or its relative
+    difference, %, from ``target``."""
+    return F(f'paper_id/predict.json: identified FB at {v0}: {key}',
+             lambda: _identified(v0, key, target, spec))
+
+
+FB = 'FB shared impulse sym3d'
+# figures quoted in docs/: (page, text with {} for each number, where each comes from); the page's
+# text, its white space collapsed, contains the text
+DOC_FIGURES = [
+    ('docs/peers.md', 'Converged reference pulse: amplitude {} at t = 0.5 s, speed {} m/s.', [
+        J('peers.json', 'reference', 'pulse', 'amplitude', spec='.4f'),
+        J('peers.json', 'reference', 'pulse', 'speed_m_s', spec='.4f')]),
+    ('docs/peers.md', 'target 1e-3 (the leading pulse is {}).', [
+        J('peers.json', 'reference', 'pulse', 'amplitude', spec='.3f')]),
+    ('docs/models.md', 'amplitudes {} / {} / {} at 0.5 s (medians {} / {} / {})', [
+        *(P(FB, v0, 'amplitude') for v0 in (0.1, 0.125, 0.15)),
+        *(P(FB, v0, 'amplitude_median') for v0 in (0.1, 0.125, 0.15))]),
+    ('docs/models.md', 'speed {} m/s at v0 = 0.1 (paper 0.248) but flat in v0 ({} at 0.15', [
+        P(FB, 0.1, 'speed_m_s'), P(FB, 0.15, 'speed_m_s')]),
+    ('docs/paper.md', 'stays the plain reading ({} / {} / {}, {} m/s: `tensegrity paper`)', [
+        *(P(FB, v0, 'amplitude') for v0 in (0.1, 0.125, 0.15)), P(FB, 0.1, 'speed_m_s')]),
+    ('docs/paper.md', 'at 0.1 m/s amplitude {} ({} %) and speed {} m/s ({} %), at 0.15 m/s '
+     'amplitude {} ({} %) and speed {} m/s ({} %)', [
+        ID('0.1', 'pulse.amplitude'), ID('0.1', 'pulse.amplitude', '+.1f', 0.054),
+        ID('0.1', 'pulse.speed_m_s', '.3f'), ID('0.1', 'pulse.speed_m_s', '+.1f', 0.248),
+        ID('0.15', 'pulse.amplitude'), ID('0.15', 'pulse.amplitude', '+.1f', 0.085),
+        ID('0.15', 'pulse.speed_m_s', '.3f'), ID('0.15', 'pulse.speed_m_s', '+.1f', 0.372)]),
+]
+
+
+def doc_differences():
+    """Figures quoted in docs/ that differ from the result files (the text that should be)."""
+    bad = []
+    for page, template, getters in DOC_FIGURES:
+        text = ' '.join((ROOT / page).read_text(encoding='utf-8').split())
+        want = template.format(*(get() for get in getters))
+        if want not in text:
+            bad.append(f'{page}: lacks {want!r}')
+    return bad
+
+
+def paper_table_differences():
+    """Rows of docs/models.md's table of ``tensegrity paper --markdown`` that differ from
+    bench/results/paper.json (the same command with --json)."""
+    from types import SimpleNamespace
+    from solver.studies.paper import format_table
+    result = dict(_json('paper.json'))
+    result['rows'] = [SimpleNamespace(**r) for r in result['rows']]
+    want = [line for line in format_table(result, markdown=True).splitlines()
+            if line.startswith('|')]
+    lines = (ROOT / 'docs' / 'models.md').read_text(encoding='utf-8').splitlines()
+    start = next((i for i, line in enumerate(lines) if line == want[0]), len(lines))
+    have = []
+    for line in lines[start:]:
+        if not line.startswith('|'):
+            break
+        have.append(line)
+    if want == have:
+        return []
+    return [f'docs/models.md: {h!r} where paper.json gives {w!r}'
+            for h, w in zip(have + [''] * len(want), want) if h != w][:3]
+
+
 def values():
     """{figure: value cell} as the result files give them."""
     return {figure: template.format(*(get() for get in getters))
@@ -225,7 +310,7 @@ def main(argv=None):
     if '--write' in argv:
         write()
     if '--check' in argv:
-        bad = differences()
+        bad = differences() + doc_differences() + paper_table_differences()
         for line in bad:
             print(line)
         return 1 if bad else 0
