@@ -20,6 +20,14 @@ class UserError(Exception):
     """An error the user caused; printed as one line."""
 
 
+class OneLineParser(argparse.ArgumentParser):
+    """argparse's parser with the project's error form: one line on stderr, ``tensegrity:`` first
+    and the ``--help`` to read, exit code 2 (argparse prints its usage block above the message)."""
+
+    def error(self, message):
+        self.exit(2, f'tensegrity: {message} (see: {self.prog} --help)\n')
+
+
 def _progress(total, desc):
     """A tqdm bar on a terminal; nothing otherwise."""
     if not sys.stderr.isatty():
@@ -353,7 +361,7 @@ def _scene_command(sub, name, func, help, scene_help='scene YAML file'):
 
 
 def build_parser():
-    parser = argparse.ArgumentParser(prog='tensegrity', description=__doc__.splitlines()[0])
+    parser = OneLineParser(prog='tensegrity', description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest='command', required=True)
     p = _scene_command(sub, 'run', cmd_run, 'run a scene headless and summarise the strain wave',
                        'scene YAML file (config/scenes/*.yaml)')

@@ -111,6 +111,19 @@ def test_parameters_fixed_at_start_up_are_refused(running, name, value):
     assert desc.read_only
 
 
+def test_an_unknown_parameter_is_refused_naming_it_and_the_valid_ones(running):
+    """rclpy's own reason names no parameter ("undeclared parameter(s): []")."""
+    from rclpy.exceptions import ParameterNotDeclaredException
+    node, ex, set_, _ = running
+    res = set_('publish_rate', 50.0)                   # through ~/set_parameters, as ros2 param
+    assert not res.successful
+    assert res.reason.startswith('unknown parameter publish_rate (valid: scene_file, '), res.reason
+    assert 'publish_rate_hz' in res.reason and '[]' not in res.reason
+    with pytest.raises(ParameterNotDeclaredException, match='unknown parameters nope, nope2'):
+        node.set_parameters_atomically([Parameter('nope2', value=1), Parameter('nope', value=1)])
+    assert set_('publish_rate_hz', 50.0).successful     # a known one still goes through
+
+
 def test_descriptors_carry_ranges(running):
     _, _, _, describe = running
     (desc,) = describe(['publish_rate_hz']).descriptors

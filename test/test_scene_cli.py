@@ -151,6 +151,23 @@ def test_user_errors_are_one_line_without_traceback(args, needle):
     assert 'Traceback' not in res.stderr
 
 
+@pytest.mark.parametrize('args,needle', [
+    (('run', str(SCENES / 'prism.yaml'), '--v0', 'abc'), "argument --v0: invalid float value"),
+    (('lens', str(SCENES / 'lens_focus.yaml'), '--focus', '0.08,0.06'), '--medium-speed'),
+    (('demo', '--domain-id', 'x'), 'argument --domain-id: invalid int value'),
+    (('runx',), "invalid choice: 'runx'"),
+])
+def test_argparse_errors_take_the_one_line_form_exit_2(args, needle):
+    """argparse's own errors (a value of the wrong type, a missing option, an unknown command)
+    read like the others: one line, ``tensegrity:`` first, exit code 2, no usage block."""
+    res = _cli(*args)
+    assert res.returncode == 2
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith('tensegrity: ') and needle in lines[0], \
+        res.stderr
+    assert '--help' in lines[0]
+
+
 def test_solver_imports_without_ros_mcap_or_rerun():
     code = ('import sys\n'
             'for m in ("rclpy", "mcap", "mcap_ros2", "rerun"):\n'

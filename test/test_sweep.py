@@ -253,6 +253,27 @@ def test_fit_recovers_known_values_with_a_continuous_and_a_discrete_key(cluster,
     assert Scene.load(out)['structure.radius'] == best['structure.radius']
 
 
+def test_written_scene_describes_the_fitted_values_not_the_old_ones(tmp_path):
+    """fb_column's description says "cross prestrain 0.002": the fitted scene's names the values
+    found instead, and loads with them."""
+    from solver.build.scene import Scene
+    from tensegrity_ros.studies import fit
+    target = tmp_path / 'target.yaml'
+    target.write_text('cases: [{figures: {pulse.amplitude: 0.05}}]\n')
+    problem = fit.build(FB, target, ['prestrain=0.0025:0.0035'],
+                        ['structure.stacking=shared,parallel'])
+    best = {'prestrain': 0.0031234567, 'structure.stacking': 'parallel'}
+    out = tmp_path / 'best.yaml'
+    fit.write_scene(problem, best, out, target=str(target))
+    scene = Scene.load(out)
+    assert scene['prestrain'] == best['prestrain']
+    assert scene['structure.stacking'] == 'parallel'
+    text = scene['description']
+    assert '0.002' not in text, text
+    assert 'prestrain = 0.00312346' in text and 'structure.stacking = parallel' in text
+    assert str(target) in text
+
+
 @pytest.mark.parametrize('args, needle', [
     (['sweep', FB, '--grid', 'structure.nope=1,2'], 'structure.nope: unknown key'),
     (['sweep', FB, '--grid', 'prestrain=0.004:0.002:3'], 'must be greater than START'),

@@ -99,6 +99,13 @@ class TensegritySim(LifecycleNode):
                 if trigger() != TransitionCallbackReturn.SUCCESS:
                     raise RuntimeError(f'{messages.NODE_NAME}: {name} failed (see the log)')
 
+    def _check_undeclared_parameters(self, parameter_list):
+        """rclpy's check of a change (every path of set_parameters goes through it), the unknown
+        names refused by name."""
+        from tensegrity_ros.node.params import refuse_undeclared
+        refuse_undeclared([p.name for p in parameter_list], self._parameters)
+        super()._check_undeclared_parameters(parameter_list)
+
     # -- lifecycle ------------------------------------------------------------------------------
     def on_configure(self, state):
         if self.sim is None:

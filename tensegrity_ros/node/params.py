@@ -91,6 +91,24 @@ def unknown_parameters(names):
                           f'{", ".join(bad)} (valid: {", ".join(DEFAULTS)})')
 
 
+def refuse_undeclared(names, declared):
+    """Raise rclpy's ``ParameterNotDeclaredException`` for the names in ``names`` that are not in
+    ``declared`` (a change of a running node's parameters), its message naming them and listing the
+    node's parameters (rclpy's own lists none: "undeclared parameter(s): []"). The service
+    ``~/set_parameters`` returns the message as the reason."""
+    bad = sorted({n for n in names if n not in declared})
+    if not bad:
+        return
+    from rclpy.exceptions import ParameterNotDeclaredException
+    message = (f'unknown parameter{"s" if len(bad) > 1 else ""} {", ".join(bad)} (valid: '
+               f'{", ".join(DEFAULTS)})')
+
+    class UnknownParameter(ParameterNotDeclaredException):
+        def __str__(self):
+            return message
+    raise UnknownParameter(bad)
+
+
 class ParameterError(ValueError):
     """A parameter value that cannot be used; the message names it."""
 

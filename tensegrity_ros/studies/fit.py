@@ -318,12 +318,23 @@ def format_result(result):
     return lines
 
 
-def write_scene(problem, best, path):
-    """The scene with the best values written to ``path`` (YAML)."""
+def fitted_description(name, best, target=None):
+    """The description of a fitted scene: what was fitted and the values found (the source scene's
+    description may state other values, e.g. its prestrain)."""
+    values = ', '.join(f'{k} = {v:.6g}' if isinstance(v, float) else f'{k} = {v}'
+                       for k, v in best.items())
+    to = f' to {target}' if target else ''
+    return f'{name} fitted by tensegrity fit{to}: {values}; every other value as in {name}'
+
+
+def write_scene(problem, best, path, target=None):
+    """The scene with the best values written to ``path`` (YAML), its description stating them."""
     scene = problem.scene.with_overrides(list(best.items()))
+    data = scene.data
+    data['description'] = fitted_description(problem.scene.name, best, target)
     Path(path).write_text(
         f'# {problem.scene.name} with the values found by tensegrity fit\n'
-        + yaml.safe_dump(scene.data, sort_keys=False))
+        + yaml.safe_dump(data, sort_keys=False, width=99))
     return str(path)
 
 
@@ -347,7 +358,8 @@ def main(args):
         if cluster is not None:
             cluster.close()
     if args.write_scene:
-        result['scene_file'] = write_scene(problem, result['best'], args.write_scene)
+        result['scene_file'] = write_scene(problem, result['best'], args.write_scene,
+                                           args.target)
     if args.json:
         from solver.simulate.runner import json_safe
         print(json.dumps(json_safe(result), allow_nan=False))

@@ -49,6 +49,19 @@ def strain_wave_figure(rec, title='', column=0, snapshots=(0.1, 0.3, 0.5, 0.7, 0
     return fig
 
 
+def lens_title(result, spacing):
+    """The title of :func:`lens_field`: medium, focus, focal gain and how far the field peaks from
+    the focus, in column spacings (``spacing``, m) and in m."""
+    X, Z = result['focus_m']
+    gain = result['focal_gain']
+    peak, lateral = result['peak_offset_spacings'], result['lateral_offset_spacings']
+    return (f"peak pressure in the medium ({result['dims']}D), C = "
+            f"{result['medium_speed_m_s']:g} m/s, focus ({X:g}, {Z:g}) m: focal gain "
+            f"{'n/a' if gain is None else f'{gain:.2f}'}\nfield peak {peak:.2f} column spacings "
+            f"({peak * spacing:.2g} m) from the focus, across the focal depth {lateral:.2f} "
+            f"spacings ({lateral * spacing:.2g} m)")
+
+
 def lens_field(result, path):
     """The peak pressure in the medium (the model of :mod:`solver.analysis.field`) of the designed
     array next to the same array at uniform prestrain, the bases and the focus marked, and the peak
@@ -91,15 +104,43 @@ def lens_field(result, path):
     ax.set_title(f'across the focal depth z = {Z:g} m')
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3)
-    gain = result['focal_gain']
-    fig.suptitle(f"peak pressure in the medium ({result['dims']}D), C = "
-                 f"{result['medium_speed_m_s']:g} m/s, focus ({X:g}, {Z:g}) m: focal gain "
-                 f"{'n/a' if gain is None else f'{gain:.2f}'}; field peak "
-                 f"{result['peak_offset_spacings']:.2f} spacings from the focus, across the "
-                 f"focal depth {result['lateral_offset_spacings']:.2f}")
+    fig.suptitle(lens_title(result, s))
     fig.savefig(path, dpi=100)
     plt.close(fig)
     return path
+
+
+# units of the scene keys a sweep varies (SI) and of the summary's figures
+D = 'dimensionless'
+KEY_UNITS = {
+    'loading.impact.v0': 'm/s', 'loading.impact.striker_mass': 'kg',
+    'loading.impact.contact_stiffness': 'N/m', 'loading.impact.period': 's',
+    'loading.gravity': 'm/s^2', 'prestrain': D, 'structure.radius': 'm', 'structure.h0': 'm',
+    'structure.column_spacing': 'm', 'structure.node_mass': 'kg', 'structure.kappa': D,
+    'structure.n_prisms': 'prisms', 'materials.cable_E': 'Pa', 'materials.cable_radius': 'm',
+    'materials.unit_mass': 'kg', 'materials.bar_mass': 'kg', 'materials.bar_mass_fraction': D,
+    'materials.end_mass': 'kg', 'materials.cable_damping': 'N s/m',
+    'materials.cable_damping_ratio': D, 'materials.bar_radius': 'm', 'materials.bar_E': 'Pa',
+    'materials.bar_poisson': D, 'integrator.dt': 's', 'integrator.rtol': D,
+    'run.t_end': 's', 'run.output_dt': 's', 'contact.stiffness': 'N/m', 'contact.tolerance': 'h0',
+    'lens.prestrain_min': D, 'lens.prestrain_max': D,
+    'pulse.amplitude': 'strain, dimensionless', 'pulse.amplitude_median': 'strain, dimensionless',
+    'pulse.amplitude_min': 'strain, dimensionless', 'pulse.amplitude_max': 'strain, dimensionless',
+    'pulse.amplitude_passage_max': 'strain, dimensionless', 'energy_drift_rel': '1/s',
+    'energy_balance_error': D, 'constraint_error_rel': D, 'real_time_factor': 'x real time',
+}
+SUFFIX_UNITS = (('_m_s', 'm/s'), ('_prisms', 'prisms'), ('_s', 's'), ('_N', 'N'), ('_J', 'J'),
+                ('_hz', 'Hz'))
+
+
+def axis_label(name):
+    """``name`` (a scene key or a figure of the summary) with its unit: ``loading.impact.v0
+    (m/s)``, ``prestrain (dimensionless)``; a name of no known unit as it is."""
+    unit = KEY_UNITS.get(name) or next((u for suffix, u in SUFFIX_UNITS if name.endswith(suffix)),
+                                       None)
+    if unit is None:
+        return name
+    return f'{name} ({unit})'
 
 
 def sweep_map(rows, keys, figure, path):
@@ -135,8 +176,8 @@ def sweep_map(rows, keys, figure, path):
                     'rx', ms=9)
         if not numeric:
             ax.set_xticks(range(len(xs)), [str(v) for v in xs])
-        ax.set_xlabel(k)
-        ax.set_ylabel(figure)
+        ax.set_xlabel(axis_label(k))
+        ax.set_ylabel(axis_label(figure))
     else:
         kx, ky = keys[0], keys[1]
         xs, nx = axis_values(kx)
@@ -161,9 +202,9 @@ def sweep_map(rows, keys, figure, path):
             ax.scatter([r[kx] for r in none], [r[ky] for r in none], facecolors='none',
                        edgecolors='grey', label=f'no {figure}')
             ax.plot([r[kx] for r in bad], [r[ky] for r in bad], 'rx', ms=10, mew=2)
-        fig.colorbar(im, ax=ax, label=figure)
-        ax.set_xlabel(kx)
-        ax.set_ylabel(ky)
+        fig.colorbar(im, ax=ax, label=axis_label(figure))
+        ax.set_xlabel(axis_label(kx))
+        ax.set_ylabel(axis_label(ky))
     title = f'{figure}' + (f' ({len(bad)} diverged or failed: x)' if bad else '')
     ax.set_title(title)
     fig.tight_layout()
