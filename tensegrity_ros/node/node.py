@@ -237,7 +237,7 @@ class TensegritySim(LifecycleNode):
         if self.params['record_mcap']:
             from tensegrity_ros.io.mcap_frames import network_metadata
             from tensegrity_ros.io.mcap_writer import McapRecorder
-            rec = McapRecorder(self.params['record_mcap'],
+            rec = McapRecorder(self.params['record_mcap'], bag=True,
                                metadata=network_metadata(self.sim.network, self.sim.scene.name))
             for key, topic in self.topics.items():     # /clock too: it may be switched on
                 pub = self.pubs.get(key)
