@@ -32,7 +32,8 @@ def _progress(total, desc):
 def _open_mcap(stack, sinks, scene, sim, path):
     """Record the run to the bag folder ``path`` (MCAP, the node's topics, ``metadata.yaml``);
     closed by ``stack``, also on SIGTERM.
-    Logs each impact as the command the node would receive, then every output frame."""
+    Logs each impact as the command the node would receive and as an event (the text the Rerun
+    recording shows, :func:`_impact_text`), then every output frame."""
     from solver.simulate.runner import run_frame
     from tensegrity_ros.io.mcap_frames import FrameLog, marker_every, network_metadata
     from tensegrity_ros.io.mcap_writer import McapRecorder, signals_as_interrupt
@@ -48,6 +49,7 @@ def _open_mcap(stack, sinks, scene, sim, path):
                                                for c in range(sim.network.n_columns)]
         log.command('~/cmd/impact', values, 'all' if columns is None else 'column', run_frame(sim),
                     f'impact v0 = {v0:g} m/s (scene {scene.name})')
+        log.event(entry['t_s'], _impact_text(i, entry, scene, sim))
     sinks['impact'].append(impact)
     sinks['frame'].append(log.frame)
     return str(recorder.folder)
@@ -57,19 +59,27 @@ def _open_rerun(stack, sinks, scene, sim, path=None, url=None):
     """Record the run to a Rerun ``.rrd`` at ``path`` and/or stream it to the viewer at ``url``;
     closed by ``stack``. Logs each impact as a command event: the first starts with ``impact``
     (the heat map starts there), the later ones of a train with ``train impact``."""
-    from solver.simulate.runner import ImpactTrain
     from tensegrity_ros.io.rerun_sink import RerunRecorder
     recorder = stack.enter_context(RerunRecorder(sim.network, path, connect=url))
-    n, columns = len(ImpactTrain(scene.loading.impact, sim.dt)), scene.loading.impact.columns
-    where = 'all columns' if columns is None else f'columns {list(columns)}'
 
     def impact(i, entry):
-        text = f'v0 = {entry["v0_m_s"]:g} m/s on {where}'
-        recorder.command(entry['t_s'], f'impact {text}' + (f' (1 of {n})' if n > 1 else '')
-                         if i == 0 else f'train impact {i + 1} of {n}: {text}')
+        recorder.command(entry['t_s'], _impact_text(i, entry, scene, sim))
     sinks['impact'].append(impact)
     sinks['frame'].append(recorder.frame)
     return str(path) if path is not None else url
+
+
+def _impact_text(i, entry, scene, sim):
+    """The event text of impact ``i`` of a run (``entry`` as ``ImpactTrain.applied`` lists it):
+    the first starts with ``impact`` (the Rerun heat map starts there), the later ones of a train
+    with ``train impact``."""
+    from solver.simulate.runner import ImpactTrain
+    n, columns = len(ImpactTrain(scene.loading.impact, sim.dt)), scene.loading.impact.columns
+    where = 'all columns' if columns is None else f'columns {list(columns)}'
+    text = f'v0 = {entry["v0_m_s"]:g} m/s on {where}'
+    if i == 0:
+        return f'impact {text}' + (f' (1 of {n})' if n > 1 else '')
+    return f'train impact {i + 1} of {n}: {text}'
 
 
 def run_overrides(args):
