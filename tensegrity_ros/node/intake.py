@@ -46,7 +46,8 @@ class Intake:
     later one of the same topic before the next tick), rejected (malformed, or refused when
     applied), frames; ``last_command`` (topic, accepted/rejected, detail) and its clock time
     ``last_command_t`` (:meth:`TensegritySim.clock_time`); ``pending`` topic -> ``apply()`` of its
-    last valid command since a tick; ``cmd_wall`` the wall seconds the commands took since the last tick."""
+    last valid command since a tick; ``cmd_wall`` the wall seconds the commands took since the
+    last tick."""
 
     def __init__(self, node):
         self.node = node
