@@ -138,7 +138,8 @@ def frame_topics(frame, network, build, stamp=None, markers=True, clock=False, t
     ``column``, N, positive compressive) when the frame has one value per column;
     ``'~/striker'`` (dims ``column``, ``state``: face height m, axial velocity m/s) when the
     frame has strikers; ``'~/markers'`` when ``markers``; ``'/clock'`` when ``clock``. ``stamp``
-    defaults to :func:`sim_stamp` of ``frame.t``. Raises ``ValueError`` if the frame holds a non-finite value."""
+    defaults to :func:`sim_stamp` of ``frame.t``. Raises ``ValueError`` if the frame holds a
+    non-finite value."""
     check_finite(frame)
     if stamp is None:
         stamp = sim_stamp(frame.t)
