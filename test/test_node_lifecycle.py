@@ -161,7 +161,7 @@ def test_every_transition_logs_a_line(managed, monkeypatch):
     assert last_lines(make(), 'configure', 'activate', 'deactivate', 'cleanup', 'configure',
                       'shutdown') == [
         ('info', 'configured'), ('info', 'activated:'), ('info', 'deactivated'),
-        ('info', 'cleaned'), ('info', 'configured'), ('info', 'shut')]
+        ('info', 'cleaned'), ('info', 'configured'), ('info', 'shutdown')]
     bad = make('/nope/missing.yaml')
     assert last_lines(bad, 'configure') == [('error', 'configure')]
     del lines[:]

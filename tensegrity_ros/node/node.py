@@ -142,7 +142,7 @@ class TensegritySim(LifecycleNode):
 
     def on_shutdown(self, state):
         self._teardown()
-        self.get_logger().info(f'shut down from {state.label}: the recorders closed')
+        self.get_logger().info(f'shutdown (the node was {state.label}): the recorders closed')
         return TransitionCallbackReturn.SUCCESS
 
     def on_error(self, state):
