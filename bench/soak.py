@@ -357,7 +357,8 @@ def _check_mcap(mcap):
         elif '/cmd/' in m.topic:
             cmds += 1
     return {'complete': not log.truncated, 'frames': frames, 'non_finite': non_finite,
-            'diagnostics': diag, 'commands': cmds, 'mb': mcap.stat().st_size / 2**20}
+            'diagnostics': diag, 'commands': cmds,
+            'mb': sum(f.stat().st_size for f in log.files) / 2**20}
 
 
 def _check_rerun(rrd):

@@ -38,14 +38,16 @@ def _progress(total, desc):
 
 
 def _open_mcap(stack, sinks, scene, sim, path):
-    """Record the run to ``path`` (MCAP, the node's topics); closed by ``stack``, also on SIGTERM.
-    Logs each impact as the command the node would receive, then every output frame."""
+    """Record the run to the bag folder ``path`` (MCAP, the node's topics, ``metadata.yaml``);
+    closed by ``stack``, also on SIGTERM.
+    Logs each impact as the command the node would receive and as an event (the text the Rerun
+    recording shows, :func:`_impact_text`), then every output frame."""
     from solver.simulate.runner import run_frame
     from tensegrity_ros.io.mcap_frames import FrameLog, marker_every, network_metadata
     from tensegrity_ros.io.mcap_writer import McapRecorder, signals_as_interrupt
     stack.enter_context(signals_as_interrupt())
     recorder = stack.enter_context(McapRecorder(
-        path, metadata=network_metadata(sim.network, scene.name)))
+        path, bag=True, metadata=network_metadata(sim.network, scene.name)))
     log = FrameLog(recorder, sim.network, marker_every=marker_every(scene.run.output_dt))
     columns = scene.loading.impact.columns
 
@@ -55,28 +57,37 @@ def _open_mcap(stack, sinks, scene, sim, path):
                                                for c in range(sim.network.n_columns)]
         log.command('~/cmd/impact', values, 'all' if columns is None else 'column', run_frame(sim),
                     f'impact v0 = {v0:g} m/s (scene {scene.name})')
+        log.event(entry['t_s'], _impact_text(i, entry, scene, sim))
     sinks['impact'].append(impact)
     sinks['frame'].append(log.frame)
-    return str(path)
+    return str(recorder.folder)
 
 
 def _open_rerun(stack, sinks, scene, sim, path=None, url=None):
     """Record the run to a Rerun ``.rrd`` at ``path`` and/or stream it to the viewer at ``url``;
     closed by ``stack``. Logs each impact as a command event: the first starts with ``impact``
     (the heat map starts there), the later ones of a train with ``train impact``."""
-    from solver.simulate.runner import ImpactTrain
     from tensegrity_ros.io.rerun_sink import RerunRecorder
     recorder = stack.enter_context(RerunRecorder(sim.network, path, connect=url))
-    n, columns = len(ImpactTrain(scene.loading.impact, sim.dt)), scene.loading.impact.columns
-    where = 'all columns' if columns is None else f'columns {list(columns)}'
 
     def impact(i, entry):
-        text = f'v0 = {entry["v0_m_s"]:g} m/s on {where}'
-        recorder.command(entry['t_s'], f'impact {text}' + (f' (1 of {n})' if n > 1 else '')
-                         if i == 0 else f'train impact {i + 1} of {n}: {text}')
+        recorder.command(entry['t_s'], _impact_text(i, entry, scene, sim))
     sinks['impact'].append(impact)
     sinks['frame'].append(recorder.frame)
     return str(path) if path is not None else url
+
+
+def _impact_text(i, entry, scene, sim):
+    """The event text of impact ``i`` of a run (``entry`` as ``ImpactTrain.applied`` lists it):
+    the first starts with ``impact`` (the Rerun heat map starts there), the later ones of a train
+    with ``train impact``."""
+    from solver.simulate.runner import ImpactTrain
+    n, columns = len(ImpactTrain(scene.loading.impact, sim.dt)), scene.loading.impact.columns
+    where = 'all columns' if columns is None else f'columns {list(columns)}'
+    text = f'v0 = {entry["v0_m_s"]:g} m/s on {where}'
+    if i == 0:
+        return f'impact {text}' + (f' (1 of {n})' if n > 1 else '')
+    return f'train impact {i + 1} of {n}: {text}'
 
 
 def run_overrides(args):
@@ -116,7 +127,7 @@ def cmd_run(args):
         # to fall in the run (with a Rerun recording: in the recorder's start, measured)
         gc.freeze()
         if args.mcap:
-            outputs['mcap'] = _open_mcap(stack, sinks, scene, sim, out_dir / 'run.mcap')
+            outputs['mcap'] = _open_mcap(stack, sinks, scene, sim, out_dir / 'run')
         if args.rerun or args.rerun_connect:
             outputs['rerun'] = _open_rerun(stack, sinks, scene, sim,
                                            out_dir / 'run.rrd' if args.rerun else None,
@@ -373,7 +384,8 @@ def build_parser():
     p.add_argument('--out', help='output directory (summary.json, plots)')
     p.add_argument('--plot', action='store_true', help='write a PNG of the strain wave')
     p.add_argument('--mcap', action='store_true',
-                   help='record the run to OUT/run.mcap (ROS 2 profile, the node\'s topics)')
+                   help='record the run to the rosbag2 bag folder OUT/run/ (run_0.mcap, '
+                        'metadata.yaml; the node\'s topics)')
     p.add_argument('--rerun', action='store_true',
                    help='record the run to OUT/run.rrd (Rerun; open it with: rerun OUT/run.rrd)')
     p.add_argument('--rerun-connect', nargs='?', metavar='URL',
@@ -410,7 +422,8 @@ def build_parser():
                    help='write the scene with the best values')
     p = sub.add_parser('replay', help='republish an MCAP log over ROS 2 (with /clock), or '
                        'convert it to a Rerun recording')
-    p.add_argument('log', metavar='RUN.mcap', help='MCAP log (tensegrity run --mcap, node)')
+    p.add_argument('log', metavar='RUN', help='MCAP log: a bag folder or an .mcap file '
+                   '(tensegrity run --mcap, the node\'s record_mcap)')
     p.add_argument('--rate', type=float, default=1.0, help='playback speed factor (default 1)')
     p.add_argument('--loop', action='store_true', help='play again from the start when done')
     p.add_argument('--delay', type=float, default=0.5,

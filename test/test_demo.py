@@ -118,7 +118,8 @@ def test_demo_focus_prints_the_plan_measured_arrivals_and_gain(tmp_path, monkeyp
                 images.append(np.array(row[0], dtype=np.uint8).view(np.float32))
     assert images and all(np.isfinite(v).all() and v.size == 48 * 64 for v in images)
     assert images[-1].max() == pytest.approx(1.0)            # over the scale of the last map
-    with open(s['outputs']['mcap'], 'rb') as f:
+    from tensegrity_ros.io.mcap_reader import McapLog
+    with open(McapLog(s['outputs']['mcap']).path, 'rb') as f:        # the bag folder's file
         fields = [m for _, channel, m in make_reader(f).iter_messages()
                   if channel.topic.endswith('/field')]
     assert len(fields) >= 1

@@ -77,7 +77,10 @@ def test_file_is_ros2_profile_with_summary_statistics_and_qos(log):
         summary = reader.get_summary()
     stats = summary.statistics
     assert stats.message_count == len(written)
-    assert stats.channel_count == len(summary.channels) == len({t for t, _, _ in written}) + 1
+    # declared, nothing written: the prestrain command and the events
+    assert stats.channel_count == len(summary.channels) == len({t for t, _, _ in written}) + 2
+    assert {c.topic for c in summary.channels.values()} - {t for t, _, _ in written} == {
+        '/tensegrity/tensegrity_sim/cmd/prestrain', '/tensegrity/tensegrity_sim/events'}
     assert stats.chunk_count == len(summary.chunk_indexes) >= 1
     assert stats.message_end_time == max(s for _, _, s in written)
     by_topic = {c.topic: c for c in summary.channels.values()}
@@ -280,7 +283,8 @@ def test_to_rerun_has_the_live_recording_layout(log, frames, tmp_path):
     from tensegrity_ros.io.convert import to_rerun
     path, written = log
     out = tmp_path / 'run.rrd'
-    assert to_rerun(path, out) == 3 * len(frames) + 1
+    # nodes, strain, tension, base force and energy of each frame, and the command
+    assert to_rerun(path, out) == 5 * len(frames) + 1
     stamps = [int(round(f.t * 1e9)) for f in frames]
     nodes = _rrd_columns(out, '/world/nodes', 'Points3D:positions')
     strain = _rrd_columns(out, '/strain/column_0', 'Scalars:scalars')

@@ -106,7 +106,7 @@ def test_node_log_holds_what_was_published_and_received(tmp_path):
     # Rerun's own MCAP loader shows the nodes as points, at the logged stamps
     chunk = pytest.importorskip('rerun.chunk')
     pts = {}
-    for ch in chunk.McapReader(path, timeline_type='duration_ns').stream():
+    for ch in chunk.McapReader(McapLog(path).path, timeline_type='duration_ns').stream():
         rb = ch.to_record_batch()
         if ch.entity_path == M.resolve_topic('~/nodes') and 'Points3D:positions' in \
                 rb.schema.names:

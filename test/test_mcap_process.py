@@ -209,7 +209,8 @@ def test_run_cli_mcap_logs_what_the_run_computed(tmp_path):
     scene_file = ROOT / 'config' / 'scenes' / 'prism.yaml'
     args = ['run', str(scene_file), '--t-end', '0.01', '--mcap', '--json', '--out', str(tmp_path)]
     assert main(args) == 0
-    log_path = tmp_path / 'run.mcap'
+    log_path = tmp_path / 'run'                                   # the bag folder
+    assert (log_path / 'metadata.yaml').is_file() and (log_path / 'run_0.mcap').is_file()
     assert json.loads((tmp_path / 'summary.json').read_text())['outputs']['mcap'] == str(log_path)
     scene = Scene.load(scene_file).with_overrides([('run.t_end', 0.01)])
     sim = simulation_for(scene)

@@ -136,7 +136,12 @@ def test_reset_service(ros):
     assert np.abs(sim.model.velocities()).max() == 0.0
     assert ros.spin(lambda: len(ros.cmd.clouds) > n)
     t, x = ros.cmd.clouds[-1]
-    assert t == 0.0 and np.allclose(x, net.x0, rtol=1.2e-7, atol=1e-12)       # float32
+    # the clock runs on: the rest state comes one step after the last state, in episode 1
+    assert ros.node.episode == 1 and 'episode 1' in res.message
+    assert t == pytest.approx(t_paused + sim.dt, abs=1e-9)
+    assert np.allclose(x, net.x0, rtol=1.2e-7, atol=1e-12)                    # float32
+    times = [c[0] for c in ros.cmd.clouds]
+    assert np.all(np.diff(times) > 0)
     ros.call(ros.cmd.cli_running, SetBool.Request(data=True))
     assert ros.spin(lambda: sim.t > 0.01)
     assert np.abs(sim.model.velocities()).max() < 1e-12     # at rest again: the impact is gone

@@ -45,11 +45,17 @@ def test_second_process_commands_node_over_dds(tmp_path):
         cmd.impact([0.1, 0.1, 0.1], '')
         assert spin_until(ex, lambda: any(d[0] == 1 and 'expected' in d[1]
                                           for d in cmd.diagnostics[k:]), 20)
-        # reset over DDS: the stamps start again from zero
+        # reset over DDS: back at rest, and the stamps go on increasing (a new episode)
         assert cmd.cli_reset.wait_for_service(timeout_sec=10)
+        t_before = cmd.clouds[-1][0]
         fut = cmd.cli_reset.call_async(Trigger.Request())
         assert spin_until(ex, fut.done, 20) and fut.result().success
-        assert spin_until(ex, lambda: cmd.clouds[-1][0] < 0.02, 10)
+        assert 'episode 1' in fut.result().message
+        k = len(cmd.clouds)
+        assert spin_until(ex, lambda: len(cmd.clouds) > k + 5, 10)
+        assert cmd.clouds[k][0] > t_before and np.abs(cmd.strain[-1]).max() < 1e-9
+        times = [c[0] for c in cmd.clouds]
+        assert np.all(np.diff(times) > 0)
     finally:
         code, out = stop_process(proc)
         ex.shutdown()

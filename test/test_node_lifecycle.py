@@ -134,3 +134,36 @@ def test_autostart_is_active_at_once(managed):
     finally:
         node.close()
         node.destroy_node()
+
+
+def test_every_transition_logs_a_line(managed, monkeypatch):
+    """INFO for each transition that succeeds (configure, activate, deactivate, cleanup,
+    shutdown), ERROR for a configure that fails and for the error transition."""
+    from types import SimpleNamespace
+    make = managed[0]
+    lines = []
+
+    class Log:
+        def __getattr__(self, level):
+            return lambda text, **kw: lines.append((level, text))
+
+    def last_lines(node, *steps):
+        monkeypatch.setattr(node, 'get_logger', lambda: Log())
+        out = []
+        for step in steps:
+            del lines[:]
+            getattr(node, f'trigger_{step}')()
+            assert lines, step
+            out.append((lines[-1][0], lines[-1][1].split(' ')[0]))
+            assert all(level == 'info' for level, _ in lines) or step == 'configure'
+        return out
+
+    assert last_lines(make(), 'configure', 'activate', 'deactivate', 'cleanup', 'configure',
+                      'shutdown') == [
+        ('info', 'configured'), ('info', 'activated:'), ('info', 'deactivated'),
+        ('info', 'cleaned'), ('info', 'configured'), ('info', 'shutdown')]
+    bad = make('/nope/missing.yaml')
+    assert last_lines(bad, 'configure') == [('error', 'configure')]
+    del lines[:]
+    bad.on_error(SimpleNamespace(label='configuring'))
+    assert [level for level, _ in lines] == ['error'] and 'configuring' in lines[0][1]

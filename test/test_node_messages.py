@@ -30,7 +30,11 @@ def test_frame_messages_round_trip(sim):
     net = sim.network
     msgs = messages.frame_messages(f, net, markers=True, clock=True)
     assert set(msgs) == {'~/nodes', '~/strain', '~/cable_tension', '~/markers', '/clock',
-                         '~/base_force'}
+                         '~/base_force', '~/energy'}
+    e = msgs['~/energy']
+    assert [(d.label, d.size) for d in e.layout.dim] == [
+        ('energy_J,constraint_error,energy_balance_error', 3)]
+    assert list(e.data) == [f.energy, f.constraint_error, f.energy_balance_error]
     b = msgs['~/base_force']
     assert [(d.label, d.size) for d in b.layout.dim] == [('column', net.n_columns)]
     np.testing.assert_array_equal(np.array(b.data), f.base_force)

@@ -61,13 +61,21 @@ def test_node_records_what_it_publishes(tmp_path):
 
     data = read(rrd)
     strain = published('/strain')
-    # every published strain frame is in the recording at its stamp (a reset repeats stamps)
+    # every published strain frame is in the recording at its stamp (the clock runs on across
+    # the reset: each stamp once)
     rows = {}
     for t, r in data['/strain/column_0']['rows']:
         rows.setdefault(t, []).append(flat(r['Scalars:scalars']))
-    assert sorted(rows) == sorted({ns for ns, _ in strain})
+    assert sorted(rows) == sorted({ns for ns, _ in strain} | {0})
     # the node publishes its first frame (t = 0) before our sink is added
-    assert sum(len(v) for v in rows.values()) == len(strain) + 1 and len(rows[0]) >= 2
+    assert sum(len(v) for v in rows.values()) == len(strain) + 1
+    assert all(len(v) == 1 for v in rows.values())
+    # the episode: 0 up to the reset, 1 after it
+    episode = [(t, flat(r['Scalars:scalars'])[0]) for t, r in data['/episode']['rows']]
+    assert [t for t, _ in episode] == sorted(rows)
+    e = np.array([v for _, v in episode])
+    k = int(np.argmax(e))
+    assert k > 0 and np.all(e[:k] == 0) and np.all(e[k:] == 1)
     for ns, msg in strain:
         assert any(np.array_equal(v, np.asarray(msg.data)) for v in rows[ns])
     assert min(np.min(v) for vs in rows.values() for v in vs) < -1e-3      # the pulse is there

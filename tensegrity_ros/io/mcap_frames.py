@@ -115,7 +115,8 @@ class FrameLog:
         :class:`~solver.simulate.simulation.Frame` does)."""
         topic, verdict, detail = self.last_command
         balance = getattr(frame, 'energy_balance_error', None)
-        return {'sim_time_s': float(frame.t), 'steps': int(frame.step), 'running': 'true',
+        return {'sim_time_s': float(frame.t), 'episode': 0, 'episode_time_s': float(frame.t),
+                'steps': int(frame.step), 'running': 'true',
                 'energy_J': float(frame.energy),
                 'constraint_error': float(frame.constraint_error),
                 **({} if balance is None else {'energy_balance_error': float(balance)}),
@@ -128,6 +129,11 @@ class FrameLog:
         self.rec.write(self.topic('/diagnostics'),
                        M.diagnostics_message(stamp, self.diagnostics_values(frame), 0, message),
                        M.stamp_to_ns(stamp))
+
+    def event(self, t, text):
+        """Log an event (what the node publishes on ``~/events``) at simulation time ``t`` s."""
+        self.rec.write(self.topic('~/events'), M.String(data=str(text)),
+                       M.stamp_to_ns(M.sim_stamp(t)))
 
     def command(self, key, values, label, frame, detail=''):
         """Log a command (``'~/cmd/impact'`` or ``'~/cmd/prestrain'``) applied at ``frame`` (a

@@ -13,6 +13,10 @@ every ``flush_period_s`` seconds of wall time (a background thread does it while
 written), so a SIGKILL loses at most that much. SIGINT and SIGTERM finish the file properly when
 the recorder is a context manager inside :func:`signals_as_interrupt` (or rclpy's own handlers).
 Log times are the messages' simulation-time stamps in nanoseconds, never the wall clock.
+
+With ``bag=True`` the recorder writes a rosbag2 bag folder (docs/mcap.md): ``runs/x`` or
+``runs/x.mcap`` becomes ``runs/x/x_0.mcap`` and, when the recorder closes, ``runs/x/metadata.yaml``
+(:func:`bag_metadata`, metadata version :data:`BAG_VERSION`).
 """
 from __future__ import annotations
 
@@ -36,6 +40,9 @@ _PRIMITIVES = frozenset({'bool', 'byte', 'char', 'float32', 'float64', 'int8', '
 # rmw reports unset durations of a Fast DDS endpoint as RMW_DURATION_INFINITE; rosbag2 stores that
 INFINITE = {'sec': 9223372036, 'nsec': 854775807}
 PROFILE = 'ros2'
+# rosbag2's metadata.yaml version: 8 is the newest that Humble's rosbag2 reads (its QoS is a YAML
+# text with integer policies; 9 turned it into a YAML list) and Jazzy's and later read it too
+BAG_VERSION = 8
 
 
 class RecordingError(ValueError):
@@ -166,6 +173,76 @@ def qos_yaml(qos=None):
     return '\n'.join(lines)
 
 
+def qos_yaml_v8(qos=None):
+    """``offered_qos_profiles`` of a ``metadata.yaml`` of version :data:`BAG_VERSION`: the text
+    of a one-profile YAML list with the policies as rmw's integers (history 1 keep last, 2 keep
+    all; reliability 1 reliable, 2 best effort; durability 1 transient local, 2 volatile;
+    liveliness 1 automatic), as Humble's ``Rosbag2QoS`` decodes them."""
+    if qos is None:
+        from rclpy.qos import QoSProfile
+        qos = QoSProfile(depth=10)
+
+    def code(policy, default):
+        value = int(policy.value)
+        return default if value == 0 else value        # system default: what Fast DDS offers
+    fields = [
+        ('history', code(qos.history, 1)), ('depth', int(qos.depth)),
+        ('reliability', code(qos.reliability, 1)), ('durability', code(qos.durability, 2)),
+        ('deadline', _duration(qos.deadline)), ('lifespan', _duration(qos.lifespan)),
+        ('liveliness', code(qos.liveliness, 1)),
+        ('liveliness_lease_duration', _duration(qos.liveliness_lease_duration)),
+        ('avoid_ros_namespace_conventions', 'true' if qos.avoid_ros_namespace_conventions
+         else 'false')]
+    lines = []
+    for i, (key, value) in enumerate(fields):
+        lead = '- ' if i == 0 else '  '
+        if isinstance(value, dict):
+            lines.append(f'{lead}{key}:')
+            lines += [f'    {k}: {v}' for k, v in value.items()]
+        else:
+            lines.append(f'{lead}{key}: {value}')
+    return '\n'.join(lines)
+
+
+def bag_metadata(file_name, topics, first_ns, last_ns, ros_distro=None):
+    """The ``metadata.yaml`` text of a bag holding the one MCAP file ``file_name``: ``topics`` a
+    list of ``(name, type name, QoS profile, message count)`` in the order they were declared;
+    ``first_ns``, ``last_ns`` the first and last log times (None: no message)."""
+    import yaml
+    count = sum(t[3] for t in topics)
+    start = int(first_ns or 0)
+    duration = int(last_ns - first_ns) if first_ns is not None else 0
+    info = {
+        'version': BAG_VERSION,
+        'storage_identifier': 'mcap',
+        'duration': {'nanoseconds': duration},
+        'starting_time': {'nanoseconds_since_epoch': start},
+        'message_count': count,
+        'topics_with_message_count': [
+            {'topic_metadata': {'name': name, 'type': type_name, 'serialization_format': 'cdr',
+                                'offered_qos_profiles': qos_yaml_v8(qos),
+                                'type_description_hash': type_hash(type_name)},
+             'message_count': n} for name, type_name, qos, n in topics],
+        'compression_format': '',
+        'compression_mode': '',
+        'relative_file_paths': [file_name],
+        'files': [{'path': file_name, 'starting_time': {'nanoseconds_since_epoch': start},
+                   'duration': {'nanoseconds': duration}, 'message_count': count}],
+        'custom_data': {},
+        'ros_distro': os.environ.get('ROS_DISTRO', '') if ros_distro is None else ros_distro,
+    }
+
+    class Dumper(yaml.SafeDumper):
+        pass
+
+    def text(dumper, value):
+        style = '|' if '\n' in value else None
+        return dumper.represent_scalar('tag:yaml.org,2002:str', value, style=style)
+    Dumper.add_representer(str, text)
+    return yaml.dump({'rosbag2_bagfile_information': info}, Dumper=Dumper, sort_keys=False,
+                     default_flow_style=False, width=1000)
+
+
 def _finite(msg):
     """False if ``msg`` is a float array message (``*MultiArray``) with a non-finite value."""
     data = getattr(msg, 'data', None)
@@ -207,10 +284,12 @@ class McapRecorder:
     :meth:`close`. Also a sink: ``recorder(topic, msg, stamp_ns)`` == ``recorder.write(...)``.
 
     ``chunk_size`` bytes (uncompressed) close a chunk early; ``flush_period_s`` of wall time bound
-    what a SIGKILL can lose. Thread safe (one lock around the writer)."""
+    what a SIGKILL can lose. Thread safe (one lock around the writer). ``bag``: write a rosbag2
+    bag folder (:func:`~tensegrity_ros.io.mcap_reader.bag_paths`; ``folder`` names it, ``path``
+    the MCAP file in it; ``metadata.yaml`` is written by :meth:`close`)."""
 
     def __init__(self, path, chunk_size=256 * 1024, flush_period_s=0.25, compression='zstd',
-                 metadata=None):
+                 metadata=None, bag=False):
         from mcap.writer import CompressionType, Writer
         try:
             comp = {'zstd': CompressionType.ZSTD, 'lz4': CompressionType.LZ4,
@@ -219,9 +298,18 @@ class McapRecorder:
             raise RecordingError(f'compression must be zstd, lz4 or none, not {compression!r}')
         if not flush_period_s > 0:
             raise RecordingError(f'flush_period_s must be > 0, not {flush_period_s!r}')
+        self.folder = None
+        if bag:
+            from tensegrity_ros.io.mcap_reader import BAG_METADATA, bag_paths
+            self.folder, path = bag_paths(path)
+            if self.folder.is_file():
+                raise RecordingError(f'cannot write the bag folder {self.folder}: a file of '
+                                     f'that name exists')
         self.path = Path(path)
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
+            if self.folder is not None:     # a previous recording's metadata is not this one's
+                (self.folder / BAG_METADATA).unlink(missing_ok=True)
             self._file = _DirectFile(self.path)
         except OSError as exc:
             raise RecordingError(f'cannot write MCAP file {self.path}: {exc.strerror}') from None
@@ -233,6 +321,8 @@ class McapRecorder:
         self._channels = {}
         self._sequence = {}
         self._qos = {}
+        self._counts = {}                 # topic -> [type name, message count]
+        self._first_ns = self._last_ns = None
         self._pending = False
         self._closed = False
         self.flush_period_s = float(flush_period_s)
@@ -269,6 +359,7 @@ class McapRecorder:
             meta['topic_type_hash'] = digest
         cid = self._writer.register_channel(topic, 'cdr', sid, meta)
         self._channels[topic] = cid
+        self._counts[topic] = [name, 0]
         self._sequence[topic] = 0
         return cid
 
@@ -306,6 +397,11 @@ class McapRecorder:
                 raise RecordingError(f'{self.path} is closed')
             cid = self._channel(topic, msg)
             self._sequence[topic] += 1
+            self._counts[topic][1] += 1
+            if self._first_ns is None:
+                self._first_ns = stamp_ns
+            self._first_ns, self._last_ns = min(self._first_ns, stamp_ns), max(
+                self._last_ns or 0, stamp_ns)
             self._writer.add_message(cid, log_time=stamp_ns, data=data, publish_time=stamp_ns,
                                      sequence=self._sequence[topic])
             self.message_count += 1
@@ -335,7 +431,8 @@ class McapRecorder:
                     self._flush_locked()
 
     def close(self):
-        """Write the summary (schemas, channels, statistics, indexes) and close the file."""
+        """Write the summary (schemas, channels, statistics, indexes) and close the file; for a
+        bag, then ``metadata.yaml`` (written whole, then renamed into place)."""
         with self._lock:
             if self._closed:
                 return
@@ -346,6 +443,17 @@ class McapRecorder:
                 self._writer.finish()
             finally:
                 self._file.close()
+            if self.folder is not None:
+                self._write_bag_metadata()
+
+    def _write_bag_metadata(self):
+        from tensegrity_ros.io.mcap_reader import BAG_METADATA
+        topics = [(topic, name, self._qos.get(topic), n)
+                  for topic, (name, n) in self._counts.items()]
+        text = bag_metadata(self.path.name, topics, self._first_ns, self._last_ns)
+        part = self.folder / (BAG_METADATA + '.part')
+        part.write_text(text)
+        os.replace(part, self.folder / BAG_METADATA)
 
     @property
     def closed(self):

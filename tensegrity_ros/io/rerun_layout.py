@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import rerun as rr
 import rerun.blueprint as rrb
+import rerun.blueprint.encodings as rrbe
 
 TIMELINE = 'sim_time'
 COLORMAP = 'Spectral'
@@ -17,12 +18,22 @@ def legend_markdown(tension_scale):
             f'negative in compression.')
 
 
-def blueprint(n_columns=1, field_grid=None):
+def blueprint(n_columns=1, field_grid=None, y_ranges=None):
     """The default layout, as the paper's figures: on the left the 3D column above the colour
-    legend (with a ``field_grid``, the field in the medium between them); on the right the strain
-    per prism at the time cursor, the prism-by-``sim_time`` heat map and its scale, base force,
-    energy, energy balance error and constraint error side by side, and the command log.
-    Several columns: one tab per column for the bar chart and the heat map."""
+    legend and the command log (with a ``field_grid``, the field in the medium under the 3D
+    view); on the right the strain per prism at the time cursor, the prism-by-``sim_time`` heat
+    map (the clamped end at the bottom, as in the 3D view) and its scale, base force, energy,
+    energy balance error and constraint error side by side. Several columns: one tab per column
+    for the bar chart and the heat map. ``y_ranges``: ``{time series origin: (lo, hi)}``, fixed
+    y ranges (the recorder gives them for series that stay constant, which the viewer would
+    draw on an axis of +-1 around them)."""
+    y_ranges = y_ranges or {}
+
+    def series(origin, name):
+        lo_hi = y_ranges.get(origin)
+        axis = None if lo_hi is None else rrb.archetypes.ScalarAxis(range=lo_hi)
+        return rrb.TimeSeriesView(origin=origin, name=name, axis_y=axis)
+
     def one_or_tabs(views):
         return views[0] if len(views) == 1 else rrb.Tabs(*views)
     mapping = rrb.archetypes.TensorScalarMapping(colormap=COLORMAP)
@@ -36,7 +47,7 @@ def blueprint(n_columns=1, field_grid=None):
                        name=f'strain, prism x sim_time from the impact, column {c}',
                        slice_selection=rrb.archetypes.TensorSliceSelection(
                            width=rr.TensorDimensionSelection(1),
-                           height=rr.TensorDimensionSelection(0)),
+                           height=rr.TensorDimensionSelection(0, invert=True)),
                        scalar_mapping=mapping, view_fit='fill'),
         rrb.TensorView(origin=f'wave_scale/column_{c}', name='colour scale: strain',
                        scalar_mapping=mapping, view_fit='fill'),
@@ -53,19 +64,21 @@ def blueprint(n_columns=1, field_grid=None):
                               name='pressure at the time cursor (grey: zero)')))
         shares = [4, 3]
     left.append(rrb.TextDocumentView(origin='legend', name='colours'))
+    left.append(rrb.TextLogView(
+        origin='commands', name='commands and events (latest at the time cursor)',
+        columns=rrb.archetypes.TextLogColumns(text_log_columns=[
+            rrbe.TextLogColumn('LogLevel'), rrbe.TextLogColumn('Body'),
+            rrbe.TextLogColumn('EntityPath', visible=False)])))
     return rrb.Blueprint(
         rrb.Horizontal(
-            rrb.Vertical(*left, row_shares=shares + [1]),
+            rrb.Vertical(*left, row_shares=shares + [1, 2]),
             rrb.Vertical(
                 one_or_tabs(bars), one_or_tabs(waves),
-                rrb.Horizontal(rrb.TimeSeriesView(origin='base_force', name='base force, N'),
-                               rrb.TimeSeriesView(origin='energy', name='energy, J'),
-                               rrb.TimeSeriesView(origin='energy_balance_error',
-                                                  name='energy balance error'),
-                               rrb.TimeSeriesView(origin='constraint_error',
-                                                  name='constraint error')),
-                rrb.TextLogView(origin='commands', name='commands'),
-                row_shares=[3, 4, 1.5, 1]),
+                rrb.Horizontal(series('base_force', 'base force, N'),
+                               series('energy', 'energy, J'),
+                               series('energy_balance_error', 'energy balance error'),
+                               series('constraint_error', 'constraint error')),
+                row_shares=[3, 4, 2]),
             column_shares=[2, 3]),
         rrb.BlueprintPanel(state='collapsed'), rrb.SelectionPanel(state='collapsed'),
         rrb.TimePanel(timeline=TIMELINE, state='collapsed'))

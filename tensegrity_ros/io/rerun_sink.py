@@ -20,7 +20,9 @@ own threads encode and write. Entities:
   and ``wave_scale/column_c`` (its colour scale), every ``wave_period_s`` wall seconds and, static,
   when the recording closes.
 - ``energy`` J, ``constraint_error`` and ``energy_balance_error`` (of the frames that carry
-  it: a headless run's) Scalars; ``commands`` TextLog; ``legend`` TextDocument.
+  it) Scalars; ``episode`` Scalars (0, then one more after each reset of the node: the frame's
+  ``episode``, or for frames without one the number of times the clock went back);
+  ``commands`` TextLog; ``legend`` TextDocument.
 - ``field/peak_pressure`` and ``field/pressure`` Images (``L``, over ``field/scale``), for arrays
   given a ``field_grid``.
 """
@@ -39,7 +41,7 @@ from tensegrity_ros.io.rerun_layout import TIMELINE, blueprint, legend_markdown
 from tensegrity_ros.msgs.style import reference_tension_scale, tension_colors
 
 DEFAULT_URL = 'rerun+http://127.0.0.1:9876/proxy'
-PRISM_AXIS = 'prism (0: clamped end)'
+PRISM_AXIS = 'prism (0: clamped end, at the bottom)'
 BAR_RGBA = (200, 200, 210, 255)
 NODE_RGBA = (240, 120, 40, 255)
 SCALE_STEPS = 101
@@ -134,8 +136,9 @@ class RerunRecorder:
     :func:`~tensegrity_ros.msgs.style.reference_tension_scale`). Frames go out every
     ``flush_every`` frames, or after ``max_latency_s`` wall seconds. A frame that does not match
     the network, or holds a value that is not finite or beyond float32, raises ValueError and
-    records nothing; a time not after the previous frame (a reset) flushes what came before and
-    starts a new heat map."""
+    records nothing. A new episode (a frame's ``episode`` differs from the previous frame's, or
+    its time is not after the previous frame's) flushes what came before and starts a new heat
+    map."""
 
     def __init__(self, network, path=None, *, connect=None, tension_scale=None, flush_every=50,
                  max_latency_s=0.5, wave_window=1000, wave_period_s=2.0,
@@ -155,6 +158,7 @@ class RerunRecorder:
                 raise ValueError(f'rerun: field_grid must be (x0, x1, z0, z1) m, got '
                                  f'{field_grid!r}')
         self.net, self.field_grid = network, field_grid
+        self._layout = (max(network.n_columns, 1), field_grid) if send_blueprint else None
         self.path = None if path is None else str(path)
         self.url = (DEFAULT_URL if connect is True else connect) or None
         if self.url is not None:
@@ -178,7 +182,8 @@ class RerunRecorder:
         self._s = np.empty((b,) + self._shapes[1])
         self._tension = np.empty((b,) + self._shapes[2])
         self._base = np.zeros((b, self._n_base))
-        self._scalars = np.empty((b, 4))        # t, energy, constraint and balance errors
+        self._scalars = np.empty((b, 5))        # t, energy, constraint and balance errors, episode
+        self._ranges = {}                       # time series view -> [lo, hi] of its values
         self._wave = np.empty((n_col, network.n_prisms, self.wave_window))
         self._wave_t = np.empty(self.wave_window)
         self._n = self._wave_n = 0
@@ -186,7 +191,7 @@ class RerunRecorder:
         self._hi = np.full(n_col, -np.inf)
         self._impact_t = None
         self._commands = []                           # (t s, text, level) not yet sent
-        self._last_t = None
+        self._last_t = self._episode = None
         self._last_flush = self._last_wave = time.monotonic()
         self.n_frames = self.n_commands = self.n_restarts = self.n_fields = 0
         self._closed = False
@@ -197,8 +202,8 @@ class RerunRecorder:
             [rr.GrpcSink(self.url)] if self.url else [])
         self.stream.set_sinks(*sinks)
         if send_blueprint:
-            self.stream.send_blueprint(blueprint(max(network.n_columns, 1), field_grid),
-                                       make_active=True, make_default=True)
+            self.stream.send_blueprint(blueprint(*self._layout), make_active=True,
+                                       make_default=True)
         self._log_static(n_col)
 
     # -- static ---------------------------------------------------------------------------------
@@ -248,16 +253,20 @@ class RerunRecorder:
             if not (np.isfinite(a).all() and (a <= F32_MAX).all()):
                 raise ValueError(f'rerun: frame at t = {t:g} s has non-finite {name} (or beyond '
                                  f'float32); not recorded')
-        if self._last_t is not None and t <= self._last_t:       # the clock went back: a reset
-            self.flush()
+        episode = getattr(frame, 'episode', None)
+        if (self._last_t is not None and t <= self._last_t) or (
+                episode is not None and self._episode is not None and episode != self._episode):
+            self.flush()                                          # a reset: a new episode
             self._wave_n = 0
             self.n_restarts += 1
+        self._episode = episode
         i = self._n
         self._x[i], self._s[i], self._tension[i] = x, strain, tension
         if self._n_base:            # a frame without base forces records 0
             self._base[i] = base if base.shape == (self._n_base,) else 0.0
         self._scalars[i] = (t, frame.energy, frame.constraint_error,
-                            np.nan if balance is None else balance)
+                            np.nan if balance is None else balance,
+                            self.n_restarts if episode is None else episode)
         self._last_t, self._n = t, i + 1
         self.n_frames += 1
         if self._n == self.flush_every or \
@@ -353,7 +362,14 @@ class RerunRecorder:
             put(f'base_force/column_{c}', rr.Scalars.columns(scalars=self._base[:n, c].copy()))
         put('energy', rr.Scalars.columns(scalars=self._scalars[:n, 1].copy()))
         put('constraint_error', rr.Scalars.columns(scalars=self._scalars[:n, 2].copy()))
+        put('episode', rr.Scalars.columns(scalars=self._scalars[:n, 4].copy()))
         has = np.isfinite(self._scalars[:n, 3])        # the frames that carry a balance error
+        for view, v in (('base_force', self._base[:n]), ('energy', self._scalars[:n, 1]),
+                        ('constraint_error', self._scalars[:n, 2]),
+                        ('energy_balance_error', self._scalars[:n, 3][has])):
+            if v.size:
+                r = self._ranges.setdefault(view, [np.inf, -np.inf])
+                r[0], r[1] = min(r[0], float(v.min())), max(r[1], float(v.max()))
         if has.any():
             rr.send_columns('energy_balance_error', [rr.TimeColumn(TIMELINE, duration=_ns(
                 t[has]))], rr.Scalars.columns(scalars=self._scalars[:n, 3][has]),
@@ -407,6 +423,10 @@ class RerunRecorder:
                 self.stream.log(f'strain_profile/column_{c}/range', rr.BarChart(
                     [float(self._lo[c]), float(self._hi[c])], abscissa=[0.0, 0.0],
                     widths=[0.0, 0.0], color=(0, 0, 0, 0)), static=True)
+            flat = constant_ranges(self._ranges)
+            if flat and self._layout is not None:
+                self.stream.send_blueprint(blueprint(*self._layout, y_ranges=flat),
+                                           make_active=True, make_default=True)
             if self.url is not None:
                 self.stream.flush()
         except Exception as exc:
@@ -425,6 +445,22 @@ class RerunRecorder:
     def __exit__(self, *exc):
         self.close()
         return False
+
+
+def constant_ranges(ranges):
+    """``{view: (lo, hi)}`` y ranges for the time series whose values stayed constant (within
+    1e-9 of their size): +-5 % around the value (+-1 around 0). Rerun draws a constant series
+    on an axis of +-1 around it, where a small constant value looks like zero."""
+    out = {}
+    for view, (lo, hi) in ranges.items():
+        if not (math.isfinite(lo) and math.isfinite(hi)):
+            continue
+        size = max(abs(lo), abs(hi))
+        if hi - lo <= 1e-9 * size or hi == lo:
+            centre = 0.5 * (lo + hi)
+            half = 0.05 * abs(centre) if centre != 0 else 1.0
+            out[view] = (centre - half, centre + half)
+    return out
 
 
 def heat_map_grid(times, impact_t=None):

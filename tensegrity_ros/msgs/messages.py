@@ -41,6 +41,7 @@ MSG_CLASSES = {
     '~/striker': Float64MultiArray, '/clock': Clock, '/diagnostics': DiagnosticArray,
     '~/cmd/prestrain': Float64MultiArray, '~/cmd/impact': Float64MultiArray,
     '~/structure': String, '~/cmd/focus': PointStamped, '~/field': Image,
+    '~/energy': Float64MultiArray, '~/events': String,
 }
 XYZ_FIELDS = [PointField(name=n, offset=offset, datatype=PointField.FLOAT32, count=1)
               for n, offset in XYZ]

@@ -30,9 +30,13 @@ TYPES = {
     '~/structure': 'std_msgs/msg/String',     # JSON, transient-local, once per activation
     '~/cmd/focus': 'geometry_msgs/msg/PointStamped',
     '~/field': 'sensor_msgs/msg/Image',       # 32FC1 peak pressure map, at field_rate_hz
+    '~/energy': 'std_msgs/msg/Float64MultiArray',   # per frame: ENERGY_LABEL
+    '~/events': 'std_msgs/msg/String',        # commands applied or rejected, resets, pauses
 }
 PUBLISHED = ('~/nodes', '~/strain', '~/cable_tension', '~/markers', '/clock', '/diagnostics',
-             '~/base_force')
+             '~/base_force', '~/energy', '~/events')
+# the one dimension of ``~/energy``: its three values in order
+ENERGY_LABEL = 'energy_J,constraint_error,energy_balance_error'
 OPTIONAL = ('~/striker',)      # published only by scenes that have strikers
 COMMANDS = ('~/cmd/prestrain', '~/cmd/impact')
 
@@ -109,9 +113,18 @@ def reference_tension_scale(network):
     return 2.0 * (float(t.max()) if t.size and t.max() > 0 else 1.0)
 
 
+def energy_values(frame):
+    """(3,) float64: the frame's energy J, constraint error and energy balance error (0 when the
+    frame carries none)."""
+    balance = getattr(frame, 'energy_balance_error', None)
+    return np.array([frame.energy, frame.constraint_error, 0.0 if balance is None else balance],
+                    dtype=np.float64)
+
+
 def check_finite(frame):
     """``ValueError`` if a frame holds a non-finite value (nothing NaN is ever published)."""
-    for name in ('positions', 'strain', 'tension', 'base_force', 'striker'):
+    for name in ('positions', 'strain', 'tension', 'base_force', 'striker', 'energy',
+                 'constraint_error', 'energy_balance_error'):
         value = getattr(frame, name, None)
         if value is not None and not np.all(np.isfinite(value)):
             raise ValueError(f'frame at t = {frame.t:.6g} s: {name} is not finite')
@@ -120,11 +133,13 @@ def check_finite(frame):
 def frame_topics(frame, network, build, stamp=None, markers=True, clock=False, t_max=None):
     """The messages of one publish frame, made by ``build`` (:class:`Builders`): dict topic key ->
     message. Always ``'~/nodes'`` (PointCloud2), ``'~/strain'`` (dims ``column``, ``prism``) and
-    ``'~/cable_tension'`` (dim ``cable``, N); ``'~/base_force'`` (dim ``column``, N, positive
-    compressive) when the frame has one value per column; ``'~/striker'`` (dims ``column``,
-    ``state``: face height m, axial velocity m/s) when the frame has strikers; ``'~/markers'``
-    when ``markers``; ``'/clock'`` when ``clock``. ``stamp`` defaults to :func:`sim_stamp` of
-    ``frame.t``. Raises ``ValueError`` if the frame holds a non-finite value."""
+    ``'~/cable_tension'`` (dim ``cable``, N); ``'~/energy'`` (energy J, constraint error,
+    energy balance error: one dimension labelled :data:`ENERGY_LABEL`); ``'~/base_force'`` (dim
+    ``column``, N, positive compressive) when the frame has one value per column;
+    ``'~/striker'`` (dims ``column``, ``state``: face height m, axial velocity m/s) when the
+    frame has strikers; ``'~/markers'`` when ``markers``; ``'/clock'`` when ``clock``. ``stamp``
+    defaults to :func:`sim_stamp` of ``frame.t``. Raises ``ValueError`` if the frame holds a
+    non-finite value."""
     check_finite(frame)
     if stamp is None:
         stamp = sim_stamp(frame.t)
@@ -134,6 +149,7 @@ def frame_topics(frame, network, build, stamp=None, markers=True, clock=False, t
         '~/strain': multi(np.asarray(frame.strain).reshape(network.n_columns, network.n_prisms),
                           ('column', 'prism')),
         '~/cable_tension': multi(frame.tension, ('cable',)),
+        '~/energy': multi(energy_values(frame), (ENERGY_LABEL,)),
     }
     base = np.asarray(getattr(frame, 'base_force', ()))
     if base.shape == (network.n_columns,) and base.size:

@@ -218,7 +218,7 @@ def run_demo(scene_file='config/scenes/fb_column.yaml', v0=(0.1,), duration_s=1.
               'publish_rate_hz': float(publish_rate_hz), 'start_paused': True}
     outputs = {'mcap': None, 'rerun': None}
     if record and _recorder_available('io.mcap_writer'):
-        outputs['mcap'] = params['record_mcap'] = str(out / 'run.mcap')
+        outputs['mcap'] = params['record_mcap'] = str(out / 'run')
     if record and _recorder_available('io.rerun_sink'):
         outputs['rerun'] = params['record_rerun'] = str(out / 'run.rrd')
     v0 = [float(v) for v in np.atleast_1d(v0)]
@@ -338,7 +338,7 @@ def run_focus_demo(focus, scene_file='config/scenes/lens_focus.yaml', speed=1.5,
               'diagnostics_rate_hz': 10.0}
     outputs = {'mcap': None, 'rerun': None}
     if record and _recorder_available('io.mcap_writer'):
-        outputs['mcap'] = params['record_mcap'] = str(out / 'run.mcap')
+        outputs['mcap'] = params['record_mcap'] = str(out / 'run')
     if record and _recorder_available('io.rerun_sink'):
         outputs['rerun'] = params['record_rerun'] = str(out / 'run.rrd')
     proc = node_process(params, domain_id)

@@ -65,7 +65,7 @@ class Focus:
             sim.apply_prestrain(p, ramp_s=ramp)
             self.impact_at = sim.t + ramp
             self.current = {'plan': plan.as_dict(), 'state': 'ramping',
-                            'impact_sim_time_s': self.impact_at}
+                            'impact_sim_time_s': node.clock_time(self.impact_at)}
             if ramp == 0:
                 self.impact()
             return (f'focus ({x:g}, {z:g}) m at C = {speed:g} m/s: prestrain per column '
@@ -91,11 +91,11 @@ class Focus:
         v0 = self.current['plan']['v0']
         added = sim.apply_impact(v0)
         self.current['state'] = 'impacted'
-        self.current['impact_sim_time_s'] = float(sim.t)
+        self.current['impact_sim_time_s'] = float(node.clock_time())
         self.start_record(tuple(self.current['plan']['focus_m']))
         detail = f'focus impact v0 = {v0:g} m/s on every column, kinetic energy +{added:.3g} J'
         node.log('focus impact', 'info', f'~/cmd/focus: {detail}')
-        node.sinks.event(sim.t, f'~/cmd/focus: {detail}')
+        node.event(f'~/cmd/focus: {detail}')
 
     # -- the record and the field ---------------------------------------------------------------
     def start_record(self, focus=None):
@@ -147,7 +147,7 @@ class Focus:
         peak = rec.peak_map()
         if peak is None:
             return
-        stamp = messages.sim_stamp(rec.peak_time)
+        stamp = messages.sim_stamp(node.clock_time(rec.peak_time))
         try:
             msg = messages.field_image(peak, stamp)
         except ValueError as exc:
@@ -158,7 +158,8 @@ class Focus:
         if node.sinks.has('field') and rec.peak_time != self._field_sent_t:   # each time once
             self._field_sent_t = rec.peak_time
             now = rec.pressure_now()
-            node.sinks.field(float(rec.peak_time), peak, now if np.isfinite(now).all() else None)
+            node.sinks.field(float(node.clock_time(rec.peak_time)), peak,
+                             now if np.isfinite(now).all() else None)
 
     # -- /diagnostics ---------------------------------------------------------------------------
     def values(self):

@@ -44,9 +44,10 @@ class TakenByTick(CallbackGroup):
 class Intake:
     """Commands of node ``node``. ``counts``: accepted (applied), superseded (valid, replaced by a
     later one of the same topic before the next tick), rejected (malformed, or refused when
-    applied), frames; ``last_command`` (topic, accepted/rejected, detail) and its simulation time
-    ``last_command_t``; ``pending`` topic -> ``apply()`` of its last valid command since a tick;
-    ``cmd_wall`` the wall seconds the commands took since the last tick."""
+    applied), frames; ``last_command`` (topic, accepted/rejected, detail) and its clock time
+    ``last_command_t`` (:meth:`TensegritySim.clock_time`); ``pending`` topic -> ``apply()`` of its
+    last valid command since a tick; ``cmd_wall`` the wall seconds the commands took since the
+    last tick."""
 
     def __init__(self, node):
         self.node = node
@@ -68,7 +69,7 @@ class Intake:
         node = self.node
         w0 = time.perf_counter()
         node.sinks.message(node.topics[key], msg,
-                           messages.stamp_to_ns(messages.sim_stamp(node.sim.t)))
+                           messages.stamp_to_ns(messages.sim_stamp(node.clock_time())))
         try:
             apply = check()
             self.refuse_if_paused(key)
@@ -104,7 +105,7 @@ class Intake:
         now = time.monotonic()
         if now - self._last_reject_event >= LOG_THROTTLE_S:       # events: throttled as well
             self._last_reject_event = now
-            node.sinks.event(node.sim.t, f'rejected {text}')
+            node.event(f'rejected {text}')
 
     def take(self):
         """Take every command waiting in the subscriptions now (each through its handler): what
@@ -131,9 +132,9 @@ class Intake:
                 continue
             self.counts['accepted'] += 1
             self.last_command = (key, 'accepted', detail)
-            self.last_command_t = node.sim.t
+            self.last_command_t = node.clock_time()
             node.log('accepted', 'info', f'{key}: {detail}')
-            node.sinks.event(node.sim.t, f'{key}: {detail}')
+            node.event(f'{key}: {detail}')
 
     # -- the topics -----------------------------------------------------------------------------
     def impact(self, msg):

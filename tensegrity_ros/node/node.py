@@ -4,7 +4,9 @@
 
 One timer drives everything: each tick applies the commands that arrived since the last one,
 advances the simulation towards the paced target time within a work budget, then publishes one
-frame. Stamps are simulation time. The node is a thin adapter over its parts, one job each:
+frame. Stamps are simulation time, and the simulation clock never goes back: a reset restores the
+rest state and starts a new episode while the clock runs on (:meth:`TensegritySim.clock_time`).
+The node is a thin adapter over its parts, one job each:
 :class:`~tensegrity_ros.node.pacing.Pacer` (how far a tick steps),
 :class:`~tensegrity_ros.node.intake.Intake` (commands),
 :class:`~tensegrity_ros.node.publishing.Publishing` (frames, structure, ``/diagnostics``) and
@@ -107,6 +109,7 @@ class TensegritySim(LifecycleNode):
         super()._check_undeclared_parameters(parameter_list)
 
     # -- lifecycle ------------------------------------------------------------------------------
+    # each transition logs one line: INFO when it succeeds, ERROR for a failure or an error
     def on_configure(self, state):
         if self.sim is None:
             from solver.build.network import NetworkError
@@ -114,8 +117,10 @@ class TensegritySim(LifecycleNode):
             try:
                 self._setup()
             except (ParameterError, SceneError, NetworkError, ValueError) as exc:
-                self.get_logger().error(f'configure: {exc}')
+                self.get_logger().error(f'configure failed, still unconfigured: {exc}')
                 return TransitionCallbackReturn.FAILURE
+        self.get_logger().info('configured (inactive): simulation, recorders, publishers, '
+                               'subscriptions and services ready')
         return TransitionCallbackReturn.SUCCESS
 
     def on_activate(self, state):
@@ -125,18 +130,33 @@ class TensegritySim(LifecycleNode):
         self.publishing.structure()
         self.publishing.frame(time.monotonic())
         self.timer = self.create_timer(self.period, self._tick)
+        self.get_logger().info(f'activated: stepping and publishing from t = '
+                               f'{self.clock_time():.9g} s')
         return super().on_activate(state)
 
     def on_deactivate(self, state):
         self.active = False
         self._drop_timer()
+        self.get_logger().info(f'deactivated at t = {self.clock_time():.9g} s: the timer stops, '
+                               f'the state stays')
         return super().on_deactivate(state)
 
     def on_cleanup(self, state):
         self._teardown()
+        self.get_logger().info('cleaned up (unconfigured): the simulation is dropped, the '
+                               'recorders closed')
         return TransitionCallbackReturn.SUCCESS
 
-    on_shutdown = on_error = on_cleanup
+    def on_shutdown(self, state):
+        self._teardown()
+        self.get_logger().info(f'shutdown (the node was {state.label}): the recorders closed')
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_error(self, state):
+        self._teardown()
+        self.get_logger().error(f'error in a transition from {state.label}: torn down to '
+                                f'unconfigured, the recorders closed')
+        return TransitionCallbackReturn.SUCCESS
 
     def _drop_timer(self):
         if self.timer is not None:
@@ -180,6 +200,7 @@ class TensegritySim(LifecycleNode):
         else:                      # a caller's simulation, in its state: start cautiously
             step_cost = 0.1 * self.period
         self.sim, net = sim, sim.network
+        self.episode, self.t_offset = 0, 0.0       # the clock: t_offset + the episode's sim.t
         self.cross_prism = sim.prestrain_map.cross_prism if sim.prestrain is not None else None
         self.t_max = style.reference_tension_scale(net)
         self.running, self.problem = not self.params['start_paused'], ''
@@ -244,7 +265,7 @@ class TensegritySim(LifecycleNode):
         if self.params['record_mcap']:
             from tensegrity_ros.io.mcap_frames import network_metadata
             from tensegrity_ros.io.mcap_writer import McapRecorder
-            rec = McapRecorder(self.params['record_mcap'],
+            rec = McapRecorder(self.params['record_mcap'], bag=True,
                                metadata=network_metadata(self.sim.network, self.sim.scene.name))
             for key, topic in self.topics.items():     # /clock too: it may be switched on
                 pub = self.pubs.get(key)
@@ -332,7 +353,7 @@ class TensegritySim(LifecycleNode):
         self.running = False
         self.problem = why
         self.log('pause', 'error', why)
-        self.sinks.event(self.sim.t, why)
+        self.event(why)
         self.publishing.diagnostics(time.monotonic())
 
     def diverged(self, text, t):
@@ -345,23 +366,45 @@ class TensegritySim(LifecycleNode):
         self.focus.record = None
         action = self.params['on_divergence']
         self.divergences += 1
-        self.last_divergence = {'wall': time.monotonic(), 'sim_time_s': float(t), 'text': text,
+        self.last_divergence = {'wall': time.monotonic(), 'sim_time_s': self.clock_time(t),
+                                'text': text,
                                 'action': action, 'reported': False}
         if action == 'pause':
             self.pause(f'paused: {text}')
             return
         self.log('divergence', 'error',
-                 f'{text}; reset to the rest state at t = 0 (on_divergence: reset)')
-        self.sinks.event(self.sim.t, f'diverged, reset to the rest state: {text}')
-        t_before = self.sim.t
+                 f'{text}; reset to the rest state, episode {self.episode + 1} '
+                 f'(on_divergence: reset)')
+        self.event(f'diverged, reset to the rest state: {text}')
+        t_before = self.clock_time()
         self._reset_simulation()
-        self.publishing.time_jump(t_before, self.sim.t)
+        self.publishing.time_jump(t_before, self.clock_time())
         self.publishing.diagnostics(time.monotonic())
 
+    def clock_time(self, t=None):
+        """The simulation clock, s, of the episode time ``t`` (default: now): it never goes
+        back. Each reset starts a new episode (``episode`` + 1) at the rest state, one step
+        ``dt`` after the last state of the previous one; stamps, ``/clock`` and recordings use
+        this clock, the solver its episode's ``sim.t`` (0 at each reset)."""
+        return self.t_offset + (self.sim.t if t is None else t)
+
+    def event(self, text):
+        """An event (a command applied or rejected, a reset, a pause) at the clock time now: on
+        ``~/events`` and to the recorders."""
+        t = self.clock_time()
+        msg = String(data=text)
+        stamp_ns = messages.stamp_to_ns(messages.sim_stamp(t))
+        self.pubs['~/events'].publish(msg)
+        self.sinks.message(self.topics['~/events'], msg, stamp_ns)
+        self.sinks.event(t, text)
+
     def _reset_simulation(self):
-        """The simulation at its rest state, t = 0; a planned focus impact dropped; the pace
-        counts from now."""
+        """The simulation at its rest state, a new episode (the clock runs on, see
+        :meth:`clock_time`); a planned focus impact dropped; the pace counts from now."""
+        t_end = self.clock_time()
         self.sim.reset()
+        self.episode += 1
+        self.t_offset = t_end + self.sim.dt - self.sim.t
         self.focus.reset()
         self.problem = ''
         self.pacer.anchor(self.sim.t, time.monotonic())
@@ -372,11 +415,13 @@ class TensegritySim(LifecycleNode):
         self.intake.apply()
         self._reset_simulation()
         self.publishing.restart_window(time.monotonic())
-        self.sinks.event(self.sim.t, 'reset')
+        self.event('reset')
+        self.publishing.diagnostics(time.monotonic())     # the new episode, before its frames
         if self.active:                # frames go out only while active
             self.publishing.frame(time.monotonic())
         response.success = True
-        response.message = 'reset to the reference geometry at rest, t = 0'
+        response.message = (f'reset to the reference geometry at rest: episode {self.episode} '
+                            f'from t = {self.clock_time():.9g} s (the clock runs on)')
         return response
 
     def _on_set_running(self, request, response):

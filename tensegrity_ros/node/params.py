@@ -40,7 +40,8 @@ DESCRIPTIONS = {
     'publish_rate_hz': 'frames published per wall-clock second (timer rate)',
     'real_time_factor': 'simulated seconds per wall second; 0 = as fast as possible',
     'use_sim_clock': 'publish /clock with the simulation time',
-    'record_mcap': 'MCAP file to record every topic to; empty = none',
+    'record_mcap': 'rosbag2 bag folder (MCAP) to record every topic to: runs/x or runs/x.mcap '
+                   '-> runs/x/x_0.mcap and runs/x/metadata.yaml; empty = none',
     'record_rerun': 'Rerun .rrd file to record to; empty = none',
     'marker_rate_hz': 'MarkerArray publications per wall second (<= publish_rate_hz)',
     'prestrain_ramp_s': 'simulation time over which a prestrain command is ramped, s',

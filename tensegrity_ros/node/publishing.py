@@ -7,6 +7,7 @@ Markers go out at ``marker_rate_hz`` and only when someone listens or records.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 
@@ -30,10 +31,10 @@ class Publishing:
 
     def restart_window(self, now):
         """Measure the achieved rates from ``now`` on (activation, reset)."""
-        self._window = (now, self.node.sim.t, self.node.counts['frames'])
+        self._window = (now, self.node.clock_time(), self.node.counts['frames'])
 
     def time_jump(self, t_before, t_after):
-        """The simulation time jumped (a reset after a divergence): the window keeps measuring
+        """The clock jumped (one step at a reset after a divergence): the window keeps measuring
         the publish rate and counts the simulated time done before the jump."""
         wall, t_sim, frames = self._window
         self._window = (wall, t_sim + t_after - t_before, frames)
@@ -54,18 +55,19 @@ class Publishing:
         msg = String(data=structure_json(sim.network, sim.scene.name, sim.model.cable_rest_length))
         node.pubs[STRUCTURE_TOPIC].publish(msg)
         node.sinks.message(node.topics[STRUCTURE_TOPIC], msg,
-                           messages.stamp_to_ns(messages.sim_stamp(sim.t)))
+                           messages.stamp_to_ns(messages.sim_stamp(node.clock_time())))
 
     def frame(self, now):
-        """Publish the current frame; a frame that is not finite is never published: it is a
-        divergence (the node resets or pauses, ``on_divergence``, and says why; returns
-        False)."""
+        """Publish the current frame at the clock time (:meth:`TensegritySim.clock_time`; the
+        frame the sinks get has that ``t`` and its ``episode``); a frame that is not finite is
+        never published: it is a divergence (the node resets or pauses, ``on_divergence``, and
+        says why; returns False)."""
         node = self.node
         t0 = time.perf_counter()
         markers = self.markers_due(now)
         build = messages.frame_messages if node.sinks.wants_objects else cdr.frame_messages_cdr
         try:
-            frame = node.sim.frame()            # (its base force fails on a broken state)
+            frame = clocked(node.sim.frame(), node)   # (its base force fails on a broken state)
             stamp = messages.sim_stamp(frame.t)
             msgs = build(frame, node.sim.network, stamp=stamp, markers=markers,
                          clock=node.params['use_sim_clock'], t_max=node.t_max)
@@ -95,7 +97,8 @@ class Publishing:
         div = node.last_divergence
         counts = node.counts
         return {
-            'sim_time_s': float(sim.t), 'steps': int(sim.step),
+            'sim_time_s': float(node.clock_time()), 'episode': node.episode,
+            'episode_time_s': float(sim.t), 'steps': int(sim.step),
             'running': str(node.running).lower(),
             'real_time_factor_target': float(node.params['real_time_factor']),
             'real_time_factor_achieved': float(self.achieved_rtf),
@@ -144,11 +147,19 @@ class Publishing:
         self.last_diag = now
         level, message = self.status(now)
         intake.rejected_since = 0
-        stamp = messages.sim_stamp(node.sim.t)
+        stamp = messages.sim_stamp(node.clock_time())
         msg = messages.diagnostics_message(stamp, self.diagnostics_values(), level, message)
         node.pubs['/diagnostics'].publish(msg)
         node.sinks.message(node.topics['/diagnostics'], msg, messages.stamp_to_ns(stamp))
         self.tick_max_s = 0.0          # tick_max_ms covers one diagnostics period
+
+
+def clocked(frame, node):
+    """``frame`` (a :class:`solver.simulate.simulation.Frame`) at the node's clock time, with
+    its ``episode``."""
+    out = dataclasses.replace(frame, t=node.clock_time(frame.t))
+    out.episode = node.episode
+    return out
 
 
 def energy_balance(sim):
