@@ -290,9 +290,9 @@ def _outputs_of(program, args):
             out.add(value.rstrip('/'))
     if program == 'tensegrity' and args[:1] == ['run'] and '--out' in args:
         d = args[args.index('--out') + 1]
-        out |= {f'{d}/summary.json'} | {f'{d}/{f}' for flag, f in (
-            ('--mcap', 'run.mcap'), ('--rerun', 'run.rrd'), ('--plot', 'strain_wave.png'))
-            if flag in args}
+        out |= {f'{d}/summary.json'} | {f'{d}/{f}' for flag, fs in (
+            ('--mcap', ('run', 'run/run_0.mcap')), ('--rerun', ('run.rrd',)),
+            ('--plot', ('strain_wave.png',))) if flag in args for f in fs}
         out.discard(d)
     if (program, args[:1]) in (('make', ['demo']), ('tensegrity', ['demo'])):
         out.add('runs/demo_focus' if '--focus' in args else 'runs/demo')
@@ -381,13 +381,7 @@ def check_commands(text, makefile=None):
     return problems
 
 
-# docs/mcap.md belongs to the logging work: it gets its `. .venv/bin/activate` line there (strict:
-# this marker fails as soon as the page passes, and then goes)
-COMMAND_PAGES = [pytest.param(p, marks=pytest.mark.xfail(strict=True, reason='activate line'))
-                 if p.name == 'mcap.md' else p for p in PAGES]
-
-
-@pytest.mark.parametrize('page', COMMAND_PAGES, ids=lambda p: p.name)
+@pytest.mark.parametrize('page', PAGES, ids=lambda p: p.name)
 def test_commands_shown_are_accepted(page):
     """Every command in the README and docs/ runs from a fresh shell as shown: ``.venv`` activated
     first, sub-commands, options and node parameters that exist, files that exist or that an
@@ -404,9 +398,9 @@ def test_the_command_check_catches_what_a_user_would_hit():
         '    tensegrity fit config/scenes/fb_column.yaml --target target.yaml --free p=0:1',
         '    tensegrity run config/scenes/fb_column.yaml --v0 abc',
         '    tensegrity run config/scenes/fb_column.yaml --speed 1',
-        '    tensegrity replay runs/x/run.mcap',
+        '    tensegrity replay runs/x/run',
         '    tensegrity run config/scenes/fb_column.yaml --mcap --out runs/x',
-        '    tensegrity replay runs/x/run.mcap --to-rerun runs/x/replay.rrd',   # fine
+        '    tensegrity replay runs/x/run --to-rerun runs/x/replay.rrd',   # fine
         '    rerun runs/x/run.rrd',                                # --rerun was not given
         '    tensegrity_node --ros-args -p publish_rate:=50',
         '    make install demo fly',
@@ -419,7 +413,7 @@ def test_the_command_check_catches_what_a_user_would_hit():
     problems = '\n'.join(check_commands(page))
     for needle in ('line 1: tensegrity run config/scenes/fb_column.yaml: tensegrity before',
                    'reads target.yaml', "invalid float value: 'abc'", 'unknown option --speed',
-                   'line 7: tensegrity replay runs/x/run.mcap: reads runs/x/run.mcap',
+                   'line 7: tensegrity replay runs/x/run: reads runs/x/run,',
                    'reads runs/x/run.rrd', 'unknown node parameter publish_rate',
                    'no make target fly', 'bench.node_overhead: no option --no-such-flag',
                    'sweep: unknown option --resume',
