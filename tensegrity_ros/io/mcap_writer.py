@@ -229,7 +229,8 @@ def bag_metadata(file_name, topics, first_ns, last_ns, ros_distro=None):
         'files': [{'path': file_name, 'starting_time': {'nanoseconds_since_epoch': start},
                    'duration': {'nanoseconds': duration}, 'message_count': count}],
         'custom_data': {},
-        'ros_distro': (os.environ.get('ROS_DISTRO') or 'kilted') if ros_distro is None else ros_distro,
+        'ros_distro': ros_distro if ros_distro is not None else (
+            os.environ.get('ROS_DISTRO') or 'kilted'),
     }
 
     class Dumper(yaml.SafeDumper):
