@@ -6,17 +6,17 @@ Each benchmark writes its CSV, JSON and PNG files into ``--out`` and prints thei
 """
 from __future__ import annotations
 
-import argparse
 import sys
 
 from bench.main import main as bench_main
+from tensegrity_ros.cli import OneLineParser
 
 CHOICES = ('work_precision', 'stability', 'stiff', 'peers', 'rerun', 'sweep', 'soak', 'array',
            'trains')
 
 
 def parser():
-    p = argparse.ArgumentParser(prog='python -m bench', description='work-precision chart, '
+    p = OneLineParser(prog='python -m bench', description='work-precision chart, '
                                 'stability map, peer comparison and adapter costs')
     p.add_argument('--quick', action='store_true',
                    help='small grids and short windows (smoke run)')

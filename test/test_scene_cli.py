@@ -156,6 +156,7 @@ def test_user_errors_are_one_line_without_traceback(args, needle):
     (('lens', str(SCENES / 'lens_focus.yaml'), '--focus', '0.08,0.06'), '--medium-speed'),
     (('demo', '--domain-id', 'x'), 'argument --domain-id: invalid int value'),
     (('runx',), "invalid choice: 'runx'"),
+    (('bench', '--bad-option'), 'unrecognized arguments: --bad-option'),
 ])
 def test_argparse_errors_take_the_one_line_form_exit_2(args, needle):
     """argparse's own errors (a value of the wrong type, a missing option, an unknown command)
