@@ -136,7 +136,9 @@ def test_a_sweep_listens_on_loopback_only_unless_asked(option, dashboard_ip, tmp
 
 
 def _stop(procs):
-    """Terminate ``procs`` (Popen) and the processes they started; kill what is left."""
+    """Terminate ``procs`` (Popen: a scheduler, then its workers) and the processes they started;
+    kill what is left. The workers go first: without their scheduler they wait for it to come
+    back before they exit."""
     import psutil
     family = []
     for proc in procs:
@@ -144,17 +146,21 @@ def _stop(procs):
             family += psutil.Process(proc.pid).children(recursive=True)
         except psutil.NoSuchProcess:
             pass
-    for proc in procs:
-        proc.terminate()
-    for proc in procs:
+    for group in (procs[1:], procs[:1]):
+        for proc in group:
+            proc.terminate()
+        for proc in group:
+            try:
+                proc.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+    for child in family:                  # a worker process its nanny left behind
         try:
-            proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
-    _, alive = psutil.wait_procs(family, timeout=5)
-    for child in alive:
-        child.kill()
+            if child.status() != psutil.STATUS_ZOMBIE:
+                child.kill()
+        except psutil.NoSuchProcess:
+            pass
 
 
 def test_a_sweep_on_a_dask_scheduler_and_workers_returns_the_rows_of_the_serial_sweep(
