@@ -414,6 +414,10 @@ def test_written_scene_describes_the_fitted_values_not_the_old_ones(tmp_path):
     (['sweep', FB, '--grid', 'structure.stacking=shared,diagonal'], "'diagonal' is not one of"),
     (['sweep', FB, '--grid', 'prestrain=0.002:0.003'], 'needs a count'),
     (['sweep', FB, '--grid', 'prestrain=1,2', '--plot', 'pulse.nope'], 'unknown figure'),
+    (['sweep', FB, '--grid', 'prestrain=0.002', '--dashboard-address', '8787'],
+     '--dashboard-address 8787: expected HOST:PORT'),
+    (['sweep', FB, '--grid', 'prestrain=0.002', '--no-dashboard', '--scheduler', 'tcp://[::1]:1'],
+     'a --scheduler has its own'),
     (['fit', FB, '--target', 'TARGET', '--free', 'prestrain=0.002:0.003'], None),
 ])
 def test_bad_input_is_one_line_exit_2_and_runs_nothing(args, needle, tmp_path, capsys):
