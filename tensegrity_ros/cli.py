@@ -354,12 +354,18 @@ def cmd_fit(args):
 
 
 def _study_options(p, seed_help):
-    """The options sweeps and fits share: run length, Dask workers or scheduler, seed."""
+    """The options sweeps and fits share: run length, Dask workers or scheduler, the local
+    cluster's dashboard, seed."""
     p.add_argument('--t-end', type=float, help='simulated time of every run, s')
     p.add_argument('--workers', type=int,
                    help='local worker processes (default: one per core; 1 = in this process)')
     p.add_argument('--scheduler', metavar='ADDRESS',
                    help='an existing Dask scheduler, e.g. tcp://HOST:8786')
+    p.add_argument('--dashboard-address', metavar='HOST:PORT',
+                   help='where the local cluster\'s Dask dashboard listens (default 127.0.0.1 '
+                        'on a free port, this machine only; 0.0.0.0:8787 = every interface)')
+    p.add_argument('--no-dashboard', action='store_true',
+                   help='start the local cluster without its dashboard')
     p.add_argument('--seed', type=int, default=0, help=seed_help + ' (default 0)')
 
 

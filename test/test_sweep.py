@@ -4,7 +4,9 @@ figures, bad input."""
 import json
 import math
 import os
+import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -75,6 +77,137 @@ def test_the_cluster_sweep_returns_the_rows_of_the_serial_sweep(cluster, serial_
     table = pq.read_table(tmp_path / sw.TABLE).to_pylist()
     assert [r['pulse.amplitude'] for r in table] == [r['pulse.amplitude'] for r in rows]
     assert (tmp_path / sw.CSV).read_text().count('\n') == 5
+
+
+LOOPBACK = ('127.0.0.1', '::1')
+
+
+def _listening():
+    """(ip, port) of the TCP sockets listening in this process and its child processes."""
+    import psutil
+    procs = [psutil.Process()]
+    procs += procs[0].children(recursive=True)
+    found = set()
+    for proc in procs:
+        try:
+            found |= {(c.laddr.ip, c.laddr.port) for c in proc.net_connections(kind='tcp')
+                      if c.status == psutil.CONN_LISTEN}
+        except psutil.NoSuchProcess:
+            pass
+    return found
+
+
+@pytest.mark.parametrize('option, dashboard_ip', [
+    ([], '127.0.0.1'), (['--dashboard-address', '0.0.0.0:0'], '0.0.0.0'),
+    (['--no-dashboard'], None)])
+def test_a_sweep_listens_on_loopback_only_unless_asked(option, dashboard_ip, tmp_path, capsys,
+                                                       monkeypatch):
+    """The sockets the sweep's LocalCluster opens (scheduler, nannies, workers, dashboard), seen
+    once it is up: all on loopback; the dashboard, whose link the command prints, on every
+    interface only with --dashboard-address 0.0.0.0:PORT."""
+    before = _listening()
+    seen = {}
+
+    def spy(sweep, cluster=None, **kwargs):        # the cluster is up: its sockets, no run
+        seen['sockets'] = _listening() - before
+        seen['workers'] = cluster.n_workers
+        return [], 0
+
+    monkeypatch.setattr(sw, 'execute', spy)
+    capsys.readouterr()
+    assert cli.main(['sweep', FB, '--grid', 'loading.impact.v0=0.1', '--t-end', '0.01',
+                     '--workers', '2', '--out', str(tmp_path), *option]) == 0
+    err = capsys.readouterr().err
+    assert seen['workers'] == 2
+    sockets = seen['sockets']
+    links = [line for line in err.splitlines() if line.startswith('dashboard: ')]
+    if dashboard_ip is None:
+        assert links == []
+        public = set()
+    else:
+        assert len(links) == 1, err
+        port = int(links[0].split('http://127.0.0.1:')[1].split('/')[0])
+        public = {(ip, p) for ip, p in sockets if p == port}
+        assert {ip for ip, _ in public} == {dashboard_ip}, sockets
+    # the scheduler, and a nanny and a worker per worker process, at least
+    assert len(sockets - public) >= 5, sockets
+    assert all(ip in LOOPBACK for ip, _ in sockets - public), sockets
+    assert all(ip in LOOPBACK for ip, _ in sockets) == (dashboard_ip != '0.0.0.0')
+
+
+def _stop(procs):
+    """Terminate ``procs`` (Popen: a scheduler, then its workers) and the processes they started;
+    kill what is left. The workers go first: without their scheduler they wait for it to come
+    back before they exit."""
+    import psutil
+    family = []
+    for proc in procs:
+        try:
+            family += psutil.Process(proc.pid).children(recursive=True)
+        except psutil.NoSuchProcess:
+            pass
+    for group in (procs[1:], procs[:1]):
+        for proc in group:
+            proc.terminate()
+        for proc in group:
+            try:
+                proc.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+    for child in family:                  # a worker process its nanny left behind
+        try:
+            if child.status() != psutil.STATUS_ZOMBIE:
+                child.kill()
+        except psutil.NoSuchProcess:
+            pass
+
+
+def test_a_sweep_on_a_dask_scheduler_and_workers_returns_the_rows_of_the_serial_sweep(
+        serial_rows, tmp_path, capsys):
+    """The cluster users start on their machines: ``dask scheduler`` and two ``dask worker``
+    processes (here on loopback, the project on their PYTHONPATH), a sweep with --scheduler."""
+    import psutil
+    from distributed import Client
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(
+        [str(ROOT), *[p for p in os.environ.get('PYTHONPATH', '').split(os.pathsep) if p]]))
+    file = tmp_path / 'scheduler.json'
+    dask = [sys.executable, '-m', 'dask']            # the `dask` command of this environment
+    log = (tmp_path / 'dask.log').open('w')
+    procs = []
+    try:
+        procs.append(subprocess.Popen(
+            [*dask, 'scheduler', '--host', '127.0.0.1', '--port', '0', '--no-dashboard',
+             '--scheduler-file', str(file)], env=env, cwd=tmp_path, stdout=log, stderr=log))
+        for _ in range(2):
+            procs.append(subprocess.Popen(
+                [*dask, 'worker', '--scheduler-file', str(file), '--host', '127.0.0.1',
+                 '--nthreads', '1', '--no-dashboard'], env=env, cwd=tmp_path, stdout=log,
+                stderr=log))
+        for _ in range(600):
+            if file.exists() or any(p.poll() is not None for p in procs):
+                break
+            time.sleep(0.05)
+        assert all(p.poll() is None for p in procs), (tmp_path / 'dask.log').read_text()
+        with Client(scheduler_file=str(file), timeout='30s') as client:
+            client.wait_for_workers(2, timeout=60)
+            address = client.scheduler.address
+            # the workers run this checkout (not another install of the package)
+            where = client.run(lambda: __import__('tensegrity_ros').__file__)
+            assert {str(Path(f).parents[1]) for f in where.values()} == {str(ROOT)}, where
+        pids = {p.pid for p in procs[1:]}
+        pids |= {c.pid for p in procs[1:] for c in psutil.Process(p.pid).children(recursive=True)}
+        out = tmp_path / 'out'
+        assert cli.main(['sweep', FB, *[a for g in GRID for a in ('--grid', g)],
+                         '--t-end', str(T_END), '--scheduler', address, '--out', str(out)]) == 0
+        assert 'dashboard' not in capsys.readouterr().err
+        rows = sw.read_rows(out)
+        assert [_figures(rows[r['point_id']]) for r in serial_rows] == \
+            [_figures(r) for r in serial_rows]
+        assert {r['worker_pid'] for r in rows.values()} <= pids        # ran on the workers
+    finally:
+        _stop(procs)
+        log.close()
 
 
 def test_a_diverged_point_is_a_row(tmp_path, capsys):
@@ -281,6 +414,10 @@ def test_written_scene_describes_the_fitted_values_not_the_old_ones(tmp_path):
     (['sweep', FB, '--grid', 'structure.stacking=shared,diagonal'], "'diagonal' is not one of"),
     (['sweep', FB, '--grid', 'prestrain=0.002:0.003'], 'needs a count'),
     (['sweep', FB, '--grid', 'prestrain=1,2', '--plot', 'pulse.nope'], 'unknown figure'),
+    (['sweep', FB, '--grid', 'prestrain=0.002', '--dashboard-address', '8787'],
+     '--dashboard-address 8787: expected HOST:PORT'),
+    (['sweep', FB, '--grid', 'prestrain=0.002', '--no-dashboard', '--scheduler', 'tcp://[::1]:1'],
+     'a --scheduler has its own'),
     (['fit', FB, '--target', 'TARGET', '--free', 'prestrain=0.002:0.003'], None),
 ])
 def test_bad_input_is_one_line_exit_2_and_runs_nothing(args, needle, tmp_path, capsys):

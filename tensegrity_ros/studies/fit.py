@@ -18,7 +18,8 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from tensegrity_ros.studies.sweep import FIGURES, Cluster, SweepError, flatten, parse_axis
+from tensegrity_ros.studies.sweep import (FIGURES, Cluster, SweepError, dashboard_option, flatten,
+                                          parse_axis)
 
 PENALTY = 10.0        # the error of a point whose run diverged or misses a figure (1000 %)
 
@@ -342,6 +343,7 @@ def main(args):
     """``tensegrity fit``: returns the exit code."""
     if args.workers is not None and args.workers < 1:
         raise SweepError(f'--workers: must be >= 1, got {args.workers}')
+    dashboard = dashboard_option(args)
     if args.popsize < 1 or args.maxiter < 1:
         raise SweepError('--popsize and --maxiter: must be >= 1')
     if args.write_scene and not Path(args.write_scene).parent.exists():
@@ -351,7 +353,8 @@ def main(args):
     cluster = None
     try:
         if args.scheduler or (args.workers or os.cpu_count() or 1) > 1:
-            cluster = Cluster(workers=args.workers, address=args.scheduler)
+            cluster = Cluster(workers=args.workers, address=args.scheduler, dashboard=dashboard)
+            cluster.report_dashboard()
         result = fit(problem, cluster, seed=args.seed, popsize=args.popsize,
                      maxiter=args.maxiter, refine=not args.no_polish)
     finally:
