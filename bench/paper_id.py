@@ -22,7 +22,7 @@ Every figure of docs/paper.md comes from the files this writes:
    flipped, the radius moved, bar masses, a lumped end mass, the prestrain, a halved time step,
    the bars' material and line bars).
 4. ``contact.csv``: the bar radius from line-like bars to bars that nearly touch at rest, for
-   steel, aluminium and polymer bars, at the identified point: amplitudes, speeds, speed ratios,
+   steel and polymer bars, at the identified point: amplitudes, speeds, speed ratios,
    widths and momentum shares.
 5. ``predict.json``: the rigid-base (RB) column with the identified choices, only the bases
    switched; nothing is tuned on it; next to it the previous identification's RB prediction.
@@ -116,6 +116,7 @@ def family(out, cluster, quick=False):
         grids[0] = 'structure.radius=0.0035,0.005'
         grids[-1] = 'materials.bar_radius=0.0001,0.00045'
     grids.append('loading.impact.v0=' + ','.join(str(v) for v in V0S))
+    _drop_stale_rows(out / 'family')
     sweep = build(FB, grids, out=out / 'family', t_end=T_END)
     update, close = progress_bar(len(sweep.points), 'family')
     try:
@@ -146,6 +147,31 @@ def family(out, cluster, quick=False):
     table.sort(key=lambda r: (r['speed_reading'], r['rms_error']))
     _write_csv(out / 'family.csv', table)
     return table
+
+
+def _members(rows):
+    """The rows (dicts) that are members of the family: every key of FAMILY set to one of its
+    values (a sweep folder keeps the rows of earlier families: they are not)."""
+    return [r for r in rows if all(any(r.get(k) == v for v in vals)
+                                   for k, vals in FAMILY.items())]
+
+
+def _drop_stale_rows(folder):
+    """Rewrite ``rows.jsonl`` of a family sweep without the rows that lack a key of the family
+    (those of an earlier family), so that the sweep resumes only its own points."""
+    path = folder / 'rows.jsonl'
+    if not path.exists():
+        return
+    def member(line):
+        try:
+            row = json.loads(line)
+        except json.JSONDecodeError:          # a line cut short by a kill
+            return False
+        return isinstance(row, dict) and all(k in row for k in FAMILY)
+    lines = path.read_text().splitlines()
+    keep = [ln for ln in lines if member(ln)]
+    if len(keep) < len(lines):
+        path.write_text(''.join(ln + '\n' for ln in keep))
 
 
 def fit_files(out, speed='slope'):
@@ -287,7 +313,8 @@ def _default(key):
 
 def contact(out, cluster, quick=False):
     """The bar radius and material at the identified point: from 0.1 mm to the largest radius
-    whose bars do not touch at rest there, in 0.05 mm steps, for each of BAR_MATERIALS."""
+    whose bars do not touch at rest there, in 0.05 mm steps, for steel and polymer bars (the
+    stiffest and the softest contact of BAR_MATERIALS)."""
     base = identified_overrides()
     limit = 0.5 * rest_gap(base.items())
     radii = [round(1e-4 + 5e-5 * i, 6) for i in range(40) if 1e-4 + 5e-5 * i < limit]
@@ -295,7 +322,8 @@ def contact(out, cluster, quick=False):
         radii = radii[::4]
     cases = [(f'{name} r_b {rb:g}', {'materials.bar_radius': rb, 'materials.bar_E': E,
                                      'materials.bar_poisson': nu})
-             for name, E, nu in (BAR_MATERIALS[:1] if quick else BAR_MATERIALS) for rb in radii]
+             for name, E, nu in (BAR_MATERIALS[:1] if quick else BAR_MATERIALS[::2])
+             for rb in radii]
     res = _runs(cluster, PAPER_FB, cases)
     table = []
     for label, sets in cases:
@@ -414,7 +442,7 @@ def speed_ratios(out):
     the paper's is 1.5. Returns (rows sorted by ratio, best first)."""
     from tensegrity_ros.studies.sweep import read_rows
     groups = {}
-    for r in read_rows(out / 'family').values():
+    for r in _members(read_rows(out / 'family').values()):
         key = tuple(r[k] for k in ('structure.radius', *CHOICE_KEYS))
         groups.setdefault(key, {})[r['loading.impact.v0']] = r
     rows = []
