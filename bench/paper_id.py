@@ -269,8 +269,11 @@ def sensitivity(out, cluster, quick=False):
     base = identified_overrides()
     r0 = base.get('structure.radius', 0.005)
     cases = [('identified', {})]
-    for f in ((0.98, 1.02) if quick else (0.95, 0.98, 1.02, 1.05)):
-        cases.append((f'radius x {f:g}', {'structure.radius': round(r0 * f, 7)}))
+    for f in ((0.98, 1.02) if quick else (0.95, 0.98, 0.999, 1.001, 1.02, 1.05)):
+        cases.append((f'radius x {f:g}', {'structure.radius': round(r0 * f, 9)}))
+    rb0 = base.get('materials.bar_radius', _default('materials.bar_radius'))
+    for f in (() if quick else (0.99, 1.01)):
+        cases.append((f'bar radius x {f:g}', {'materials.bar_radius': round(rb0 * f, 10)}))
     for key in CHOICE_KEYS:
         for v in FAMILY[key]:
             if v != base.get(key, _default(key)):
