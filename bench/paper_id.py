@@ -529,6 +529,12 @@ def report(out):
                      f"paper's: largest {near[0]['ratio']:.3f} ({near[0]['speed_reading']}, "
                      f"r_b = {mm(near[0]['materials.bar_radius'])} mm), median "
                      f"{sorted(r['ratio'] for r in near)[len(near) // 2]:.3f}")
+        for reading in SPEEDS:
+            sub = [r for r in near if r['speed_reading'] == reading]
+            if sub:
+                lines.append(f'  - read by {reading}: {len(sub)} members, largest '
+                             f"{sub[0]['ratio']:.3f}, {sum(r['ratio'] > 1.11 for r in sub)} "
+                             'above 1.11')
         for rb in FAMILY['materials.bar_radius']:
             sub = [r for r in near if abs(r['materials.bar_radius'] - rb) < 1e-9]
             if sub:
@@ -654,7 +660,7 @@ def main(argv=None):
     out.mkdir(parents=True, exist_ok=True)
     only = set(args.only.split(','))
     write_target()
-    cluster = _cluster(args.workers) if only - {'figure'} else None
+    cluster = _cluster(args.workers) if only - {'figure', 'report'} else None
     try:
         if 'family' in only:
             table = family(out, cluster, args.quick)
