@@ -378,15 +378,17 @@ MOMENTUM_KEYS = ('status', 'pulse.amplitude', 'pulse.speed_m_s', 'pulse.speed_pa
 
 
 def momentum(out, cluster):
-    """The momentum figures of the identified FB member (and of the previous identification and
-    the plain reading) at the three v0: ``momentum.json``, label -> v0 -> figures, with
-    ``column_share`` the column's momentum over ``m v0`` (what the impact gave it)."""
+    """The momentum figures of the identified FB member (and of the previous identification, the
+    plain reading and the identified RB column) at the three v0: ``momentum.json``, label -> v0
+    -> figures, with ``column_share`` the column's momentum over ``m v0`` (before the pulse
+    reaches the clamped end: what the impact gave it)."""
     from solver.build.scene import Scene
     m = Scene.load(PAPER_FB)['materials.unit_mass']
     runs = {}
     runs.update(_runs(cluster, PAPER_FB, [('identified FB', {})]))
     runs.update(_runs(cluster, PAPER_FB, [('previous FB', PREVIOUS)]))
     runs.update(_runs(cluster, FB, [('plain FB', {})]))
+    runs.update(_runs(cluster, PAPER_RB, [('identified RB', {})]))
     result = {}
     for label, figs in runs.items():
         result[label] = {}
