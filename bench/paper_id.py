@@ -25,7 +25,7 @@ Every figure of docs/paper.md comes from the files this writes:
    steel and polymer bars, at the identified point: amplitudes, speeds, speed ratios,
    widths and momentum shares.
 5. ``predict.json``: the rigid-base (RB) column with the identified choices, only the bases
-   switched; nothing is tuned on it; next to it the previous identification's RB prediction.
+   switched; nothing is tuned on it; next to it the thin-bar member's (THIN_BARS).
 6. ``momentum.json``: the leading pulse's momentum figures (share f of the impact momentum,
    effective width W, strain- against velocity-derived momentum) of the identified FB member
    at the three v0.
@@ -75,11 +75,12 @@ CHOICE_KEYS = [k for k in FAMILY if k != 'structure.radius']
 # the fit: these keys continuous over the family's range, the others discrete
 FIT_FREE = ('structure.radius', 'materials.bar_radius')
 FIT_CHOICES = [k for k in CHOICE_KEYS if k not in FIT_FREE]
-# the identification before bar contact entered the family (r = 4.525 mm, shared, unit_bases,
-# impulse, bars of the default 0.1 mm): its RB prediction is reported next to the new one
-PREVIOUS = {'structure.radius': 0.004525, 'structure.stacking': 'shared',
-            'structure.mass_placement': 'unit_bases', 'loading.impact.mode': 'impulse',
-            'materials.bar_radius': 0.0001}
+# the closest member with bars of the default 0.1 mm radius (r = 4.525 mm, shared, unit_bases,
+# impulse: the identification of a family of thin bars): its RB prediction is reported next to
+# the identified one
+THIN_BARS = {'structure.radius': 0.004525, 'structure.stacking': 'shared',
+             'structure.mass_placement': 'unit_bases', 'loading.impact.mode': 'impulse',
+             'materials.bar_radius': 0.0001}
 # bar materials of the contact scan: (label, E Pa, Poisson ratio)
 BAR_MATERIALS = (('steel', 2.0e11, 0.3), ('aluminium', 7.0e10, 0.33), ('polymer', 3.0e9, 0.35))
 
@@ -358,12 +359,12 @@ PREDICT_KEYS = ('status', 'reason', 'pulse.amplitude', 'pulse.amplitude_median',
 
 
 def predict(out, cluster):
-    """The RB column with the identified choices (paper_rb.yaml), with the previous
-    identification's choices (PREVIOUS) and the plain RB reading; the FB columns next to them."""
+    """The RB column with the identified choices (paper_rb.yaml), with the thin-bar member's
+    (THIN_BARS) and the plain RB reading; the FB columns next to them."""
     fb = _runs(cluster, PAPER_FB, [('identified FB', {})])
     res = _runs(cluster, PAPER_RB, [('identified RB', {})])
-    prev_fb = _runs(cluster, PAPER_FB, [('previous FB', PREVIOUS)])
-    prev = _runs(cluster, PAPER_RB, [('previous RB', PREVIOUS)])
+    prev_fb = _runs(cluster, PAPER_FB, [('thin-bar FB', THIN_BARS)])
+    prev = _runs(cluster, PAPER_RB, [('thin-bar RB', THIN_BARS)])
     plain = _runs(cluster, ROOT / 'config' / 'scenes' / 'rb_column.yaml', [('plain RB', {})])
     result = {label: {f'{v0:g}': {k: r.get(k) for k in PREDICT_KEYS} for v0, r in figs.items()}
               for d in (fb, res, prev_fb, prev, plain) for label, figs in d.items()}
@@ -378,7 +379,7 @@ MOMENTUM_KEYS = ('status', 'pulse.amplitude', 'pulse.speed_m_s', 'pulse.speed_pa
 
 
 def momentum(out, cluster):
-    """The momentum figures of the identified FB member (and of the previous identification, the
+    """The momentum figures of the identified FB member (and of the thin-bar member, the
     plain reading and the identified RB column) at the three v0: ``momentum.json``, label -> v0
     -> figures, with ``column_share`` the column's momentum over ``m v0`` (before the pulse
     reaches the clamped end: what the impact gave it)."""
@@ -386,7 +387,7 @@ def momentum(out, cluster):
     m = Scene.load(PAPER_FB)['materials.unit_mass']
     runs = {}
     runs.update(_runs(cluster, PAPER_FB, [('identified FB', {})]))
-    runs.update(_runs(cluster, PAPER_FB, [('previous FB', PREVIOUS)]))
+    runs.update(_runs(cluster, PAPER_FB, [('thin-bar FB', THIN_BARS)]))
     runs.update(_runs(cluster, FB, [('plain FB', {})]))
     runs.update(_runs(cluster, PAPER_RB, [('identified RB', {})]))
     result = {}
@@ -591,6 +592,11 @@ def report(out):
                              f"{f(r['pulse.amplitude_median'])} | {f(r['pulse.speed_m_s'])} | "
                              f"{f(r['pulse.speed_snapshot_m_s'])} | "
                              f"{f(r['pulse.width_half_prisms'], '.2f')} | {r['status']} |")
+        for label in (k for k in pred if k.endswith('FB')):
+            figs = {float(v0): r for v0, r in pred[label].items()}
+            errs = ', '.join(f'{100 * residuals(figs, key)[0]:.1f} % ({reading})'
+                             for reading, key in SPEEDS.items())
+            lines.append(f'\nrms error of {label}: {errs}')
     if (out / 'momentum.json').exists():
         mom = json.loads((out / 'momentum.json').read_text())
         lines += ['\nMomentum of the leading pulse at 0.5 s:\n',
