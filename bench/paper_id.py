@@ -1,23 +1,35 @@
 """Which model did the paper simulate? The identification study of docs/paper.md.
 
     python -m bench.paper_id [--out bench/results/paper_id] [--workers N] [--quick]
-                             [--only family,fit,sensitivity,predict,figure]
+                             [--only family,fit,sensitivity,contact,predict,momentum,figure]
+                             [--speed slope|snapshot|paper]
 
 Every figure of docs/paper.md comes from the files this writes:
 
 1. ``family/``: a sweep (``tensegrity sweep``) of the flexible-base (FB) column over the family
    of modelling choices the paper leaves open: the base circumradius (the reading of the lattice
    constant a), the base-cable topology, where the unit mass sits and how the impact enters, at
-   the paper's three impact velocities. ``family.csv``: the best grid point of every discrete
-   combination and its residual against the paper's FB figures, under both speed readings
-   (slope of the peak track, or a snapshot at 0.5 s).
-2. ``fit.json``: ``tensegrity fit`` over the same family (radius continuous, the rest discrete)
-   against ``config/paper/fb_target.yaml``.
+   the paper's three impact velocities, and the bar radius (contact between the bars,
+   docs/physics.md section 7.1). ``family.csv``: the best grid radius of every discrete
+   combination and its residual against the paper's FB figures, under the three speed readings
+   (slope of the peak track, a snapshot at 0.5 s, the snapshot rounded to whole prisms: the
+   paper's reading).
+2. ``fit.json``: ``tensegrity fit`` over the same family (base and bar radius continuous, the
+   rest discrete) against ``config/paper/fb_target.yaml`` (``--speed`` picks the speed reading
+   of the target: ``fit_<reading>.json`` and a target of that reading in the output folder for
+   the snapshot and paper readings).
 3. ``sensitivity.csv``: one key at a time around the identified point (every discrete choice
-   flipped, the radius moved, bar masses, a lumped end mass, the prestrain, a halved time step).
-4. ``predict.json``: the rigid-base (RB) column with the identified choices, only the bases
-   switched; nothing is tuned on it.
-5. ``strain_waves.png``: strain along the column at several times, per v0, for the identified FB
+   flipped, the radius moved, bar masses, a lumped end mass, the prestrain, a halved time step,
+   the bars' material and line bars).
+4. ``contact.csv``: the bar radius from line-like bars to bars that nearly touch at rest, for
+   steel and polymer bars, at the identified point: amplitudes, speeds, speed ratios,
+   widths and momentum shares.
+5. ``predict.json``: the rigid-base (RB) column with the identified choices, only the bases
+   switched; nothing is tuned on it; next to it the thin-bar member's (THIN_BARS).
+6. ``momentum.json``: the leading pulse's momentum figures (share f of the impact momentum,
+   effective width W, strain- against velocity-derived momentum) of the identified FB member
+   at the three v0.
+7. ``strain_waves.png``: strain along the column at several times, per v0, for the identified FB
    and RB columns (the style of the paper's Figs. 2-3).
 
 Runs go through :func:`solver.simulate.runner.simulate` (as ``tensegrity run``) on a Dask
@@ -42,16 +54,35 @@ V0S = (0.1, 0.125, 0.15)
 T_END = 1.0
 # the paper's FB figures (amplitude at 0.5 s, speed, width); None: not given
 PAPER = {0.1: (0.054, 0.248, 4.0), 0.125: (0.0697, None, None), 0.15: (0.085, 0.372, None)}
-SPEEDS = {'slope': 'pulse.speed_m_s', 'snapshot': 'pulse.speed_snapshot_m_s'}
+SPEEDS = {'slope': 'pulse.speed_m_s', 'snapshot': 'pulse.speed_snapshot_m_s',
+          'paper': 'pulse.speed_paper_m_s'}
 WIDTH = 'pulse.width_half_prisms'
 WIDTH_WEIGHT = 0.25                # "about 4 prisms": read off a figure, a quarter of the weight
 FAMILY = {
     'structure.radius': [round(0.0029 + 0.0003 * i, 6) for i in range(8)],
     'structure.stacking': ['shared', 'parallel'],
     'structure.mass_placement': ['level', 'unit_bases'],
-    'loading.impact.mode': ['impulse', 'energy', 'striker'],
+    # the striker (a rigid mass through a stiff linear contact, 1e4 N/m) does not keep the
+    # energy balance at the family's time step (3e-4 of the energy lost in the first step): it
+    # is in the sensitivity study only, at half the step
+    'loading.impact.mode': ['impulse', 'energy'],
+    # bar radius (contact between bars): 0.1 mm (the default, line-like at these velocities) to
+    # 0.55 mm, the largest whose bars do not touch at rest at every base radius of the family
+    # (rest gap between the axes of a prism's bars 1.18 mm at r = 2.9 mm: rest_gap)
+    'materials.bar_radius': [0.0001, 0.0003, 0.00045, 0.00055],
 }
 CHOICE_KEYS = [k for k in FAMILY if k != 'structure.radius']
+# the fit: these keys continuous over the family's range, the others discrete
+FIT_FREE = ('structure.radius', 'materials.bar_radius')
+FIT_CHOICES = [k for k in CHOICE_KEYS if k not in FIT_FREE]
+# the closest member with bars of the default 0.1 mm radius (r = 4.525 mm, shared, unit_bases,
+# impulse: the identification of a family of thin bars): its RB prediction is reported next to
+# the identified one
+THIN_BARS = {'structure.radius': 0.004525, 'structure.stacking': 'shared',
+             'structure.mass_placement': 'unit_bases', 'loading.impact.mode': 'impulse',
+             'materials.bar_radius': 0.0001}
+# bar materials of the contact scan: (label, E Pa, Poisson ratio)
+BAR_MATERIALS = (('steel', 2.0e11, 0.3), ('aluminium', 7.0e10, 0.33), ('polymer', 3.0e9, 0.35))
 
 
 def residuals(figs_by_v0, speed_key):
@@ -84,7 +115,9 @@ def family(out, cluster, quick=False):
     grids = [f'{k}={",".join(str(v) for v in vals)}' for k, vals in FAMILY.items()]
     if quick:
         grids[0] = 'structure.radius=0.0035,0.005'
+        grids[-1] = 'materials.bar_radius=0.0001,0.00045'
     grids.append('loading.impact.v0=' + ','.join(str(v) for v in V0S))
+    _drop_stale_rows(out / 'family')
     sweep = build(FB, grids, out=out / 'family', t_end=T_END)
     update, close = progress_bar(len(sweep.points), 'family')
     try:
@@ -117,17 +150,74 @@ def family(out, cluster, quick=False):
     return table
 
 
-def fit(out, cluster, quick=False):
-    """``tensegrity fit`` over the family against the paper's FB figures."""
+def _members(rows):
+    """The rows (dicts) that are members of the family: every key of FAMILY set to one of its
+    values (a sweep folder keeps the rows of earlier families: they are not)."""
+    return [r for r in rows if all(any(r.get(k) == v for v in vals)
+                                   for k, vals in FAMILY.items())]
+
+
+def _drop_stale_rows(folder):
+    """Rewrite ``rows.jsonl`` of a family sweep without the rows that lack a key of the family
+    (those of an earlier family), so that the sweep resumes only its own points."""
+    path = folder / 'rows.jsonl'
+    if not path.exists():
+        return
+    def member(line):
+        try:
+            row = json.loads(line)
+        except json.JSONDecodeError:          # a line cut short by a kill
+            return False
+        return isinstance(row, dict) and all(k in row for k in FAMILY)
+    lines = path.read_text().splitlines()
+    keep = [ln for ln in lines if member(ln)]
+    if len(keep) < len(lines):
+        path.write_text(''.join(ln + '\n' for ln in keep))
+
+
+def fit_files(out, speed='slope'):
+    """``(target, fit.json, fit.txt)`` paths of the fit under the speed reading ``speed``: the
+    slope reading's target is ``config/paper/fb_target.yaml``, the others' are written next to
+    their results."""
+    if speed == 'slope':
+        return TARGET, out / 'fit.json', out / 'fit.txt'
+    return (out / f'fb_target_{speed}.yaml', out / f'fit_{speed}.json', out / f'fit_{speed}.txt')
+
+
+def fit(out, cluster, quick=False, speed='slope'):
+    """``tensegrity fit`` over the family against the paper's FB figures, speeds read by
+    ``speed`` (a key of SPEEDS)."""
     from tensegrity_ros.studies import fit as fitmod
-    lo, hi = FAMILY['structure.radius'][0], FAMILY['structure.radius'][-1]
-    choices = [f'{k}={",".join(FAMILY[k])}' for k in CHOICE_KEYS]
-    problem = fitmod.build(FB, TARGET, [f'structure.radius={lo}:{hi}'], choices, t_end=T_END)
+    target, json_path, txt_path = fit_files(out, speed)
+    write_target(target, SPEEDS[speed])
+    free = [f'{k}={min(FAMILY[k])}:{max(FAMILY[k])}' for k in FIT_FREE]
+    choices = [f'{k}={",".join(FAMILY[k])}' for k in FIT_CHOICES]
+    problem = fitmod.build(FB, target, free, choices, t_end=T_END)
     result = fitmod.fit(problem, cluster, seed=0, popsize=3 if quick else 4,
                         maxiter=2 if quick else 4)
-    (out / 'fit.json').write_text(json.dumps(result, indent=1))
-    (out / 'fit.txt').write_text('\n'.join(fitmod.format_result(result)) + '\n')
+    json_path.write_text(json.dumps(result, indent=1))
+    txt_path.write_text('\n'.join(fitmod.format_result(result)) + '\n')
     return result
+
+
+def rest_gap(overrides=(), scene_path=FB):
+    """The smallest distance m between the axes of two bars that can touch
+    (:func:`solver.models.extras.bar_pairs`) in the column at rest: bars of a radius of half of
+    it or more would touch before any impact."""
+    import numpy as np
+
+    from solver.build import structures
+    from solver.build.scene import Scene
+    from solver.kernels.barcontact import segment_params
+    from solver.models.extras import bar_pairs
+    net = structures.build_network(Scene.load(scene_path).with_overrides(list(overrides)))
+    x = np.asarray(net.x0)
+    best = math.inf
+    for a0, a1, b0, b1 in bar_pairs(net):
+        u, w = x[a1] - x[a0], x[b1] - x[b0]
+        s, t = segment_params(*x[a0], *u, *x[b0], *w)
+        best = min(best, float(np.linalg.norm(x[a0] + s * u - x[b0] - t * w)))
+    return best
 
 
 def identified_overrides(scene_path=PAPER_FB):
@@ -180,8 +270,11 @@ def sensitivity(out, cluster, quick=False):
     base = identified_overrides()
     r0 = base.get('structure.radius', 0.005)
     cases = [('identified', {})]
-    for f in ((0.98, 1.02) if quick else (0.95, 0.98, 1.02, 1.05)):
-        cases.append((f'radius x {f:g}', {'structure.radius': round(r0 * f, 7)}))
+    for f in ((0.98, 1.02) if quick else (0.95, 0.98, 0.999, 1.001, 1.02, 1.05)):
+        cases.append((f'radius x {f:g}', {'structure.radius': round(r0 * f, 9)}))
+    rb0 = base.get('materials.bar_radius', _default('materials.bar_radius'))
+    for f in (() if quick else (0.99, 1.01)):
+        cases.append((f'bar radius x {f:g}', {'materials.bar_radius': round(rb0 * f, 10)}))
     for key in CHOICE_KEYS:
         for v in FAMILY[key]:
             if v != base.get(key, _default(key)):
@@ -189,7 +282,12 @@ def sensitivity(out, cluster, quick=False):
     cases += [('prestrain 0.0018', {'prestrain': 0.0018}),
               ('prestrain 0.0022', {'prestrain': 0.0022}),
               ('integrator.dt / 2', {'integrator.dt': 3.125e-4}),
-              ('end mass = 1 unit', {'materials.end_mass': 0.0249})]
+              ('end mass = 1 unit', {'materials.end_mass': 0.0249}),
+              ('contact.bars = none (line bars)', {'contact.bars': 'none'}),
+              ('striker, integrator.dt / 2', {'loading.impact.mode': 'striker',
+                                              'integrator.dt': 3.125e-4})]
+    cases += [(f'{name} bars (E {E:.2g} Pa)', {'materials.bar_E': E, 'materials.bar_poisson': nu})
+              for name, E, nu in BAR_MATERIALS[1:]]
     if not quick:
         cases += [('bar mass fraction 0.3', {'materials.bar_mass_fraction': 0.3})]
     res = _runs(cluster, PAPER_FB, cases)
@@ -204,6 +302,7 @@ def sensitivity(out, cluster, quick=False):
             row[f'amplitude_{v0:g}'] = f.get('pulse.amplitude')
             row[f'speed_{v0:g}'] = f.get('pulse.speed_m_s')
             row[f'snapshot_{v0:g}'] = f.get('pulse.speed_snapshot_m_s')
+            row[f'paper_{v0:g}'] = f.get('pulse.speed_paper_m_s')
             row[f'width_{v0:g}'] = f.get(WIDTH)
             row[f'status_{v0:g}'] = f.get('status')
         table.append(row)
@@ -216,17 +315,95 @@ def _default(key):
     return Scene.load(FB)[key]
 
 
+def contact(out, cluster, quick=False):
+    """The bar radius and material at the identified point: from 0.1 mm to the largest radius
+    whose bars do not touch at rest there, in 0.05 mm steps, for steel and polymer bars (the
+    stiffest and the softest contact of BAR_MATERIALS)."""
+    base = identified_overrides()
+    limit = 0.5 * rest_gap(base.items())
+    radii = [round(1e-4 + 5e-5 * i, 6) for i in range(40) if 1e-4 + 5e-5 * i < limit]
+    if quick:
+        radii = radii[::4]
+    cases = [(f'{name} r_b {rb:g}', {'materials.bar_radius': rb, 'materials.bar_E': E,
+                                     'materials.bar_poisson': nu})
+             for name, E, nu in (BAR_MATERIALS[:1] if quick else BAR_MATERIALS[::2])
+             for rb in radii]
+    res = _runs(cluster, PAPER_FB, cases)
+    table = []
+    for label, sets in cases:
+        figs = res[label]
+        row = {'material': label.split()[0], 'bar_radius': sets['materials.bar_radius'],
+               'bar_E': sets['materials.bar_E'], 'rest_gap': 2 * limit}
+        for reading, key in SPEEDS.items():
+            row[f'rms_error_{reading}'] = residuals(figs, key)[0]
+            a, b = figs[0.1].get(key), figs[0.15].get(key)
+            row[f'ratio_{reading}'] = b / a if a and b else None
+        for v0 in V0S:
+            f = figs.get(v0, {})
+            row[f'amplitude_{v0:g}'] = f.get('pulse.amplitude')
+            row[f'speed_{v0:g}'] = f.get('pulse.speed_m_s')
+            row[f'paper_{v0:g}'] = f.get('pulse.speed_paper_m_s')
+            row[f'width_{v0:g}'] = f.get(WIDTH)
+            row[f'W_{v0:g}'] = f.get('pulse.width_eff_prisms')
+            row[f'f_{v0:g}'] = f.get('pulse.momentum_share')
+            row[f'status_{v0:g}'] = f.get('status')
+        table.append(row)
+    _write_csv(out / 'contact.csv', table)
+    return table
+
+
+PREDICT_KEYS = ('status', 'reason', 'pulse.amplitude', 'pulse.amplitude_median',
+                'pulse.speed_m_s', 'pulse.speed_snapshot_m_s', 'pulse.speed_paper_m_s',
+                'pulse.width_half_prisms', 'pulse.width_prisms', 'pulse.amplitude_passage_max',
+                'energy_drift_rel', 'constraint_error_rel')
+
+
 def predict(out, cluster):
-    """The RB column with the identified choices (paper_rb.yaml) and the plain RB reading."""
-    res = _runs(cluster, PAPER_RB, [('identified RB', {})])
-    plain = _runs(cluster, ROOT / 'config' / 'scenes' / 'rb_column.yaml', [('plain RB', {})])
+    """The RB column with the identified choices (paper_rb.yaml), with the thin-bar member's
+    (THIN_BARS) and the plain RB reading; the FB columns next to them."""
     fb = _runs(cluster, PAPER_FB, [('identified FB', {})])
-    keep = ('status', 'reason', 'pulse.amplitude', 'pulse.amplitude_median', 'pulse.speed_m_s',
-            'pulse.speed_snapshot_m_s', 'pulse.width_half_prisms', 'pulse.width_prisms',
-            'pulse.amplitude_passage_max', 'energy_drift_rel', 'constraint_error_rel')
-    result = {label: {f'{v0:g}': {k: r.get(k) for k in keep} for v0, r in figs.items()}
-              for d in (fb, res, plain) for label, figs in d.items()}
+    res = _runs(cluster, PAPER_RB, [('identified RB', {})])
+    prev_fb = _runs(cluster, PAPER_FB, [('thin-bar FB', THIN_BARS)])
+    prev = _runs(cluster, PAPER_RB, [('thin-bar RB', THIN_BARS)])
+    plain = _runs(cluster, ROOT / 'config' / 'scenes' / 'rb_column.yaml', [('plain RB', {})])
+    result = {label: {f'{v0:g}': {k: r.get(k) for k in PREDICT_KEYS} for v0, r in figs.items()}
+              for d in (fb, res, prev_fb, prev, plain) for label, figs in d.items()}
     (out / 'predict.json').write_text(json.dumps(result, indent=1))
+    return result
+
+
+MOMENTUM_KEYS = ('status', 'pulse.amplitude', 'pulse.speed_m_s', 'pulse.speed_paper_m_s',
+                 'pulse.width_half_prisms', 'pulse.width_eff_prisms', 'pulse.momentum_share',
+                 'pulse.momentum_strain', 'pulse.momentum_nodes', 'pulse.momentum_ratio',
+                 'pulse.momentum_prisms', 'pulse.momentum_column')
+
+
+def momentum(out, cluster):
+    """The momentum figures of the identified FB member (and of the thin-bar member, the
+    plain reading and the identified RB column) at the three v0: ``momentum.json``, label -> v0
+    -> figures, with ``column_share`` the column's momentum over ``m v0`` (before the pulse
+    reaches the clamped end: what the impact gave it)."""
+    from solver.build.scene import Scene
+    m = Scene.load(PAPER_FB)['materials.unit_mass']
+    runs = {}
+    runs.update(_runs(cluster, PAPER_FB, [('identified FB', {})]))
+    runs.update(_runs(cluster, PAPER_FB, [('thin-bar FB', THIN_BARS)]))
+    runs.update(_runs(cluster, FB, [('plain FB', {})]))
+    runs.update(_runs(cluster, PAPER_RB, [('identified RB', {})]))
+    result = {}
+    for label, figs in runs.items():
+        result[label] = {}
+        for v0, r in figs.items():
+            row = {k: r.get(k) for k in MOMENTUM_KEYS}
+            col = r.get('pulse.momentum_column')
+            row['column_share'] = None if col is None else col / (m * v0)
+            result[label][f'{v0:g}'] = row
+    # the paper's pulse, were it of permanent shape: f = V eps_peak W / v0 with W = 4 prisms
+    result['paper (W = 4 prisms)'] = {
+        f'{v0:g}': {'pulse.amplitude': a, 'pulse.speed_m_s': s, 'pulse.width_eff_prisms': 4.0,
+                    'pulse.momentum_share': s * a * 4.0 / v0}
+        for v0, (a, s, _) in PAPER.items() if s is not None}
+    (out / 'momentum.json').write_text(json.dumps(result, indent=1))
     return result
 
 
@@ -271,7 +448,7 @@ def speed_ratios(out):
     the paper's is 1.5. Returns (rows sorted by ratio, best first)."""
     from tensegrity_ros.studies.sweep import read_rows
     groups = {}
-    for r in read_rows(out / 'family').values():
+    for r in _members(read_rows(out / 'family').values()):
         key = tuple(r[k] for k in ('structure.radius', *CHOICE_KEYS))
         groups.setdefault(key, {})[r['loading.impact.v0']] = r
     rows = []
@@ -290,53 +467,120 @@ def speed_ratios(out):
     return rows
 
 
+def _near(r):
+    """Amplitudes at 0.1 and 0.15 within 50 % of the paper's."""
+    return (r['amplitude_0.1'] and r['amplitude_0.15']
+            and abs(r['amplitude_0.1'] / 0.054 - 1) < 0.5
+            and abs(r['amplitude_0.15'] / 0.085 - 1) < 0.5)
+
+
 def report(out):
     """The tables of docs/paper.md as Markdown, from the files the stages wrote."""
     lines = []
 
     def f(v, fmt='.3g'):
         return 'n/a' if v in (None, '') else format(float(v), fmt)
+
+    def mm(v):
+        return f'{1e3 * float(v):.2f}'
     fam = list(csv.DictReader(open(out / 'family.csv')))
-    for reading in SPEEDS:
-        lines += [f'\nFamily, best grid radius per combination, speed read by {reading}:\n',
-                  '| stacking | mass placement | impact | r (mm) | rms error | amplitude '
-                  '0.1 / 0.125 / 0.15 | speed 0.1 / 0.15 (m/s) | width at 0.1 (prisms) |',
-                  '|---|---|---|---|---|---|---|---|']
-        for r in sorted((r for r in fam if r['speed_reading'] == reading),
-                        key=lambda r: float(r['rms_error'])):
+    for reading, top in (('slope', 16), ('snapshot', 6), ('paper', 6)):
+        rows = sorted((r for r in fam if r['speed_reading'] == reading),
+                      key=lambda r: float(r['rms_error']))
+        lines += [f'\nFamily, best grid radius per combination, speed read by {reading} '
+                  f'(best {min(top, len(rows))} of {len(rows)}):\n',
+                  '| stacking | mass placement | impact | bar r_b (mm) | r (mm) | rms error | '
+                  'amplitude 0.1 / 0.125 / 0.15 | speed 0.1 / 0.15 (m/s) | width at 0.1 '
+                  '(prisms) |', '|---|---|---|---|---|---|---|---|---|']
+        for r in rows[:top]:
             lines.append(f"| {r['structure.stacking']} | {r['structure.mass_placement']} | "
-                         f"{r['loading.impact.mode']} | "
+                         f"{r['loading.impact.mode']} | {mm(r['materials.bar_radius'])} | "
                          f"{1e3 * float(r['structure.radius']):.1f} | "
                          f"{100 * float(r['rms_error']):.1f} % | {f(r['amplitude_0.1'])} / "
                          f"{f(r['amplitude_0.125'])} / {f(r['amplitude_0.15'])} | "
                          f"{f(r['speed_0.1'])} / {f(r['speed_0.15'])} | "
                          f"{f(r['width_0.1'], '.2f')} |")
+    lines += ['\nBest member per bar radius (rms error, speed by slope / by the paper\'s '
+              'reading):\n', '| bar r_b (mm) | slope | paper | best combination (slope) |',
+              '|---|---|---|---|']
+    for rb in FAMILY['materials.bar_radius']:
+        best = {}
+        for reading in ('slope', 'paper'):
+            rows = [r for r in fam if r['speed_reading'] == reading
+                    and abs(float(r['materials.bar_radius']) - rb) < 1e-9]
+            best[reading] = min(rows, key=lambda r: float(r['rms_error'])) if rows else None
+        b = best['slope']
+        if b is None:
+            continue
+        lines.append(f"| {1e3 * rb:.2f} | {100 * float(b['rms_error']):.1f} % | "
+                     f"{100 * float(best['paper']['rms_error']):.1f} % | "
+                     f"{b['structure.stacking']}, {b['structure.mass_placement']}, "
+                     f"{b['loading.impact.mode']}, r = {1e3 * float(b['structure.radius']):.1f}"
+                     f" mm |")
     ratios = speed_ratios(out)
-    near = [r for r in ratios if r['amplitude_0.1'] and abs(r['amplitude_0.1'] / 0.054 - 1) < 0.5
-            and abs(r['amplitude_0.15'] / 0.085 - 1) < 0.5]
-    lines += ['\nSpeed ratio speed(0.15) / speed(0.1) over the family (paper: 1.50):\n',
-              f'- all {len(ratios)} member-readings: largest {ratios[0]["ratio"]:.3f} '
-              f'({ratios[0]["speed_reading"]}, r = {1e3 * ratios[0]["structure.radius"]:.1f} mm, '
-              f'{ratios[0]["structure.stacking"]}, {ratios[0]["structure.mass_placement"]}, '
-              f'{ratios[0]["loading.impact.mode"]}; amplitudes {ratios[0]["amplitude_0.1"]:.3g} '
-              f'/ {ratios[0]["amplitude_0.15"]:.3g})',
-              f'- the {len(near)} whose amplitudes at 0.1 and 0.15 are within 50 % of the '
-              f"paper's: largest {near[0]['ratio']:.3f}, median "
-              f"{sorted(r['ratio'] for r in near)[len(near) // 2]:.3f}" if near else '- none near']
-    fit = json.loads((out / 'fit.json').read_text())
-    lines += ['\nFit (`tensegrity fit`):\n'] + (out / 'fit.txt').read_text().splitlines()
-    lines += [f"\n({fit['runs']} runs)"]
+    near = [r for r in ratios if _near(r)]
+    lines += ['\nSpeed ratio speed(0.15) / speed(0.1) over the family (paper: 1.50):\n']
+    if ratios:
+        r0 = ratios[0]
+        lines.append(f'- all {len(ratios)} member-readings: largest {r0["ratio"]:.3f} '
+                     f'({r0["speed_reading"]}, r = {1e3 * r0["structure.radius"]:.1f} mm, '
+                     f'r_b = {mm(r0["materials.bar_radius"])} mm, {r0["structure.stacking"]}, '
+                     f'{r0["structure.mass_placement"]}, {r0["loading.impact.mode"]}; '
+                     f'amplitudes {r0["amplitude_0.1"]:.3g} / {r0["amplitude_0.15"]:.3g})')
+    if near:
+        lines.append(f'- the {len(near)} whose amplitudes at 0.1 and 0.15 are within 50 % of the '
+                     f"paper's: largest {near[0]['ratio']:.3f} ({near[0]['speed_reading']}, "
+                     f"r_b = {mm(near[0]['materials.bar_radius'])} mm), median "
+                     f"{sorted(r['ratio'] for r in near)[len(near) // 2]:.3f}")
+        for reading in SPEEDS:
+            sub = [r for r in near if r['speed_reading'] == reading]
+            if sub:
+                lines.append(f'  - read by {reading}: {len(sub)} members, largest '
+                             f"{sub[0]['ratio']:.3f}, {sum(r['ratio'] > 1.11 for r in sub)} "
+                             'above 1.11')
+        for rb in FAMILY['materials.bar_radius']:
+            sub = [r for r in near if abs(r['materials.bar_radius'] - rb) < 1e-9]
+            if sub:
+                lines.append(f'  - r_b = {1e3 * rb:.2f} mm: {len(sub)} member-readings, largest '
+                             f"{sub[0]['ratio']:.3f}, median "
+                             f"{sorted(r['ratio'] for r in sub)[len(sub) // 2]:.3f}")
+    else:
+        lines.append('- none near')
+    for speed in SPEEDS:
+        _, json_path, txt_path = fit_files(out, speed)
+        if json_path.exists():
+            fit = json.loads(json_path.read_text())
+            lines += [f'\nFit (`tensegrity fit`, speeds read by {speed}):\n']
+            lines += txt_path.read_text().splitlines() + [f"\n({fit['runs']} runs)"]
     if (out / 'sensitivity.csv').exists():
-        lines += ['\nSensitivity:\n', '| case | rms (slope) | rms (snapshot) | amplitude 0.1 / '
-                  '0.125 / 0.15 | speed 0.1 / 0.15 | snapshot 0.1 / 0.15 |',
-                  '|---|---|---|---|---|---|']
+        lines += ['\nSensitivity:\n', '| case | rms (slope) | rms (snapshot) | rms (paper) | '
+                  'amplitude 0.1 / 0.125 / 0.15 | speed 0.1 / 0.15 | snapshot 0.1 / 0.15 |',
+                  '|---|---|---|---|---|---|---|']
         for r in csv.DictReader(open(out / 'sensitivity.csv')):
             lines.append(f"| {r['case']} | {100 * float(r['rms_error_slope']):.1f} % | "
                          f"{100 * float(r['rms_error_snapshot']):.1f} % | "
+                         f"{100 * float(r.get('rms_error_paper') or 'nan'):.1f} % | "
                          f"{f(r['amplitude_0.1'])} / {f(r['amplitude_0.125'])} / "
                          f"{f(r['amplitude_0.15'])} | "
                          f"{f(r['speed_0.1'])} / {f(r['speed_0.15'])} | "
                          f"{f(r['snapshot_0.1'])} / {f(r['snapshot_0.15'])} |")
+    if (out / 'contact.csv').exists():
+        rows = list(csv.DictReader(open(out / 'contact.csv')))
+        gap = float(rows[0]['rest_gap']) if rows else math.nan
+        lines += [f'\nBar contact at the identified point (bars touch at rest from r_b = '
+                  f'{1e3 * gap / 2:.2f} mm):\n',
+                  '| bars | r_b (mm) | rms (slope) | amplitude 0.1 / 0.125 / 0.15 | '
+                  'speed 0.1 / 0.15 | ratio slope / paper reading | width at 0.1 / 0.15 | '
+                  'W 0.1 / 0.15 | f 0.1 / 0.15 |', '|---|---|---|---|---|---|---|---|---|']
+        for r in rows:
+            lines.append(f"| {r['material']} | {mm(r['bar_radius'])} | "
+                         f"{100 * float(r['rms_error_slope']):.1f} % | {f(r['amplitude_0.1'])}"
+                         f" / {f(r['amplitude_0.125'])} / {f(r['amplitude_0.15'])} | "
+                         f"{f(r['speed_0.1'])} / {f(r['speed_0.15'])} | "
+                         f"{f(r['ratio_slope'])} / {f(r['ratio_paper'])} | "
+                         f"{f(r['width_0.1'], '.2f')} / {f(r['width_0.15'], '.2f')} | "
+                         f"{f(r['W_0.1'], '.2f')} / {f(r['W_0.15'], '.2f')} | "
+                         f"{f(r['f_0.1'], '.2f')} / {f(r['f_0.15'], '.2f')} |")
     if (out / 'predict.json').exists():
         pred = json.loads((out / 'predict.json').read_text())
         lines += ['\nPrediction:\n', '| column | v0 | amplitude at 0.5 s | median | speed | '
@@ -348,6 +592,25 @@ def report(out):
                              f"{f(r['pulse.amplitude_median'])} | {f(r['pulse.speed_m_s'])} | "
                              f"{f(r['pulse.speed_snapshot_m_s'])} | "
                              f"{f(r['pulse.width_half_prisms'], '.2f')} | {r['status']} |")
+        for label in (k for k in pred if k.endswith('FB')):
+            figs = {float(v0): r for v0, r in pred[label].items()}
+            errs = ', '.join(f'{100 * residuals(figs, key)[0]:.1f} % ({reading})'
+                             for reading, key in SPEEDS.items())
+            lines.append(f'\nrms error of {label}: {errs}')
+    if (out / 'momentum.json').exists():
+        mom = json.loads((out / 'momentum.json').read_text())
+        lines += ['\nMomentum of the leading pulse at 0.5 s:\n',
+                  '| column | v0 | amplitude | speed (slope) | W (prisms) | f = P / (m v0) | '
+                  'strain / velocity momentum | column momentum / (m v0) |',
+                  '|---|---|---|---|---|---|---|---|']
+        for label, per in mom.items():
+            for v0, r in per.items():
+                lines.append(f"| {label} | {v0} | {f(r.get('pulse.amplitude'))} | "
+                             f"{f(r.get('pulse.speed_m_s'))} | "
+                             f"{f(r.get('pulse.width_eff_prisms'), '.2f')} | "
+                             f"{f(r.get('pulse.momentum_share'), '.3f')} | "
+                             f"{f(r.get('pulse.momentum_ratio'), '.3f')} | "
+                             f"{f(r.get('column_share'), '.3f')} |")
     return '\n'.join(lines)
 
 
@@ -360,13 +623,14 @@ def _write_csv(path, rows):
             w.writerow({k: (f'{v:.6g}' if isinstance(v, float) else v) for k, v in r.items()})
 
 
-def write_target(path=TARGET):
-    """The paper's FB figures as a ``tensegrity fit`` target (slope speed reading)."""
+def write_target(path=TARGET, speed_key=SPEEDS['slope']):
+    """The paper's FB figures as a ``tensegrity fit`` target, speeds read by ``speed_key`` (the
+    slope of the peak track by default)."""
     cases = []
     for v0, (amp, speed, width) in PAPER.items():
         figs, weights = {'pulse.amplitude': amp}, {}
         if speed is not None:
-            figs['pulse.speed_m_s'] = speed
+            figs[speed_key] = speed
         if width is not None:
             figs[WIDTH] = width
             weights[WIDTH] = WIDTH_WEIGHT
@@ -378,6 +642,8 @@ def write_target(path=TARGET):
             '# amplitude'
             ' at 0.5 s at the three impact velocities, speeds at 0.1 and 0.15 m/s, width about\n'
             '# 4 prisms at 0.1 m/s (read off a figure: a quarter of the weight).\n'
+            + ('' if speed_key == SPEEDS['slope'] else
+               f'# Speeds read as {speed_key} (python -m bench.paper_id --speed).\n')
             + yaml.safe_dump({'cases': cases}, sort_keys=False))
     if not path.exists() or path.read_text() != text:
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -392,13 +658,17 @@ def main(argv=None):
     ap.add_argument('--workers', type=int, default=None, help='worker processes (default: cores)')
     ap.add_argument('--quick', action='store_true',
                     help='a small family and short fit (smoke run)')
-    ap.add_argument('--only', default='family,fit,sensitivity,predict,figure,report')
+    ap.add_argument('--only', default='family,fit,sensitivity,contact,predict,momentum,figure,'
+                                      'report')
+    ap.add_argument('--speed', default='slope', choices=list(SPEEDS),
+                    help="the fit's speed reading: slope of the peak track (fit.json), snapshot "
+                         "at 0.5 s or the paper's whole-prism snapshot (fit_<reading>.json)")
     args = ap.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     only = set(args.only.split(','))
     write_target()
-    cluster = _cluster(args.workers) if only - {'figure'} else None
+    cluster = _cluster(args.workers) if only - {'figure', 'report'} else None
     try:
         if 'family' in only:
             table = family(out, cluster, args.quick)
@@ -406,14 +676,22 @@ def main(argv=None):
                 print(f"family best: {r['speed_reading']:8} {r['rms_error']:.3f} "
                       + ' '.join(f'{r[k]}' for k in (*CHOICE_KEYS, 'structure.radius')))
         if 'fit' in only:
-            result = fit(out, cluster, args.quick)
+            result = fit(out, cluster, args.quick, args.speed)
             print(f"fit: error {result['error']:.4f} at {result['best']} ({result['runs']} runs)")
         if 'sensitivity' in only:
             for r in sensitivity(out, cluster, args.quick):
                 print(f"sensitivity: {r['case']:<36} rms slope {r['rms_error_slope']:.3f}")
+        if 'contact' in only:
+            for r in contact(out, cluster, args.quick):
+                print(f"contact: {r['material']:<9} r_b {1e3 * r['bar_radius']:.2f} mm ratio "
+                      f"slope {r['ratio_slope'] or float('nan'):.3f} rms "
+                      f"{r['rms_error_slope']:.3f}")
         if 'predict' in only:
             predict(out, cluster)
             print(f'predict: {out / "predict.json"}')
+        if 'momentum' in only:
+            momentum(out, cluster)
+            print(f'momentum: {out / "momentum.json"}')
     finally:
         if cluster is not None:
             cluster.close()

@@ -57,3 +57,46 @@ def test_residuals_are_relative_errors_of_the_paper_figures():
 def test_docs_paper_names_the_command_that_regenerates_it():
     text = (ROOT / 'docs' / 'paper.md').read_text()
     assert 'python -m bench.paper_id' in text
+
+
+def test_no_bar_radius_of_the_family_touches_at_rest():
+    """The family's bars fit in every prism of the family at rest: twice the largest bar radius
+    is below the smallest distance between two bars that can touch, at the smallest base radius
+    (the closest bars), found here by sampling the segments of the first prisms densely (the
+    prisms are identical at rest) and checked against paper_id.rest_gap."""
+    import numpy as np
+
+    from solver.build import structures
+    from solver.build.scene import Scene
+    r = min(paper_id.FAMILY['structure.radius'])
+    net = structures.build_network(Scene.load(paper_id.FB).with_overrides(
+        [('structure.radius', r)]))
+    x = np.asarray(net.x0)
+    lev = np.asarray(net.levels)[0]
+    bars = [(a, b) for a, b in zip(net.bar_a, net.bar_b)
+            if {int(a), int(b)} <= set(lev[:3].ravel().tolist())]
+    s = np.linspace(0.0, 1.0, 401)[:, None]
+    best = np.inf
+    for i, (a, b) in enumerate(bars):
+        p = x[a] + s * (x[b] - x[a])
+        for c, d in bars[i + 1:]:
+            if {int(a), int(b)} & {int(c), int(d)}:
+                continue                                   # bars sharing a joint
+            q = x[c] + s * (x[d] - x[c])
+            best = min(best, np.min(np.linalg.norm(p[:, None] - q[None], axis=2)))
+    gap = paper_id.rest_gap([('structure.radius', r)])
+    assert gap == pytest.approx(best, abs=2e-6)           # sampling: 1/400 of a bar
+    assert 2 * max(paper_id.FAMILY['materials.bar_radius']) < gap
+
+
+@pytest.mark.parametrize('reading', ['snapshot', 'paper'])
+def test_the_fit_target_reads_the_speeds_as_asked(tmp_path, reading):
+    """--speed: the target's speed figures are the summary's figure of that reading, and
+    tensegrity fit accepts the file."""
+    from tensegrity_ros.studies import fit as fitmod
+    path = paper_id.write_target(tmp_path / 't.yaml', paper_id.SPEEDS[reading])
+    cases = fitmod.load_target(path)
+    speeds = [c.figures[paper_id.SPEEDS[reading]] for c in cases
+              if paper_id.SPEEDS[reading] in c.figures]
+    assert speeds == [0.248, 0.372]
+    assert all('pulse.speed_m_s' not in c.figures for c in cases)

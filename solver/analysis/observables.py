@@ -91,7 +91,23 @@ class Pulse:
     ``width_10_prisms`` the widths at half and at 10 % of the peak, with the crossings
     interpolated linearly between prisms and the widths linearly in time. ``arrival_time_s`` is
     the first time the peak is in the window. NaN where the pulse never reached the window (the
-    widths: where there is no pulse at ``t_ref``)."""
+    widths: where there is no pulse at ``t_ref``).
+
+    ``speed_paper_m_s`` is the paper's reading of a speed: the peak position at ``t_ref`` rounded
+    to whole prisms, times ``h0``, over ``t_ref`` ("the peak moved 20 prisms in 0.5 s").
+
+    The momentum figures (:func:`pulse_momentum`, filled in by a run that has the node
+    velocities at the frame nearest ``t_ref``; NaN otherwise) describe the leading pulse at that
+    frame over its prisms, the contiguous prisms around the peak whose ``|eps|`` is at least 10 %
+    of the peak's: ``momentum_strain`` kg m/s, ``m V sum(delta_i)`` (m the unit mass, V
+    ``speed_m_s``, ``delta_i = (h_i - h0) / h0 = eps_i / (1 - eps_i)`` the shortening of prism
+    i), what a pulse of permanent shape carries; ``momentum_nodes`` kg m/s, the momentum of the
+    nodes of those prisms (lumped and bar masses) along the column; both positive towards the
+    clamped end; ``momentum_ratio`` the first over the second; ``width_eff_prisms`` W =
+    ``sum(eps_i) / eps_peak``; ``momentum_share`` f = ``momentum_nodes / (m v0)``, the share of
+    the impact's momentum (``v0`` of the first impact); ``momentum_prisms`` the number of prisms
+    summed; ``momentum_column`` kg m/s the momentum of the whole column at that frame (before
+    the pulse reaches the clamped end: what the impact gave it)."""
     amplitude: float
     amplitude_median: float
     amplitude_min: float
@@ -106,6 +122,14 @@ class Pulse:
     arrival_end_s: float = math.nan
     width_half_prisms: float = math.nan
     width_10_prisms: float = math.nan
+    speed_paper_m_s: float = math.nan
+    momentum_strain: float = math.nan
+    momentum_nodes: float = math.nan
+    momentum_ratio: float = math.nan
+    width_eff_prisms: float = math.nan
+    momentum_share: float = math.nan
+    momentum_prisms: int = 0
+    momentum_column: float = math.nan
 
     def as_dict(self):
         return {'amplitude': self.amplitude, 'amplitude_median': self.amplitude_median,
@@ -116,7 +140,11 @@ class Pulse:
                 'width_prisms': self.width_prisms, 'width_half_prisms': self.width_half_prisms,
                 'width_10_prisms': self.width_10_prisms,
                 't_ref': self.t_ref, 'arrival_time_s': self.arrival_time_s,
-                'arrival_end_s': self.arrival_end_s}
+                'arrival_end_s': self.arrival_end_s, 'speed_paper_m_s': self.speed_paper_m_s,
+                'momentum_strain': self.momentum_strain, 'momentum_nodes': self.momentum_nodes,
+                'momentum_ratio': self.momentum_ratio, 'width_eff_prisms': self.width_eff_prisms,
+                'momentum_share': self.momentum_share, 'momentum_prisms': self.momentum_prisms,
+                'momentum_column': self.momentum_column}
 
 
 def _parabola(c0, c1, c2):
@@ -263,6 +291,7 @@ def track_pulse(times, strains, h0, window=(10, 40), t_ref=0.5):
         amplitude = float(amp[k_ref])          # a history that ends before t_ref: its last peak
     pos_ref = _at_time(times, pos, t_ref)
     snapshot = pos_ref * h0 / t_ref if t_ref > 0 else nan
+    paper = round(pos_ref) * h0 / t_ref if t_ref > 0 and math.isfinite(pos_ref) else nan
     halves = np.array([pulse_width(from_impact[k], pos[k], amp[k], 0.5)
                        for k in range(len(times))])
     tenths = np.array([pulse_width(from_impact[k], pos[k], amp[k], 0.1)
@@ -284,6 +313,7 @@ def track_pulse(times, strains, h0, window=(10, 40), t_ref=0.5):
                  amplitude_passage_max=_max_over_time(times, np.where(pos >= window[0], amp,
                                                                       np.nan)),
                  speed_snapshot_m_s=float(snapshot), speed_arrival_m_s=speed_arrival,
+                 speed_paper_m_s=float(paper),
                  arrival_end_s=arrival_end, width_half_prisms=_at_time(times, halves, t_ref),
                  width_10_prisms=_at_time(times, tenths, t_ref))
 
@@ -305,7 +335,70 @@ def first_passage(times, strain, h0, t_ref=0.5):
     if times[end - 1] < t_ref - 1e-9:
         p.amplitude, p.width_prisms = math.nan, 0
         p.width_half_prisms = p.width_10_prisms = p.speed_snapshot_m_s = math.nan
+        p.speed_paper_m_s = math.nan
     return p
+
+
+def momentum_masses(network):
+    """Mass (n_nodes,) kg that carries each node's velocity into the momentum: its lumped mass
+    and half of the mass of every bar at it (a uniform rod's momentum is its mass times the mean
+    of its two ends' velocities)."""
+    mass = np.array(network.node_mass, dtype=float)
+    if network.n_bars:
+        np.add.at(mass, network.bar_a, 0.5 * network.bar_mass)
+        np.add.at(mass, network.bar_b, 0.5 * network.bar_mass)
+    return mass
+
+
+def level_momenta(v, levels, mass):
+    """Axial momentum (n_columns, n_levels) kg m/s of every base level: the sum of ``mass *
+    v_z`` over its three nodes. ``v`` (n_nodes, 3) m/s, ``mass`` (n_nodes,)
+    (:func:`momentum_masses`)."""
+    return np.einsum('cln,cln->cl', mass[levels], np.asarray(v)[levels, 2])
+
+
+def pulse_momentum(pulse, eps, p_level, unit_mass, v0, fraction=0.1):
+    """Fill the momentum figures of ``pulse`` (:class:`Pulse`; its ``speed_m_s`` is V) from one
+    frame: ``eps`` (n_prisms,) strains and ``p_level`` (n_levels,) axial level momenta
+    (:func:`level_momenta`), prism 0 and level 0 at the clamped end, prism i between levels i and
+    i + 1. The pulse's prisms are the contiguous prisms around the leading peak
+    (:func:`leading_peak`) with ``|eps| >= fraction |eps_peak|``. Their nodes' momentum: each
+    level between two of them counts whole, a level at the edge of the range half (the other
+    half belongs to the prism beyond), the clamped and the impacted end levels whole (they
+    belong to one prism only). Returns ``pulse``."""
+    eps = np.asarray(eps, dtype=float)
+    n = len(eps)
+    from_impact = eps[::-1]
+    pos, e = leading_peak(from_impact)
+    if not (math.isfinite(pos) and e < 0):
+        return pulse
+    a = np.abs(from_impact)
+    level = fraction * abs(e)
+    i = min(max(int(round(pos)), 0), n - 1)
+    lo = hi = i
+    while lo > 0 and a[lo - 1] >= level:
+        lo -= 1
+    while hi < n - 1 and a[hi + 1] >= level:
+        hi += 1
+    first, last = n - 1 - hi, n - 1 - lo          # the range in prisms from the clamped end
+    weights = np.zeros(n + 1)
+    weights[first:last + 2] = 1.0
+    if first > 0:
+        weights[first] = 0.5
+    if last + 1 < n:
+        weights[last + 1] = 0.5
+    p_nodes = -float(np.dot(weights, p_level))    # positive towards the clamped end
+    band = eps[first:last + 1]
+    shortening = band / (1.0 - band)              # (h - h0) / h0
+    p_strain = -unit_mass * pulse.speed_m_s * float(shortening.sum())
+    pulse.momentum_strain = p_strain
+    pulse.momentum_nodes = p_nodes
+    pulse.momentum_ratio = p_strain / p_nodes if p_nodes else math.nan
+    pulse.width_eff_prisms = float(band.sum() / e)
+    pulse.momentum_share = p_nodes / (unit_mass * v0) if v0 else math.nan
+    pulse.momentum_prisms = int(last - first + 1)
+    pulse.momentum_column = -float(np.sum(p_level))
+    return pulse
 
 
 def prism_twists(x, levels):

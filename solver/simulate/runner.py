@@ -89,6 +89,10 @@ def run(sim: Simulation, t_end, output_dt, on_frame=None, progress=None, train=N
     n_out = frame_count(t_end, output_dt) - 1
     times, strain, energy, cerr, base, balance = [], [], [], [], [], []
     wall = 0.0
+    # the level momenta at the frame nearest t_ref, for the pulse's momentum figures
+    net = sim.network
+    at_ref = {'dt': np.inf, 'k': -1, 'p': None}
+    masses = observables.momentum_masses(net) if net.levels.size else None
 
     def record():
         frame = run_frame(sim)
@@ -98,6 +102,9 @@ def run(sim: Simulation, t_end, output_dt, on_frame=None, progress=None, train=N
         cerr.append(frame.constraint_error)
         base.append(frame.base_force)
         balance.append(frame.energy_balance_error)
+        if masses is not None and abs(frame.t - T_REF) < at_ref['dt'] - 1e-12:
+            at_ref.update(dt=abs(frame.t - T_REF), k=len(times) - 1,
+                          p=observables.level_momenta(sim._full_state()[1], net.levels, masses))
         if on_frame is not None:
             on_frame(frame)
 
@@ -126,7 +133,25 @@ def run(sim: Simulation, t_end, output_dt, on_frame=None, progress=None, train=N
     if sim.network.levels.size:
         rec.pulses = [observables.first_passage(rec.times, rec.strain[:, c], sim.network.h0)
                       for c in range(sim.network.n_columns)]
+        _pulse_momenta(rec, sim, at_ref)
     return rec
+
+
+T_REF = 0.5          # the time the pulse figures are read at (observables.first_passage)
+
+
+def _pulse_momenta(rec, sim, at_ref):
+    """The momentum figures of each column's pulse (:func:`observables.pulse_momentum`) at the
+    frame nearest ``T_REF``, when the pulse is there on its first passage."""
+    k = at_ref['k']
+    if k < 0 or abs(rec.times[k] - T_REF) > 0.5 * (rec.times[1] - rec.times[0] if
+                                                    len(rec.times) > 1 else 0) + 1e-9:
+        return
+    unit_mass = float(sim.network.meta.get('unit_mass', np.nan))
+    v0 = rec.impacts[0]['v0_m_s'] if rec.impacts else np.nan
+    for c, p in enumerate(rec.pulses):
+        if np.isfinite(p.amplitude):
+            observables.pulse_momentum(p, rec.strain[k, c], at_ref['p'][c], unit_mass, v0)
 
 
 def json_safe(value):
