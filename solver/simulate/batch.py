@@ -158,11 +158,14 @@ class BatchPoint:
     """One point of :func:`simulate_batch`: ``status`` ``ok``, ``diverged`` or ``error`` with a
     one-line ``reason``; for ``ok`` the :class:`~solver.simulate.runner.Point` (``point``, its
     ``summary``), else None. ``task_wall_s``: the point's share of the batch's wall time (its
-    build, its steps and records on its thread, its summary)."""
+    build, its steps and records on its thread, its summary); ``cpu_time_s`` the CPU time of
+    the same (thread CPU time)."""
     status: str
     reason: str = ''
     point: Point | None = None
     task_wall_s: float = 0.0
+    cpu_time_s: float = 0.0
+    error: BaseException | None = None       # the exception of a point that did not finish
 
     @property
     def summary(self):
@@ -189,13 +192,19 @@ class _Run:
             [], [], [], [], [], []
         self.wall = 0.0
         self.busy = 0.0
+        self.cpu = 0.0
         self.point = None
         net = sim.network
         self._h0 = net.h0 if net.levels.size else None
 
     def start(self):
-        self.train.apply_due(self.sim)
-        self.record()
+        t0, c0 = time.perf_counter(), time.thread_time()
+        try:
+            self.train.apply_due(self.sim)
+            self.record()
+        finally:
+            self.busy += time.perf_counter() - t0
+            self.cpu += time.thread_time() - c0
 
     def record(self):
         sim = self.sim
@@ -230,7 +239,7 @@ class _Run:
 
     def interval(self, k):
         """Output interval ``k`` (0-based): impacts due within it, the steps, the frame."""
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.thread_time()
         try:
             sim, train = self.sim, self.train
             end = sim.step + self.per_frame
@@ -241,6 +250,7 @@ class _Run:
             self.record()
         finally:
             self.busy += time.perf_counter() - t0
+            self.cpu += time.thread_time() - c0
 
     def record_of(self):
         sim = self.sim
@@ -278,10 +288,11 @@ def simulate_batch(items, threads=None, frames=False, on_frame=None, on_point=No
     n = len(items)
     out = [None] * n
     build_s = [0.0] * n
+    build_cpu = [0.0] * n
     runs, sims, index = [], [], []
     with memo.sharing():
         for k, (scene, overrides) in enumerate(items):
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.thread_time()
             try:
                 sc, sim = _prepare(scene, overrides)
                 cb = None if on_frame is None else (lambda f, k=k: on_frame(k, f))
@@ -289,22 +300,28 @@ def simulate_batch(items, threads=None, frames=False, on_frame=None, on_point=No
                 sims.append(sim)
                 index.append(k)
             except Exception as exc:                # noqa: BLE001 - a failed point, not a crash
-                out[k] = BatchPoint(ERROR, reason_of(exc))
+                out[k] = BatchPoint(ERROR, reason_of(exc), error=exc)
             build_s[k] = time.perf_counter() - t0
+            build_cpu[k] = time.thread_time() - c0
+            if out[k] is not None and on_point is not None:
+                out[k].task_wall_s, out[k].cpu_time_s = build_s[k], build_cpu[k]
+                on_point(k, out[k])
     if sims:                                  # compile (or load) the kernels outside the threads
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.thread_time()
         s = sims[0]
         s.advance(s.dt)
         s.reset()
         build_s[index[0]] += time.perf_counter() - t0
+        build_cpu[index[0]] += time.thread_time() - c0
 
     def summarise(j):
         """The ``ok`` point of run ``j`` (on the batch's threads: its pulses and summary)."""
         run = runs[j]
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.thread_time()
         rec = run.record_of()
         run.point = Point(run.scene, run.sim, rec, summary(run.scene, run.sim, rec))
         run.busy += time.perf_counter() - t0
+        run.cpu += time.thread_time() - c0
 
     def step(j, k):
         run = runs[j]
@@ -321,8 +338,9 @@ def simulate_batch(items, threads=None, frames=False, on_frame=None, on_point=No
             batch.status[j] = OK
             bp = BatchPoint(OK, '', run.point)
         else:
-            bp = BatchPoint(batch.status[j], batch.reasons[j])
+            bp = BatchPoint(batch.status[j], batch.reasons[j], error=batch.errors[j])
         bp.task_wall_s = build_s[k] + run.busy
+        bp.cpu_time_s = build_cpu[k] + run.cpu
         out[k] = bp
         if on_point is not None:
             on_point(k, bp)
