@@ -24,9 +24,7 @@ point is the single run.
 """
 from __future__ import annotations
 
-import os
 import time
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -35,18 +33,11 @@ from solver.analysis import observables
 from solver.build.scene import Scene
 from solver.models import memo
 from solver.simulate.array import simulation_for
+from solver.simulate.parallel import default_threads, each as parallel_each
 from solver.simulate.runner import ImpactTrain, Point, RunRecord, frame_count, summary
 from solver.simulate.simulation import SimulationDiverged
 
 RUNNING, OK, DIVERGED, ERROR = 'running', 'ok', 'diverged', 'error'
-
-
-def default_threads():
-    """The cores this process may run on."""
-    try:
-        return max(len(os.sched_getaffinity(0)), 1)
-    except AttributeError:                          # not on Linux
-        return os.cpu_count() or 1
 
 
 def reason_of(exc):
@@ -69,7 +60,6 @@ class BatchSimulation:
         self.status = [RUNNING] * n
         self.reasons = [''] * n
         self.errors = [None] * n
-        self._pool = None
 
     @classmethod
     def of(cls, scenes, threads=None):
@@ -102,31 +92,18 @@ class BatchSimulation:
 
     def each(self, fn, indices=None):
         """``fn(i, sim)`` for every running instance (or those of ``indices`` still running), on
-        the threads: the running instances are cut into one share per thread. An exception stops
-        its instance (:meth:`stop`). Returns ``{i: result}`` of the instances that did not
-        stop."""
+        the threads (:func:`solver.simulate.parallel.each`: one share of the instances per
+        thread). An exception stops its instance (:meth:`stop`). Returns ``{i: result}`` of the
+        instances that did not stop."""
         todo = [i for i in (self.running if indices is None else indices)
                 if self.status[i] == RUNNING]
         out = {}
-
-        def share(part):
-            for i in part:
-                try:
-                    out[i] = fn(i, self.sims[i])
-                except Exception as exc:            # noqa: BLE001 - its instance stops
-                    self.stop(i, exc)
-
-        n = min(self.threads, len(todo))
-        if n <= 1:
-            share(todo)
-            return out
-        if self._pool is None:
-            self._pool = ThreadPoolExecutor(self.threads, thread_name_prefix='batch')
-        parts = [todo[k::n] for k in range(n)]
-        futures = [self._pool.submit(share, p) for p in parts[1:]]
-        share(parts[0])                             # the calling thread takes a share too
-        for f in futures:
-            f.result()
+        for i, (ok, value) in zip(todo, parallel_each(lambda i: fn(i, self.sims[i]), todo,
+                                                      self.threads)):
+            if ok:
+                out[i] = value
+            else:
+                self.stop(i, value)
         return out
 
     def advance(self, duration):
@@ -141,9 +118,8 @@ class BatchSimulation:
         return [s.frame() for s in self.sims]
 
     def close(self):
-        if self._pool is not None:
-            self._pool.shutdown()
-            self._pool = None
+        """Nothing to release (the threads are the process's pool); a batch is a context manager
+        for symmetry with other resources."""
 
     def __enter__(self):
         return self

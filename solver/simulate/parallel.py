@@ -1,0 +1,69 @@
+"""Independent simulations stepped on threads: the compiled kernels release the GIL
+(``nogil=True``, :mod:`solver._jit`), so simulations that share nothing advance on every core at
+once from one process. Used by :mod:`solver.simulate.batch` and
+:class:`~solver.simulate.array.ArraySimulation`.
+"""
+from __future__ import annotations
+
+import os
+import threading
+from concurrent.futures import ThreadPoolExecutor
+
+_POOLS: dict = {}
+_LOCK = threading.Lock()
+_INSIDE = threading.local()          # set while a thread runs a share: nested calls run serially
+
+
+def default_threads():
+    """The cores this process may run on."""
+    try:
+        return max(len(os.sched_getaffinity(0)), 1)
+    except AttributeError:                          # not on Linux
+        return os.cpu_count() or 1
+
+
+def _pool(n):
+    """A process-wide pool of ``n`` threads (kept: a pool per interval would cost more than a
+    short interval)."""
+    with _LOCK:
+        pool = _POOLS.get(n)
+        if pool is None:
+            pool = _POOLS[n] = ThreadPoolExecutor(n, thread_name_prefix=f'tensegrity-{n}')
+        return pool
+
+
+def each(fn, items, threads=None):
+    """``[(True, fn(item)) or (False, exception)]`` for every item of ``items``, in order, on
+    ``threads`` threads (default :func:`default_threads`): the items are cut into one share per
+    thread (round robin), the calling thread takes the first share. An exception of one item
+    is returned in its place; the others still run. Called from inside a share (a batch of
+    arrays of columns), it runs its items in that thread."""
+    items = list(items)
+    out = [None] * len(items)
+
+    def share(k, n):
+        outer = getattr(_INSIDE, 'on', False)
+        _INSIDE.on = True
+        try:
+            for i in range(k, len(items), n):
+                try:
+                    out[i] = (True, fn(items[i]))
+                except Exception as exc:           # noqa: BLE001 - returned in its place
+                    out[i] = (False, exc)
+        finally:
+            _INSIDE.on = outer
+
+    n = min(max(1, int(threads or default_threads())), len(items))
+    if getattr(_INSIDE, 'on', False):
+        n = 1
+    if n <= 1:
+        share(0, 1)
+        return out
+    pool = _pool(n - 1)
+    futures = [pool.submit(share, k, n) for k in range(1, n)]
+    try:
+        share(0, n)
+    finally:
+        for f in futures:
+            f.result()
+    return out
