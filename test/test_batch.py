@@ -47,9 +47,9 @@ def singles():
     return [simulate(FB, p).summary for p in POINTS]
 
 
-@pytest.mark.parametrize('threads', [1, 2])
-def test_every_figure_of_a_batched_point_is_that_of_its_single_run(singles, threads):
-    got = simulate_batch([(FB, p) for p in POINTS], threads=threads)
+@pytest.mark.parametrize('threads, together', [(1, False), (2, False), (2, True)])
+def test_every_figure_of_a_batched_point_is_that_of_its_single_run(singles, threads, together):
+    got = simulate_batch([(FB, p) for p in POINTS], threads=threads, together=together)
     assert [g.status for g in got] == ['ok'] * len(POINTS)
     for p, single, g in zip(POINTS, singles, got):
         assert _same(single, g.summary) == [], p
@@ -69,12 +69,16 @@ def test_full_frames_give_the_same_figures_as_the_lean_record(singles):
     assert frames[-1].positions.shape == (got[0].point.sim.network.n_nodes, 3)
 
 
-def test_a_diverging_point_stops_alone_and_the_others_rows_are_unchanged(singles):
+@pytest.mark.parametrize('together', [False, True])
+def test_a_diverging_point_stops_alone_and_the_others_rows_are_unchanged(singles, together):
     with pytest.raises(SimulationDiverged) as info:
         simulate(FB, DIVERGING)
     items = [(FB, POINTS[0]), (FB, DIVERGING), (FB, POINTS[2]),
              (FB, SHORT + ['prestrain=0.9'])]                   # out of range: an error
-    got = simulate_batch(items, threads=2)
+    finished = []
+    got = simulate_batch(items, threads=2, together=together,
+                         on_point=lambda k, bp: finished.append(k))
+    assert sorted(finished) == [0, 1, 2, 3]
     assert [g.status for g in got] == ['ok', 'diverged', 'ok', 'error']
     assert got[1].reason == str(info.value).splitlines()[0]
     assert 'energy balance' in got[1].reason and got[1].summary is None

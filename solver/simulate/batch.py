@@ -1,5 +1,5 @@
-"""Batched runs: B independent simulations stepped together, interval by interval, on a pool of
-threads (the compiled kernels release the GIL, so the instances of a batch step on every core).
+"""Batched runs: B independent simulations stepped on a pool of threads (the compiled kernels
+release the GIL, so the instances of a batch step on every core at once).
 
     batch = BatchSimulation.of([scene_a, scene_b, scene_c])
     for i in range(batch.size):
@@ -20,10 +20,13 @@ orbits, the reduced bar-contact pairs).
 overrides) points: per point the same :func:`~solver.simulate.runner.summary`, or the status and
 reason of a point that diverged or failed. Without ``frames`` it records only what the summary
 reads (lean recording: no positions, no cable tensions); the figures are the same. A batch of one
-point is the single run.
+point is the single run. Its threads take the points one after another, each run to its end, so
+that one thread's set-up and summary (Python) overlap another's steps (compiled);
+``together=True`` steps them together, interval by interval, as :class:`BatchSimulation` does.
 """
 from __future__ import annotations
 
+import threading
 import time
 from dataclasses import dataclass
 
@@ -251,7 +254,8 @@ def _prepare(scene, overrides):
     return scene, simulation_for(scene)
 
 
-def simulate_batch(items, threads=None, frames=False, on_frame=None, on_point=None):
+def simulate_batch(items, threads=None, frames=False, on_frame=None, on_point=None,
+                   together=False):
     """:func:`solver.simulate.runner.simulate` of every ``(scene, overrides)`` of ``items`` (a
     scene is a :class:`Scene` or a path; overrides as for ``simulate``), as one batch on
     ``threads`` threads. Returns a :class:`BatchPoint` per item, in order: ``ok`` with the
@@ -259,54 +263,109 @@ def simulate_batch(items, threads=None, frames=False, on_frame=None, on_point=No
     reason (a point whose scene or simulation cannot be built is an ``error``; the others run
     on). ``frames``: record full frames (:meth:`Simulation.frame`) instead of the lean record;
     ``on_frame(index, frame)`` gets every frame of every point (then frames are full; called on
-    the batch's threads). ``on_point(index, batch_point)`` is called as each point finishes."""
+    the batch's threads). ``on_point(index, batch_point)`` is called as each point finishes (one
+    call at a time; an exception from it stops the batch after the points running and is
+    raised).
+
+    By default each thread takes the next point not yet taken and runs it to its end (set-up,
+    steps, summary): the set-up and summaries one thread computes in Python overlap the steps of
+    the others, and points finish one by one. ``together=True`` sets every point up first and
+    then steps them together, one output interval at a time (a :class:`BatchSimulation`). The
+    figures are the same either way."""
     items = list(items)
-    n = len(items)
-    out = [None] * n
-    build_s = [0.0] * n
-    build_cpu = [0.0] * n
-    runs, sims, index = [], [], []
+    out = [None] * len(items)
+    lock = threading.Lock()
+    stopped = []
+
+    def deliver(k, bp):
+        with lock:
+            out[k] = bp
+            if on_point is not None and not stopped:
+                try:
+                    on_point(k, bp)
+                except BaseException:
+                    stopped.append(True)
+                    raise
+
     with memo.sharing():
-        for k, (scene, overrides) in enumerate(items):
-            t0, c0 = time.perf_counter(), time.thread_time()
-            try:
-                sc, sim = _prepare(scene, overrides)
-                cb = None if on_frame is None else (lambda f, k=k: on_frame(k, f))
-                runs.append(_Run(sc, sim, frames, cb))
-                sims.append(sim)
-                index.append(k)
-            except Exception as exc:                # noqa: BLE001 - a failed point, not a crash
-                out[k] = BatchPoint(ERROR, reason_of(exc), error=exc)
-            build_s[k] = time.perf_counter() - t0
-            build_cpu[k] = time.thread_time() - c0
-            if out[k] is not None and on_point is not None:
-                out[k].task_wall_s, out[k].cpu_time_s = build_s[k], build_cpu[k]
-                on_point(k, out[k])
-    if sims:                                  # compile (or load) the kernels outside the threads
-        t0, c0 = time.perf_counter(), time.thread_time()
-        s = sims[0]
-        s.advance(s.dt)
-        s.reset()
-        build_s[index[0]] += time.perf_counter() - t0
-        build_cpu[index[0]] += time.thread_time() - c0
+        if together:
+            _together(items, threads, frames, on_frame, deliver)
+        else:
+            def one(k):
+                if stopped:
+                    return
+                bp = _point(k, items[k], frames, on_frame)
+                deliver(k, bp)
 
-    def summarise(j):
-        """The ``ok`` point of run ``j`` (on the batch's threads: its pulses and summary)."""
-        run = runs[j]
-        t0, c0 = time.perf_counter(), time.thread_time()
-        rec = run.record_of()
-        run.point = Point(run.scene, run.sim, rec, summary(run.scene, run.sim, rec))
-        run.busy += time.perf_counter() - t0
-        run.cpu += time.thread_time() - c0
+            for ok, value in parallel_each(one, range(len(items)), threads):
+                if not ok:
+                    raise value
+    return out
 
-    def step(j, k):
+
+def _set_up(k, item, frames, on_frame):
+    """``(run, None)`` of item ``k``, or ``(None, error BatchPoint)``; the time it took."""
+    t0, c0 = time.perf_counter(), time.thread_time()
+    try:
+        scene, overrides = item
+        sc, sim = _prepare(scene, overrides)
+        cb = None if on_frame is None else (lambda f: on_frame(k, f))
+        run, bp = _Run(sc, sim, frames, cb), None
+    except Exception as exc:                        # noqa: BLE001 - a failed point, not a crash
+        run, bp = None, BatchPoint(ERROR, reason_of(exc), error=exc)
+    return run, bp, time.perf_counter() - t0, time.thread_time() - c0
+
+
+def _summarise(run):
+    """The ``ok`` point of ``run`` (its pulses and summary)."""
+    t0, c0 = time.perf_counter(), time.thread_time()
+    rec = run.record_of()
+    run.point = Point(run.scene, run.sim, rec, summary(run.scene, run.sim, rec))
+    run.busy += time.perf_counter() - t0
+    run.cpu += time.thread_time() - c0
+
+
+def _point(k, item, frames, on_frame):
+    """The :class:`BatchPoint` of item ``k`` run to its end in this thread."""
+    run, bp, wall, cpu = _set_up(k, item, frames, on_frame)
+    if run is None:
+        bp.task_wall_s, bp.cpu_time_s = wall, cpu
+        return bp
+    try:
+        run.start()
+        for i in range(run.n_out):
+            run.interval(i)
+        _summarise(run)
+        bp = BatchPoint(OK, '', run.point)
+    except Exception as exc:                        # noqa: BLE001 - its point stops
+        bp = BatchPoint(DIVERGED if isinstance(exc, SimulationDiverged) else ERROR,
+                        reason_of(exc), error=exc)
+    bp.task_wall_s, bp.cpu_time_s = wall + run.busy, cpu + run.cpu
+    return bp
+
+
+def _together(items, threads, frames, on_frame, deliver):
+    """:func:`simulate_batch` with ``together=True``."""
+    runs, sims, index, build = [], [], [], {}
+    for k, item in enumerate(items):
+        run, bp, wall, cpu = _set_up(k, item, frames, on_frame)
+        build[k] = (wall, cpu)
+        if run is None:
+            bp.task_wall_s, bp.cpu_time_s = wall, cpu
+            deliver(k, bp)
+        else:
+            runs.append(run)
+            sims.append(run.sim)
+            index.append(k)
+
+    def step(j, i):
         run = runs[j]
-        if k < 0:
+        if i < 0:
             run.start()
         else:
-            run.interval(k)
-        if run.n_out == k + 1:
-            summarise(j)
+            run.interval(i)
+        if run.n_out == i + 1:
+            _summarise(run)
 
     def finish(j):
         k, run = index[j], runs[j]
@@ -315,18 +374,15 @@ def simulate_batch(items, threads=None, frames=False, on_frame=None, on_point=No
             bp = BatchPoint(OK, '', run.point)
         else:
             bp = BatchPoint(batch.status[j], batch.reasons[j], error=batch.errors[j])
-        bp.task_wall_s = build_s[k] + run.busy
-        bp.cpu_time_s = build_cpu[k] + run.cpu
-        out[k] = bp
-        if on_point is not None:
-            on_point(k, bp)
+        bp.task_wall_s = build[k][0] + run.busy
+        bp.cpu_time_s = build[k][1] + run.cpu
+        deliver(k, bp)
 
     with BatchSimulation(sims, threads) as batch:
         n_out = max((r.n_out for r in runs), default=0)
-        for k in range(-1, n_out):
-            live = [j for j in batch.running if runs[j].n_out > k]
-            batch.each(lambda j, sim: step(j, k), live)
+        for i in range(-1, n_out):
+            live = [j for j in batch.running if runs[j].n_out > i]
+            batch.each(lambda j, sim: step(j, i), live)
             for j in live:
-                if batch.status[j] != RUNNING or runs[j].n_out == k + 1:
+                if batch.status[j] != RUNNING or runs[j].n_out == i + 1:
                     finish(j)
-    return out

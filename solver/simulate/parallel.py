@@ -5,6 +5,7 @@ once from one process. Used by :mod:`solver.simulate.batch` and
 """
 from __future__ import annotations
 
+import itertools
 import os
 import threading
 from concurrent.futures import ThreadPoolExecutor
@@ -34,22 +35,31 @@ def _pool(n):
 
 def each(fn, items, threads=None):
     """``[(True, fn(item)) or (False, exception)]`` for every item of ``items``, in order, on
-    ``threads`` threads (default :func:`default_threads`): the items are cut into one share per
-    thread (round robin), the calling thread takes the first share. An exception of one item
-    is returned in its place; the others still run. Called from inside a share (a batch of
-    arrays of columns), it runs its items in that thread."""
+    ``threads`` threads (default :func:`default_threads`): each thread (the calling one too)
+    takes the next item not yet taken until none is left. An exception of one item is returned
+    in its place; the others still run. Anything else (``KeyboardInterrupt``) stops every thread
+    after its current item and is raised. Called from inside an item (a batch of arrays of
+    columns), it runs its items in that thread."""
     items = list(items)
     out = [None] * len(items)
+    taken = itertools.count()
+    stop = []
 
-    def share(k, n):
+    def share():
         outer = getattr(_INSIDE, 'on', False)
         _INSIDE.on = True
         try:
-            for i in range(k, len(items), n):
+            while not stop:
+                i = next(taken)
+                if i >= len(items):
+                    return
                 try:
                     out[i] = (True, fn(items[i]))
                 except Exception as exc:           # noqa: BLE001 - returned in its place
                     out[i] = (False, exc)
+        except BaseException:
+            stop.append(True)
+            raise
         finally:
             _INSIDE.on = outer
 
@@ -57,13 +67,15 @@ def each(fn, items, threads=None):
     if getattr(_INSIDE, 'on', False):
         n = 1
     if n <= 1:
-        share(0, 1)
+        share()
         return out
     pool = _pool(n - 1)
-    futures = [pool.submit(share, k, n) for k in range(1, n)]
+    futures = [pool.submit(share) for _ in range(1, n)]
     try:
-        share(0, n)
+        share()
     finally:
-        for f in futures:
-            f.result()
+        errors = [f.exception() for f in futures]     # waits for every thread
+    for e in errors:
+        if e is not None:
+            raise e                      # a stop raised in another thread
     return out
