@@ -104,3 +104,11 @@ def test_a_batch_steps_its_instances_and_stops_only_the_one_that_diverges():
         assert batch[0].t == pytest.approx(0.3) and batch[0].t == alone.t and batch[1].t < 0.3
         np.testing.assert_array_equal(batch[0].model.x, alone.model.x)
         np.testing.assert_array_equal(batch[0].model.v, alone.model.v)
+
+
+def test_without_the_base_force_every_other_figure_is_the_single_runs(singles):
+    got = simulate_batch([(FB, p) for p in POINTS[:3]], threads=2, base=False)
+    for single, g in zip(singles, got):
+        assert g.summary['base'] == [] != single['base']
+        assert _same({k: v for k, v in single.items() if k != 'base'},
+                     {k: v for k, v in g.summary.items() if k != 'base'}) == []

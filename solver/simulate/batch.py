@@ -155,7 +155,7 @@ class _Run:
     """One instance's run to ``run.t_end`` (the steps of :func:`solver.simulate.runner.run`),
     one output interval at a time."""
 
-    def __init__(self, scene, sim, frames, on_frame):
+    def __init__(self, scene, sim, frames, on_frame, base=True):
         self.scene, self.sim = scene, sim
         out_dt = scene.run.output_dt
         ratio = out_dt / sim.dt
@@ -167,6 +167,7 @@ class _Run:
         self.train = ImpactTrain(scene.loading.impact, sim.dt)
         self.frames = frames
         self.on_frame = on_frame
+        self.with_base = base
         self.times, self.strain, self.energy, self.cerr, self.base, self.balance = \
             [], [], [], [], [], []
         self.wall = 0.0
@@ -201,7 +202,7 @@ class _Run:
             else:
                 strain = np.zeros((0, 0))
             e, cerr = sim.energy(), sim.constraint_error()
-            base = np.array(sim.base_force())
+            base = np.array(sim.base_force()) if self.with_base else None
             bal = float(sim.energy_error())
         self.times.append(t)
         self.strain.append(strain)
@@ -235,7 +236,7 @@ class _Run:
         sim = self.sim
         rec = RunRecord(np.array(self.times), np.array(self.strain), np.array(self.energy),
                         np.array(self.cerr), self.wall, sim.step, sim.steps_taken,
-                        base_force=np.array(self.base),
+                        base_force=np.array(self.base) if self.with_base else None,
                         energy_balance_error=np.array(self.balance),
                         impacts=list(self.train.applied))
         if sim.network.levels.size:
@@ -255,7 +256,7 @@ def _prepare(scene, overrides):
 
 
 def simulate_batch(items, threads=None, frames=False, on_frame=None, on_point=None,
-                   together=False):
+                   together=False, base=True):
     """:func:`solver.simulate.runner.simulate` of every ``(scene, overrides)`` of ``items`` (a
     scene is a :class:`Scene` or a path; overrides as for ``simulate``), as one batch on
     ``threads`` threads. Returns a :class:`BatchPoint` per item, in order: ``ok`` with the
@@ -271,7 +272,11 @@ def simulate_batch(items, threads=None, frames=False, on_frame=None, on_point=No
     steps, summary): the set-up and summaries one thread computes in Python overlap the steps of
     the others, and points finish one by one. ``together=True`` sets every point up first and
     then steps them together, one output interval at a time (a :class:`BatchSimulation`). The
-    figures are the same either way."""
+    figures are the same either way.
+
+    ``base=False`` (lean records only) leaves out the base force, the costliest figure of a frame
+    (a force evaluation of the full network): the summary's ``base`` is then ``[]``, every other
+    figure the same (sweep rows and fits do not read it)."""
     items = list(items)
     out = [None] * len(items)
     lock = threading.Lock()
@@ -289,12 +294,12 @@ def simulate_batch(items, threads=None, frames=False, on_frame=None, on_point=No
 
     with memo.sharing():
         if together:
-            _together(items, threads, frames, on_frame, deliver)
+            _together(items, threads, (frames, base), on_frame, deliver)
         else:
             def one(k):
                 if stopped:
                     return
-                bp = _point(k, items[k], frames, on_frame)
+                bp = _point(k, items[k], (frames, base), on_frame)
                 deliver(k, bp)
 
             for ok, value in parallel_each(one, range(len(items)), threads):
@@ -303,14 +308,17 @@ def simulate_batch(items, threads=None, frames=False, on_frame=None, on_point=No
     return out
 
 
-def _set_up(k, item, frames, on_frame):
-    """``(run, None)`` of item ``k``, or ``(None, error BatchPoint)``; the time it took."""
+def _set_up(k, item, record, on_frame):
+    """``(run, None)`` of item ``k``, or ``(None, error BatchPoint)``; the time it took.
+    ``record``: ``(frames, base)`` of :func:`simulate_batch`."""
     t0, c0 = time.perf_counter(), time.thread_time()
     try:
         scene, overrides = item
         sc, sim = _prepare(scene, overrides)
         cb = None if on_frame is None else (lambda f: on_frame(k, f))
-        run, bp = _Run(sc, sim, frames, cb), None
+        frames, base = record
+        run = _Run(sc, sim, frames, cb, base=base or frames or cb is not None)
+        bp = None
     except Exception as exc:                        # noqa: BLE001 - a failed point, not a crash
         run, bp = None, BatchPoint(ERROR, reason_of(exc), error=exc)
     return run, bp, time.perf_counter() - t0, time.thread_time() - c0
@@ -325,9 +333,9 @@ def _summarise(run):
     run.cpu += time.thread_time() - c0
 
 
-def _point(k, item, frames, on_frame):
+def _point(k, item, record, on_frame):
     """The :class:`BatchPoint` of item ``k`` run to its end in this thread."""
-    run, bp, wall, cpu = _set_up(k, item, frames, on_frame)
+    run, bp, wall, cpu = _set_up(k, item, record, on_frame)
     if run is None:
         bp.task_wall_s, bp.cpu_time_s = wall, cpu
         return bp
@@ -344,11 +352,11 @@ def _point(k, item, frames, on_frame):
     return bp
 
 
-def _together(items, threads, frames, on_frame, deliver):
+def _together(items, threads, record, on_frame, deliver):
     """:func:`simulate_batch` with ``together=True``."""
     runs, sims, index, build = [], [], [], {}
     for k, item in enumerate(items):
-        run, bp, wall, cpu = _set_up(k, item, frames, on_frame)
+        run, bp, wall, cpu = _set_up(k, item, record, on_frame)
         build[k] = (wall, cpu)
         if run is None:
             bp.task_wall_s, bp.cpu_time_s = wall, cpu

@@ -153,7 +153,7 @@ class Objective:
         p = self.problem
         values = [p.values(x) for x in xs]
         items = [(p.scene, list(p.overrides(case, v).items())) for v in values for case in p.cases]
-        got = iter(simulate_batch(items, threads=threads))
+        got = iter(simulate_batch(items, threads=threads, base=False))   # no fit figure of it
         out = []
         for _ in values:
             res, figs, status = [], [], []

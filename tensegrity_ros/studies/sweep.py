@@ -410,8 +410,9 @@ def run_points(scene, items, threads=1, on_row=None):
     """The rows of ``items`` (``(point_id, overrides)`` pairs) as one batch
     (:func:`solver.simulate.batch.simulate_batch` on ``threads`` threads): each row as
     :func:`run_point` makes it, ``task_wall_s`` and ``cpu_time_s`` the point's own share (its
-    set-up, and its steps, records and summary on its thread). ``on_row(row)`` is called as each
-    point finishes. Never raises for a failed point."""
+    set-up, and its steps, records and summary on its thread; the base force, which a row does
+    not hold, is not recorded). ``on_row(row)`` is called as each point finishes. Never raises
+    for a failed point."""
     from solver.simulate.batch import simulate_batch
     rows = [None] * len(items)
 
@@ -429,7 +430,8 @@ def run_points(scene, items, threads=1, on_row=None):
         if on_row is not None:
             on_row(row)
 
-    simulate_batch([(scene, list(o.items())) for _, o in items], threads=threads, on_point=done)
+    simulate_batch([(scene, list(o.items())) for _, o in items], threads=threads, on_point=done,
+                   base=False)             # a row holds no base-force figure
     return rows
 
 
