@@ -25,7 +25,8 @@ def parser():
     p.add_argument('--only', action='append', choices=CHOICES,
                    help='run only this benchmark (repeatable); stiff: the stiff scenes of '
                         'work_precision and stability (both also run them); rerun: the cost of '
-                        'a Rerun recording, sweep: the parallel efficiency of a 64-point sweep, '
+                        'a Rerun recording, sweep: a 256-point sweep, single runs against the '
+                        'batched runner on one and two cores, '
                         'soak: the node under a command flood for 10 minutes, array: arrays of '
                         'columns per column, trains: pulse trains and strong impacts on the '
                         'default columns (these five only on request)')

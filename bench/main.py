@@ -10,9 +10,10 @@ def main(out_dir='bench/results', quick=False, peers=False, only=None, log=print
     ``{'work_precision', 'stability', 'stiff', 'peers', 'rerun', 'sweep', 'soak'}`` (``stiff``: the
     stiff scenes of both, which ``work_precision`` and ``stability`` also run; ``peers=True`` adds
     the peer comparison, which :mod:`bench.peers` provides; ``rerun``, only on request, the cost of
-    a Rerun recording, :mod:`bench.rerun_overhead`; ``sweep``, only on request, the parallel
-    efficiency of a sweep, :mod:`bench.sweep`; ``soak``, only on request, the node under a command
-    flood for 10 minutes, 20 s with ``quick``, :mod:`bench.soak`). Returns the files written."""
+    a Rerun recording, :mod:`bench.rerun_overhead`; ``sweep``, only on request, a sweep's
+    single runs against the batched runner, :mod:`bench.sweep`; ``soak``, only on request, the
+    node under a command flood for 10 minutes, 20 s with ``quick``, :mod:`bench.soak`). Returns
+    the files written."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     written = []

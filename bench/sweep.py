@@ -1,13 +1,20 @@
-"""Parallel efficiency of ``tensegrity sweep``: a 64-point sweep of 1 s runs of the flexible-base
-column (v0 x prestrain, 8 x 8), once serially in this process and once on a 2-worker
-``LocalCluster``, with the same task function (:func:`tensegrity_ros.studies.sweep.run_point`).
+"""What a sweep costs: 256 points of 1 s runs of the flexible-base column (v0 x prestrain,
+16 x 16), run four ways with the same rows:
 
-Efficiency = (serial wall time / cluster wall time) / workers. Where the rest goes: the cluster's
-start (scheduler and worker processes, their imports), each worker's first task (numba cache
-load; the serial side pays the same load once, in its untimed first point, reported as
-``serial_first_point_s``), and the scheduling overhead per point (cluster wall time minus the
-busiest worker's task time, per point). The cluster runs the points in batches
-(:func:`tensegrity_ros.studies.sweep.chunks`). Written to ``sweep.json``.
+- ``serial``: one :func:`tensegrity_ros.studies.sweep.run_point` (a single ``tensegrity run``)
+  after the other in this process: the reference;
+- ``batched_1``: the batched runner (:func:`solver.simulate.batch.simulate_batch`, through
+  ``sweep.execute``) on one thread;
+- ``batched_threads``: the batched runner on ``workers`` threads in this process (what
+  ``tensegrity sweep`` does by default);
+- ``cluster``: a ``workers``-process ``LocalCluster``, one Dask task per batch, each batch on one
+  thread, cluster start and close included.
+
+Ratios are of wall times against the serial sweep (per point for ``batched_1``). Where the rest
+goes: ``set-up`` (scenes, simulations, shared reductions: the part of each point outside the
+threads), ``busy`` (a point's steps, records and summary on its thread: the summed busy time over
+the wall time and the threads is the threads' use), and for the cluster its start, close and the
+first task of each worker (the numba cache load). Written to ``sweep.json``.
 """
 from __future__ import annotations
 
@@ -18,8 +25,18 @@ from pathlib import Path
 
 from .common import COLUMNS
 
-V0S = '0.06:0.13:8'
-PRESTRAINS = '0.0015:0.0035:8'
+V0S = '0.06:0.13:16'
+PRESTRAINS = '0.0015:0.0035:16'
+
+
+def _timed(sw, sweep, **kw):
+    t0 = time.perf_counter()
+    rows, _ = sw.execute(sweep, **kw)
+    return time.perf_counter() - t0, rows
+
+
+def _busy(rows):
+    return sum(r['task_wall_s'] for r in rows)
 
 
 def main(out, quick=False, log=print, workers=2):
@@ -27,66 +44,86 @@ def main(out, quick=False, log=print, workers=2):
     grid = [f'loading.impact.v0={V0S}', f'prestrain={PRESTRAINS}']
     t_end = 1.0
     if quick:
-        grid = ['loading.impact.v0=0.06:0.13:4', 'prestrain=0.0015:0.0035:2']
+        grid = ['loading.impact.v0=0.06:0.13:4', 'prestrain=0.0015:0.0035:4']
         t_end = 0.3
     out = Path(out)
+    res = {'scene': 'fb_column.yaml', 'grid': grid, 't_end_s': t_end, 'workers': workers,
+           'quick': quick}
     with tempfile.TemporaryDirectory() as tmp:
-        serial = sw.build(COLUMNS['FB'], grid, out=Path(tmp) / 'serial', t_end=t_end)
-        n = len(serial.points)
-        log(f'sweep bench: {n} points of {t_end:g} s, serial')
+        def build(name):
+            return sw.build(COLUMNS['FB'], grid, out=Path(tmp) / name, t_end=t_end)
+
+        serial = build('serial')
+        n = res['points'] = len(serial.points)
+        log(f'sweep bench: {n} points of {t_end:g} s')
         t0 = time.perf_counter()
         sw.run_point(serial.scene, serial.overrides(serial.points[0]))      # kernels warm
-        first_point_s = time.perf_counter() - t0
+        res['serial_first_point_s'] = time.perf_counter() - t0
+        res['serial_s'], rows_s = _timed(sw, serial, task=sw.run_point)
+        log(f"  serial single runs {res['serial_s']:.2f} s ({res['serial_s'] / n * 1e3:.1f} ms "
+            'a point)')
+        res['batched_1_s'], rows_1 = _timed(sw, build('batched_1'), threads=1)
+        res['batched_1_ratio_per_point'] = res['batched_1_s'] / res['serial_s']
+        log(f"  batched, 1 thread {res['batched_1_s']:.2f} s: "
+            f"{res['batched_1_ratio_per_point']:.3f}x a single run per point")
+        res['batched_threads_s'], rows_t = _timed(sw, build('threads'), threads=workers)
+        res['batched_threads_ratio'] = res['batched_threads_s'] / res['serial_s']
+        log(f"  batched, {workers} threads {res['batched_threads_s']:.2f} s: "
+            f"{res['batched_threads_ratio']:.3f}x serial")
         t0 = time.perf_counter()
-        rows_s, _ = sw.execute(serial)
-        serial_s = time.perf_counter() - t0
-        log(f'  serial {serial_s:.2f} s; {workers}-worker LocalCluster')
-        t0 = time.perf_counter()
-        cluster = sw.Cluster(workers=workers)
-        t_start = time.perf_counter() - t0
+        cluster = sw.Cluster(workers=workers, dashboard=None)
+        res['cluster_start_s'] = time.perf_counter() - t0
         try:
-            par = sw.build(COLUMNS['FB'], grid, out=Path(tmp) / 'cluster', t_end=t_end)
-            t1 = time.perf_counter()
-            batches = [len(b) for b in sw.chunks(par.points, cluster.n_workers)]
-            rows_p, _ = sw.execute(par, cluster)
-            run_s = time.perf_counter() - t1
+            par = build('cluster')
+            res['cluster_run_s'], rows_c = _timed(sw, par, cluster=cluster)
         finally:
-            t2 = time.perf_counter()
+            t0 = time.perf_counter()
             cluster.close()
-            t_close = time.perf_counter() - t2
-    total_p = t_start + run_s + t_close
-    task_s = sum(r['task_wall_s'] for r in rows_p)
-    by_worker = {}
-    first = {}
-    for r in rows_p:
+            res['cluster_close_s'] = time.perf_counter() - t0
+    res['cluster_total_s'] = res['cluster_start_s'] + res['cluster_run_s'] + res['cluster_close_s']
+    res['cluster_ratio'] = res['cluster_total_s'] / res['serial_s']
+    res['efficiency'] = res['serial_s'] / res['cluster_total_s'] / workers
+    res['efficiency_excluding_start'] = res['serial_s'] / res['cluster_run_s'] / workers
+    log(f"  {workers}-worker LocalCluster: start {res['cluster_start_s']:.2f} s, run "
+        f"{res['cluster_run_s']:.2f} s, close {res['cluster_close_s']:.2f} s: "
+        f"{res['cluster_ratio']:.3f}x serial")
+    best = min(('batched_threads', res['batched_threads_s']), ('cluster', res['cluster_total_s']),
+               key=lambda kv: kv[1])
+    res['two_core_best'] = best[0]
+    res['two_core_ratio'] = best[1] / res['serial_s']
+    # where the time goes
+    # per point: the stepping (advance calls, the summary's wall_time_s) and the rest of the
+    # point's own time (set-up, records, pulses and summary)
+    res['serial_point_mean_s'] = _busy(rows_s) / n
+    res['serial_stepping_mean_s'] = sum(r['wall_time_s'] for r in rows_s) / n
+    res['serial_other_mean_s'] = res['serial_point_mean_s'] - res['serial_stepping_mean_s']
+    res['batched_1_point_busy_mean_s'] = _busy(rows_1) / n
+    res['batched_1_stepping_mean_s'] = sum(r['wall_time_s'] for r in rows_1) / n
+    res['batched_1_other_mean_s'] = (res['batched_1_point_busy_mean_s']
+                                     - res['batched_1_stepping_mean_s'])
+    res['batched_1_outside_points_s'] = res['batched_1_s'] - _busy(rows_1)
+    res['batched_threads_busy_sum_s'] = _busy(rows_t)
+    res['batched_threads_use'] = _busy(rows_t) / (res['batched_threads_s'] * workers)
+    res['batched_threads_stepping_sum_s'] = sum(r['wall_time_s'] for r in rows_t)
+    by_worker, first = {}, {}
+    for r in rows_c:
         by_worker[r['worker_pid']] = by_worker.get(r['worker_pid'], 0.0) + r['task_wall_s']
-    for r in rows_p:                     # the slowest task of each worker: its first (cache load)
         first[r['worker_pid']] = max(first.get(r['worker_pid'], 0.0), r['task_wall_s'])
-    serial_task = sum(r['task_wall_s'] for r in rows_s) / n
-    first_extra = sum(max(0.0, v - serial_task) for v in first.values())
-    busiest = max(by_worker.values())
-    same = all({k: v for k, v in a.items() if k not in sw.TIMING_FIELDS}
-               == {k: v for k, v in b.items() if k not in sw.TIMING_FIELDS}
-               for a, b in zip(rows_s, rows_p))
-    result = {
-        'points': n, 't_end_s': t_end, 'workers': workers, 'scene': 'fb_column.yaml',
-        'grid': grid,
-        'serial_s': serial_s, 'cluster_total_s': total_p, 'cluster_run_s': run_s,
-        'speedup': serial_s / total_p, 'efficiency': serial_s / total_p / workers,
-        'efficiency_excluding_start': serial_s / run_s / workers,
-        'cluster_start_s': t_start, 'cluster_close_s': t_close,
-        'serial_first_point_s': first_point_s,
-        'tasks': len(batches), 'points_per_task': batches,
-        'serial_task_mean_s': serial_task, 'cluster_task_mean_s': task_s / n,
-        'worker_first_task_extra_s': first_extra,
-        'scheduling_overhead_per_task_s': max(0.0, run_s - busiest) / n,
-        'tasks_per_worker': {str(k): sum(r['worker_pid'] == k for r in rows_p)
-                             for k in by_worker},
-        'rows_identical': same, 'quick': quick,
-    }
-    log(f"  cluster start {t_start:.2f} s, run {run_s:.2f} s, close {t_close:.2f} s; "
-        f"speed-up {result['speedup']:.2f}, efficiency {result['efficiency']:.2f} "
-        f"({result['efficiency_excluding_start']:.2f} without the cluster start)")
+    res['cluster_busiest_worker_s'] = max(by_worker.values())
+    res['cluster_idle_s'] = res['cluster_run_s'] - res['cluster_busiest_worker_s']
+    res['points_per_worker'] = {str(k): sum(r['worker_pid'] == k for r in rows_c)
+                                for k in by_worker}
+    res['batches'] = [len(b) for b in sw.batches(
+        list(range(n)), workers, [sw.point_cost(serial.scene.with_overrides(
+            list(serial.overrides(p).items()))) for p in serial.points], [()] * n)]
+
+    def same(a, b):
+        return all({k: v for k, v in x.items() if k not in sw.TIMING_FIELDS}
+                   == {k: v for k, v in y.items() if k not in sw.TIMING_FIELDS}
+                   for x, y in zip(a, b))
+    res['rows_identical'] = same(rows_s, rows_1) and same(rows_s, rows_t) and same(rows_s, rows_c)
+    log(f"  best on {workers} cores: {best[0]}, {res['two_core_ratio']:.3f}x serial; rows "
+        f"identical: {res['rows_identical']}")
     path = out / ('sweep_quick.json' if quick else 'sweep.json')
-    path.write_text(json.dumps(result, indent=2))
+    path.write_text(json.dumps(res, indent=2))
     return [str(path)]

@@ -358,7 +358,8 @@ def _study_options(p, seed_help):
     cluster's dashboard, seed."""
     p.add_argument('--t-end', type=float, help='simulated time of every run, s')
     p.add_argument('--workers', type=int,
-                   help='local worker processes (default: one per core; 1 = in this process)')
+                   help='N > 1: a local Dask cluster of N worker processes; 1: in this process '
+                        'on one thread (default: in this process, one thread per core)')
     p.add_argument('--scheduler', metavar='ADDRESS',
                    help='an existing Dask scheduler, e.g. tcp://HOST:8786')
     p.add_argument('--dashboard-address', metavar='HOST:PORT',

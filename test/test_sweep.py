@@ -451,3 +451,36 @@ def test_bad_input_is_one_line_exit_2_and_runs_nothing(args, needle, tmp_path, c
     err = capsys.readouterr().err
     assert needle in err and err.count('\n') == 1 and 'Traceback' not in err
     assert not out.exists()
+
+
+def test_a_batched_sweep_resumes_and_reports_every_point(tmp_path):
+    """The default (batched) path: one progress tick and one row per point, a rerun runs only
+    the missing points, the rows equal those of single runs (``task=run_point``)."""
+    ticks = []
+    first = sw.build(FB, ['loading.impact.v0=0.08,0.1'], out=tmp_path / 'b', t_end=0.05)
+    rows, n = sw.execute(first, progress=ticks.append, threads=2)
+    assert n == 2 and ticks == [1, 1]
+    single = sw.build(FB, ['loading.impact.v0=0.12,0.1,0.08'], out=tmp_path / 's', t_end=0.05)
+    ref, _ = sw.execute(single, task=sw.run_point)
+    ticks.clear()
+    plain = sw.build(FB, ['loading.impact.v0=0.12,0.1,0.08'], out=tmp_path / 'b', t_end=0.05)
+    rows, n = sw.execute(plain, progress=ticks.append)
+    assert n == 1 and ticks == [1]
+    assert [_figures(r) for r in rows] == [_figures(r) for r in ref]
+
+
+def test_batches_keep_a_topology_together_and_cover_every_point_once():
+    topo = [sw.topology_of(o) for o in ({'structure.stacking': 'shared', 'prestrain': 0.002},
+                                        {'structure.stacking': 'parallel', 'prestrain': 0.002},
+                                        {'structure.stacking': 'shared', 'prestrain': 0.003},
+                                        {'structure.radius': 0.004}, {'structure.radius': 0.005})]
+    assert topo[0] == topo[2] != topo[1] and topo[3] == topo[4] == ()
+    n = 40
+    topos = [topo[i % 2] for i in range(n)]
+    got = sw.batches(list(range(n)), 2, [0.1] * n, topos)
+    assert sorted(i for b in got for i in b) == list(range(n))
+    assert all(len({topos[i] for i in b}) == 1 for b in got)
+    assert max(len(b) for b in got) * 0.1 <= sw.BATCH_SECONDS + 1e-9
+    assert [len(b) for b in got][-1] == 1                       # guided: shrinks to one point
+    alone = sw.batches(list(range(n)), None, [0.1] * n, [()] * n, seconds=1.0)
+    assert [len(b) for b in alone] == [10] * 4

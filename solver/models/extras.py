@@ -8,6 +8,7 @@ import numpy as np
 from solver.kernels import barcontact
 from solver.kernels import dynamics as dyn
 from solver.kernels.contact import NO_EXTRAS
+from solver.models import memo
 
 
 def active_spec(spec):
@@ -63,12 +64,19 @@ def _bar_contact(scene, network):
 def _model_pairs(pairs, reduced):
     """``pairs`` (full node indices) as the kernel's (n, 8) node/rotation rows of a model: all
     rotations 0 in ``full3d``; in ``sym3d`` one pair per orbit of three under the rotation (its
-    ends as representatives and rotations), and the energy multiplicity 3."""
+    ends as representatives and rotations), and the energy multiplicity 3 (found once per
+    topology inside :func:`solver.models.memo.sharing`)."""
     if reduced is None:
         rows = np.zeros((len(pairs), 8), dtype=np.int64)
         rows[:, 0::2] = pairs
         return rows, 1.0
     rep, rot = np.asarray(reduced.node_rep), np.asarray(reduced.node_rot)
+    rows = memo.lookup('pairs', (np.asarray(pairs), rep, rot),
+                       lambda: _reduced_pairs(pairs, rep, rot))
+    return rows.copy(), 3.0
+
+
+def _reduced_pairs(pairs, rep, rot):
     node = {(int(rep[n]), int(rot[n])): n for n in range(len(rep))}
 
     def image(n):                       # the node R x_n
@@ -85,7 +93,7 @@ def _model_pairs(pairs, reduced):
             seen.add(frozenset((img[:2], img[2:])))
             img = tuple(image(n) for n in img)
         rows.append([v for n in pair for v in (rep[n], rot[n])])
-    return np.array(rows, dtype=np.int64).reshape(-1, 8), 3.0
+    return np.array(rows, dtype=np.int64).reshape(-1, 8)
 
 
 def cable_damping(scene, network):

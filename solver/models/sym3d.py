@@ -28,6 +28,7 @@ from scipy.spatial import cKDTree
 
 from solver.kernels import dynamics as dyn
 from solver._jit import jit
+from solver.models import memo
 from solver.models.base import Model
 from solver.kernels.rotation import ROT_C, ROT_S
 from solver.kernels import massmatrix
@@ -128,7 +129,37 @@ def _orbits(sigma):
 def _reduce_members(pairs, rep, rot, props, what):
     """Reduced (tail, head, r) of each orbit of members, with a map full -> reduced.
 
-    ``props`` (n_members, k) values that must agree along an orbit (rest length, EA, ...)."""
+    ``props`` (n_members, k) values that must agree along an orbit (rest length, EA, ...).
+
+    Inside :func:`solver.models.memo.sharing` the grouping of a topology (``pairs``, ``rep``,
+    ``rot``) is found once: another network of that topology takes it when its own ``props``
+    agree along every group it makes (as the search below would require them to), else it is
+    searched for again."""
+    if not memo.active():
+        return _search_members(pairs, rep, rot, props, what)
+    props = np.asarray(props, dtype=np.float64)
+    try:
+        arr, first, mapping = memo.lookup('member-groups', (what, pairs, rep, rot),
+                                          lambda: _grouped_members(pairs, rep, rot, props, what))
+    except NotSymmetric:                # the first network of the topology was not symmetric
+        return _search_members(pairs, rep, rot, props, what)
+    prop = props[first]
+    if np.all(np.abs(prop[mapping] - props) <= 1e-12 * np.abs(props)):
+        return arr, prop, mapping
+    return _search_members(pairs, rep, rot, props, what)
+
+
+def _grouped_members(pairs, rep, rot, props, what):
+    """``(arr, first, mapping)``: :func:`_search_members` with ``first`` the first full member of
+    each reduced member (whose ``props`` the reduced member has)."""
+    arr, _, mapping = _search_members(pairs, rep, rot, props, what)
+    first = np.full(len(arr), -1, dtype=np.int64)
+    for m in range(len(mapping) - 1, -1, -1):
+        first[mapping[m]] = m
+    return arr, first, mapping
+
+
+def _search_members(pairs, rep, rot, props, what):
     keys = {}
     mapping = np.zeros(len(pairs), dtype=np.int64)
     out = []
@@ -185,8 +216,20 @@ def _coupling3(members, w_diag, partner, w_off, bw):
     return coef
 
 
+REDUCE_INPUTS = ('x0', 'node_mass', 'clamped', 'bar_a', 'bar_b', 'bar_mass', 'edge_a', 'edge_b',
+                 'cable_a', 'cable_b', 'cable_rest_length', 'cable_EA')
+
+
 def reduce_network(network, tol=1e-9):
-    """The :class:`ReducedNetwork` of a 3-fold symmetric network; raises :class:`NotSymmetric`."""
+    """The :class:`ReducedNetwork` of a 3-fold symmetric network; raises :class:`NotSymmetric`.
+    Inside :func:`solver.models.memo.sharing` a network of the same values (every array of
+    :data:`REDUCE_INPUTS`) gets the same (read-only) result, and one of the same topology reuses
+    its orbits' member grouping (:func:`_reduce_members`)."""
+    return memo.lookup('reduce', (tol, *(getattr(network, k) for k in REDUCE_INPUTS)),
+                       lambda: _reduce_network(network, tol))
+
+
+def _reduce_network(network, tol):
     x0 = np.asarray(network.x0)
     scale = max(float(np.max(np.abs(x0))), 1e-300)
     sigma = _node_map(x0, tol * scale)

@@ -15,7 +15,9 @@ The public interface is that of :class:`~solver.simulate.simulation.Simulation`
 (:func:`simulation_for` returns an :class:`ArraySimulation` when :func:`wants_array` holds);
 frames hold the full array
 (node, cable and column order of the column builder's network). Every column steps with the same
-``dt`` on one clock ``t``. A divergence in any column restores every column and names the column.
+``dt`` on one clock ``t``; the groups are independent simulations and step in parallel on threads
+(:mod:`solver.simulate.parallel`). A divergence in any column restores every column and names the
+column.
 """
 from __future__ import annotations
 
@@ -27,6 +29,7 @@ import numpy as np
 from solver.build.scene import Scene
 from solver.build.structures import build_network
 from solver.models.base import Model
+from solver.simulate import parallel
 from solver.simulate.loading import prestrain_values, rest_length_values
 from solver.simulate.simulation import Frame, Simulation, SimulationDiverged
 
@@ -98,6 +101,8 @@ class _Group:
 class ArraySimulation(Simulation):
     """An array of independent columns (see the module text). ``dedup=False`` gives every column
     its own simulation from the start (the plain twin of the shared one)."""
+
+    threads = None          # threads the groups step on (None: every core; 1: one after another)
 
     def __init__(self, scene: Scene, network=None, dedup=True):
         if network is not None:
@@ -373,25 +378,26 @@ class ArraySimulation(Simulation):
 
     # -- time -----------------------------------------------------------------------------------
     def advance(self, duration):
-        """Advance every column by ``duration`` s (whole steps of ``dt``). A divergence in any
-        column restores every column and raises :class:`SimulationDiverged` naming it."""
-        keeps = []
-        steps = 0
-        for grp in self.groups:
-            s = grp.sim
-            keep = (s._keep(), s.t, s.step, s.steps_taken)
-            try:
-                n = s.advance(duration)
-            except SimulationDiverged as exc:
-                for (g, (k, t, step, taken)) in zip(self.groups, keeps):
+        """Advance every column by ``duration`` s (whole steps of ``dt``), the groups in parallel
+        on :attr:`threads` threads (:func:`solver.simulate.parallel.each`). A divergence in any
+        column restores every column and raises :class:`SimulationDiverged` naming it (the first
+        diverging group in column order)."""
+        groups = self.groups
+        keeps = [(s._keep(), s.t, s.step, s.steps_taken) for s in (g.sim for g in groups)]
+        results = parallel.each(lambda g: g.sim.advance(duration), groups,
+                                self.threads if len(groups) > 1 else 1)
+        self._cache = {}
+        failed = next(((g, v) for g, (ok, v) in zip(groups, results) if not ok), None)
+        if failed is not None:
+            for g, (ok, _), (k, t, step, taken) in zip(groups, results, keeps):
+                if ok:                     # a group that failed restored itself
                     g.sim._restore(k)
                     g.sim.t, g.sim.step, g.sim.steps_taken = t, step, taken
-                self._cache = {}
+            grp, exc = failed
+            if isinstance(exc, SimulationDiverged):
                 raise _renamed(exc, grp.columns) from None
-            keeps.append(keep)
-            steps = max(steps, n)
-        self._cache = {}
-        return steps
+            raise exc
+        return max(v for _, v in results)
 
     def frame(self):
         """A copied :class:`~solver.simulate.simulation.Frame` of the whole array."""

@@ -9,6 +9,7 @@ each point is one :func:`solver.simulate.runner.simulate` run, as ``tensegrity r
 """
 from __future__ import annotations
 
+import functools
 import itertools
 import json
 import math
@@ -18,8 +19,8 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from tensegrity_ros.studies.sweep import (FIGURES, Cluster, SweepError, dashboard_option, flatten,
-                                          parse_axis)
+from tensegrity_ros.studies.sweep import (FIGURES, Cluster, SweepError, chunks, dashboard_option,
+                                          flatten, parse_axis)
 
 PENALTY = 10.0        # the error of a point whose run diverged or misses a figure (1000 %)
 
@@ -142,38 +143,66 @@ class Objective:
 
     def evaluate(self, x):
         """``(error, residuals, [flattened summary or None per case], [status per case])``."""
-        from solver.simulate.runner import simulate
-        from solver.simulate.simulation import SimulationDiverged
+        return self.evaluate_many([x])[0]
+
+    def evaluate_many(self, xs, threads=1):
+        """:meth:`evaluate` of every point of ``xs``: their cases run as one batch
+        (:func:`solver.simulate.batch.simulate_batch` on ``threads`` threads; each case's summary
+        is that of its single run)."""
+        from solver.simulate.batch import simulate_batch
         p = self.problem
-        values = p.values(x)
-        res, figs, status = [], [], []
-        for case in p.cases:
-            try:
-                f = flatten(simulate(p.scene, list(p.overrides(case, values).items())).summary)
-                status.append('ok')
-            except SimulationDiverged as exc:
-                f = None
-                status.append(f'diverged: {str(exc).splitlines()[0]}')
-            res += case_residuals(case, f)
-            figs.append(f)
-        res = np.array(res)
-        return math.sqrt(float(res @ res) / self.wsum), res, figs, status
+        values = [p.values(x) for x in xs]
+        items = [(p.scene, list(p.overrides(case, v).items())) for v in values for case in p.cases]
+        got = iter(simulate_batch(items, threads=threads, base=False))   # no fit figure of it
+        out = []
+        for _ in values:
+            res, figs, status = [], [], []
+            for case in p.cases:
+                bp = next(got)
+                if bp.status == 'ok':
+                    f = flatten(bp.summary)
+                    status.append('ok')
+                elif bp.status == 'diverged':
+                    f = None
+                    status.append(f'diverged: {bp.reason}')
+                else:                   # as the single run: a failed case stops the fit
+                    raise bp.error
+                res += case_residuals(case, f)
+                figs.append(f)
+            res = np.array(res)
+            out.append((math.sqrt(float(res @ res) / self.wsum), res, figs, status))
+        return out
 
     def __call__(self, x):
         return self.evaluate(x)[0]
 
 
+def _errors(obj, xs):
+    """The errors of the points ``xs`` (one batch; a Dask task)."""
+    return [e[0] for e in obj.evaluate_many(xs)]
+
+
 class RecordingMap:
     """The map-like callable handed to the optimiser: maps on the cluster (or in this process)
-    and keeps every evaluated point and its error."""
+    and keeps every evaluated point and its error. An :class:`Objective` is mapped in batches
+    (:meth:`Objective.evaluate_many`): in this process one batch on every core, on the cluster
+    one task per batch of a few points."""
 
-    def __init__(self, cluster=None):
+    def __init__(self, cluster=None, threads=None):
         self.cluster = cluster
+        self.threads = threads
         self.history = []
 
     def __call__(self, func, iterable):
         xs = [np.array(x, dtype=float) for x in iterable]
-        ys = self.cluster.map(func, xs) if self.cluster is not None else [func(x) for x in xs]
+        if not isinstance(func, Objective):
+            ys = self.cluster.map(func, xs) if self.cluster is not None else [func(x) for x in xs]
+        elif self.cluster is None:
+            ys = [e[0] for e in func.evaluate_many(xs, threads=self.threads)]
+        else:
+            parts = chunks(xs, self.cluster.n_workers)
+            ys = [y for part in self.cluster.map(functools.partial(_errors, func), parts)
+                  for y in part]
         self.history.extend(zip(xs, ys))
         return ys
 
@@ -248,14 +277,15 @@ def polish(obj, x, mapper, max_nfev=40):
     return np.array(best[0])
 
 
-def fit(problem, cluster=None, seed=0, popsize=8, maxiter=20, tol=1e-3, refine=True):
+def fit(problem, cluster=None, seed=0, popsize=8, maxiter=20, tol=1e-3, refine=True,
+        threads=None):
     """Run the fit: differential evolution over the free keys and the choices (the choices as
     integer indices, ``integrality``), each generation evaluated by the map over ``cluster``;
     then, with ``refine``, :func:`polish` on the continuous values at the best point's choices.
     Returns the result as a JSON-ready dict."""
     from scipy.optimize import differential_evolution
     obj = Objective(problem)
-    mapper = RecordingMap(cluster)
+    mapper = RecordingMap(cluster, threads)
     res = differential_evolution(obj, problem.bounds, integrality=problem.integrality,
                                  workers=mapper, updating='deferred', polish=False, rng=seed,
                                  popsize=popsize, maxiter=maxiter, tol=tol)
@@ -349,14 +379,15 @@ def main(args):
     if args.write_scene and not Path(args.write_scene).parent.exists():
         raise SweepError(f'--write-scene {args.write_scene}: directory does not exist')
     problem = build(args.scene, args.target, args.free, args.choice, t_end=args.t_end)
-    import os
     cluster = None
     try:
-        if args.scheduler or (args.workers or os.cpu_count() or 1) > 1:
+        # as for sweeps: the batched runner's threads here unless --workers N > 1 or --scheduler
+        if args.scheduler or (args.workers or 1) > 1:
             cluster = Cluster(workers=args.workers, address=args.scheduler, dashboard=dashboard)
             cluster.report_dashboard()
         result = fit(problem, cluster, seed=args.seed, popsize=args.popsize,
-                     maxiter=args.maxiter, refine=not args.no_polish)
+                     maxiter=args.maxiter, refine=not args.no_polish,
+                     threads=1 if args.workers == 1 else None)
     finally:
         if cluster is not None:
             cluster.close()

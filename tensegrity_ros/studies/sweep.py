@@ -1,9 +1,11 @@
 """``tensegrity sweep``: one run per point of a grid (or a Latin hypercube) of scene overrides, on
 Dask distributed; one row per point in a Parquet table and a CSV file.
 
-Each point is one :func:`solver.simulate.runner.simulate` call, the function ``tensegrity run``
-uses, so a row holds the figures of that point's ``tensegrity run --json`` summary under their
-dotted names (``pulse.amplitude``, ``energy_drift_rel``). Rows are appended to ``rows.jsonl`` as
+Each point is run as :func:`solver.simulate.runner.simulate`, the function ``tensegrity run``
+uses, runs it: the points go in batches (:func:`solver.simulate.batch.simulate_batch`: the
+points of a batch share what their network topology shares and step together on threads), and a
+row holds the figures of that point's ``tensegrity run --json`` summary under their dotted names
+(``pulse.amplitude``, ``energy_drift_rel``). Rows are appended to ``rows.jsonl`` as
 they complete (the table is rewritten from it), so an interrupted sweep keeps every finished point
 and a rerun of the same command runs only the points that are missing.
 """
@@ -401,14 +403,104 @@ def chunks(todo, workers, size=None):
 
 
 def run_batch(task, scene, items):
-    """The rows of ``items`` (``(point_id, overrides)`` pairs), one :func:`run_point` each."""
+    """The rows of ``items`` (``(point_id, overrides)`` pairs), one ``task`` (e.g.
+    :func:`run_point`) each."""
     return [task(scene, overrides, pid) for pid, overrides in items]
 
 
-def execute(sweep, cluster=None, progress=None, task=run_point, on_row=None, chunk=None):
-    """Run the points of ``sweep`` not yet in its ``out_dir``; serially in this process when
-    ``cluster`` is None, else as Dask tasks of a few points each (:func:`chunks`; ``chunk`` fixes
-    the number of points per task). Each finished row is appended to
+def run_points(scene, items, threads=1, on_row=None):
+    """The rows of ``items`` (``(point_id, overrides)`` pairs) as one batch
+    (:func:`solver.simulate.batch.simulate_batch` on ``threads`` threads): each row as
+    :func:`run_point` makes it, ``task_wall_s`` and ``cpu_time_s`` the point's own share (its
+    set-up, and its steps, records and summary on its thread; the base force, which a row does
+    not hold, is not recorded). ``on_row(row)`` is called as each point finishes. Never raises
+    for a failed point."""
+    from solver.simulate.batch import simulate_batch
+    rows = [None] * len(items)
+
+    def done(k, bp):
+        pid, overrides = items[k]
+        row = {'point_id': pid, **{key: canonical(v) for key, v in overrides.items()}}
+        row.update(empty_figures())
+        if bp.status == 'ok':
+            row.update(flatten(bp.summary))
+        row['status'], row['reason'] = bp.status, bp.reason
+        row['task_wall_s'] = bp.task_wall_s
+        row['cpu_time_s'] = bp.cpu_time_s
+        row['worker_pid'] = os.getpid()
+        rows[k] = row
+        if on_row is not None:
+            on_row(row)
+
+    simulate_batch([(scene, list(o.items())) for _, o in items], threads=threads, on_point=done,
+                   base=False)             # a row holds no base-force figure
+    return rows
+
+
+# -- batches --------------------------------------------------------------------------------------
+BATCH_SECONDS = 2.0            # the estimated work of a batch, s (a Ctrl-C loses the running one)
+STEP_SECONDS_PER_PRISM = 0.7e-6  # the estimate: a step of a sym3d column, per prism, s
+# scene keys whose (non-float) values may change the network's topology or the kernels a point
+# runs: points that differ in them go in different batches
+TOPOLOGY_KEYS = ('structure.', 'model', 'contact.bars', 'contact.lock', 'loading.impact.mode',
+                 'integrator.method')
+
+
+def topology_of(overrides):
+    """What of a point's ``overrides`` may change its network topology (a key of
+    :data:`TOPOLOGY_KEYS` set to a value that is not a float): the points of a batch agree on it,
+    so they share the topology's sym3d reduction (:mod:`solver.models.memo`)."""
+    return tuple(sorted((k, repr(canonical(v))) for k, v in overrides.items()
+                        if k.startswith(TOPOLOGY_KEYS) and not isinstance(canonical(v), float)))
+
+
+def point_cost(scene):
+    """The estimated time s of a point's run (``scene`` with its overrides): steps x prisms."""
+    prisms = scene.structure.n_prisms * scene.structure.n_columns \
+        if scene.structure.builder == 'column' else 50
+    return scene.run.t_end / scene.integrator.dt * max(prisms, 1) * STEP_SECONDS_PER_PRISM
+
+
+def batches(todo, workers, costs, topologies, size=None, seconds=BATCH_SECONDS):
+    """``todo`` cut into batches of points of one topology (``topologies``, one per point), one
+    Dask task (or one in-process batch) each, in the order the topologies first appear. With
+    ``size`` every batch has ``size`` points (fewer at the end of a topology); by default a batch
+    holds about ``seconds`` of estimated work (``costs``, s per point), and, for Dask
+    ``workers``, less as the sweep goes (guided self-scheduling: at most a third of the work left
+    divided among the workers), so the workers finish together (``workers=None``: no shrinking,
+    the batches of one process that runs them one after the other). Every batch has at least
+    one point."""
+    groups = {}
+    for item, cost, topo in zip(todo, costs, topologies):
+        groups.setdefault(topo, []).append((item, cost))
+    left = sum(costs)
+    out = []
+    for members in groups.values():
+        i = 0
+        while i < len(members):
+            if size:
+                n = size
+            else:
+                budget = seconds if workers is None else min(
+                    seconds, left / (GUIDED_SHARE * max(workers, 1)))
+                n, work = 1, members[i][1]
+                while i + n < len(members) and work + members[i + n][1] <= budget:
+                    work += members[i + n][1]
+                    n += 1
+            part = members[i:i + n]
+            out.append([item for item, _ in part])
+            left -= sum(c for _, c in part)
+            i += n
+    return out
+
+
+def execute(sweep, cluster=None, progress=None, task=None, on_row=None, chunk=None,
+            threads=None):
+    """Run the points of ``sweep`` not yet in its ``out_dir``, in batches (:func:`batches`;
+    ``chunk`` fixes the number of points per batch): in this process when ``cluster`` is None
+    (each batch on ``threads`` threads, default every core), else one Dask task per batch (one
+    thread each). ``task`` (a function like :func:`run_point`) runs the points one by one
+    instead, a task of a few points each (:func:`chunks`). Each finished row is appended to
     ``rows.jsonl`` at once; the table is rewritten every few seconds and at the end (also after
     Ctrl-C or an error). Returns ``(rows of every point in order, number run now)``."""
     out = Path(sweep.out_dir)
@@ -436,22 +528,41 @@ def execute(sweep, cluster=None, progress=None, task=run_point, on_row=None, chu
             write_table(out, [done[i] for i in ids if i in done], columns)
             last_write[0] = time.monotonic()
 
+    def cut(workers, seconds=BATCH_SECONDS):
+        if task is not None:
+            return chunks(todo, workers, chunk)
+        scenes = [sweep.scene.with_overrides(list(sweep.overrides(p).items())) for _, p in todo]
+        return batches(todo, workers, [point_cost(sc) for sc in scenes],
+                       [topology_of(sweep.overrides(p)) for _, p in todo], size=chunk,
+                       seconds=seconds)
+
     try:
         with (out / ROWS).open('a') as fh:
             if cluster is None:
-                for pid, p in todo:
-                    finish(task(sweep.scene, sweep.overrides(p), pid), fh)
+                if task is not None:
+                    for pid, p in todo:
+                        finish(task(sweep.scene, sweep.overrides(p), pid), fh)
+                else:
+                    from solver.simulate.batch import default_threads
+                    n = threads or default_threads()
+                    for b in cut(None, seconds=BATCH_SECONDS * n):
+                        run_points(sweep.scene, [(pid, sweep.overrides(p)) for pid, p in b],
+                                   threads=n, on_row=lambda row: finish(row, fh))
             elif todo:
                 from distributed import as_completed
                 # the scene (about 1 kB pickled) travels inside each task: scattered data lives
                 # only on the workers that hold it and is lost for good when they die, a task's
                 # arguments go again with its retry
                 scene = sweep.scene
-                batches = chunks(todo, cluster.n_workers, chunk)
-                futures = {cluster.client.submit(run_batch, task, scene,
-                                                 [(pid, sweep.overrides(p)) for pid, p in b],
-                                                 key=f'points-{b[0][0]}-{len(b)}', pure=False): b
-                           for b in batches}
+                futures = {}
+                for b in cut(cluster.n_workers):
+                    items = [(pid, sweep.overrides(p)) for pid, p in b]
+                    key = f'points-{b[0][0]}-{len(b)}'
+                    fut = (cluster.client.submit(run_batch, task, scene, items, key=key,
+                                                 pure=False) if task is not None
+                           else cluster.client.submit(run_points, scene, items, key=key,
+                                                      pure=False))
+                    futures[fut] = b
                 try:
                     for fut in as_completed(futures):
                         try:
@@ -525,12 +636,15 @@ def main(args):
     cluster = None
     close = (lambda: None)
     try:
-        if n_todo and (args.scheduler or (args.workers or os.cpu_count() or 1) > 1):
+        # one machine: the batched runner's threads in this process (no cluster to start; see
+        # docs/sweeps.md), a LocalCluster only when --workers asks for processes
+        if n_todo and (args.scheduler or (args.workers or 1) > 1):
             cluster = Cluster(workers=args.workers, address=args.scheduler,
                               dashboard=dashboard_option(args))
             cluster.report_dashboard()
         update, close = progress_bar(n_todo, 'sweep')
-        rows, n_run = execute(sweep, cluster, progress=update)
+        rows, n_run = execute(sweep, cluster, progress=update,
+                              threads=1 if args.workers == 1 else None)
     finally:
         close()
         if cluster is not None:

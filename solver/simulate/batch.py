@@ -1,0 +1,396 @@
+"""Batched runs: B independent simulations stepped on a pool of threads (the compiled kernels
+release the GIL, so the instances of a batch step on every core at once).
+
+    batch = BatchSimulation.of([scene_a, scene_b, scene_c])
+    for i in range(batch.size):
+        batch[i].apply_impact(0.1)
+    batch.advance(0.005)                # every running instance, in parallel
+    batch.status                        # ['running', 'diverged', 'running']
+
+Each instance is a :class:`~solver.simulate.simulation.Simulation` (or an
+:class:`~solver.simulate.array.ArraySimulation`) of its own scene: geometry, masses, prestrains,
+impacts, contact and damping parameters may differ. Every instance has its own status: one whose
+step diverges (or fails) stops, keeps its state, and is reported (``status`` ``diverged`` or
+``error``, ``reasons`` its one-line message) while the others go on. What instances of one
+network topology share is built once: while a batch builds its instances the memo of
+:mod:`solver.models.memo` is on (the sym3d reduction, the grouping of the topology's member
+orbits, the reduced bar-contact pairs).
+
+:func:`simulate_batch` is :func:`solver.simulate.runner.simulate` for a list of (scene,
+overrides) points: per point the same :func:`~solver.simulate.runner.summary`, or the status and
+reason of a point that diverged or failed. Without ``frames`` it records only what the summary
+reads (lean recording: no positions, no cable tensions); the figures are the same. A batch of one
+point is the single run. Its threads take the points one after another, each run to its end, so
+that one thread's set-up and summary (Python) overlap another's steps (compiled);
+``together=True`` steps them together, interval by interval, as :class:`BatchSimulation` does.
+"""
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from solver.analysis import observables
+from solver.build.scene import Scene
+from solver.models import memo
+from solver.simulate.array import simulation_for
+from solver.simulate.parallel import default_threads, each as parallel_each
+from solver.simulate.runner import ImpactTrain, Point, RunRecord, frame_count, summary
+from solver.simulate.simulation import SimulationDiverged
+
+RUNNING, OK, DIVERGED, ERROR = 'running', 'ok', 'diverged', 'error'
+
+
+def reason_of(exc):
+    """The one-line reason of a failed instance (as a sweep row gives it)."""
+    if isinstance(exc, SimulationDiverged):
+        return str(exc).splitlines()[0]
+    return f'{type(exc).__name__}: {exc}'.splitlines()[0]
+
+
+class BatchSimulation:
+    """B independent simulations (``sims``) stepped together on ``threads`` threads (default:
+    every core; 1: in the calling thread). ``status[i]`` is ``running``, ``diverged`` or
+    ``error`` (``reasons[i]``, ``errors[i]`` the exception); a stopped instance is left out of
+    every later :meth:`advance` and :meth:`each`."""
+
+    def __init__(self, sims, threads=None):
+        self.sims = list(sims)
+        self.threads = max(1, int(threads or default_threads()))
+        n = len(self.sims)
+        self.status = [RUNNING] * n
+        self.reasons = [''] * n
+        self.errors = [None] * n
+
+    @classmethod
+    def of(cls, scenes, threads=None):
+        """A batch of one simulation per scene (:func:`~solver.simulate.array.simulation_for`),
+        what scenes of one topology share built once."""
+        with memo.sharing():
+            return cls([simulation_for(s) for s in scenes], threads)
+
+    @property
+    def size(self):
+        return len(self.sims)
+
+    def __len__(self):
+        return len(self.sims)
+
+    def __getitem__(self, i):
+        return self.sims[i]
+
+    @property
+    def running(self):
+        """Indices of the instances still running."""
+        return [i for i, s in enumerate(self.status) if s == RUNNING]
+
+    def stop(self, i, exc):
+        """Stop instance ``i`` with the exception ``exc`` (``diverged`` for a
+        :class:`SimulationDiverged`, else ``error``)."""
+        self.status[i] = DIVERGED if isinstance(exc, SimulationDiverged) else ERROR
+        self.reasons[i] = reason_of(exc)
+        self.errors[i] = exc
+
+    def each(self, fn, indices=None):
+        """``fn(i, sim)`` for every running instance (or those of ``indices`` still running), on
+        the threads (:func:`solver.simulate.parallel.each`: one share of the instances per
+        thread). An exception stops its instance (:meth:`stop`). Returns ``{i: result}`` of the
+        instances that did not stop."""
+        todo = [i for i in (self.running if indices is None else indices)
+                if self.status[i] == RUNNING]
+        out = {}
+        for i, (ok, value) in zip(todo, parallel_each(lambda i: fn(i, self.sims[i]), todo,
+                                                      self.threads)):
+            if ok:
+                out[i] = value
+            else:
+                self.stop(i, value)
+        return out
+
+    def advance(self, duration):
+        """Advance every running instance by ``duration`` s
+        (:meth:`~solver.simulate.simulation.Simulation.advance`); an instance that diverges is
+        restored to its last good state and stops. Returns ``{i: steps}`` of the others."""
+        return self.each(lambda i, sim: sim.advance(duration))
+
+    def frames(self):
+        """The :meth:`~solver.simulate.simulation.Simulation.frame` of every instance (stopped
+        ones too: their last good state)."""
+        return [s.frame() for s in self.sims]
+
+    def close(self):
+        """Nothing to release (the threads are the process's pool); a batch is a context manager
+        for symmetry with other resources."""
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+# -- the batched runner -------------------------------------------------------------------------
+@dataclass
+class BatchPoint:
+    """One point of :func:`simulate_batch`: ``status`` ``ok``, ``diverged`` or ``error`` with a
+    one-line ``reason``; for ``ok`` the :class:`~solver.simulate.runner.Point` (``point``, its
+    ``summary``), else None. ``task_wall_s``: the point's share of the batch's wall time (its
+    build, its steps and records on its thread, its summary); ``cpu_time_s`` the CPU time of
+    the same (thread CPU time)."""
+    status: str
+    reason: str = ''
+    point: Point | None = None
+    task_wall_s: float = 0.0
+    cpu_time_s: float = 0.0
+    error: BaseException | None = None       # the exception of a point that did not finish
+
+    @property
+    def summary(self):
+        return None if self.point is None else self.point.summary
+
+
+class _Run:
+    """One instance's run to ``run.t_end`` (the steps of :func:`solver.simulate.runner.run`),
+    one output interval at a time."""
+
+    def __init__(self, scene, sim, frames, on_frame, base=True):
+        self.scene, self.sim = scene, sim
+        out_dt = scene.run.output_dt
+        ratio = out_dt / sim.dt
+        if abs(ratio - round(ratio)) > 1e-6 * ratio:
+            raise ValueError(f'run.output_dt: {out_dt:g} s is not a whole multiple of '
+                             f'integrator.dt = {sim.dt:g} s')
+        self.per_frame = int(round(ratio))
+        self.n_out = frame_count(scene.run.t_end, out_dt) - 1
+        self.train = ImpactTrain(scene.loading.impact, sim.dt)
+        self.frames = frames
+        self.on_frame = on_frame
+        self.with_base = base
+        self.times, self.strain, self.energy, self.cerr, self.base, self.balance = \
+            [], [], [], [], [], []
+        self.wall = 0.0
+        self.busy = 0.0
+        self.cpu = 0.0
+        self.point = None
+        net = sim.network
+        self._h0 = net.h0 if net.levels.size else None
+
+    def start(self):
+        t0, c0 = time.perf_counter(), time.thread_time()
+        try:
+            self.train.apply_due(self.sim)
+            self.record()
+        finally:
+            self.busy += time.perf_counter() - t0
+            self.cpu += time.thread_time() - c0
+
+    def record(self):
+        sim = self.sim
+        if self.frames or self.on_frame is not None:
+            f = sim.frame()
+            t, strain, e, cerr, base, bal = (f.t, f.strain, f.energy, f.constraint_error,
+                                             f.base_force, f.energy_balance_error)
+            if self.on_frame is not None:
+                self.on_frame(f)
+        else:              # lean: what the summary reads, computed as Simulation.frame does
+            t = sim.t
+            if self._h0 is not None:
+                h = sim._heights()
+                strain = (h - self._h0) / h
+            else:
+                strain = np.zeros((0, 0))
+            e, cerr = sim.energy(), sim.constraint_error()
+            base = np.array(sim.base_force()) if self.with_base else None
+            bal = float(sim.energy_error())
+        self.times.append(t)
+        self.strain.append(strain)
+        self.energy.append(e)
+        self.cerr.append(cerr)
+        self.base.append(base)
+        self.balance.append(bal)
+
+    def _advance_to(self, step):
+        sim = self.sim
+        t0 = time.perf_counter()
+        sim.advance((step - sim.step) * sim.dt)
+        self.wall += time.perf_counter() - t0
+
+    def interval(self, k):
+        """Output interval ``k`` (0-based): impacts due within it, the steps, the frame."""
+        t0, c0 = time.perf_counter(), time.thread_time()
+        try:
+            sim, train = self.sim, self.train
+            end = sim.step + self.per_frame
+            while (s := train.next_step()) is not None and s <= end:
+                self._advance_to(max(s, sim.step))
+                train.apply_due(sim)
+            self._advance_to(end)
+            self.record()
+        finally:
+            self.busy += time.perf_counter() - t0
+            self.cpu += time.thread_time() - c0
+
+    def record_of(self):
+        sim = self.sim
+        rec = RunRecord(np.array(self.times), np.array(self.strain), np.array(self.energy),
+                        np.array(self.cerr), self.wall, sim.step, sim.steps_taken,
+                        base_force=np.array(self.base) if self.with_base else None,
+                        energy_balance_error=np.array(self.balance),
+                        impacts=list(self.train.applied))
+        if sim.network.levels.size:
+            rec.pulses = [observables.first_passage(rec.times, rec.strain[:, c],
+                                                    sim.network.h0)
+                          for c in range(sim.network.n_columns)]
+        return rec
+
+
+def _prepare(scene, overrides):
+    if not isinstance(scene, Scene):
+        scene = Scene.load(scene)
+    overrides = list(overrides)
+    if overrides:
+        scene = scene.with_overrides(overrides)
+    return scene, simulation_for(scene)
+
+
+def simulate_batch(items, threads=None, frames=False, on_frame=None, on_point=None,
+                   together=False, base=True):
+    """:func:`solver.simulate.runner.simulate` of every ``(scene, overrides)`` of ``items`` (a
+    scene is a :class:`Scene` or a path; overrides as for ``simulate``), as one batch on
+    ``threads`` threads. Returns a :class:`BatchPoint` per item, in order: ``ok`` with the
+    point's summary (equal to the single run's), or ``diverged`` / ``error`` with the one-line
+    reason (a point whose scene or simulation cannot be built is an ``error``; the others run
+    on). ``frames``: record full frames (:meth:`Simulation.frame`) instead of the lean record;
+    ``on_frame(index, frame)`` gets every frame of every point (then frames are full; called on
+    the batch's threads). ``on_point(index, batch_point)`` is called as each point finishes (one
+    call at a time; an exception from it stops the batch after the points running and is
+    raised).
+
+    By default each thread takes the next point not yet taken and runs it to its end (set-up,
+    steps, summary): the set-up and summaries one thread computes in Python overlap the steps of
+    the others, and points finish one by one. ``together=True`` sets every point up first and
+    then steps them together, one output interval at a time (a :class:`BatchSimulation`). The
+    figures are the same either way.
+
+    ``base=False`` (lean records only) leaves out the base force, the costliest figure of a frame
+    (a force evaluation of the full network): the summary's ``base`` is then ``[]``, every other
+    figure the same (sweep rows and fits do not read it)."""
+    items = list(items)
+    out = [None] * len(items)
+    lock = threading.Lock()
+    stopped = []
+
+    def deliver(k, bp):
+        with lock:
+            out[k] = bp
+            if on_point is not None and not stopped:
+                try:
+                    on_point(k, bp)
+                except BaseException:
+                    stopped.append(True)
+                    raise
+
+    with memo.sharing():
+        if together:
+            _together(items, threads, (frames, base), on_frame, deliver)
+        else:
+            def one(k):
+                if stopped:
+                    return
+                bp = _point(k, items[k], (frames, base), on_frame)
+                deliver(k, bp)
+
+            for ok, value in parallel_each(one, range(len(items)), threads):
+                if not ok:
+                    raise value
+    return out
+
+
+def _set_up(k, item, record, on_frame):
+    """``(run, None)`` of item ``k``, or ``(None, error BatchPoint)``; the time it took.
+    ``record``: ``(frames, base)`` of :func:`simulate_batch`."""
+    t0, c0 = time.perf_counter(), time.thread_time()
+    try:
+        scene, overrides = item
+        sc, sim = _prepare(scene, overrides)
+        cb = None if on_frame is None else (lambda f: on_frame(k, f))
+        frames, base = record
+        run = _Run(sc, sim, frames, cb, base=base or frames or cb is not None)
+        bp = None
+    except Exception as exc:                        # noqa: BLE001 - a failed point, not a crash
+        run, bp = None, BatchPoint(ERROR, reason_of(exc), error=exc)
+    return run, bp, time.perf_counter() - t0, time.thread_time() - c0
+
+
+def _summarise(run):
+    """The ``ok`` point of ``run`` (its pulses and summary)."""
+    t0, c0 = time.perf_counter(), time.thread_time()
+    rec = run.record_of()
+    run.point = Point(run.scene, run.sim, rec, summary(run.scene, run.sim, rec))
+    run.busy += time.perf_counter() - t0
+    run.cpu += time.thread_time() - c0
+
+
+def _point(k, item, record, on_frame):
+    """The :class:`BatchPoint` of item ``k`` run to its end in this thread."""
+    run, bp, wall, cpu = _set_up(k, item, record, on_frame)
+    if run is None:
+        bp.task_wall_s, bp.cpu_time_s = wall, cpu
+        return bp
+    try:
+        run.start()
+        for i in range(run.n_out):
+            run.interval(i)
+        _summarise(run)
+        bp = BatchPoint(OK, '', run.point)
+    except Exception as exc:                        # noqa: BLE001 - its point stops
+        bp = BatchPoint(DIVERGED if isinstance(exc, SimulationDiverged) else ERROR,
+                        reason_of(exc), error=exc)
+    bp.task_wall_s, bp.cpu_time_s = wall + run.busy, cpu + run.cpu
+    return bp
+
+
+def _together(items, threads, record, on_frame, deliver):
+    """:func:`simulate_batch` with ``together=True``."""
+    runs, sims, index, build = [], [], [], {}
+    for k, item in enumerate(items):
+        run, bp, wall, cpu = _set_up(k, item, record, on_frame)
+        build[k] = (wall, cpu)
+        if run is None:
+            bp.task_wall_s, bp.cpu_time_s = wall, cpu
+            deliver(k, bp)
+        else:
+            runs.append(run)
+            sims.append(run.sim)
+            index.append(k)
+
+    def step(j, i):
+        run = runs[j]
+        if i < 0:
+            run.start()
+        else:
+            run.interval(i)
+        if run.n_out == i + 1:
+            _summarise(run)
+
+    def finish(j):
+        k, run = index[j], runs[j]
+        if batch.status[j] == RUNNING:
+            batch.status[j] = OK
+            bp = BatchPoint(OK, '', run.point)
+        else:
+            bp = BatchPoint(batch.status[j], batch.reasons[j], error=batch.errors[j])
+        bp.task_wall_s = build[k][0] + run.busy
+        bp.cpu_time_s = build[k][1] + run.cpu
+        deliver(k, bp)
+
+    with BatchSimulation(sims, threads) as batch:
+        n_out = max((r.n_out for r in runs), default=0)
+        for i in range(-1, n_out):
+            live = [j for j in batch.running if runs[j].n_out > i]
+            batch.each(lambda j, sim: step(j, i), live)
+            for j in live:
+                if batch.status[j] != RUNNING or runs[j].n_out == i + 1:
+                    finish(j)
