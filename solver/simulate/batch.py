@@ -32,12 +32,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from solver.analysis import observables
 from solver.build.scene import Scene
 from solver.models import memo
 from solver.simulate.array import simulation_for
 from solver.simulate.parallel import default_threads, each as parallel_each
-from solver.simulate.runner import ImpactTrain, Point, RunRecord, frame_count, summary
+from solver.simulate.runner import (ImpactTrain, Point, RefMomenta, RunRecord, frame_count,
+                                    summary)
 from solver.simulate.simulation import SimulationDiverged
 
 RUNNING, OK, DIVERGED, ERROR = 'running', 'ok', 'diverged', 'error'
@@ -176,6 +176,7 @@ class _Run:
         self.point = None
         net = sim.network
         self._h0 = net.h0 if net.levels.size else None
+        self.at_ref = RefMomenta(sim)
 
     def start(self):
         t0, c0 = time.perf_counter(), time.thread_time()
@@ -210,6 +211,7 @@ class _Run:
         self.cerr.append(cerr)
         self.base.append(base)
         self.balance.append(bal)
+        self.at_ref.note(sim, t, len(self.times) - 1)
 
     def _advance_to(self, step):
         sim = self.sim
@@ -239,10 +241,7 @@ class _Run:
                         base_force=np.array(self.base) if self.with_base else None,
                         energy_balance_error=np.array(self.balance),
                         impacts=list(self.train.applied))
-        if sim.network.levels.size:
-            rec.pulses = [observables.first_passage(rec.times, rec.strain[:, c],
-                                                    sim.network.h0)
-                          for c in range(sim.network.n_columns)]
+        self.at_ref.pulses(rec, sim)
         return rec
 
 

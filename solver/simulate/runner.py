@@ -89,10 +89,7 @@ def run(sim: Simulation, t_end, output_dt, on_frame=None, progress=None, train=N
     n_out = frame_count(t_end, output_dt) - 1
     times, strain, energy, cerr, base, balance = [], [], [], [], [], []
     wall = 0.0
-    # the level momenta at the frame nearest t_ref, for the pulse's momentum figures
-    net = sim.network
-    at_ref = {'dt': np.inf, 'k': -1, 'p': None}
-    masses = observables.momentum_masses(net) if net.levels.size else None
+    at_ref = RefMomenta(sim)
 
     def record():
         frame = run_frame(sim)
@@ -102,9 +99,7 @@ def run(sim: Simulation, t_end, output_dt, on_frame=None, progress=None, train=N
         cerr.append(frame.constraint_error)
         base.append(frame.base_force)
         balance.append(frame.energy_balance_error)
-        if masses is not None and abs(frame.t - T_REF) < at_ref['dt'] - 1e-12:
-            at_ref.update(dt=abs(frame.t - T_REF), k=len(times) - 1,
-                          p=observables.level_momenta(sim._full_state()[1], net.levels, masses))
+        at_ref.note(sim, frame.t, len(times) - 1)
         if on_frame is not None:
             on_frame(frame)
 
@@ -130,28 +125,46 @@ def run(sim: Simulation, t_end, output_dt, on_frame=None, progress=None, train=N
                     sim.step, sim.steps_taken, base_force=np.array(base),
                     energy_balance_error=np.array(balance),
                     impacts=list(train.applied) if train is not None else [])
-    if sim.network.levels.size:
-        rec.pulses = [observables.first_passage(rec.times, rec.strain[:, c], sim.network.h0)
-                      for c in range(sim.network.n_columns)]
-        _pulse_momenta(rec, sim, at_ref)
+    at_ref.pulses(rec, sim)
     return rec
 
 
 T_REF = 0.5          # the time the pulse figures are read at (observables.first_passage)
 
 
-def _pulse_momenta(rec, sim, at_ref):
-    """The momentum figures of each column's pulse (:func:`observables.pulse_momentum`) at the
-    frame nearest ``T_REF``, when the pulse is there on its first passage."""
-    k = at_ref['k']
-    if k < 0 or abs(rec.times[k] - T_REF) > 0.5 * (rec.times[1] - rec.times[0] if
-                                                    len(rec.times) > 1 else 0) + 1e-9:
-        return
-    unit_mass = float(sim.network.meta.get('unit_mass', np.nan))
-    v0 = rec.impacts[0]['v0_m_s'] if rec.impacts else np.nan
-    for c, p in enumerate(rec.pulses):
-        if np.isfinite(p.amplitude):
-            observables.pulse_momentum(p, rec.strain[k, c], at_ref['p'][c], unit_mass, v0)
+class RefMomenta:
+    """The level momenta of a run at its frame nearest ``T_REF`` (:meth:`note` after each
+    frame is recorded), for the pulse figures of the record (:meth:`pulses`)."""
+
+    def __init__(self, sim):
+        net = sim.network
+        self.masses = observables.momentum_masses(net) if net.levels.size else None
+        self.dt, self.k, self.p = np.inf, -1, None
+
+    def note(self, sim, t, k):
+        """Frame ``k`` at time ``t`` s was just recorded from the present state of ``sim``."""
+        if self.masses is not None and abs(t - T_REF) < self.dt - 1e-12:
+            self.dt, self.k = abs(t - T_REF), k
+            self.p = observables.level_momenta(sim._full_state()[1], sim.network.levels,
+                                               self.masses)
+
+    def pulses(self, rec, sim):
+        """Set ``rec.pulses``: each column's first passage and, at the frame nearest
+        ``T_REF`` when the pulse is there, its momentum figures
+        (:func:`observables.pulse_momentum`)."""
+        if not sim.network.levels.size:
+            return
+        rec.pulses = [observables.first_passage(rec.times, rec.strain[:, c], sim.network.h0)
+                      for c in range(sim.network.n_columns)]
+        k = self.k
+        if k < 0 or abs(rec.times[k] - T_REF) > 0.5 * (rec.times[1] - rec.times[0] if
+                                                        len(rec.times) > 1 else 0) + 1e-9:
+            return
+        unit_mass = float(sim.network.meta.get('unit_mass', np.nan))
+        v0 = rec.impacts[0]['v0_m_s'] if rec.impacts else np.nan
+        for c, p in enumerate(rec.pulses):
+            if np.isfinite(p.amplitude):
+                observables.pulse_momentum(p, rec.strain[k, c], self.p[c], unit_mass, v0)
 
 
 def json_safe(value):
