@@ -163,9 +163,10 @@ ROWS = [
         J('rerun_overhead_t4.8.json', 'wall_overhead_median', spec='.1f', scale=100),
         J('rerun_overhead.json', 'cpu_overhead_median', spec='.0f', scale=100),
         J('rerun_overhead_t4.8.json', 'cpu_overhead_median', spec='.0f', scale=100)]),
-    ('64-point sweep', '{} ({})', [
-        J('sweep.json', 'efficiency', spec='.2f'),
-        J('sweep.json', 'efficiency_excluding_start', spec='.2f')]),
+    ('256-point sweep', '{}x, {}x; {}x', [
+        J('sweep.json', 'batched_1_ratio_per_point', spec='.2f'),
+        J('sweep.json', 'batched_threads_ratio', spec='.2f'),
+        J('sweep.json', 'cluster_ratio', spec='.2f')]),
     ('array, cost per column', '{}x (median {}x), {}x, {}x, {}x', [
         J('array.json', 'rows', 0, 'ratio_per_column', spec='.2f'),
         J('array.json', 'rows', 0, 'ratio_median', spec='.2f'),
