@@ -163,7 +163,7 @@ ROWS = [
         J('rerun_overhead_t4.8.json', 'wall_overhead_median', spec='.1f', scale=100),
         J('rerun_overhead.json', 'cpu_overhead_median', spec='.0f', scale=100),
         J('rerun_overhead_t4.8.json', 'cpu_overhead_median', spec='.0f', scale=100)]),
-    ('256-point sweep', '{}x, {}x; {}x', [
+    ('256-point FB sweep', '{}x, {}x; {}x', [
         J('sweep.json', 'batched_1_ratio_per_point', spec='.2f'),
         J('sweep.json', 'batched_threads_ratio', spec='.2f'),
         J('sweep.json', 'cluster_ratio', spec='.2f')]),
