@@ -127,6 +127,8 @@ KEY_UNITS = {
     'pulse.amplitude': 'strain, dimensionless', 'pulse.amplitude_median': 'strain, dimensionless',
     'pulse.amplitude_min': 'strain, dimensionless', 'pulse.amplitude_max': 'strain, dimensionless',
     'pulse.amplitude_passage_max': 'strain, dimensionless', 'energy_drift_rel': '1/s',
+    'pulse.momentum_strain': 'kg m/s', 'pulse.momentum_nodes': 'kg m/s',
+    'pulse.momentum_column': 'kg m/s', 'pulse.momentum_ratio': D, 'pulse.momentum_share': D,
     'energy_balance_error': D, 'constraint_error_rel': D, 'real_time_factor': 'x real time',
 }
 SUFFIX_UNITS = (('_m_s', 'm/s'), ('_prisms', 'prisms'), ('_s', 's'), ('_N', 'N'), ('_J', 'J'),
