@@ -7,20 +7,15 @@ from __future__ import annotations
 import numpy as np
 
 from tensegrity_ros.io.mcap_reader import (NODES, STRAIN, TENSION, LogError, McapLog, cloud_xyz,
-                                           log_network, multi_array_values)
+                                           diagnostics_values, log_network,
+                                           multi_array_values)
 
 CLOCK_TOPIC = '/clock'
 
 
 def _diag_values(msg):
-    out = {}
-    for status in msg.status:
-        for kv in status.values:
-            try:
-                out[kv.key] = float(kv.value)
-            except ValueError:
-                pass
-    return out
+    """The numeric values of a decoded ``DiagnosticArray`` (texts left out)."""
+    return {k: v for k, v in diagnostics_values(msg).items() if isinstance(v, float)}
 
 
 def _rgba(colors):

@@ -139,6 +139,20 @@ def _duration(d):
     return {'sec': ns // 10**9, 'nsec': ns % 10**9}
 
 
+def _profile_yaml(fields):
+    """The YAML text of a one-profile list: ``fields`` ``(key, value)`` in order, a dict value
+    (a duration) as a nested mapping."""
+    lines = []
+    for i, (key, value) in enumerate(fields):
+        lead = '- ' if i == 0 else '  '
+        if isinstance(value, dict):
+            lines.append(f'{lead}{key}:')
+            lines += [f'    {k}: {v}' for k, v in value.items()]
+        else:
+            lines.append(f'{lead}{key}: {value}')
+    return '\n'.join(lines)
+
+
 def qos_yaml(qos=None):
     """``offered_qos_profiles`` YAML (one profile) for an rclpy ``QoSProfile`` in the form rosbag2
     (Jazzy and later, metadata version 9) writes it: policies as strings, durations as
@@ -162,15 +176,7 @@ def qos_yaml(qos=None):
         ('avoid_ros_namespace_conventions', 'true' if qos.avoid_ros_namespace_conventions
          else 'false'),
     ]
-    lines = []
-    for i, (key, value) in enumerate(fields):
-        lead = '- ' if i == 0 else '  '
-        if isinstance(value, dict):
-            lines.append(f'{lead}{key}:')
-            lines += [f'    {k}: {v}' for k, v in value.items()]
-        else:
-            lines.append(f'{lead}{key}: {value}')
-    return '\n'.join(lines)
+    return _profile_yaml(fields)
 
 
 def qos_yaml_v8(qos=None):
@@ -193,15 +199,7 @@ def qos_yaml_v8(qos=None):
         ('liveliness_lease_duration', _duration(qos.liveliness_lease_duration)),
         ('avoid_ros_namespace_conventions', 'true' if qos.avoid_ros_namespace_conventions
          else 'false')]
-    lines = []
-    for i, (key, value) in enumerate(fields):
-        lead = '- ' if i == 0 else '  '
-        if isinstance(value, dict):
-            lines.append(f'{lead}{key}:')
-            lines += [f'    {k}: {v}' for k, v in value.items()]
-        else:
-            lines.append(f'{lead}{key}: {value}')
-    return '\n'.join(lines)
+    return _profile_yaml(fields)
 
 
 def bag_metadata(file_name, topics, first_ns, last_ns, ros_distro=None):
