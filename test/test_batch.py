@@ -112,3 +112,14 @@ def test_without_the_base_force_every_other_figure_is_the_single_runs(singles):
         assert g.summary['base'] == [] != single['base']
         assert _same({k: v for k, v in single.items() if k != 'base'},
                      {k: v for k, v in g.summary.items() if k != 'base'}) == []
+
+
+def test_an_array_scene_runs_in_a_batch_as_it_runs_alone():
+    """An array of columns (its own ArraySimulation) in a batch of lean records."""
+    point = (str(ROOT / 'config' / 'scenes' / 'lens_array.yaml'),
+             ['structure.n_prisms=10', 'run.t_end=0.1'])
+    single = simulate(*point).summary
+    got = simulate_batch([point], threads=1, base=False)[0]
+    assert got.status == 'ok', got.reason
+    assert _same({k: v for k, v in single.items() if k != 'base'},
+                 {k: v for k, v in got.summary.items() if k != 'base'}) == []

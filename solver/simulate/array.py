@@ -399,6 +399,12 @@ class ArraySimulation(Simulation):
             raise exc
         return max(v for _, v in results)
 
+    def frame_figures(self):
+        """``(t, strain, energy, constraint error, energy balance error)`` of the whole array,
+        as ``Simulation.frame_figures`` (from :meth:`frame`)."""
+        f = self.frame()
+        return f.t, f.strain, f.energy, f.constraint_error, f.energy_balance_error
+
     def frame(self):
         """A copied :class:`~solver.simulate.simulation.Frame` of the whole array."""
         n, k = self._per

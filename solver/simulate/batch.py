@@ -30,14 +30,12 @@ import threading
 import time
 from dataclasses import dataclass
 
-import numpy as np
 
 from solver.build.scene import Scene
 from solver.models import memo
 from solver.simulate.array import simulation_for
 from solver.simulate.parallel import default_threads, each as parallel_each
-from solver.simulate.runner import (ImpactTrain, Point, RefMomenta, RunRecord, frame_count,
-                                    summary)
+from solver.simulate.runner import ImpactTrain, Point, Recorder, summary
 from solver.simulate.simulation import SimulationDiverged
 
 RUNNING, OK, DIVERGED, ERROR = 'running', 'ok', 'diverged', 'error'
@@ -151,98 +149,33 @@ class BatchPoint:
         return None if self.point is None else self.point.summary
 
 
-class _Run:
-    """One instance's run to ``run.t_end`` (the steps of :func:`solver.simulate.runner.run`),
-    one output interval at a time."""
+class _Run(Recorder):
+    """One instance's run to ``run.t_end`` (:class:`~solver.simulate.runner.Recorder`, the
+    steps of :func:`solver.simulate.runner.run`), one output interval at a time; ``busy`` and
+    ``cpu`` the wall and thread CPU time of its intervals."""
 
     def __init__(self, scene, sim, frames, on_frame, base=True):
-        self.scene, self.sim = scene, sim
-        out_dt = scene.run.output_dt
-        ratio = out_dt / sim.dt
-        if abs(ratio - round(ratio)) > 1e-6 * ratio:
-            raise ValueError(f'run.output_dt: {out_dt:g} s is not a whole multiple of '
-                             f'integrator.dt = {sim.dt:g} s')
-        self.per_frame = int(round(ratio))
-        self.n_out = frame_count(scene.run.t_end, out_dt) - 1
-        self.train = ImpactTrain(scene.loading.impact, sim.dt)
-        self.frames = frames
-        self.on_frame = on_frame
-        self.with_base = base
-        self.times, self.strain, self.energy, self.cerr, self.base, self.balance = \
-            [], [], [], [], [], []
-        self.wall = 0.0
+        super().__init__(sim, scene.run.t_end, scene.run.output_dt,
+                         ImpactTrain(scene.loading.impact, sim.dt), on_frame=on_frame,
+                         frames=frames, base=base)
+        self.scene = scene
         self.busy = 0.0
         self.cpu = 0.0
         self.point = None
-        net = sim.network
-        self._h0 = net.h0 if net.levels.size else None
-        self.at_ref = RefMomenta(sim)
+
+    def _timed(self, work, *args):
+        t0, c0 = time.perf_counter(), time.thread_time()
+        try:
+            work(*args)
+        finally:
+            self.busy += time.perf_counter() - t0
+            self.cpu += time.thread_time() - c0
 
     def start(self):
-        t0, c0 = time.perf_counter(), time.thread_time()
-        try:
-            self.train.apply_due(self.sim)
-            self.record()
-        finally:
-            self.busy += time.perf_counter() - t0
-            self.cpu += time.thread_time() - c0
-
-    def record(self):
-        sim = self.sim
-        if self.frames or self.on_frame is not None:
-            f = sim.frame()
-            t, strain, e, cerr, base, bal = (f.t, f.strain, f.energy, f.constraint_error,
-                                             f.base_force, f.energy_balance_error)
-            if self.on_frame is not None:
-                self.on_frame(f)
-        else:              # lean: what the summary reads, computed as Simulation.frame does
-            t = sim.t
-            if self._h0 is not None:
-                h = sim._heights()
-                strain = (h - self._h0) / h
-            else:
-                strain = np.zeros((0, 0))
-            e, cerr = sim.energy(), sim.constraint_error()
-            base = np.array(sim.base_force()) if self.with_base else None
-            bal = float(sim.energy_error())
-        self.times.append(t)
-        self.strain.append(strain)
-        self.energy.append(e)
-        self.cerr.append(cerr)
-        self.base.append(base)
-        self.balance.append(bal)
-        self.at_ref.note(sim, t, len(self.times) - 1)
-
-    def _advance_to(self, step):
-        sim = self.sim
-        t0 = time.perf_counter()
-        sim.advance((step - sim.step) * sim.dt)
-        self.wall += time.perf_counter() - t0
+        self._timed(super().start)
 
     def interval(self, k):
-        """Output interval ``k`` (0-based): impacts due within it, the steps, the frame."""
-        t0, c0 = time.perf_counter(), time.thread_time()
-        try:
-            sim, train = self.sim, self.train
-            end = sim.step + self.per_frame
-            while (s := train.next_step()) is not None and s <= end:
-                self._advance_to(max(s, sim.step))
-                train.apply_due(sim)
-            self._advance_to(end)
-            self.record()
-        finally:
-            self.busy += time.perf_counter() - t0
-            self.cpu += time.thread_time() - c0
-
-    def record_of(self):
-        sim = self.sim
-        rec = RunRecord(np.array(self.times), np.array(self.strain), np.array(self.energy),
-                        np.array(self.cerr), self.wall, sim.step, sim.steps_taken,
-                        base_force=np.array(self.base) if self.with_base else None,
-                        energy_balance_error=np.array(self.balance),
-                        impacts=list(self.train.applied))
-        self.at_ref.pulses(rec, sim)
-        return rec
+        self._timed(super().interval, k)
 
 
 def _prepare(scene, overrides):

@@ -81,52 +81,92 @@ def run(sim: Simulation, t_end, output_dt, on_frame=None, progress=None, train=N
     each impact is applied when the clock reaches its step, within an interval as on a frame's
     time (before that frame is taken); impacts after the last frame are not applied.
     ``on_impact`` as for :meth:`ImpactTrain.apply_due`."""
-    ratio = output_dt / sim.dt
-    if abs(ratio - round(ratio)) > 1e-6 * ratio:       # advance() takes whole steps
-        raise ValueError(f'run.output_dt: {output_dt:g} s is not a whole multiple of '
-                         f'integrator.dt = {sim.dt:g} s')
-    per_frame = int(round(ratio))
-    n_out = frame_count(t_end, output_dt) - 1
-    times, strain, energy, cerr, base, balance = [], [], [], [], [], []
-    wall = 0.0
-    at_ref = RefMomenta(sim)
-
-    def record():
-        frame = run_frame(sim)
-        times.append(frame.t)
-        strain.append(frame.strain)
-        energy.append(frame.energy)
-        cerr.append(frame.constraint_error)
-        base.append(frame.base_force)
-        balance.append(frame.energy_balance_error)
-        at_ref.note(sim, frame.t, len(times) - 1)
-        if on_frame is not None:
-            on_frame(frame)
-
-    def advance_to(step):
-        nonlocal wall
-        t0 = time.perf_counter()
-        sim.advance((step - sim.step) * sim.dt)
-        wall += time.perf_counter() - t0
-
-    if train is not None:
-        train.apply_due(sim, on_impact)
-    record()
-    for _ in range(n_out):
-        end = sim.step + per_frame
-        while train is not None and (k := train.next_step()) is not None and k <= end:
-            advance_to(max(k, sim.step))
-            train.apply_due(sim, on_impact)
-        advance_to(end)
-        record()
+    recorder = Recorder(sim, t_end, output_dt, train, on_frame=on_frame, on_impact=on_impact)
+    recorder.start()
+    for k in range(recorder.n_out):
+        recorder.interval(k)
         if progress is not None:
             progress(1)
-    rec = RunRecord(np.array(times), np.array(strain), np.array(energy), np.array(cerr), wall,
-                    sim.step, sim.steps_taken, base_force=np.array(base),
-                    energy_balance_error=np.array(balance),
-                    impacts=list(train.applied) if train is not None else [])
-    at_ref.pulses(rec, sim)
-    return rec
+    return recorder.record_of()
+
+
+class Recorder:
+    """The steps and the record of :func:`run`, one output interval at a time (the batch's
+    instances run the same): :meth:`start`, :meth:`interval` ``k`` for ``k < n_out``, then
+    :meth:`record_of`. ``frames=False`` records only what the summary reads (no positions or
+    cable tensions; no base force either with ``base=False``): the same figures."""
+
+    def __init__(self, sim, t_end, output_dt, train=None, on_frame=None, on_impact=None,
+                 frames=True, base=True):
+        ratio = output_dt / sim.dt
+        if abs(ratio - round(ratio)) > 1e-6 * ratio:       # advance() takes whole steps
+            raise ValueError(f'run.output_dt: {output_dt:g} s is not a whole multiple of '
+                             f'integrator.dt = {sim.dt:g} s')
+        self.sim, self.train = sim, train
+        self.per_frame = int(round(ratio))
+        self.n_out = frame_count(t_end, output_dt) - 1
+        self.on_frame, self.on_impact = on_frame, on_impact
+        self.frames = frames or on_frame is not None
+        self.with_base = base or self.frames
+        self.times, self.strain, self.energy, self.cerr, self.base, self.balance = \
+            [], [], [], [], [], []
+        self.wall = 0.0
+        self.at_ref = RefMomenta(sim)
+
+    def start(self):
+        """The impacts due at the start, the first frame."""
+        if self.train is not None:
+            self.train.apply_due(self.sim, self.on_impact)
+        self.record()
+
+    def record(self):
+        """Record the present state (a frame, or its lean part)."""
+        sim = self.sim
+        if self.frames:
+            f = run_frame(sim)
+            t, strain, e, cerr, base, bal = (f.t, f.strain, f.energy, f.constraint_error,
+                                             f.base_force, f.energy_balance_error)
+            if self.on_frame is not None:
+                self.on_frame(f)
+        else:              # lean: what the summary reads, computed as Simulation.frame does
+            f = sim.frame_figures()
+            t, strain, e, cerr, bal = f
+            base = np.array(sim.base_force()) if self.with_base else None
+        self.times.append(t)
+        self.strain.append(strain)
+        self.energy.append(e)
+        self.cerr.append(cerr)
+        self.base.append(base)
+        self.balance.append(bal)
+        self.at_ref.note(sim, t, len(self.times) - 1)
+
+    def _advance_to(self, step):
+        sim = self.sim
+        t0 = time.perf_counter()
+        sim.advance((step - sim.step) * sim.dt)
+        self.wall += time.perf_counter() - t0
+
+    def interval(self, k):
+        """Output interval ``k`` (0-based): each impact on its step within it (applied before
+        that frame is taken), the steps, the frame."""
+        sim, train = self.sim, self.train
+        end = sim.step + self.per_frame
+        while train is not None and (s := train.next_step()) is not None and s <= end:
+            self._advance_to(max(s, sim.step))
+            train.apply_due(sim, self.on_impact)
+        self._advance_to(end)
+        self.record()
+
+    def record_of(self):
+        """The :class:`RunRecord` so far, with its pulses."""
+        sim = self.sim
+        rec = RunRecord(np.array(self.times), np.array(self.strain), np.array(self.energy),
+                        np.array(self.cerr), self.wall, sim.step, sim.steps_taken,
+                        base_force=np.array(self.base) if self.with_base else None,
+                        energy_balance_error=np.array(self.balance),
+                        impacts=list(self.train.applied) if self.train is not None else [])
+        self.at_ref.pulses(rec, sim)
+        return rec
 
 
 T_REF = 0.5          # the time the pulse figures are read at (observables.first_passage)

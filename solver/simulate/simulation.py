@@ -456,21 +456,30 @@ class Simulation(Loading):
                                     self.f_ext)
         return self._cached('base_force', compute)
 
-    def frame(self):
-        """A copied :class:`Frame` of the current state."""
-        x = np.array(self._full_state()[0])
+    def frame_figures(self):
+        """``(t, strain, energy, constraint error, energy balance error)`` of the current state:
+        the figures of :meth:`frame` a run's summary reads, without copying positions or
+        computing tensions."""
         net = self.network
         if net.levels.size:
             h = self._heights()
             strain = (h - net.h0) / h          # observables.prism_strains, from the shared heights
         else:
             strain = np.zeros((0, 0))
-        return Frame(t=self.t, step=self.step, positions=x, strain=strain,
+        return (self.t, strain, self.energy(), self.constraint_error(),
+                float(self.energy_error()))
+
+    def frame(self):
+        """A copied :class:`Frame` of the current state."""
+        x = np.array(self._full_state()[0])
+        net = self.network
+        t, strain, energy, cerr, balance = self.frame_figures()
+        return Frame(t=t, step=self.step, positions=x, strain=strain,
                      tension=observables.cable_tensions(x, net, self.model.cable_rest_length,
                                                         self.model.cable_EA),
-                     energy=self.energy(), constraint_error=self.constraint_error(),
+                     energy=energy, constraint_error=cerr,
                      base_force=np.array(self.base_force()), striker=self.striker(),
-                     energy_balance_error=float(self.energy_error()))
+                     energy_balance_error=balance)
 
 
 def _copy_arrays(value):
