@@ -19,8 +19,8 @@ from solver.simulate.array import simulation_for  # noqa: E402
 from tensegrity_ros.node.demo import Commander, spin_until  # noqa: E402
 from tensegrity_ros.node.node import (DEFAULTS, ParameterError, TensegritySim,  # noqa: E402
                                       check_parameters)
-from tensegrity_ros.node.pacing import (FAST_WORK_FRACTION, MIN_WORK_FRACTION,  # noqa: E402
-                                        WORK_FRACTION)
+from tensegrity_ros.node.pacing import (FAST_WORK_FRACTION, MIN_STEP_FRACTION,  # noqa: E402
+                                        MIN_WORK_FRACTION, WORK_FRACTION)
 
 DOMAIN = 10 + os.getpid() % 20
 N_PRISMS = 10
@@ -287,6 +287,32 @@ def test_pacing_logic(ros):
     pacer.step_cost = 1e-3
     assert node.steps_this_tick(101.0) == int(WORK_FRACTION * 0.005 / 1e-3) == 4
     assert pacer.anchor_wall == 101.0                          # no debt accumulated
+    # a step that costs more than the budget (a column in lasting contact): the fraction of one
+    # step that fits, never a whole one that overruns the tick
+    pacer.step_cost = 0.02
+    assert node.steps_this_tick(102.0) == pytest.approx(WORK_FRACTION * 0.005 / 0.02)
+    assert pacer.anchor_t == pytest.approx(sim.t + WORK_FRACTION * 0.005 / 0.02 * sim.dt)
+    node.params['real_time_factor'] = 0.0
+    assert node.steps_this_tick(103.0, deadline=103.004) == pytest.approx(0.004 / 0.02)
+    pacer.step_cost = 1e3                                      # never below the smallest fraction
+    assert node.steps_this_tick(103.0, deadline=103.004) == MIN_STEP_FRACTION
+
+
+def test_a_tick_takes_a_fraction_of_a_step_when_a_step_costs_more_than_a_period(ros):
+    """The node's tick with a step that costs more than the publish period: it advances by
+    the fraction of one step that fits (Simulation.advance_part), checked, and publishes that
+    state; the frames keep coming, each at a later simulation time."""
+    node, sim = ros.node, ros.node.sim
+    ros.cmd.impact([0.1])
+    assert ros.spin(lambda: node.intake.counts['accepted'] >= 1)
+    node.pacer.step_cost = 1e3 * node.period                  # as if one step took 1,000 ticks
+    node.pacer.stepped = lambda n, seconds: None              # keep that estimate
+    n0, t0, step0 = len(ros.cmd.strain), sim.t, sim.step
+    assert ros.spin(lambda: len(ros.cmd.strain) >= n0 + 20)
+    assert sim.step - step0 >= 10                             # (a frame or two was in flight)
+    assert 0.0 < sim.t - t0 < (sim.step - step0) * sim.dt * 0.01  # fractions of 1e-3 and less
+    assert all(np.all(np.isfinite(s)) for s in ros.cmd.strain[n0:])
+    assert abs(sim.energy_error()) < sim.div.energy_error
 
 
 def test_parameters_file_matches_defaults_and_bad_values_named():

@@ -382,9 +382,17 @@ class ArraySimulation(Simulation):
         on :attr:`threads` threads (:func:`solver.simulate.parallel.each`). A divergence in any
         column restores every column and raises :class:`SimulationDiverged` naming it (the first
         diverging group in column order)."""
+        return self._each(lambda sim: sim.advance(duration))
+
+    def advance_part(self, fraction):
+        """Every column by one step shortened to ``fraction`` of ``dt``
+        (:meth:`Simulation.advance_part`), as :meth:`advance` steps them."""
+        return self._each(lambda sim: sim.advance_part(fraction))
+
+    def _each(self, step):
         groups = self.groups
         keeps = [(s._keep(), s.t, s.step, s.steps_taken) for s in (g.sim for g in groups)]
-        results = parallel.each(lambda g: g.sim.advance(duration), groups,
+        results = parallel.each(lambda g: step(g.sim), groups,
                                 self.threads if len(groups) > 1 else 1)
         self._cache = {}
         failed = next(((g, v) for g, (ok, v) in zip(groups, results) if not ok), None)

@@ -362,6 +362,21 @@ class Simulation(Loading):
         self.steps_taken += steps
         return steps
 
+    def advance_part(self, fraction):
+        """Advance by one step shortened to ``fraction`` (0 < fraction <= 1) of ``dt``, checked
+        like :meth:`advance` (a frame off the ``dt`` grid; ``step`` counts it as one). The node
+        takes one when a whole step costs more than a tick's budget (a column in lasting contact
+        takes hundreds of contact sub-steps per step), so that it publishes on time."""
+        fraction = float(fraction)
+        if not 0.0 < fraction <= 1.0:
+            raise ValueError(f'advance_part: fraction {fraction!r} must be in (0, 1]')
+        dt = self.dt
+        self.dt = fraction * dt
+        try:
+            return self.advance(self.dt)
+        finally:
+            self.dt = dt
+
     # -- divergence detection -------------------------------------------------------------------
     def _keep(self):
         m = self.model

@@ -75,7 +75,10 @@ class Focus:
 
     def steps_until_impact(self, n):
         """At most ``n`` steps, so that the run lands exactly on a planned impact (made when it
-        is due; then ``None``: step as paced)."""
+        is due; then ``None``: step as paced). A fraction of a step (``n`` < 1) becomes one whole
+        step while an impact is planned or a record samples every step."""
+        if 0 < n < 1 and (self.impact_at is not None or self.record is not None):
+            n = 1
         if self.impact_at is None:
             return n
         left = max(0, round((self.impact_at - self.node.sim.t) / self.node.sim.dt))
@@ -119,11 +122,14 @@ class Focus:
                 or self.node.pubs[FIELD_TOPIC].get_subscription_count() > 0)
 
     def advance(self, n):
-        """Advance the simulation ``n`` steps, sampling the base forces of a record."""
-        if self.record is None:
-            self.node.sim.advance(n * self.node.sim.dt)
+        """Advance the simulation ``n`` steps (``n`` < 1: one step shortened to that fraction),
+        sampling the base forces of a record."""
+        if self.record is not None:
+            self.record.advance(self.node.sim, max(int(n), 1))
+        elif n < 1:
+            self.node.sim.advance_part(n)
         else:
-            self.record.advance(self.node.sim, n)
+            self.node.sim.advance(n * self.node.sim.dt)
 
     def after_steps(self, now):
         """Once per stepping tick with a record: the focus figures when it is complete, the

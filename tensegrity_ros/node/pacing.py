@@ -13,6 +13,7 @@ FAST_WORK_FRACTION = 1.0         # at real_time_factor 0: share of the time left
                                  # tick is due (no pace to keep, no margin)
 MIN_WORK_FRACTION = 0.2          # a tick steps at least this share of a period
 SMOOTHING = 0.2                  # weight of a new measurement in the moving averages
+MIN_STEP_FRACTION = 1.0 / 256    # the shortest step a tick takes when a whole one does not fit
 
 
 class Pacer:
@@ -34,16 +35,20 @@ class Pacer:
         ``rtf`` 0 the budget is the time left until ``deadline`` (wall time the next tick is due;
         default one period from ``now``) less the cost of publishing: a tick that started late,
         or spent time on commands, steps less, so that the next one starts on time and the
-        publish rate holds. ``markers``: the frame of this tick carries markers."""
+        publish rate holds. ``markers``: the frame of this tick carries markers.
+
+        Whole steps (an int) while one fits in the budget; when a single step costs more (a
+        column in lasting contact), the fraction of a step that fits (a float in
+        [:data:`MIN_STEP_FRACTION`, 1), for :meth:`Simulation.advance_part`)."""
         publish = self.publish_cost + (self.marker_cost if markers else 0.0)
         if rtf <= 0:
             left = self.period if deadline is None else deadline - now
             budget = max(FAST_WORK_FRACTION * left - publish, MIN_WORK_FRACTION * self.period)
-            return max(1, int(budget / max(self.step_cost, 1e-9)))
+            return self._fit(budget)
         # paced, a tick keeps a margin so that it ends before the next one is due
         budget = max(WORK_FRACTION * self.period - publish - self.cmd_wall,
                      MIN_WORK_FRACTION * self.period)
-        cap = max(1, int(budget / max(self.step_cost, 1e-9)))
+        cap = self._fit(budget)
         target = self.anchor_t + rtf * (now - self.anchor_wall)
         want = int(math.floor((target - t_sim) / dt + 1e-9))
         if want > cap:                 # cannot keep up: do what fits, do not accumulate debt
@@ -51,8 +56,13 @@ class Pacer:
             return cap
         return max(want, 0)
 
+    def _fit(self, budget):
+        """The steps that fit in ``budget`` s: whole ones, or the fraction of one."""
+        fits = budget / max(self.step_cost, 1e-9)
+        return int(fits) if fits >= 1.0 else max(fits, MIN_STEP_FRACTION)
+
     def stepped(self, n, seconds):
-        """``n`` steps took ``seconds``."""
+        """``n`` steps (a fraction of one included) took ``seconds``."""
         self.step_cost = (1 - SMOOTHING) * self.step_cost + SMOOTHING * seconds / n
 
     def published(self, seconds, markers):
