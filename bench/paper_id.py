@@ -105,13 +105,14 @@ def residuals(figs_by_v0, speed_key):
 
 
 def _cluster(workers):
-    from tensegrity_ros.studies.sweep import Cluster
+    from tensegrity_ros.studies.cluster import Cluster
     return Cluster(workers=workers) if (workers or 2) > 1 else None
 
 
 def family(out, cluster, quick=False):
     """The family sweep and its table of best points per combination."""
-    from tensegrity_ros.studies.sweep import build, execute, progress_bar
+    from tensegrity_ros.io.progress import progress_bar
+    from tensegrity_ros.studies.sweep import build, execute
     grids = [f'{k}={",".join(str(v) for v in vals)}' for k, vals in FAMILY.items()]
     if quick:
         grids[0] = 'structure.radius=0.0035,0.005'
@@ -446,7 +447,7 @@ def figure(out):
 def speed_ratios(out):
     """speed(v0 = 0.15) / speed(v0 = 0.1) of every member of the family sweep, both readings;
     the paper's is 1.5. Returns (rows sorted by ratio, best first)."""
-    from tensegrity_ros.studies.sweep import read_rows
+    from tensegrity_ros.studies.table import read_rows
     groups = {}
     for r in _members(read_rows(out / 'family').values()):
         key = tuple(r[k] for k in ('structure.radius', *CHOICE_KEYS))

@@ -41,6 +41,7 @@ def _busy(rows):
 
 def main(out, quick=False, log=print, workers=2):
     from tensegrity_ros.studies import sweep as sw
+    from tensegrity_ros.studies.table import TIMING_FIELDS
     grid = [f'loading.impact.v0={V0S}', f'prestrain={PRESTRAINS}']
     t_end = 1.0
     if quick:
@@ -118,8 +119,8 @@ def main(out, quick=False, log=print, workers=2):
             list(serial.overrides(p).items()))) for p in serial.points], [()] * n)]
 
     def same(a, b):
-        return all({k: v for k, v in x.items() if k not in sw.TIMING_FIELDS}
-                   == {k: v for k, v in y.items() if k not in sw.TIMING_FIELDS}
+        return all({k: v for k, v in x.items() if k not in TIMING_FIELDS}
+                   == {k: v for k, v in y.items() if k not in TIMING_FIELDS}
                    for x, y in zip(a, b))
     res['rows_identical'] = same(rows_s, rows_1) and same(rows_s, rows_t) and same(rows_s, rows_c)
     log(f"  best on {workers} cores: {best[0]}, {res['two_core_ratio']:.3f}x serial; rows "

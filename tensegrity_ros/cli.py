@@ -8,12 +8,14 @@ a diverged run), never a traceback.
 from __future__ import annotations
 
 import argparse
-import gc
 import json
 import os
 import subprocess
 import sys
 from pathlib import Path
+
+from tensegrity_ros.commands.run import cmd_run
+from tensegrity_ros.io.progress import progress_bar
 
 
 class UserError(Exception):
@@ -26,149 +28,6 @@ class OneLineParser(argparse.ArgumentParser):
 
     def error(self, message):
         self.exit(2, f'tensegrity: {message} (see: {self.prog} --help)\n')
-
-
-def _progress(total, desc):
-    """A tqdm bar on a terminal; nothing otherwise."""
-    if not sys.stderr.isatty():
-        return None, (lambda: None)
-    from tqdm import tqdm
-    bar = tqdm(total=total, desc=desc, unit='frame', leave=False)
-    return bar.update, bar.close
-
-
-def _open_mcap(stack, sinks, scene, sim, path):
-    """Record the run to the bag folder ``path`` (MCAP, the node's topics, ``metadata.yaml``);
-    closed by ``stack``, also on SIGTERM.
-    Logs each impact as the command the node would receive and as an event (the text the Rerun
-    recording shows, :func:`_impact_text`), then every output frame."""
-    from solver.simulate.runner import run_frame
-    from tensegrity_ros.io.mcap_frames import FrameLog, marker_every, network_metadata
-    from tensegrity_ros.io.mcap_writer import McapRecorder, signals_as_interrupt
-    stack.enter_context(signals_as_interrupt())
-    recorder = stack.enter_context(McapRecorder(
-        path, bag=True, metadata=network_metadata(sim.network, scene.name)))
-    log = FrameLog(recorder, sim.network, marker_every=marker_every(scene.run.output_dt))
-    columns = scene.loading.impact.columns
-
-    def impact(i, entry):
-        v0 = entry['v0_m_s']
-        values = [v0] if columns is None else [v0 if c in columns else 0.0
-                                               for c in range(sim.network.n_columns)]
-        log.command('~/cmd/impact', values, 'all' if columns is None else 'column', run_frame(sim),
-                    f'impact v0 = {v0:g} m/s (scene {scene.name})')
-        log.event(entry['t_s'], _impact_text(i, entry, scene, sim))
-    sinks['impact'].append(impact)
-    sinks['frame'].append(log.frame)
-    return str(recorder.folder)
-
-
-def _open_rerun(stack, sinks, scene, sim, path=None, url=None):
-    """Record the run to a Rerun ``.rrd`` at ``path`` and/or stream it to the viewer at ``url``;
-    closed by ``stack``. Logs each impact as a command event: the first starts with ``impact``
-    (the heat map starts there), the later ones of a train with ``train impact``."""
-    from tensegrity_ros.io.rerun_sink import RerunRecorder
-    recorder = stack.enter_context(RerunRecorder(sim.network, path, connect=url))
-
-    def impact(i, entry):
-        recorder.command(entry['t_s'], _impact_text(i, entry, scene, sim))
-    sinks['impact'].append(impact)
-    sinks['frame'].append(recorder.frame)
-    return str(path) if path is not None else url
-
-
-def _impact_text(i, entry, scene, sim):
-    """The event text of impact ``i`` of a run (``entry`` as ``ImpactTrain.applied`` lists it):
-    the first starts with ``impact`` (the Rerun heat map starts there), the later ones of a train
-    with ``train impact``."""
-    from solver.simulate.runner import ImpactTrain
-    n, columns = len(ImpactTrain(scene.loading.impact, sim.dt)), scene.loading.impact.columns
-    where = 'all columns' if columns is None else f'columns {list(columns)}'
-    text = f'v0 = {entry["v0_m_s"]:g} m/s on {where}'
-    if i == 0:
-        return f'impact {text}' + (f' (1 of {n})' if n > 1 else '')
-    return f'train impact {i + 1} of {n}: {text}'
-
-
-def run_overrides(args):
-    """The scene overrides of ``tensegrity run``'s options, in the order they apply."""
-    sets = list(args.set or [])
-    if args.v0 is not None:
-        sets.append(('loading.impact.v0', args.v0))
-    if args.prestrain is not None:
-        sets.append(('prestrain', args.prestrain))
-    if args.t_end is not None:
-        sets.append(('run.t_end', args.t_end))
-    return sets
-
-
-def cmd_run(args):
-    from solver.simulate.runner import frame_count, simulate
-
-    if args.rerun or args.rerun_connect:
-        from tensegrity_ros.io import rerun_sink  # noqa: F401  (imported before gc.freeze below)
-    outputs, ctx = {}, {}
-
-    def setup(stack, scene, sim):
-        t_end, output_dt = scene.run.t_end, scene.run.output_dt
-        out_dir = Path(args.out) if args.out else None
-        if out_dir is None and (args.plot or args.mcap or args.rerun):
-            out_dir = Path('runs') / scene.name
-        if out_dir is not None:
-            out_dir.mkdir(parents=True, exist_ok=True)
-        ctx['out_dir'] = out_dir
-        update, close = _progress(frame_count(t_end, output_dt) - 1, scene.name)
-        stack.callback(close)
-        sinks = {'frame': [], 'impact': []}
-        if args.mcap:
-            from tensegrity_ros.io import mcap_frames as mcap_run, mcap_writer as recording  # noqa: F401
-        # The objects of the imports and the set-up (some 160 000) are moved out of the garbage
-        # collector's reach: otherwise its first full collection, 50-80 ms holding the GIL, tends
-        # to fall in the run (with a Rerun recording: in the recorder's start, measured)
-        gc.freeze()
-        if args.mcap:
-            outputs['mcap'] = _open_mcap(stack, sinks, scene, sim, out_dir / 'run')
-        if args.rerun or args.rerun_connect:
-            outputs['rerun'] = _open_rerun(stack, sinks, scene, sim,
-                                           out_dir / 'run.rrd' if args.rerun else None,
-                                           args.rerun_connect)
-        return (lambda f: [sink(f) for sink in sinks['frame']]), update, \
-            (lambda i, e: [sink(i, e) for sink in sinks['impact']])
-
-    point = simulate(args.scene, run_overrides(args), setup=setup)
-    scene, rec, out_dir = point.scene, point.record, ctx['out_dir']
-    v0 = scene.loading.impact.v0
-    if args.plot:
-        from tensegrity_ros.studies.plots import strain_wave
-        outputs['plot'] = str(strain_wave(rec, out_dir / 'strain_wave.png',
-                                          title=f'{scene.name}: v0 = {v0} m/s'))
-    result = point.summary
-    result['outputs'].update(outputs)
-    if out_dir is not None:
-        (out_dir / 'summary.json').write_text(json.dumps(result, indent=2, allow_nan=False))
-    if args.json:
-        print(json.dumps(result, allow_nan=False))
-    else:
-        p = result['pulse'] or {}
-        print(f"{result['scene']}: {result['model']} + {result['integrator']}, "
-              f"dt = {result['dt']:g} s,"
-              f" t_end = {result['t_end']:g} s, {result['steps_taken']} steps in "
-              f"{result['wall_time_s']:.2f} s ({result['real_time_factor'] or 0:.1f}x real time)")
-        print(f"  energy drift {result['energy_drift_rel']:.2e} /s, constraint error "
-              f"{result['constraint_error_rel']:.2e}")
-        print(f"  energy balance error {result['energy_balance_error']:.2e} (largest), work "
-              f"{result['energy_work_J']:.3e} J in {len(result['impacts'])} impact(s)")
-        if p and p['amplitude'] is None:
-            print(f"  pulse: none found by t = {result['t_end']:g} s")
-        elif p:
-            speed = 'n/a' if p['speed_m_s'] is None else f"{p['speed_m_s']:.3f} m/s"
-            median = 'n/a' if p['amplitude_median'] is None else f"{p['amplitude_median']:.4f}"
-            print(f"  pulse: amplitude {p['amplitude']:.4f} at t = {p['t_ref']:g} s (median "
-                  f"{median}), speed {speed}, width {p['width_prisms']} prisms")
-        for key, path in result['outputs'].items():
-            if path:
-                print(f'  {key}: {path}')
-    return 0
 
 
 def cmd_bench(args):
@@ -218,7 +77,7 @@ def cmd_paper(args):
         from solver.build.scene import Scene
         Scene.load(paper.SCENES / 'fb_column.yaml').with_overrides(sets)
     v0s = paper.V0S[:1] if args.quick else paper.V0S
-    update, close = _progress(paper.n_runs(v0s, models), 'paper')
+    update, close = progress_bar(paper.n_runs(v0s, models), 'paper', unit='frame', leave=False)
     try:
         result = paper.paper_table(v0s=v0s, t_end=0.6 if args.quick else 1.2, models=models,
                                    progress=update, quick=args.quick, sets=sets)
@@ -346,7 +205,7 @@ def cmd_fit(args):
     """``tensegrity fit``: scene values that reproduce target figures
     (tensegrity_ros.studies.fit)."""
     from tensegrity_ros.studies import fit
-    from tensegrity_ros.studies.sweep import SweepError
+    from tensegrity_ros.studies.grid import SweepError
     try:
         return fit.main(args)
     except SweepError as exc:

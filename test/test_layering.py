@@ -24,6 +24,7 @@ RANKS = [
     {'tensegrity_ros.msgs'},
     {'tensegrity_ros.io'},
     {'tensegrity_ros.node', 'tensegrity_ros.studies'},
+    {'tensegrity_ros.commands'},
     {'tensegrity_ros.cli', 'tensegrity_ros'},
 ]
 RANK = {room: i for i, rooms in enumerate(RANKS) for room in rooms}

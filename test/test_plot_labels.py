@@ -2,7 +2,7 @@
 import pytest
 
 from tensegrity_ros.studies import plots
-from tensegrity_ros.studies.sweep import FIGURES
+from tensegrity_ros.studies.table import FIGURES
 
 
 @pytest.mark.parametrize('name,unit', [

@@ -14,6 +14,7 @@ import pytest
 import yaml
 
 from tensegrity_ros import cli
+from tensegrity_ros.studies import grid, table
 from tensegrity_ros.studies import sweep as sw
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -21,7 +22,7 @@ FB = str(ROOT / 'config' / 'scenes' / 'fb_column.yaml')
 RB = str(ROOT / 'config' / 'scenes' / 'rb_column.yaml')
 T_END = 0.55                      # past t_ref = 0.5 s: every figure is defined
 GRID = ['loading.impact.v0=0.08,0.12', 'structure.stacking=shared,parallel']
-TIMING = sw.TIMING_FIELDS
+TIMING = table.TIMING_FIELDS
 
 
 @pytest.fixture(scope='module')
@@ -60,7 +61,7 @@ def test_a_sweep_row_equals_the_run_summary_of_the_same_point(serial_rows, capsy
     for key in ('energy_drift_rel', 'constraint_error_rel', 'steps', 'steps_taken', 'dt'):
         assert row[key] == summary[key], key
     # every figure defined by t_end (the pulse has not reached the clamped end yet)
-    assert all(math.isfinite(row[f'pulse.{k}']) for k in sw.PULSE_FIELDS
+    assert all(math.isfinite(row[f'pulse.{k}']) for k in table.PULSE_FIELDS
                if k not in ('speed_arrival_m_s', 'arrival_end_s'))
 
 
@@ -283,6 +284,39 @@ def test_a_worker_killed_during_a_sweep_loses_no_row(cluster, tmp_path):
     assert int(marker.read_text()) not in {r['worker_pid'] for r in rows}
 
 
+def test_a_worker_killed_while_it_runs_a_batch_loses_no_row(cluster, tmp_path):
+    """The batched path (one task per batch, no custom task): a worker process is killed while a
+    batch runs on it; its nanny starts a new one, the scheduler runs the batch again, and every
+    row is that of the same sweep run in this process."""
+    import signal
+    import threading
+    grid = ['loading.impact.v0=0.08,0.1,0.12,0.14']
+    sweep = sw.build(FB, grid, out=tmp_path / 'cluster', t_end=1.0)
+    result = {}
+    runner = threading.Thread(target=lambda: result.update(
+        out=sw.execute(sweep, cluster, chunk=2)))
+    runner.start()
+    client = cluster.client
+    victim = None
+    deadline = time.monotonic() + 120
+    while victim is None and time.monotonic() < deadline:
+        busy = [w for w, keys in client.processing().items() if keys]
+        if busy:
+            victim = client.run(os.getpid, workers=[busy[0]])[busy[0]]
+        time.sleep(0.05)
+    assert victim is not None, 'no worker ever ran a batch'
+    os.kill(victim, signal.SIGKILL)                    # its batch is queued or under way
+    runner.join(300)
+    assert not runner.is_alive()
+    rows, n = result['out']
+    assert n == 4 and [r['status'] for r in rows] == ['ok'] * 4, [r['reason'] for r in rows]
+    assert victim not in {r['worker_pid'] for r in rows}
+    local, _ = sw.execute(sw.build(FB, grid, out=tmp_path / 'local', t_end=1.0))
+    for a, b in zip(rows, local):
+        assert {k: v for k, v in a.items() if k not in TIMING} == \
+            {k: v for k, v in b.items() if k not in TIMING}
+
+
 @pytest.mark.parametrize('n, workers', [(1, 2), (7, 2), (64, 2), (1000, 2), (500, 7)])
 def test_batches_cover_every_point_once_in_order_and_shrink_to_single_points(n, workers):
     batches = sw.chunks(range(n), workers)
@@ -304,11 +338,11 @@ def test_a_point_gets_a_new_id_when_the_solver_source_changes(tmp_path):
     src = tmp_path / 'solver'
     shutil.copytree(Path(solver.__file__).parent, src,
                     ignore=shutil.ignore_patterns('__pycache__'))
-    before = sw.source_hash(src)
-    assert before == sw.code_version()                  # the same files, the same hash
+    before = grid.source_hash(src)
+    assert before == grid.code_version()                  # the same files, the same hash
     path = src / 'kernels' / 'dynamics.py'        # a kernel edit in a sub-package
     path.write_text(path.read_text() + '\n# changed\n')
-    after = sw.source_hash(src)
+    after = grid.source_hash(src)
     assert after != before
     data, point = {'a': 1}, {'prestrain': 0.003}
     assert sw.point_id(data, point, code=before) == sw.point_id(data, point, code=before)

@@ -12,6 +12,7 @@ from solver.simulate.array import simulation_for
 from solver.simulate.runner import simulate
 from tensegrity_ros import cli
 from tensegrity_ros.studies import sweep as sw
+from tensegrity_ros.studies import table
 
 ROOT = Path(__file__).resolve().parents[1]
 FB = str(ROOT / 'config' / 'scenes' / 'fb_column.yaml')
@@ -131,8 +132,8 @@ def test_a_sweep_over_the_period_gives_the_rows_of_tensegrity_run(tmp_path, caps
         summary = json.loads(capsys.readouterr().out)
         assert row['loading.impact.period'] == period
         assert len(summary['impacts']) == 3
-        for key in sw.SUMMARY_FIELDS:
-            if key not in sw.TIMING_FIELDS:
+        for key in table.SUMMARY_FIELDS:
+            if key not in table.TIMING_FIELDS:
                 assert row[key] == summary[key], key
         for key, value in summary['pulse'].items():
             assert row[f'pulse.{key}'] == value, key

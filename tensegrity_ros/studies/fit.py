@@ -19,8 +19,10 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from tensegrity_ros.studies.sweep import (FIGURES, Cluster, SweepError, chunks, dashboard_option,
-                                          flatten, parse_axis)
+from tensegrity_ros.studies.cluster import Cluster, dashboard_option
+from tensegrity_ros.studies.grid import SweepError, parse_axis
+from tensegrity_ros.studies.sweep import chunks
+from tensegrity_ros.studies.table import FIGURES, flatten
 
 PENALTY = 10.0        # the error of a point whose run diverged or misses a figure (1000 %)
 

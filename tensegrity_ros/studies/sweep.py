@@ -7,192 +7,26 @@ points of a batch share what their network topology shares and step together on 
 row holds the figures of that point's ``tensegrity run --json`` summary under their dotted names
 (``pulse.amplitude``, ``energy_drift_rel``). Rows are appended to ``rows.jsonl`` as
 they complete (the table is rewritten from it), so an interrupted sweep keeps every finished point
-and a rerun of the same command runs only the points that are missing.
+and a rerun of the same command runs only the points that are missing. The grid and the
+points' keys are :mod:`tensegrity_ros.studies.grid`, the rows and tables
+:mod:`tensegrity_ros.studies.table`, the Dask cluster :mod:`tensegrity_ros.studies.cluster`.
 """
 from __future__ import annotations
 
-import functools
-import hashlib
-import itertools
 import json
-import math
 import os
-import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
-import yaml
-
-ROWS = 'rows.jsonl'
-TABLE = 'results.parquet'
-CSV = 'results.csv'
-# top-level figures of the run summary a row keeps (besides every ``pulse.*`` figure)
-SUMMARY_FIELDS = ('energy_drift_rel', 'energy_balance_error', 'constraint_error_rel',
-                  'wall_time_s', 'real_time_factor', 'steps', 'steps_taken', 'model',
-                  'integrator', 'dt', 't_end')
-PULSE_FIELDS = ('amplitude', 'amplitude_median', 'amplitude_min', 'amplitude_max',
-                'amplitude_passage_max', 'speed_m_s', 'speed_snapshot_m_s', 'speed_arrival_m_s',
-                'width_prisms', 'width_half_prisms', 'width_10_prisms', 't_ref',
-                'arrival_time_s', 'arrival_end_s', 'speed_paper_m_s', 'momentum_strain',
-                'momentum_nodes', 'momentum_ratio', 'width_eff_prisms', 'momentum_share',
-                'momentum_prisms', 'momentum_column')
-# the fields of a row that depend on the machine and the moment, not on the point
-TIMING_FIELDS = ('wall_time_s', 'real_time_factor', 'task_wall_s', 'cpu_time_s', 'worker_pid')
-# the numeric figures a fit may use, named as in the summary
-FIGURES = tuple(f'pulse.{k}' for k in PULSE_FIELDS if k != 't_ref') + (
-    'energy_drift_rel', 'constraint_error_rel')
-
-
-class SweepError(ValueError):
-    """Bad sweep or fit input; the message names the option or key."""
-
-
-# -- the grid -------------------------------------------------------------------------------------
-@dataclass
-class Axis:
-    """One swept key: its ``values`` (a list) or a ``range`` (start, stop) for Latin-hypercube
-    samples."""
-    key: str
-    values: list | None = None
-    range: tuple | None = None
-    text: str = ''
-
-
-def _scalar(text, what):
-    try:
-        return yaml.safe_load(text)
-    except yaml.YAMLError:
-        raise SweepError(f'{what}: cannot parse value {text!r}') from None
-
-
-def _number(text, what):
-    value = _scalar(text, what)
-    if isinstance(value, str):
-        try:
-            value = float(value)
-        except ValueError:
-            pass
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise SweepError(f'{what}: {text!r} is not a finite number')
-    return value
-
-
-def parse_axis(text, option='--grid'):
-    """``KEY=V1,V2,...`` (values), ``KEY=START:STOP:N`` (N evenly spaced values, both ends
-    included) or ``KEY=START:STOP`` (a range for ``--samples``)."""
-    if '=' not in text:
-        raise SweepError(f'{option} {text!r}: expected KEY=V1,V2,... or KEY=START:STOP:N')
-    key, spec = (s.strip() for s in text.split('=', 1))
-    if not key or not spec:
-        raise SweepError(f'{option} {text!r}: expected KEY=V1,V2,... or KEY=START:STOP:N')
-    what = f'{option} {key}'
-    if ':' in spec:
-        parts = spec.split(':')
-        if len(parts) not in (2, 3):
-            raise SweepError(f'{what}: expected START:STOP:N or START:STOP, got {spec!r}')
-        lo, hi = _number(parts[0], what), _number(parts[1], what)
-        if not hi > lo:
-            raise SweepError(f'{what}: STOP ({parts[1]}) must be greater than START ({parts[0]})')
-        if len(parts) == 2:
-            return Axis(key, range=(float(lo), float(hi)), text=text)
-        n = _number(parts[2], what)
-        if not (isinstance(n, int) or float(n).is_integer()) or n < 1:
-            raise SweepError(f'{what}: N must be a whole number >= 1, got {parts[2]!r}')
-        values = [float(v) for v in np.linspace(lo, hi, int(n))] if n > 1 else [float(lo)]
-        return Axis(key, values=values, text=text)
-    values = [_scalar(v.strip(), what) for v in spec.split(',')]
-    if any(v is None or v == '' for v in values):
-        raise SweepError(f'{what}: empty value in {spec!r}')
-    if len(set(map(repr, values))) != len(values):
-        raise SweepError(f'{what}: repeated value in {spec!r}')
-    return Axis(key, values=values, text=text)
-
-
-def points(axes, samples=None, seed=0):
-    """The points of a sweep: a list of dicts ``{key: value}`` in the order of ``axes``.
-
-    Without ``samples``: the cartesian product of every axis's values. With ``samples``: that
-    many Latin-hypercube points (:class:`scipy.stats.qmc.LatinHypercube`, seeded) over the axes
-    given as ranges, crossed with the values of the others."""
-    keys = [a.key for a in axes]
-    if len(set(keys)) != len(keys):
-        dup = next(k for k in keys if keys.count(k) > 1)
-        raise SweepError(f'--grid {dup}: given twice')
-    if samples is None:
-        ranged = [a for a in axes if a.range is not None]
-        if ranged:
-            raise SweepError(f'--grid {ranged[0].key}: START:STOP needs a count (START:STOP:N) '
-                             'or --samples N')
-        return [dict(zip(keys, combo)) for combo in itertools.product(*[a.values for a in axes])]
-    if samples < 1:
-        raise SweepError(f'--samples: must be >= 1, got {samples}')
-    ranged = [a for a in axes if a.range is not None]
-    if not ranged:
-        raise SweepError('--samples: needs at least one --grid KEY=START:STOP range')
-    from scipy.stats import qmc
-    unit = qmc.LatinHypercube(d=len(ranged), rng=np.random.default_rng(seed)).random(samples)
-    lo = np.array([a.range[0] for a in ranged])
-    hi = np.array([a.range[1] for a in ranged])
-    drawn = qmc.scale(unit, lo, hi)
-    listed = [a for a in axes if a.range is None]
-    out = []
-    for combo in itertools.product(*[a.values for a in listed]):
-        fixed = dict(zip([a.key for a in listed], combo))
-        for row in drawn:
-            sampled = {a.key: float(v) for a, v in zip(ranged, row)}
-            out.append({k: (fixed[k] if k in fixed else sampled[k]) for k in keys})
-    return out
-
-
-def canonical(value):
-    """A value as a plain JSON type (numpy scalars to Python)."""
-    if isinstance(value, np.generic):
-        return value.item()
-    return value
-
-
-@functools.lru_cache(maxsize=1)
-def code_version():
-    """A hash of the solver's source (every ``solver/**/*.py``): a resumed sweep reruns its points
-    after the solver changed instead of mixing rows of two versions."""
-    import solver
-    return source_hash(Path(solver.__file__).parent)
-
-
-def source_hash(directory):
-    """sha256 (12 hex digits) of every ``*.py`` file below ``directory`` (sub-packages too)."""
-    from solver import _jit
-    return _jit.source_hash(directory)[:12]
-
-
-def point_id(scene_data, overrides, code=None):
-    """A key of the point: a hash of the scene's validated data, the overrides in canonical
-    form (sorted keys, JSON) and the solver's :func:`code_version`, so that the same point gets
-    the same key in any order of options, and a new key when the solver changes."""
-    blob = json.dumps({'scene': scene_data, 'code': code or code_version(),
-                       'set': sorted([k, canonical(v)] for k, v in overrides.items())},
-                      sort_keys=True, default=repr)
-    return hashlib.sha256(blob.encode()).hexdigest()[:16]
+from tensegrity_ros.io.progress import progress_bar
+from tensegrity_ros.studies.cluster import Cluster, dashboard_option
+from tensegrity_ros.studies.grid import SweepError, canonical, parse_axis, point_id, points
+from tensegrity_ros.studies.table import (CSV, FIGURES, ROWS, TABLE, empty_figures, flatten,
+                                          read_rows, write_table)
 
 
 # -- one point ------------------------------------------------------------------------------------
-def flatten(summary):
-    """The figures of a run summary a row holds: ``SUMMARY_FIELDS`` and ``pulse.*``."""
-    row = {k: summary.get(k) for k in SUMMARY_FIELDS}
-    pulse = summary.get('pulse') or {}
-    for k in PULSE_FIELDS:
-        row[f'pulse.{k}'] = pulse.get(k)
-    return row
-
-
-def empty_figures():
-    row = {k: None for k in SUMMARY_FIELDS}
-    row.update({f'pulse.{k}': None for k in PULSE_FIELDS})
-    return row
-
-
 def run_point(scene, overrides, pid=None):
     """One row: ``scene`` (a :class:`solver.build.scene.Scene`) with ``overrides`` (``{key:
     value}``, applied in order) run by :func:`solver.simulate.runner.simulate`. Never raises for a
@@ -218,137 +52,8 @@ def run_point(scene, overrides, pid=None):
     return row
 
 
-# -- the table ------------------------------------------------------------------------------------
-def read_rows(out_dir):
-    """The rows already in ``out_dir`` (``rows.jsonl``), by point id (the last row of an id
-    wins; a line cut short by a kill is ignored)."""
-    path = Path(out_dir) / ROWS
-    rows = {}
-    if not path.exists():
-        return rows
-    for line in path.read_text().splitlines():
-        try:
-            row = json.loads(line)
-        except json.JSONDecodeError:
-            continue
-        if isinstance(row, dict) and row.get('point_id'):
-            rows[row['point_id']] = row
-    return rows
-
-
-def write_table(out_dir, rows, columns):
-    """``results.parquet`` and ``results.csv`` from ``rows`` (dicts), columns in ``columns``
-    order first; each written to a temporary file and renamed, so a reader never sees half a
-    table."""
-    import pyarrow as pa
-    import pyarrow.csv as pacsv
-    import pyarrow.parquet as pq
-    out_dir = Path(out_dir)
-    names = list(columns) + sorted({k for r in rows for k in r} - set(columns))
-    data = {}
-    for name in names:
-        col = [r.get(name) for r in rows]
-        kinds = {type(v) for v in col if v is not None}
-        if kinds and kinds <= {int, float} and float in kinds:
-            col = [None if v is None else float(v) for v in col]
-        elif len(kinds) > 1:
-            col = [None if v is None else str(v) for v in col]
-        data[name] = col
-    table = pa.table(data) if rows else pa.table({n: pa.array([], pa.null()) for n in names})
-    tmp = out_dir / (TABLE + '.tmp')
-    pq.write_table(table, tmp)
-    os.replace(tmp, out_dir / TABLE)
-    tmp = out_dir / (CSV + '.tmp')
-    pacsv.write_csv(table, tmp)
-    os.replace(tmp, out_dir / CSV)
-
-
 GUIDED_SHARE = 3                 # a batch takes 1/(3 x workers) of the points still to run,
 MAX_BATCH = 8                    # at most this many (Ctrl-C loses the rows of running batches)
-
-
-# -- the cluster ----------------------------------------------------------------------------------
-DASHBOARD = '127.0.0.1:0'        # the local cluster's dashboard: this machine only, a free port
-WILDCARD_HOSTS = ('0.0.0.0', '::', '[::]')
-
-
-def parse_dashboard(value):
-    """``HOST:PORT`` of ``--dashboard-address`` checked (the host resolves, the port is 0-65535;
-    0 = a free port), returned as given; raises :class:`SweepError` with a one-line message."""
-    import socket
-    host, sep, port = str(value).rpartition(':')
-    if not sep or not host or not port.isdigit() or int(port) > 65535:
-        raise SweepError(f'--dashboard-address {value}: expected HOST:PORT, e.g. 127.0.0.1:8787 '
-                         'or 0.0.0.0:8787 (every interface)')
-    try:
-        socket.getaddrinfo(host.strip('[]'), None)
-    except (OSError, UnicodeError) as exc:
-        raise SweepError(f'--dashboard-address {value}: unknown host {host} ({exc})') from None
-    return value
-
-
-class Cluster:
-    """A Dask client: on ``address`` (an existing scheduler) or on a ``LocalCluster`` of
-    ``workers`` single-threaded worker processes started here and shut down by :meth:`close`.
-    The local scheduler and workers listen on 127.0.0.1 only, and so does its dashboard unless
-    ``dashboard`` (``HOST:PORT``) says otherwise; ``dashboard=None`` starts none."""
-
-    def __init__(self, workers=None, address=None, dashboard=DASHBOARD):
-        from distributed import Client, LocalCluster
-        self.cluster = None
-        self.timings = {}
-        self.dashboard_host = None
-        t0 = time.perf_counter()
-        if address:
-            try:
-                self.client = Client(address, timeout='20s')
-            except (OSError, TimeoutError, ValueError) as exc:
-                raise SweepError(f'--scheduler {address}: cannot connect ({exc})') from None
-        else:
-            n = workers or os.cpu_count() or 1
-            self.cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                                        host='127.0.0.1', dashboard_address=dashboard,
-                                        silence_logs=40)
-            self.client = Client(self.cluster)
-            self.dashboard_host = dashboard and dashboard.rpartition(':')[0]
-        self.timings['cluster_start_s'] = time.perf_counter() - t0
-
-    @property
-    def dashboard_link(self):
-        """The local cluster's dashboard, ``http://HOST:PORT/status`` (HOST 127.0.0.1 when it
-        listens on every interface, then said in brackets after it), or None: no local cluster,
-        or no dashboard."""
-        if self.cluster is None or not self.dashboard_host:
-            return None
-        port = self.cluster.scheduler_info.get('services', {}).get('dashboard')
-        if port is None:
-            return None
-        host = self.dashboard_host
-        if host in WILDCARD_HOSTS:
-            return f'http://127.0.0.1:{port}/status (listening on every interface, {host})'
-        return f'http://{host}:{port}/status'
-
-    def report_dashboard(self, file=None):
-        """One line on stderr with :attr:`dashboard_link`, if there is one."""
-        if self.dashboard_link:
-            print(f'dashboard: {self.dashboard_link}', file=file or sys.stderr, flush=True)
-
-    @property
-    def n_workers(self):
-        return len(self.client.scheduler_info(n_workers=-1)['workers'])
-
-    def map(self, func, items, **kwargs):
-        """``[func(item) for item in items]`` on the cluster (the map-like callable of
-        :func:`scipy.optimize.differential_evolution`)."""
-        futures = self.client.map(func, list(items), pure=False, **kwargs)
-        return self.client.gather(futures)
-
-    def close(self):
-        try:
-            self.client.close()
-        finally:
-            if self.cluster is not None:
-                self.cluster.close()
 
 
 # -- the sweep ------------------------------------------------------------------------------------
@@ -583,31 +288,7 @@ def execute(sweep, cluster=None, progress=None, task=None, on_row=None, chunk=No
     return [done[i] for i in ids], n_run
 
 
-# -- the plot -------------------------------------------------------------------------------------
 # -- the command ----------------------------------------------------------------------------------
-def progress_bar(total, desc):
-    """A tqdm bar on a terminal; nothing otherwise. Returns ``(update, close)``."""
-    if not sys.stderr.isatty() or total == 0:
-        return None, (lambda: None)
-    from tqdm import tqdm
-    bar = tqdm(total=total, desc=desc, unit='run')
-    return bar.update, bar.close
-
-
-def dashboard_option(args):
-    """The ``dashboard`` of :class:`Cluster` from ``--dashboard-address`` and ``--no-dashboard``
-    (checked; raises :class:`SweepError`): :data:`DASHBOARD` by default, None for no dashboard.
-    Both options are about the local cluster; with ``--scheduler`` they are an error."""
-    address = getattr(args, 'dashboard_address', None)
-    off = getattr(args, 'no_dashboard', False)
-    if (address or off) and args.scheduler:
-        raise SweepError(f'{"--no-dashboard" if off else "--dashboard-address"}: sets the '
-                         'dashboard of the local cluster; a --scheduler has its own')
-    if address and off:
-        raise SweepError('--dashboard-address and --no-dashboard: give one or the other')
-    return None if off else parse_dashboard(address) if address else DASHBOARD
-
-
 def build(scene_path, grids, samples=None, seed=0, out=None, t_end=None):
     """A validated :class:`Sweep` from the command's options (raises :class:`SweepError` or
     :class:`solver.build.scene.SceneError`, nothing run)."""
