@@ -9,6 +9,7 @@ from scipy.optimize import minimize_scalar
 
 from solver.kernels import dynamics as dyn
 from solver.models import family as models
+from solver.models import chain1d
 from solver.models.chain1d import Chain1D
 from solver.build.scene import Scene
 from solver.simulate.array import simulation_for
@@ -247,6 +248,33 @@ def test_chain1d_rejects_cable_changes_and_keeps_energy_on_the_paper_column():
     assert abs(sim.energy() - e0) <= 1e-4 * e0
     strain = sim.frame().strain
     assert strain.min() < -0.03 and np.all(strain > -0.1005 - 1e-6)
+
+
+def test_a_stiff_table_law_takes_the_sub_steps_its_frequency_needs(monkeypatch):
+    """Rigid bases as stiff cables (EA x 100): a table law about 25 times stiffer than the
+    flexible bases', whose chain then takes sub-steps of OMEGA_SUBSTEP over its highest frequency
+    2 sqrt(k_max / m) (at the 1e-4 s of the flexible bases its energy balance failed within
+    0.03 s). It runs 1 s within the ledger's limit, and halving the sub-step moves the pulse
+    speed by less than 1e-5 (converged); the flexible-base chain keeps its 1e-4 s."""
+    from solver.simulate.runner import simulate
+    assert Chain1D(build_network(_scene('fb_column', 'model=chain1d'))).substep == \
+        chain1d.SUBSTEP[1]
+    sets = [('model', 'chain1d'), ('structure.rigid_bases_as', 'stiff_cables'),
+            ('structure.stacking', 'parallel'), ('loading.impact.v0', 0.15)]
+    stiff = Chain1D(build_network(_scene('rb_column', *[f'{k}={v}' for k, v in sets])))
+    law = stiff.law
+    h = np.linspace(law.lo, law.lo + law.dh * law.fcoef.shape[0], 200001)    # the table
+    k_max = np.max(np.abs(np.diff(stiff.force(h)) / (h[1] - h[0])))   # |dF/dh|, by differences
+    omega = 2 * math.sqrt(k_max / stiff.level_mass.min())
+    assert stiff.substep == pytest.approx(chain1d.OMEGA_SUBSTEP / omega, rel=0.02)
+    assert stiff.substep < 0.5 * chain1d.SUBSTEP[1]
+    runs = []
+    for factor in (1.0, 0.5):
+        monkeypatch.setattr(chain1d, 'OMEGA_SUBSTEP', 0.02 * factor)
+        s = simulate(str(SCENES / 'rb_column.yaml'), sets).summary
+        assert abs(s['energy_balance_error']) < 1e-4
+        runs.append(s['pulse']['speed_m_s'])
+    assert runs[1] == pytest.approx(runs[0], rel=1e-5)
 
 
 # -- the paper table

@@ -31,7 +31,8 @@ Force laws (:class:`~solver.models.prism_law.PrismLaw`):
   (the law softens); a prism pushed below the table (``0.02 h0``, crushed flat) stops the run
   with a clear error.
 
-Integration: velocity Verlet with sub-steps of at most ``SUBSTEP`` (symplectic; cheap in 1D).
+Integration: velocity Verlet with sub-steps of at most ``SUBSTEP`` (symplectic; cheap in 1D), for
+a table law also at most ``OMEGA_SUBSTEP`` over the chain's highest frequency.
 Energy drift: 2e-4 to 4e-4 per second for rigid bases (the near-lock stiffness), about 1e-6 for the
 tabulated laws.
 Impact: the end level gets ``w = -v0`` (no constraint to project: the impulse and energy modes
@@ -53,7 +54,25 @@ from solver.status import OUT_OF_TABLE  # noqa: E402
 # largest Verlet sub-steps, s: the paper figures agree with 2e-6 s sub-steps to 0.05 %; the energy
 # drift of the rigid-base chain (near-lock stiffness) is about 4e-4 per second at 1e-5 s
 SUBSTEP = {0: 1e-5, 1: 1e-4}        # by law kind: 0 rigid closed form, 1 table
+# a table law's sub-step is also at most this over the chain's highest angular frequency
+# 2 sqrt(k_max / m) (k_max the largest |dF/dh| of the table): Verlet's energy error grows as
+# (omega h)^2, and 0.02 keeps it near 1e-5 of the pulse energy (stiff-cable rigid bases have
+# k_max 25 times the flexible bases'; the flexible-base chain keeps 1e-4 s, omega h = 0.017)
+OMEGA_SUBSTEP = 0.02
 LOCK_ETA = 0.05         # near the rigid-base lock: largest relative change of the gap per sub-step
+
+
+def _largest_slope(fcoef, dh):
+    """The largest |dF/dh| of the cubic pieces ``fcoef`` (n - 1, 4) over [0, dh] each: the
+    quadratic F' at both ends and at its vertex when that lies inside (where the minimiser folds,
+    the slope peaks within a piece)."""
+    c0, c1, c2 = fcoef[:, 0], fcoef[:, 1], fcoef[:, 2]
+    slopes = [np.abs(c2), np.abs(3.0 * c0 * dh * dh + 2.0 * c1 * dh + c2)]
+    with np.errstate(divide='ignore', invalid='ignore'):
+        t = np.where(c0 != 0.0, -c1 / (3.0 * c0), -1.0)
+    inside = (t > 0.0) & (t < dh)
+    slopes.append(np.where(inside, np.abs(3.0 * c0 * t * t + 2.0 * c1 * t + c2), 0.0))
+    return float(np.max(slopes))
 
 
 @jit
@@ -212,6 +231,11 @@ class Chain1D(Model):
         else:
             self.law = table_law(self.h0, self.b, self.cross, self.bases)
             self.h_lock = None
+        self.substep = SUBSTEP[self.law.kind]
+        if self.law.kind == 1:
+            k_max = _largest_slope(self.law.fcoef, self.law.dh)
+            omega = 2.0 * math.sqrt(k_max / float(self.level_mass.min()))
+            self.substep = min(self.substep, OMEGA_SUBSTEP / omega)
         self.u = np.zeros(len(lev))
         self.w = np.zeros(len(lev))
         self.x, self.v = self.u, self.w          # the state, as Simulation keeps and restores it
@@ -280,7 +304,7 @@ class Chain1D(Model):
 
     def advance(self, dt, n_steps):
         """``n_steps`` steps of ``dt`` s in place; returns (steps, status)."""
-        n_sub = max(1, int(math.ceil(dt / SUBSTEP[self.law.kind] - 1e-9)))
+        n_sub = max(1, int(math.ceil(dt / self.substep - 1e-9)))
         law = self.law
         fcoef = law.fcoef if law.kind == 1 else np.zeros((1, 4))
         steps, status = _chain_run(self.u, self.w, float(dt), int(n_steps), n_sub, self.h0,

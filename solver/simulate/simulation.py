@@ -28,17 +28,8 @@ from solver.models import family as models
 from solver.analysis import observables
 from solver.build import structures
 from solver.build.scene import Scene
+from solver.simulate.checks import Checks, SimulationDiverged  # noqa: F401 (imported from here)
 from solver.simulate.loading import Loading, rest_length_values
-
-
-
-class SimulationDiverged(RuntimeError):
-    """The run stopped itself: ``t`` s, ``step``, the ``quantity`` that failed and a ``hint``."""
-
-    def __init__(self, t, step, quantity, detail, hint):
-        self.t, self.step, self.quantity, self.hint = t, step, quantity, hint
-        super().__init__(f'simulation diverged at t = {t:.6g} s (step {step}): {quantity} '
-                         f'{detail}; {hint}')
 
 
 @dataclass
@@ -62,7 +53,7 @@ class Frame:
     energy_balance_error: float = 0.0
 
 
-class Simulation(Loading):
+class Simulation(Loading, Checks):
     def __init__(self, scene: Scene, network=None):
         self.scene = scene
         self.network = network if network is not None else structures.build_network(scene)
@@ -376,84 +367,6 @@ class Simulation(Loading):
             return self.advance(self.dt)
         finally:
             self.dt = dt
-
-    # -- divergence detection -------------------------------------------------------------------
-    def _keep(self):
-        m = self.model
-        return (m.x.copy(), m.v.copy(), m.act[0].copy(), self._prestrain, self._ramp,
-                self._energy_ref, self.integrator.get_state(), self._energy_scale,
-                self.energy_dissipated())
-
-    def _restore(self, keep):
-        m = self.model
-        m.x[:], m.v[:], m.act[0][:] = keep[:3]
-        self._prestrain, self._ramp, self._energy_ref = keep[3:6]
-        self.integrator.set_state(keep[6])
-        self._energy_scale = keep[7]
-        self._set_dissipated(keep[8])
-        self._changed()
-
-    def _check(self, status):
-        """``(quantity, detail, hint)`` of the first failed divergence check of the current state
-        after an integrator ``status``, or None when the state is sound."""
-        finite, e, h, err, h_min = self._summary()
-        if not finite:
-            return 'state', 'non-finite positions or velocities', codes.HINT_STEP
-        if status != dyn.OK:
-            quantity, hint = codes.DIAGNOSIS.get(status, ('state', codes.HINT_STEP))
-            return quantity, codes.text(status), hint
-        if not err <= self.div.constraint_error:
-            return ('constraint error', f'{err:.3g} exceeds {self.div.constraint_error:g}',
-                    codes.HINT_CONSTRAINT)
-        err = self._balance(e)
-        if not (err <= self.div.energy_error
-                and (err >= -self.div.energy_error
-                     or (self._extras['damp'] is not None and not self._books_dissipation))):
-            return ('energy balance', f'{"gained" if err > 0 else "lost"} {abs(err):.3g} of the '
-                                      f'energy scale (limit {self.div.energy_error:g})',
-                    codes.HINT_ENERGY)
-        net = self.network
-        if net.levels.size:
-            if h.size and not h_min > 0.0:
-                c, i = np.unravel_index(int(np.argmin(np.where(np.isfinite(h), h, -np.inf))),
-                                        h.shape)
-                return ('prism height', f'prism {i} of column {c} collapsed (height '
-                                        f'{h[c, i]:.3g} m)', codes.HINT_SLACK)
-            if self._check_twist and self._twist_sign is None:
-                self._twist_sign = np.sign(observables.prism_twists(np.asarray(net.x0),
-                                                                    net.levels))
-            twist = (observables.prism_twists(self._full_state()[0], net.levels)
-                     if self._check_twist
-                     else None)
-            bad = None if twist is None else ~(twist * self._twist_sign > 0.0)
-            if bad is not None and np.any(bad):
-                c, i = np.argwhere(bad)[0]
-                return ('prism twist', f'prism {i} of column {c} twisted through 0 or 180 deg '
-                                       f'({math.degrees(twist[c, i]):.1f} deg)',
-                        codes.HINT_LOCK if self._extras['stop_h'] is None
-                        else codes.HINT_LOCK_CONTACT)
-        return None
-
-    def _locate(self, n, keep, problem):
-        """The :class:`SimulationDiverged` of an interval of ``n`` steps that failed with
-        ``problem``: replays it one step at a time from ``keep`` to name the first failing step
-        (the state is restored afterwards)."""
-        t0 = self.t
-        k_fail, found = n - 1, problem
-        try:
-            for k in range(n):
-                self.t = t0 + k * self.dt
-                _, status = self._integrate(1)
-                p = self._check(status)
-                if p is not None:
-                    k_fail, found = k, p
-                    break
-        finally:
-            self.t = t0
-            self._restore(keep)
-        quantity, detail, hint = found
-        return SimulationDiverged(t0 + (k_fail + 1) * self.dt, self.step + k_fail + 1, quantity,
-                                  detail, hint)
 
     def base_force(self):
         """Axial base force (n_columns,) N of the current state, positive compressive

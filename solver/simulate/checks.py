@@ -1,0 +1,104 @@
+"""What makes a simulation stop itself: the checks after every interval (:meth:`Checks._check`:
+finite state, integrator status, constraint error, energy balance, prism heights and twists), the
+state kept to restore, and the search for the first failing step that names it in a
+:class:`SimulationDiverged`. A mixin of :class:`solver.simulate.simulation.Simulation`."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from solver import status as codes
+from solver.analysis import observables
+from solver.kernels import dynamics as dyn
+
+
+class SimulationDiverged(RuntimeError):
+    """The run stopped itself: ``t`` s, ``step``, the ``quantity`` that failed and a ``hint``."""
+
+    def __init__(self, t, step, quantity, detail, hint):
+        self.t, self.step, self.quantity, self.hint = t, step, quantity, hint
+        super().__init__(f'simulation diverged at t = {t:.6g} s (step {step}): {quantity} '
+                         f'{detail}; {hint}')
+
+
+class Checks:
+    """The divergence checks of a :class:`~solver.simulate.simulation.Simulation` (which
+    provides the state, the cached summary and the clock)."""
+
+    def _keep(self):
+        m = self.model
+        return (m.x.copy(), m.v.copy(), m.act[0].copy(), self._prestrain, self._ramp,
+                self._energy_ref, self.integrator.get_state(), self._energy_scale,
+                self.energy_dissipated())
+
+    def _restore(self, keep):
+        m = self.model
+        m.x[:], m.v[:], m.act[0][:] = keep[:3]
+        self._prestrain, self._ramp, self._energy_ref = keep[3:6]
+        self.integrator.set_state(keep[6])
+        self._energy_scale = keep[7]
+        self._set_dissipated(keep[8])
+        self._changed()
+
+    def _check(self, status):
+        """``(quantity, detail, hint)`` of the first failed divergence check of the current state
+        after an integrator ``status``, or None when the state is sound."""
+        finite, e, h, err, h_min = self._summary()
+        if not finite:
+            return 'state', 'non-finite positions or velocities', codes.HINT_STEP
+        if status != dyn.OK:
+            quantity, hint = codes.DIAGNOSIS.get(status, ('state', codes.HINT_STEP))
+            return quantity, codes.text(status), hint
+        if not err <= self.div.constraint_error:
+            return ('constraint error', f'{err:.3g} exceeds {self.div.constraint_error:g}',
+                    codes.HINT_CONSTRAINT)
+        err = self._balance(e)
+        if not (err <= self.div.energy_error
+                and (err >= -self.div.energy_error
+                     or (self._extras['damp'] is not None and not self._books_dissipation))):
+            return ('energy balance', f'{"gained" if err > 0 else "lost"} {abs(err):.3g} of the '
+                                      f'energy scale (limit {self.div.energy_error:g})',
+                    codes.HINT_ENERGY)
+        net = self.network
+        if net.levels.size:
+            if h.size and not h_min > 0.0:
+                c, i = np.unravel_index(int(np.argmin(np.where(np.isfinite(h), h, -np.inf))),
+                                        h.shape)
+                return ('prism height', f'prism {i} of column {c} collapsed (height '
+                                        f'{h[c, i]:.3g} m)', codes.HINT_SLACK)
+            if self._check_twist and self._twist_sign is None:
+                self._twist_sign = np.sign(observables.prism_twists(np.asarray(net.x0),
+                                                                    net.levels))
+            twist = (observables.prism_twists(self._full_state()[0], net.levels)
+                     if self._check_twist
+                     else None)
+            bad = None if twist is None else ~(twist * self._twist_sign > 0.0)
+            if bad is not None and np.any(bad):
+                c, i = np.argwhere(bad)[0]
+                return ('prism twist', f'prism {i} of column {c} twisted through 0 or 180 deg '
+                                       f'({math.degrees(twist[c, i]):.1f} deg)',
+                        codes.HINT_LOCK if self._extras['stop_h'] is None
+                        else codes.HINT_LOCK_CONTACT)
+        return None
+
+    def _locate(self, n, keep, problem):
+        """The :class:`SimulationDiverged` of an interval of ``n`` steps that failed with
+        ``problem``: replays it one step at a time from ``keep`` to name the first failing step
+        (the state is restored afterwards)."""
+        t0 = self.t
+        k_fail, found = n - 1, problem
+        try:
+            for k in range(n):
+                self.t = t0 + k * self.dt
+                _, status = self._integrate(1)
+                p = self._check(status)
+                if p is not None:
+                    k_fail, found = k, p
+                    break
+        finally:
+            self.t = t0
+            self._restore(keep)
+        quantity, detail, hint = found
+        return SimulationDiverged(t0 + (k_fail + 1) * self.dt, self.step + k_fail + 1, quantity,
+                                  detail, hint)
