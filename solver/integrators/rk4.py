@@ -6,6 +6,7 @@ from solver._jit import jit
 from solver.integrators.base import Integrator
 from solver.kernels import dynamics as dyn
 from solver.kernels.barcontact import contact_step, passed_clear
+from solver.kernels.contact import striker_step
 from solver.kernels.kinks import keep_state, next_kink
 
 
@@ -108,6 +109,8 @@ def _rk4_advance(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, project)
         status = dyn.accelerations(x, v, net, act, ws, a1)
         if status == dyn.OK and kinks:
             h = next_kink(x, v, a1, net, act, h, 1e-3 * dt)
+        if status == dyn.OK and ex[3].shape[0] != 0:
+            h = striker_step(x, v, a1, ex, h)
         if status == dyn.OK and ex[6].shape[0] != 0:
             status, h = _contact_aware_step(x, v, h, a1, net, act, ws, met)
         elif status == dyn.OK:

@@ -9,7 +9,8 @@ Everything here enters the dynamics through one tuple, the fourth slot of the ``
      active (n_pairs + 1,))
 
 ``par = (k_stop N/m, k_contact, contact exponent (1 linear, 1.5 Hertz), nodes per level of the
-full network, striker mass kg, gravity m/s^2)``; ``pairs`` and ``bpar``: the bar pairs of
+full network, striker mass kg, gravity m/s^2, steps per striker contact, effective mass kg of a
+striker against its column's end level)``; ``pairs`` and ``bpar``: the bar pairs of
 :mod:`solver.kernels.barcontact`; ``touched``: the contacts met by force evaluations, the
 contact scan's slack m and whether forces must look for contacts; ``saved`` holds the state a
 step started from (scratch of the integrators' contact steps); ``dissipation``: the power W the
@@ -49,7 +50,7 @@ def _empty(shape, dtype=np.float64):
 
 
 NO_EXTRAS = (_empty(0), _empty((0, 0, 1), np.int64), _empty((0, 0)), _empty(0, np.int64),
-             _empty(0, np.int64), _empty(6), _empty((0, 8), np.int64), _empty(6),
+             _empty(0, np.int64), _empty(8), _empty((0, 8), np.int64), _empty(6),
              _empty(3), _empty((2, 0, 3)), _empty(2),
              np.full(1, -1, dtype=np.int64))
 
@@ -179,6 +180,35 @@ def gap_kink(g, gd, gdd, h, ignore):
         if ignore < t < t_best:
             t_best = t
     return t_best
+
+
+@jit
+def striker_step(x, v, acc, ex, h):
+    """``h``, or the step that resolves a striker contact: ``T / par[6]`` while a striker touches
+    its column's end or could touch it within ``h``, ``T`` the duration of the contact between
+    the striker and the end level as two masses (``par[7]`` the effective mass): ``pi sqrt(m /
+    k)`` for the linear law, ``2.94 d_max / u`` for Hertz's (``u`` the approach speed with the
+    energy the contact already stores). Without it a contact of a few milliseconds takes a
+    handful of steps of the scene's ``dt`` and the energy balance fails at the first one."""
+    levels, st_row, st_col, par = ex[1], ex[3], ex[4], ex[5]
+    top = levels.shape[1] - 1
+    m, k = par[7], par[1]
+    for s in range(st_row.shape[0]):
+        r = st_row[s]
+        c = st_col[s]
+        g = x[r, 2] - _level_z(x, levels, c, top)          # > 0: apart
+        gd = v[r, 2] - _level_z(v, levels, c, top)
+        gdd = acc[r, 2] - _level_z(acc, levels, c, top)
+        if g > abs(gd) * h + 0.5 * abs(gdd) * h * h:
+            continue                                       # cannot touch within h
+        if par[2] == 1.0:
+            T = math.pi * math.sqrt(m / k)
+        else:
+            d = max(-g, 0.0)
+            u = max(math.sqrt(gd * gd + 0.8 * k * d * d * math.sqrt(d) / m), 1e-9)
+            T = 2.94 * (1.25 * m * u * u / k) ** 0.4 / u
+        h = min(h, T / par[6])
+    return h
 
 
 @jit

@@ -129,17 +129,22 @@ def stop_heights(network, tolerance):
 
 def scene_extras(scene, network):
     """What a scene switches on, for :func:`attach`: a dict with ``damp`` (full (n_cables,) or
-    None), ``stop_h`` ((n_columns, n_prisms) or None), ``strikers`` (bool), ``par`` (6,)."""
+    None), ``stop_h`` ((n_columns, n_prisms) or None), ``strikers`` (bool), ``par`` (8,)."""
     imp = scene.loading.impact
     lock = scene.contact.lock != 'none'
     strikers = imp.mode == 'striker'
     if (lock or strikers) and not network.levels.size:
         key = 'contact.lock' if lock else 'loading.impact.mode'
         raise ValueError(f'{key}: needs a column structure (levels)')
+    m_eff = 0.0
+    if strikers:            # the striker against the lumped masses of its column's end level
+        m_end = np.asarray(network.node_mass)[np.asarray(network.levels)[:, -1]].sum(axis=1)
+        m_eff = 1.0 / (1.0 / imp.striker_mass + 1.0 / float(m_end.min()))
     par = np.array([scene.contact.stiffness, imp.contact_stiffness,
                     1.0 if imp.contact == 'linear' else 1.5,
                     float(network.levels.shape[2]) if network.levels.size else 3.0,
-                    imp.striker_mass, scene.loading.gravity])
+                    imp.striker_mass, scene.loading.gravity, float(scene.contact.resolution),
+                    m_eff])
     pairs, bpar = _bar_contact(scene, network)
     return {'damp': cable_damping(scene, network),
             'stop_h': stop_heights(network, scene.contact.tolerance) if lock else None,
@@ -192,6 +197,9 @@ def attach(model, spec, striker_state=None):
     ``model.n_strikers``."""
     net_full = model.network
     reduced = model.reduced
+    if spec is not None and np.shape(spec['par']) != NO_EXTRAS[5].shape:
+        raise ValueError(f'extras: par has {np.size(spec["par"])} entries, the kernels read '
+                         f'{NO_EXTRAS[5].size} (solver.kernels.contact)')
     if spec is None or not active_spec(spec):
         model.n_strikers = 0
         return model
