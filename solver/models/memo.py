@@ -1,12 +1,13 @@
 """Build once what many simulations of one network topology share: a memo that is on only inside
-:func:`sharing` (the batched runs of :mod:`solver.simulate.batch` switch it on).
+:func:`sharing` (the batched runs of :mod:`solver.simulate.batch` switch it on for a batch, and a
+``Simulation`` for its own construction, where the model's choice and the model reduce the same
+network).
 
 Keys are digests of the *values* a result is computed from (array bytes, shapes and dtypes), so a
 hit returns what the computation would return for those values: the sym3d reduction of a network
 (:func:`solver.models.sym3d.reduce_network`: the orbit and member maps depend on the topology and
 the geometry's symmetry only, the rest on the values; see there), the reduced bar-contact pairs of
-:func:`solver.models.extras._model_pairs`. Outside :func:`sharing` nothing is kept: a single run
-computes everything itself.
+:func:`solver.models.extras._model_pairs`. Outside :func:`sharing` nothing is kept.
 """
 from __future__ import annotations
 

@@ -22,7 +22,7 @@ import numpy as np
 from solver import status as codes
 from solver.kernels import dynamics as dyn
 from solver.kernels import contact
-from solver.models import extras
+from solver.models import extras, memo
 from solver.integrators import registry as integrators
 from solver.models import family as models
 from solver.analysis import observables
@@ -55,6 +55,11 @@ class Frame:
 
 class Simulation(Loading, Checks):
     def __init__(self, scene: Scene, network=None):
+        # the model's choice and the model reduce the network alike: once, within one memo
+        with memo.sharing():
+            self._build(scene, network)
+
+    def _build(self, scene, network):
         self.scene = scene
         self.network = network if network is not None else structures.build_network(scene)
         levels = self.network.levels
