@@ -320,3 +320,20 @@ def test_sym3d_reduced_summary_equals_the_expanded_state(sets):
     assert cerr == pytest.approx(cerr_ref, abs=1e-14) and cerr < 1e-11
     np.testing.assert_allclose(h, h_ref, rtol=0, atol=1e-15)
     assert np.ptp(h) > 1e-6                     # the wave has changed the heights
+
+
+@pytest.mark.parametrize('sets', [(), ('model=full3d',), ('loading.impact.mode=striker',),
+                                  ('model=full3d', 'loading.impact.mode=striker'),
+                                  ('contact.bars=none', 'contact.lock=penalty')])
+def test_the_kernels_static_arrays_have_one_type_whatever_the_scene(sets):
+    """numba compiles a kernel once per combination of read-only and writable arguments (the
+    first FB kernel takes about a minute): every model hands the kernels read-only ``net`` and
+    ``summ`` arrays, and writable extras, like the empty extras of a scene without them, so that
+    one compiled kernel serves every scene."""
+    from solver.kernels.contact import NO_EXTRAS
+    model = simulation_for(_scene('fb_column', *sets)).model
+    assert all(not np.asarray(a).flags.writeable for a in model.net[:12])
+    assert all(not np.asarray(a).flags.writeable for a in model.summ)
+    ex = model.act[3]
+    assert [np.asarray(a).flags.writeable for a in ex] == \
+        [np.asarray(a).flags.writeable for a in NO_EXTRAS]

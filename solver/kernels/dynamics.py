@@ -55,14 +55,28 @@ NO_COEF3 = np.zeros((0, 1, 3))
 NO_COEF3.setflags(write=False)
 
 
+def readonly(a):
+    """``a`` as a read-only array (a view when it is writable). The static arrays of the kernels
+    (``net``, ``summ``) are all read-only, wherever they come from (a network's own arrays, or
+    ones padded or computed here): numba compiles a kernel once per combination of writable and
+    read-only arguments, and the first FB kernel alone takes about a minute to compile."""
+    a = np.asarray(a)
+    if not a.flags.writeable:
+        return a
+    view = a.view()
+    view.flags.writeable = False
+    return view
+
+
 def pack(network, cable_rest_length=None, cable_EA=None, f_ext=None):
     """The ``(net, act)`` tuples of a network; ``act`` arrays are fresh writable copies. A network
     with rotated members (:class:`solver.models.sym3d.ReducedNetwork`) fills the last three ``net``
     slots."""
-    net = (network.w_diag, network.partner, network.w_off, network.con_tail, network.con_head,
-           network.con_length, network.con_coef, network.cable_a, network.cable_b,
-           getattr(network, 'con_rot', NO_ROT), getattr(network, 'cable_rot', NO_ROT),
-           getattr(network, 'con_coef3', NO_COEF3), getattr(network, 'kkt', mm.NO_KKT))
+    net = tuple(readonly(a) for a in (
+        network.w_diag, network.partner, network.w_off, network.con_tail, network.con_head,
+        network.con_length, network.con_coef, network.cable_a, network.cable_b,
+        getattr(network, 'con_rot', NO_ROT), getattr(network, 'cable_rot', NO_ROT),
+        getattr(network, 'con_coef3', NO_COEF3))) + (getattr(network, 'kkt', mm.NO_KKT),)
     rest = np.array(network.cable_rest_length if cable_rest_length is None else cable_rest_length,
                     dtype=np.float64)
     EA = np.array(network.cable_EA if cable_EA is None else cable_EA, dtype=np.float64)
@@ -423,10 +437,10 @@ def summary_arrays(x0, node_mass, clamped, bar_a, bar_b, bar_mass, levels, n_cab
     not hold. ``levels`` (n_columns, n_levels, k) node indices (a level's height is the mean z of
     its k nodes); ``node_mult``/``cable_mult``: how many nodes or cables of the full network each
     one stands for (default 1)."""
-    return (x0, node_mass, clamped,
-            np.ones(len(node_mass)) if node_mult is None else node_mult,
-            bar_a, bar_b, bar_mass, np.ones(n_cables) if cable_mult is None else cable_mult,
-            levels)
+    return tuple(readonly(a) for a in (
+        x0, node_mass, clamped, np.ones(len(node_mass)) if node_mult is None else node_mult,
+        bar_a, bar_b, bar_mass, np.ones(n_cables) if cable_mult is None else cable_mult,
+        levels))
 
 
 @jit

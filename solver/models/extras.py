@@ -181,8 +181,8 @@ def network_extras(spec, network):
         return NO_EXTRAS
     damp = NO_EXTRAS[0] if spec['damp'] is None else np.array(spec['damp'], dtype=np.float64)
     stop_h = NO_EXTRAS[2] if spec['stop_h'] is None else np.array(spec['stop_h'], np.float64)
-    levels = np.ascontiguousarray(network.levels, dtype=np.int64) if network.levels.size \
-        else NO_EXTRAS[1]
+    # writable like NO_EXTRAS's (one compiled type; never written)
+    levels = np.array(network.levels, dtype=np.int64) if network.levels.size else NO_EXTRAS[1]
     return (damp, levels, stop_h, NO_EXTRAS[3], NO_EXTRAS[4], spec['par'].copy(),
             *_pair_slots(spec, None, network.n_nodes), _dissipation_slot(spec),
             _active_slot(spec))
@@ -204,8 +204,8 @@ def attach(model, spec, striker_state=None):
         model.n_strikers = 0
         return model
     levels_full = np.asarray(spec.get('levels', net_full.levels))     # (n_columns, n_levels, k)
-    if reduced is None:
-        levels = np.ascontiguousarray(levels_full, dtype=np.int64)
+    if reduced is None:                  # a writable copy, like NO_EXTRAS's (one compiled type)
+        levels = np.array(levels_full, dtype=np.int64)
     else:
         levels = np.ascontiguousarray(np.asarray(reduced.node_rep)[levels_full[:, :, :1]],
                                       dtype=np.int64)
@@ -248,7 +248,7 @@ def attach(model, spec, striker_state=None):
                np.concatenate([net[2], np.zeros(ns)]))
         # the striker's inverse mass goes into w_diag: its force is along z only
         pad[0][n:] = 1.0 / spec['par'][4]
-        model.net = pad + tuple(net[3:])
+        model.net = tuple(dyn.readonly(a) for a in pad) + tuple(net[3:])
         f_ext = np.concatenate([model.act[2], np.zeros((ns, 3))])
         f_ext[n:, 2] = -spec['par'][4] * spec['par'][5]
         model.act = (model.act[0], model.act[1], f_ext, ex)
@@ -256,9 +256,10 @@ def attach(model, spec, striker_state=None):
         model.ws = dyn.workspace(n + ns, n_con, model.ws[3].shape[1] - 1)
         if model.summ is not None:
             s = model.summ
-            model.summ = (np.concatenate([s[0], x_extra0]), np.concatenate([s[1], np.zeros(ns)]),
-                          np.concatenate([s[2], np.zeros(ns, bool)]),
-                          np.concatenate([s[3], np.zeros(ns)])) + tuple(s[4:])
+            model.summ = tuple(dyn.readonly(a) for a in (
+                np.concatenate([s[0], x_extra0]), np.concatenate([s[1], np.zeros(ns)]),
+                np.concatenate([s[2], np.zeros(ns, bool)]),
+                np.concatenate([s[3], np.zeros(ns)]))) + tuple(s[4:])
     else:
         model.act = (model.act[0], model.act[1], model.act[2], ex)
     model.n_strikers = ns
