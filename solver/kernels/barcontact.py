@@ -30,6 +30,7 @@ base as one more crossed-rod contact, ``F = k d^1.5`` per node at overlap ``d = 
 import math
 
 from solver._jit import jit, jit_inline
+from solver.kernels.contact import hertz_duration
 from solver.kernels.rotation import ROT_C, ROT_S
 
 
@@ -194,9 +195,8 @@ def _resolve(gap, V, A, u2, h, bpar):
             return h
         c = 0.4 * gap                   # 1.25 (V h + A h^2 / 2) = gap / 2
         h_safe = 2.0 * c / (V + math.sqrt(V * V + 2.0 * A * c)) if V + A > 0.0 else h
-    u = max(math.sqrt(u2), 1e-9)
-    d_max = (1.25 * bpar[3] * u * u / bpar[1]) ** 0.4
-    return min(h, max(h_safe, 2.94 * d_max / u / bpar[4]))
+    return min(h, max(h_safe, hertz_duration(bpar[3], bpar[1], max(math.sqrt(u2), 1e-9))
+                      / bpar[4]))
 
 
 @jit

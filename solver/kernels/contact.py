@@ -182,6 +182,26 @@ def gap_kink(g, gd, gdd, h, ignore):
     return t_best
 
 
+@jit_inline
+def hertz_duration(m, k, u):
+    """Duration s of a Hertz contact ``F = k d^1.5`` between a mass ``m`` kg and a wall met at
+    the speed ``u`` m/s: ``2.94 d_max / u``, ``d_max = (5 m u^2 / (4 k))^0.4`` the largest
+    overlap."""
+    d_max = (1.25 * m * u * u / k) ** 0.4
+    return 2.94 * d_max / u
+
+
+@jit_inline
+def _striker_gap(x, v, acc, levels, st_row, st_col, s):
+    """Gap m of striker ``s`` to its column's end level (> 0: apart), its rate and its
+    acceleration."""
+    r = st_row[s]
+    c = st_col[s]
+    top = levels.shape[1] - 1
+    return (x[r, 2] - _level_z(x, levels, c, top), v[r, 2] - _level_z(v, levels, c, top),
+            acc[r, 2] - _level_z(acc, levels, c, top))
+
+
 @jit
 def striker_step(x, v, acc, ex, h):
     """``h``, or the step that resolves a striker contact: ``T / par[6]`` while a striker touches
@@ -191,22 +211,17 @@ def striker_step(x, v, acc, ex, h):
     energy the contact already stores). Without it a contact of a few milliseconds takes a
     handful of steps of the scene's ``dt`` and the energy balance fails at the first one."""
     levels, st_row, st_col, par = ex[1], ex[3], ex[4], ex[5]
-    top = levels.shape[1] - 1
     m, k = par[7], par[1]
     for s in range(st_row.shape[0]):
-        r = st_row[s]
-        c = st_col[s]
-        g = x[r, 2] - _level_z(x, levels, c, top)          # > 0: apart
-        gd = v[r, 2] - _level_z(v, levels, c, top)
-        gdd = acc[r, 2] - _level_z(acc, levels, c, top)
+        g, gd, gdd = _striker_gap(x, v, acc, levels, st_row, st_col, s)
         if g > abs(gd) * h + 0.5 * abs(gdd) * h * h:
             continue                                       # cannot touch within h
         if par[2] == 1.0:
             T = math.pi * math.sqrt(m / k)
         else:
             d = max(-g, 0.0)
-            u = max(math.sqrt(gd * gd + 0.8 * k * d * d * math.sqrt(d) / m), 1e-9)
-            T = 2.94 * (1.25 * m * u * u / k) ** 0.4 / u
+            T = hertz_duration(m, k, max(math.sqrt(gd * gd + 0.8 * k * d * d * math.sqrt(d)
+                                                   / m), 1e-9))
         h = min(h, T / par[6])
     return h
 
@@ -222,12 +237,7 @@ def contact_kink(x, v, acc, ex, h, ignore):
             gd = _level_z(v, levels, c, j) - _level_z(v, levels, c, j - 1)
             gdd = _level_z(acc, levels, c, j) - _level_z(acc, levels, c, j - 1)
             h = gap_kink(g, gd, gdd, h, ignore)
-    top = levels.shape[1] - 1
     for s in range(st_row.shape[0]):
-        r = st_row[s]
-        c = st_col[s]
-        g = x[r, 2] - _level_z(x, levels, c, top)
-        gd = v[r, 2] - _level_z(v, levels, c, top)
-        gdd = acc[r, 2] - _level_z(acc, levels, c, top)
+        g, gd, gdd = _striker_gap(x, v, acc, levels, st_row, st_col, s)
         h = gap_kink(g, gd, gdd, h, ignore)
     return h

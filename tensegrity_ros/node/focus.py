@@ -76,8 +76,8 @@ class Focus:
     def steps_until_impact(self, n):
         """At most ``n`` steps, so that the run lands exactly on a planned impact (made when it
         is due; then ``None``: step as paced). A fraction of a step (``n`` < 1) becomes one whole
-        step while an impact is planned or a record samples every step."""
-        if 0 < n < 1 and (self.impact_at is not None or self.record is not None):
+        step while an impact is planned (:meth:`advance` takes whole steps for a record)."""
+        if 0 < n < 1 and self.impact_at is not None:
             n = 1
         if self.impact_at is None:
             return n
