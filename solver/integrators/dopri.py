@@ -22,7 +22,7 @@ import numpy as np
 from solver.kernels import dynamics as dyn
 from solver._jit import jit
 from solver.integrators.base import Integrator
-from solver.kernels.barcontact import contact_step
+from solver.kernels.barcontact import contact_step, rescan
 from solver.kernels.kinks import keep_state, next_kink
 from solver.status import STEP_TOO_SMALL
 
@@ -102,9 +102,7 @@ def dopri_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, rtol, atol,
     pw = np.zeros(7)                    # the cable damping's power at the stages
     dis = act[3][10]
     if act[3][6].shape[0] != 0:
-        act[3][8][1] = -1.0     # the contact scan starts afresh (kernels.barcontact)
-        act[3][8][2] = 1.0
-        act[3][11][0] = -1
+        rescan(act[3][8], act[3][11])   # the contact scan starts afresh (kernels.barcontact)
     while total - t > 1e-9 * dt:
         if need_k1:
             kx[0, :, :] = v

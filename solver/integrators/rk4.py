@@ -5,7 +5,7 @@ from __future__ import annotations
 from solver._jit import jit
 from solver.integrators.base import Integrator
 from solver.kernels import dynamics as dyn
-from solver.kernels.barcontact import contact_step, passed_clear
+from solver.kernels.barcontact import add_motion, contact_step, gate, passed_clear, rescan
 from solver.kernels.contact import striker_step
 from solver.kernels.kinks import keep_state, next_kink
 
@@ -76,7 +76,7 @@ def _contact_aware_step(x, v, h, a1, net, act, ws, met):
         status = _rk4_step(x, v, h, a1, net, act, ws)
         if status == dyn.OK and ex[8][0] == before and passed_clear(
                 saved[0], saved[1], a1, x, ex[6], ex[1], ex[7], h):
-            ex[8][1] = -1.0     # the slack was for the shorter step: scan again
+            add_motion(ex[8], saved[1], a1, h)  # the slack was for the shorter step
             ex[11][0] = -1
             return status, h
         x[:, :] = saved[0]
@@ -97,9 +97,7 @@ def _rk4_advance(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, project)
     a1 = ws[10]
     ex = act[3]
     if ex[6].shape[0] != 0:
-        ex[8][1] = -1.0         # the contact scan starts afresh (kernels.barcontact)
-        ex[8][2] = 1.0
-        ex[11][0] = -1
+        rescan(ex[8], ex[11])   # the contact scan starts afresh (kernels.barcontact)
     total = n_steps * dt
     t = 0.0
     steps = 0
@@ -153,12 +151,18 @@ def _rattle_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, acc, x_old):
     projection (gradients at the iterate) then differs from SHAKE (gradients at ``x``) by
     O(h^4) per step, and it is converged to ``tol``. In stage 2 the constraint part of ``a(x+)``
     lies in the range the velocity projection removes, so stage 2 is exactly RATTLE's."""
+    ex = act[3]
+    contact = ex[6].shape[0] != 0
+    if contact:
+        rescan(ex[8], ex[11])   # every pair looked at once, then those that could touch
     status = dyn.accelerations(x, v, net, act, ws, acc)
     if status != dyn.OK:
         return 0, status
     n = x.shape[0]
     for step in range(n_steps):
         h = dt
+        if contact:
+            gate(x, v, acc, ex[6], ex[1], ex[7], h, ex[8], ex[11])
         for p in range(n):
             for i in range(3):
                 x_old[p, i] = x[p, i]

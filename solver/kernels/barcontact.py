@@ -272,23 +272,61 @@ def contact_step(x, v, acc, pairs, levels, bpar, h, state, active):
     largest node speed and acceleration bound any relative motion; a factor 2 over the Taylor
     terms covers how fast the accelerations change within a step), is kept in ``state[1]``
     (negative: scan now; an integrator sets it so when it starts from a state it did not
-    make). ``state[2]`` 0 tells the force evaluations of the step that no contact can act (they
-    skip the pairs), 1 that they must look."""
+    make, with :func:`rescan`). ``state[2]`` 0 tells the force evaluations of the step that no
+    contact can act (they skip the pairs), 1 that they must look. ``state[3]`` sums those
+    bounds of the motion over the steps since the last :func:`rescan`, and ``state[4 + i]`` holds
+    pair ``i``'s gap at its last exact evaluation plus the sum then: a scan evaluates again only
+    the pairs whose gap, less the motion since, could close within the step."""
     V = 2.0 * _largest(v)
     A = 2.0 * _largest(acc)
     reach = 2.0 * (V * h + 0.5 * A * h * h)
     if state[1] > reach:
         state[1] -= reach
+        state[3] += reach
         state[2] = 0.0          # no contact force within this step: not evaluated
         return h
-    h_new, g_min = scan_step(x, v, acc, pairs, levels, bpar, h, active)
-    state[1] = g_min - 2.0 * (V * h_new + 0.5 * A * h_new * h_new)
+    h_new, g_min = scan_step(x, v, acc, pairs, levels, bpar, h, active, state, reach)
+    reach = 2.0 * (V * h_new + 0.5 * A * h_new * h_new)
+    state[1] = g_min - reach
+    state[3] += reach
     state[2] = 1.0 if state[1] <= 0.0 else 0.0
     return h_new
 
 
 @jit
-def scan_step(x, v, acc, pairs, levels, bpar, h, active):
+def rescan(state, active):
+    """Forget what the scans know (the state was not made by the steps they bounded): the next
+    :func:`contact_step` evaluates every pair, the next force evaluation looks at every pair."""
+    state[1] = -1.0
+    state[2] = 1.0
+    state[3] = math.nan
+    active[0] = -1
+
+
+@jit
+def add_motion(state, v, acc, h):
+    """Count a step of ``h`` from velocities ``v``, accelerations ``acc`` in ``state[3]`` (the
+    bound :func:`contact_step` adds) on top of what it counted already, and have the next step
+    scan: for a step longer than the one :func:`contact_step` sized."""
+    V = 2.0 * _largest(v)
+    A = 2.0 * _largest(acc)
+    state[1] = -1.0
+    state[3] += 2.0 * (V * h + 0.5 * A * h * h)
+
+
+@jit
+def gate(x, v, acc, pairs, levels, bpar, h, state, active):
+    """For a method that does not size its steps around contacts (RATTLE): :func:`contact_step`
+    for a step of ``h`` from ``x, v`` (accelerations ``acc``) that is taken whole. The pairs that
+    could touch within it are listed in ``active`` for the force evaluations; where a contact
+    could start, they look (``state[2]`` 1) and the next call scans again."""
+    if contact_step(x, v, acc, pairs, levels, bpar, h, state, active) < h:
+        add_motion(state, v, acc, h)
+        state[2] = 1.0
+
+
+@jit
+def scan_step(x, v, acc, pairs, levels, bpar, h, active, state, reach):
     """The step to take from the state ``x, v`` (accelerations ``acc``) instead of ``h``: ``h``
     when no pair of bars and no two bases can touch within it, otherwise shortened (see the
     module's text).
@@ -299,17 +337,29 @@ def scan_step(x, v, acc, pairs, levels, bpar, h, active):
     relative end speed and acceleration; 1.25 covers the Taylor remainder). A pair that could
     is approached in steps that close at most half its gap, and never shorter than the contact
     step ``T / steps``. The pairs that could touch within ``h`` (gap below twice the Taylor
-    reach) are listed in ``active`` for the force evaluations. Returns (the step, the smallest
-    gap m)."""
+    reach) are listed in ``active`` for the force evaluations. A pair whose lower bound of the gap
+    (``state``, see :func:`contact_step`) exceeds ``reach``, the bound of any relative motion
+    within ``h``, is left as it is: it neither shortens the step nor gets listed, as its exact
+    gap would not either. Returns (the step, the smallest gap m, or its lower bound)."""
     D, k, m = bpar[0], bpar[1], bpar[3]
     h_new = h
     g_min = math.inf
     count = 0
+    known = state[3]
+    fresh = not math.isfinite(known)    # after rescan: every pair evaluated, the sum restarts
+    if fresh:
+        known = 0.0
+        state[3] = 0.0
     for i in range(pairs.shape[0]):
+        bound = state[4 + i] - known
+        if not fresh and bound > reach:
+            g_min = min(g_min, bound)
+            continue
         p = pairs[i]
         s, t, nx, ny, nz = _pair(x, pairs, i)
         dist = math.sqrt(nx * nx + ny * ny + nz * nz)
         gap = dist - D
+        state[4 + i] = gap + known
         g_min = min(g_min, gap)
         A = _reach(acc, p)
         if gap > 0.0:

@@ -159,7 +159,10 @@ def _pair_slots(spec, reduced, n_rows):
     rows, mult = _model_pairs(spec['pairs'], reduced)
     bpar = spec['bpar'].copy()
     bpar[2] = mult
-    return rows, bpar, np.array([0.0, -1.0, 1.0]), np.zeros((2, n_rows, 3))
+    # contacts met, slack, look, motion since the last rescan, each pair's gap bound
+    # (kernels.barcontact.contact_step); the motion NaN: the first scan evaluates every pair
+    state = np.concatenate(([0.0, -1.0, 1.0, np.nan], np.zeros(len(rows))))
+    return rows, bpar, state, np.zeros((2, n_rows, 3))
 
 
 def _active_slot(spec):
