@@ -62,6 +62,7 @@ def _contact_aware_step(x, v, h, a1, net, act, ws, met):
     :func:`~solver.kernels.barcontact.contact_step`. Returns (status, the step taken)."""
     ex = act[3]
     touched_at_start = ex[8][0] > met
+    known = ex[8][3] if ex[8][3] == ex[8][3] else 0.0    # the motion summed so far (NaN: none)
     h_c = contact_step(x, v, a1, ex[6], ex[1], ex[7], h, ex[8], ex[11])
     if h_c >= h:
         return _rk4_step(x, v, h, a1, net, act, ws), h
@@ -75,7 +76,7 @@ def _contact_aware_step(x, v, h, a1, net, act, ws, met):
         ex[8][2] = 1.0
         status = _rk4_step(x, v, h, a1, net, act, ws)
         if status == dyn.OK and ex[8][0] == before and passed_clear(
-                saved[0], saved[1], a1, x, ex[6], ex[1], ex[7], h):
+                saved[0], saved[1], a1, x, ex[6], ex[1], ex[7], h, ex[8], known):
             add_motion(ex[8], saved[1], a1, h)  # the slack was for the shorter step
             ex[11][0] = -1
             return status, h
