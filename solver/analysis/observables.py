@@ -243,20 +243,35 @@ def _max_over_time(times, amp):
     return float(amp[k])
 
 
-def track_pulse(times, strains, h0, window=(10, 40), t_ref=0.5):
+def _peaks(from_impact):
+    """:func:`leading_peak` of every frame: positions and |strains| (n_t,) each."""
+    pos = np.full(len(from_impact), np.nan)
+    amp = np.full(len(from_impact), np.nan)
+    for k, eps in enumerate(from_impact):
+        pos[k], e = leading_peak(eps)
+        amp[k] = abs(e)
+    return pos, amp
+
+
+def _near(times, t):
+    """The frames :func:`_at_time` may read at ``t`` (a mask of ``times``)."""
+    near = np.zeros(len(times), dtype=bool)
+    k = int(np.searchsorted(times, t))
+    near[max(k - 2, 0):k + 2] = True
+    return near
+
+
+def track_pulse(times, strains, h0, window=(10, 40), t_ref=0.5, peaks=None):
     """Pulse figures from a strain history of one column.
 
     ``times`` (n_t,) s, ``strains`` (n_t, n_prisms) with prism 0 at the clamped end and the impact
-    at the last prism, ``h0`` m. Returns a :class:`Pulse`."""
+    at the last prism, ``h0`` m. ``peaks``: the ``(positions, |strains|)`` of the frames'
+    leading peaks when already found. Returns a :class:`Pulse`."""
     times = np.asarray(times, dtype=float)
     strains = np.asarray(strains)
     from_impact = strains[:, ::-1]
     n = strains.shape[1]
-    pos = np.full(len(times), np.nan)
-    amp = np.full(len(times), np.nan)
-    for k, eps in enumerate(from_impact):
-        pos[k], e = leading_peak(eps)
-        amp[k] = abs(e)
+    pos, amp = _peaks(from_impact) if peaks is None else peaks
     inside = (pos >= window[0]) & (pos <= window[1])
     # only the first passage through the window: once the peak has left it at the far end, a
     # peak found inside again is the wave reflected from the clamped end (a peak that stops
@@ -292,9 +307,10 @@ def track_pulse(times, strains, h0, window=(10, 40), t_ref=0.5):
     pos_ref = _at_time(times, pos, t_ref)
     snapshot = pos_ref * h0 / t_ref if t_ref > 0 else nan
     paper = round(pos_ref) * h0 / t_ref if t_ref > 0 and math.isfinite(pos_ref) else nan
-    halves = np.array([pulse_width(from_impact[k], pos[k], amp[k], 0.5)
+    near = _near(times, t_ref)          # the widths are read at t_ref only
+    halves = np.array([pulse_width(from_impact[k], pos[k], amp[k], 0.5) if near[k] else math.nan
                        for k in range(len(times))])
-    tenths = np.array([pulse_width(from_impact[k], pos[k], amp[k], 0.1)
+    tenths = np.array([pulse_width(from_impact[k], pos[k], amp[k], 0.1) if near[k] else math.nan
                        for k in range(len(times))])
     if len(times) and np.isfinite(pos[k_ref]):
         eps = from_impact[k_ref]
@@ -325,13 +341,10 @@ def first_passage(times, strain, h0, t_ref=0.5):
     are NaN (width 0) when the pulse has already reached the end by then. ``strain`` (n_t,
     n_prisms) of one column."""
     n = strain.shape[1]
-    end = len(times)
-    for k in range(len(times)):
-        pos, _ = leading_peak(strain[k, ::-1])
-        if math.isfinite(pos) and pos >= n - 2:
-            end = k + 1
-            break
-    p = track_pulse(times[:end], strain[:end], h0, t_ref=t_ref)
+    pos, amp = _peaks(np.asarray(strain)[:, ::-1])
+    reached = np.nonzero(pos >= n - 2)[0]          # NaN compares False
+    end = int(reached[0]) + 1 if reached.size else len(times)
+    p = track_pulse(times[:end], strain[:end], h0, t_ref=t_ref, peaks=(pos[:end], amp[:end]))
     if times[end - 1] < t_ref - 1e-9:
         p.amplitude, p.width_prisms = math.nan, 0
         p.width_half_prisms = p.width_10_prisms = p.speed_snapshot_m_s = math.nan

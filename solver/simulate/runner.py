@@ -111,7 +111,7 @@ class Recorder:
         self.times, self.strain, self.energy, self.cerr, self.base, self.balance = \
             [], [], [], [], [], []
         self.wall = 0.0
-        self.at_ref = RefMomenta(sim)
+        self.at_ref = RefMomenta(sim, self.per_frame * sim.dt)
 
     def start(self):
         """The impacts due at the start, the first frame."""
@@ -176,13 +176,17 @@ class RefMomenta:
     """The level momenta of a run at its frame nearest ``T_REF`` (:meth:`note` after each
     frame is recorded), for the pulse figures of the record (:meth:`pulses`)."""
 
-    def __init__(self, sim):
+    def __init__(self, sim, interval=0.0):
         net = sim.network
         self.masses = observables.momentum_masses(net) if net.levels.size else None
         self.dt, self.k, self.p = np.inf, -1, None
+        self.interval = interval        # between frames, s: a frame farther before T_REF than
+        # 1.5 intervals is never the one read (a later one is nearer, or none is near enough)
 
     def note(self, sim, t, k):
         """Frame ``k`` at time ``t`` s was just recorded from the present state of ``sim``."""
+        if self.interval > 0 and T_REF - t > 1.5 * self.interval:
+            return
         if self.masses is not None and abs(t - T_REF) < self.dt - 1e-12:
             self.dt, self.k = abs(t - T_REF), k
             self.p = observables.level_momenta(sim._full_state()[1], sim.network.levels,
