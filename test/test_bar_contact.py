@@ -188,3 +188,37 @@ def test_pulse_figures_at_a_strong_impact_converge_as_the_step_is_halved(name):
     coarse, fine = figures
     for key in ('amplitude', 'speed_m_s', 'speed_snapshot_m_s'):
         assert math.isclose(coarse[key], fine[key], rel_tol=0.01), (key, coarse[key], fine[key])
+
+
+def _raw_steps(sim, n):
+    """``n`` steps of the integrator kernel on the model's arrays, no Simulation checks."""
+    m = sim.model
+    steps, status = sim.integrator.run(m.x, m.v, sim.dt, n, m.net, m.act, m.ws, sim.tol,
+                                       sim.max_iter, sim.kinks)
+    assert status == 0
+    return m.x.copy(), m.v.copy()
+
+
+@pytest.mark.parametrize('method', ['rk4_projected', 'dopri54_projected'])
+def test_a_call_from_positions_the_scans_did_not_see_scans_again(method):
+    """The contact scans carry their bounds from one integrator call to the next only while the
+    positions are those the last call ended at. A column at rest (its scans: every pair far and
+    still) is given, behind the kernels' back, the state of a column in a contact cascade: its
+    next steps must find the contacts and equal, bit for bit, the steps of a copy of the
+    cascade that carried its own bounds."""
+    sets = [f'integrator.method={method}']
+    hot = simulation_for(_scene('rb_column', *sets))
+    hot.apply_impact(1.0)
+    hot.advance(0.04)
+    x, v = hot.model.x.copy(), hot.model.v.copy()
+    met = hot.contacts_met
+    twin = hot.clone()                 # carries the cascade's bounds
+    x1, v1 = _raw_steps(twin, 20)
+    assert twin.contacts_met > met     # the 20 steps do meet contacts
+    cold = simulation_for(_scene('rb_column', *sets))
+    cold.advance(0.01)                 # at rest: its bounds say nothing can touch
+    cold.model.x[:], cold.model.v[:] = x, v
+    x2, v2 = _raw_steps(cold, 20)
+    assert cold.contacts_met == twin.contacts_met - met
+    np.testing.assert_array_equal(x2, x1)
+    np.testing.assert_array_equal(v2, v1)

@@ -5,7 +5,8 @@ from __future__ import annotations
 from solver._jit import jit
 from solver.integrators.base import Integrator
 from solver.kernels import dynamics as dyn
-from solver.kernels.barcontact import add_motion, contact_step, gate, passed_clear, rescan
+from solver.kernels.barcontact import (add_motion, contact_step, gate, passed_clear, remember,
+                                      resume)
 from solver.kernels.contact import striker_step
 from solver.kernels.kinks import keep_state, next_kink
 
@@ -98,7 +99,7 @@ def _rk4_advance(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, project)
     a1 = ws[10]
     ex = act[3]
     if ex[6].shape[0] != 0:
-        rescan(ex[8], ex[11])   # the contact scan starts afresh (kernels.barcontact)
+        resume(x, ex[8], ex[11], ex[6].shape[0])    # the contact scans (kernels.barcontact)
     total = n_steps * dt
     t = 0.0
     steps = 0
@@ -124,6 +125,8 @@ def _rk4_advance(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, project)
             return steps, status
         t += h
         steps += 1
+    if ex[6].shape[0] != 0:
+        remember(x, ex[8], ex[6].shape[0])
     return steps, dyn.OK
 
 
@@ -154,8 +157,8 @@ def _rattle_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, acc, x_old):
     lies in the range the velocity projection removes, so stage 2 is exactly RATTLE's."""
     ex = act[3]
     contact = ex[6].shape[0] != 0
-    if contact:
-        rescan(ex[8], ex[11])   # every pair looked at once, then those that could touch
+    if contact:     # the pairs that could touch, listed by the scans (kernels.barcontact)
+        resume(x, ex[8], ex[11], ex[6].shape[0])
     status = dyn.accelerations(x, v, net, act, ws, acc)
     if status != dyn.OK:
         return 0, status
@@ -183,6 +186,8 @@ def _rattle_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, acc, x_old):
             status = dyn.NONFINITE
         if status != dyn.OK:
             return step, status
+    if contact:
+        remember(x, ex[8], ex[6].shape[0])
     return n_steps, dyn.OK
 
 

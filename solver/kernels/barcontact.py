@@ -279,8 +279,8 @@ def contact_step(x, v, acc, pairs, levels, bpar, h, state, active):
     smallest gap of the last scan, less what every node could have moved since (twice the
     largest node speed and acceleration bound any relative motion; a factor 2 over the Taylor
     terms covers how fast the accelerations change within a step), is kept in ``state[1]``
-    (negative: scan now; an integrator sets it so when it starts from a state it did not
-    make, with :func:`rescan`). ``state[2]`` 0 tells the force evaluations of the step that no
+    (negative: scan now; an integrator sets it so when it starts from positions it did not
+    make, :func:`resume`). ``state[2]`` 0 tells the force evaluations of the step that no
     contact can act (they skip the pairs), 1 that they must look. ``state[3]`` sums those
     bounds of the motion over the steps since the last :func:`rescan`, and ``state[4 + i]`` holds
     pair ``i``'s gap at its last exact evaluation plus the sum then: a scan evaluates again only
@@ -309,6 +309,36 @@ def rescan(state, active):
     state[2] = 1.0
     state[3] = math.nan
     active[0] = -1
+
+
+@jit
+def resume(x, state, active, n_pairs):
+    """At the start of an integrator call: keep what the scans know when the positions ``x`` are
+    those the last call ended at (:func:`remember`; a command may have changed the velocities,
+    which the bounds allow for: they bound the motion of positions, step by step), else
+    :func:`rescan`. Until :func:`remember` at its end, a call that stops early leaves nothing to
+    resume from."""
+    k = 4 + n_pairs
+    same = state.shape[0] == k + 3 * x.shape[0]
+    if same:
+        for p in range(x.shape[0]):
+            for i in range(3):
+                if state[k + 3 * p + i] != x[p, i]:
+                    same = False
+    if not same:
+        rescan(state, active)
+    if state.shape[0] > k:
+        state[k] = math.nan
+
+
+@jit
+def remember(x, state, n_pairs):
+    """At the end of an integrator call that finished: the positions it ended at."""
+    k = 4 + n_pairs
+    if state.shape[0] == k + 3 * x.shape[0]:
+        for p in range(x.shape[0]):
+            for i in range(3):
+                state[k + 3 * p + i] = x[p, i]
 
 
 @jit

@@ -160,8 +160,10 @@ def _pair_slots(spec, reduced, n_rows):
     bpar = spec['bpar'].copy()
     bpar[2] = mult
     # contacts met, slack, look, motion since the last rescan, each pair's gap bound
-    # (kernels.barcontact.contact_step); the motion NaN: the first scan evaluates every pair
-    state = np.concatenate(([0.0, -1.0, 1.0, np.nan], np.zeros(len(rows))))
+    # (kernels.barcontact.contact_step), the positions the last call ended at (resume); the
+    # motion NaN: the first scan evaluates every pair
+    state = np.concatenate(([0.0, -1.0, 1.0, np.nan], np.zeros(len(rows)),
+                            np.full(3 * n_rows, np.nan)))
     return rows, bpar, state, np.zeros((2, n_rows, 3))
 
 
