@@ -330,6 +330,8 @@ def kernel_bound(ours, t_end, log, rounds=9):
         parts.append('next_kink')
     if getattr(integ, 'projected', False):
         parts += ['project_positions', 'project_velocities']
+    if sim.bar_contact != 'none':
+        parts.append('contact_scan')
     profs, bounds, alones, steps = [], [], [], []
     for _ in range(rounds):
         try:

@@ -3,8 +3,9 @@
 ``profile(model, dt)`` times, at the model's current state, one force-and-
 constraint evaluation (:func:`solver.kernels.dynamics.accelerations`) and the other per-step
 kernels of the
-projected Runge-Kutta methods (kink prediction, position and velocity projection), each as the
-mean over a jitted loop of ``n`` calls, so that no interpreter overhead is included.
+projected Runge-Kutta methods (kink prediction, position and velocity projection, and with bar
+contact the scan that lists the pairs that could touch), each as the mean over a jitted loop of
+``n`` calls, so that no interpreter overhead is included.
 """
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ import numpy as np
 
 from solver.kernels import dynamics as dyn
 from solver._jit import jit
+from solver.kernels.barcontact import gate
 from solver.kernels.kinks import next_kink
 
 
@@ -23,6 +25,13 @@ def _loop_acc(x, v, net, act, ws, out, n):
     for _ in range(n):
         bad += dyn.accelerations(x, v, net, act, ws, out)
     return bad
+
+
+@jit
+def _loop_gate(x, v, acc, ex, state, active, h, n):
+    for _ in range(n):
+        gate(x, v, acc, ex[6], ex[1], ex[7], h, state, active)
+    return state[1]
 
 
 @jit
@@ -73,7 +82,9 @@ def profile(model, dt, n=2000, tol=1e-12, max_iter=3):
     ``n``).
 
     Returns ``{'accelerations': s, 'next_kink': s, 'project_positions': s,
-    'project_velocities': s}`` (``accelerations`` is one force-and-constraint evaluation). The
+    'project_velocities': s}`` (``accelerations`` is one force-and-constraint evaluation), and
+    ``contact_scan`` with bar contact (:func:`solver.kernels.barcontact.gate`, on copies of the
+    contact state, which the evaluation then uses). The
     projections are timed from a state pushed off the constraint manifold by one explicit Euler
     step of ``dt`` (what they see after a Runge-Kutta step); the copy that restores it is
     subtracted. Raises ``TypeError`` for a model without the ``(net, act, ws)`` kernel tuples."""
@@ -82,6 +93,14 @@ def profile(model, dt, n=2000, tol=1e-12, max_iter=3):
             raise TypeError(f'model {model.name!r} has no {attr!r}: cannot time its kernels')
     x, v, net, act, ws = (np.array(model.x), np.array(model.v), model.net, model.act, model.ws)
     acc = np.zeros_like(x)
+    out = {}
+    ex = act[3]
+    if ex[6].shape[0]:      # bar contact: one scan per step, as the step makes it
+        state, active = ex[8].copy(), ex[11].copy()
+        dyn.accelerations(x, v, net, act, ws, acc)
+        out['contact_scan'] = _timed(_loop_gate, x, v, acc, ex, state, active, dt, n=n)
+        # the force evaluation looks at the pairs the scan listed
+        act = (*act[:3], (*ex[:8], state, *ex[9:11], active))
     t_acc = _timed(_loop_acc, x, v, net, act, ws, acc, n=n)
     dyn.accelerations(x, v, net, act, ws, acc)
     t_kink = _timed(_loop_kink, x, v, acc, net, act, dt, n=n)
@@ -91,8 +110,8 @@ def profile(model, dt, n=2000, tol=1e-12, max_iter=3):
     t_copy = _timed(_loop_copy, x_off, xs, n=n)
     t_pp = _timed(_loop_project_positions, x_off, xs, net, ws, tol, max_iter, n=n) - t_copy
     t_pv = _timed(_loop_project_velocities, x, v_off, xs, net, ws, n=n) - t_copy
-    return {'accelerations': t_acc, 'next_kink': t_kink, 'project_positions': max(t_pp, 0.0),
-            'project_velocities': max(t_pv, 0.0)}
+    return dict(out, accelerations=t_acc, next_kink=t_kink, project_positions=max(t_pp, 0.0),
+                project_velocities=max(t_pv, 0.0))
 
 
 def advance_profile(sim, duration, output_dt, top=8):
