@@ -40,8 +40,9 @@ def test_closest_points_of_segments_match_a_brute_force_search():
         s, t = bc.segment_params(*a0, *(a1 - a0), *b0, *(b1 - b0))
         d = np.linalg.norm(a0 + s * (a1 - a0) - b0 - t * (b1 - b0))
         assert 0.0 <= s <= 1.0 and 0.0 <= t <= 1.0
-        assert d <= _brute_distance(a0, a1, b0, b1) + 1e-12
-        assert d >= _brute_distance(a0, a1, b0, b1) - 2e-3 * np.linalg.norm(a1 - a0)
+        brute = _brute_distance(a0, a1, b0, b1)
+        assert d <= brute + 1e-12
+        assert d >= brute - 2e-3 * np.linalg.norm(a1 - a0)
 
 
 def _overlapping_prism():
