@@ -102,7 +102,7 @@ def dopri_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, rtol, atol,
     pw = np.zeros(7)                    # the cable damping's power at the stages
     dis = act[3][10]
     if act[3][6].shape[0] != 0:
-        resume(x, act[3][8], act[3][11], act[3][6].shape[0])   # the scans (kernels.barcontact)
+        resume(x, act[3][8], act[3][11])   # the scans (kernels.barcontact)
     while total - t > 1e-9 * dt:
         if need_k1:
             kx[0, :, :] = v
@@ -148,7 +148,7 @@ def dopri_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, rtol, atol,
                 return accepted, STEP_TOO_SMALL
     hstate[0] = h_prop
     if act[3][6].shape[0] != 0:
-        remember(x, act[3][8], act[3][6].shape[0])
+        remember(x, act[3][8])
     return accepted, dyn.OK
 
 

@@ -99,7 +99,7 @@ def _rk4_advance(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, project)
     a1 = ws[10]
     ex = act[3]
     if ex[6].shape[0] != 0:
-        resume(x, ex[8], ex[11], ex[6].shape[0])    # the contact scans (kernels.barcontact)
+        resume(x, ex[8], ex[11])    # the contact scans (kernels.barcontact)
     total = n_steps * dt
     t = 0.0
     steps = 0
@@ -126,7 +126,7 @@ def _rk4_advance(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, project)
         t += h
         steps += 1
     if ex[6].shape[0] != 0:
-        remember(x, ex[8], ex[6].shape[0])
+        remember(x, ex[8])
     return steps, dyn.OK
 
 
@@ -158,7 +158,7 @@ def _rattle_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, acc, x_old):
     ex = act[3]
     contact = ex[6].shape[0] != 0
     if contact:     # the pairs that could touch, listed by the scans (kernels.barcontact)
-        resume(x, ex[8], ex[11], ex[6].shape[0])
+        resume(x, ex[8], ex[11])
     status = dyn.accelerations(x, v, net, act, ws, acc)
     if status != dyn.OK:
         return 0, status
@@ -187,7 +187,7 @@ def _rattle_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, acc, x_old):
         if status != dyn.OK:
             return step, status
     if contact:
-        remember(x, ex[8], ex[6].shape[0])
+        remember(x, ex[8])
     return n_steps, dyn.OK
 
 

@@ -238,10 +238,15 @@ def passed_clear(x0, v0, a0, x1, pairs, levels, bpar, h, state, known):
         reach_p = 2.0 * (_reach(v0, p) * h + 0.5 * _reach(a0, p) * h * h)
         if g0 <= 0.0 or g1 <= 0.0 or g0 + g1 <= reach_p:
             return False
+    at = 4 + pairs.shape[0]
     for c in range(levels.shape[0]):
         for j in range(1, levels.shape[1]):
-            g0 = _level_z(x0, levels, c, j) - _level_z(x0, levels, c, j - 1) - D
             g1 = _level_z(x1, levels, c, j) - _level_z(x1, levels, c, j - 1) - D
+            if state[at + c * (levels.shape[1] - 1) + j - 1] - known > reach:
+                if g1 <= 0.0:
+                    return False
+                continue
+            g0 = _level_z(x0, levels, c, j) - _level_z(x0, levels, c, j - 1) - D
             rate = abs(_level_z(v0, levels, c, j) - _level_z(v0, levels, c, j - 1))
             accel = abs(_level_z(a0, levels, c, j) - _level_z(a0, levels, c, j - 1))
             if g0 <= 0.0 or g1 <= 0.0 or g0 + g1 <= 2.0 * (rate * h + 0.5 * accel * h * h):
@@ -281,10 +286,12 @@ def contact_step(x, v, acc, pairs, levels, bpar, h, state, active):
     terms covers how fast the accelerations change within a step), is kept in ``state[1]``
     (negative: scan now; an integrator sets it so when it starts from positions it did not
     make, :func:`resume`). ``state[2]`` 0 tells the force evaluations of the step that no
-    contact can act (they skip the pairs), 1 that they must look. ``state[3]`` sums those
+    contact can act (they skip the pairs), 1 that they must look at the listed pairs and the
+    bases, 2 at the listed pairs only. ``state[3]`` sums those
     bounds of the motion over the steps since the last :func:`rescan`, and ``state[4 + i]`` holds
-    pair ``i``'s gap at its last exact evaluation plus the sum then: a scan evaluates again only
-    the pairs whose gap, less the motion since, could close within the step."""
+    pair ``i``'s gap at its last exact evaluation plus the sum then (then each prism's, for its
+    bases): a scan evaluates again only the pairs whose gap, less the motion since, could close
+    within the step. The last ``3 n`` entries are the positions of :func:`remember`."""
     V = 2.0 * _largest(v)
     A = 2.0 * _largest(acc)
     reach = 2.0 * (V * h + 0.5 * A * h * h)
@@ -293,11 +300,11 @@ def contact_step(x, v, acc, pairs, levels, bpar, h, state, active):
         state[3] += reach
         state[2] = 0.0          # no contact force within this step: not evaluated
         return h
-    h_new, g_min = scan_step(x, v, acc, pairs, levels, bpar, h, active, state, reach)
+    h_new, g_min, bases = scan_step(x, v, acc, pairs, levels, bpar, h, active, state, reach)
     reach = 2.0 * (V * h_new + 0.5 * A * h_new * h_new)
     state[1] = g_min - reach
     state[3] += reach
-    state[2] = 1.0 if state[1] <= 0.0 else 0.0
+    state[2] = 0.0 if state[1] > 0.0 else (1.0 if bases else 2.0)
     return h_new
 
 
@@ -312,33 +319,30 @@ def rescan(state, active):
 
 
 @jit
-def resume(x, state, active, n_pairs):
+def resume(x, state, active):
     """At the start of an integrator call: keep what the scans know when the positions ``x`` are
     those the last call ended at (:func:`remember`; a command may have changed the velocities,
     which the bounds allow for: they bound the motion of positions, step by step), else
     :func:`rescan`. Until :func:`remember` at its end, a call that stops early leaves nothing to
     resume from."""
-    k = 4 + n_pairs
-    same = state.shape[0] == k + 3 * x.shape[0]
-    if same:
-        for p in range(x.shape[0]):
-            for i in range(3):
-                if state[k + 3 * p + i] != x[p, i]:
-                    same = False
+    k = state.shape[0] - 3 * x.shape[0]
+    same = True
+    for p in range(x.shape[0]):
+        for i in range(3):
+            if state[k + 3 * p + i] != x[p, i]:
+                same = False
     if not same:
         rescan(state, active)
-    if state.shape[0] > k:
-        state[k] = math.nan
+    state[k] = math.nan
 
 
 @jit
-def remember(x, state, n_pairs):
+def remember(x, state):
     """At the end of an integrator call that finished: the positions it ended at."""
-    k = 4 + n_pairs
-    if state.shape[0] == k + 3 * x.shape[0]:
-        for p in range(x.shape[0]):
-            for i in range(3):
-                state[k + 3 * p + i] = x[p, i]
+    k = state.shape[0] - 3 * x.shape[0]
+    for p in range(x.shape[0]):
+        for i in range(3):
+            state[k + 3 * p + i] = x[p, i]
 
 
 @jit
@@ -378,7 +382,8 @@ def scan_step(x, v, acc, pairs, levels, bpar, h, active, state, reach):
     reach) are listed in ``active`` for the force evaluations. A pair whose lower bound of the gap
     (``state``, see :func:`contact_step`) exceeds ``reach``, the bound of any relative motion
     within ``h``, is left as it is: it neither shortens the step nor gets listed, as its exact
-    gap would not either. Returns (the step, the smallest gap m, or its lower bound)."""
+    gap would not either; the same for the two bases of each prism. Returns (the step, the smallest
+    gap m, or its lower bound, how many prisms' bases could touch within ``h``)."""
     D, k, m = bpar[0], bpar[1], bpar[3]
     h_new = h
     g_min = math.inf
@@ -414,14 +419,24 @@ def scan_step(x, v, acc, pairs, levels, bpar, h, active, state, reach):
             u2 = rate * rate + 0.8 * k * d * d * math.sqrt(d) / m
         h_new = _resolve(gap, math.sqrt(u2), A, u2, h_new, bpar)
     active[0] = count
+    bases = 0                           # prisms whose bases could touch within h
+    at = 4 + pairs.shape[0]             # the prisms' gap bounds follow the pairs'
     for c in range(levels.shape[0]):
         for j in range(1, levels.shape[1]):
+            slot = at + c * (levels.shape[1] - 1) + j - 1
+            bound = state[slot] - known
+            if not fresh and bound > reach:
+                g_min = min(g_min, bound)
+                continue
             gap = _level_z(x, levels, c, j) - _level_z(x, levels, c, j - 1) - D
+            state[slot] = gap + known
             g_min = min(g_min, gap)
             rate = _level_z(v, levels, c, j) - _level_z(v, levels, c, j - 1)
             accel = _level_z(acc, levels, c, j) - _level_z(acc, levels, c, j - 1)
             u2 = rate * rate
             if gap <= 0.0:
                 u2 += 0.8 * k * (-gap) ** 2.5 / m
+            if gap <= 2.0 * (abs(rate) * h + 0.5 * abs(accel) * h * h):
+                bases += 1
             h_new = _resolve(gap, abs(rate), abs(accel), u2, h_new, bpar)
-    return h_new, g_min
+    return h_new, g_min, bases

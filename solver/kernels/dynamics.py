@@ -215,7 +215,9 @@ def accelerations(x, v, net, act, ws, out):
     if ex[2].shape[0] != 0 or ex[3].shape[0] != 0:      # prism stops, strikers
         axial_contacts(x, ex, f)
     if ex[6].shape[0] != 0 and ex[8][2] != 0.0:         # bars touching (kernels.barcontact)
-        ex[8][0] += bar_forces(x, ex[6], ex[7], f, ex[11]) + base_forces(x, ex[1], ex[7], f)
+        ex[8][0] += bar_forces(x, ex[6], ex[7], f, ex[11])
+        if ex[8][2] == 1.0:                             # 2: no two bases can touch
+            ex[8][0] += base_forces(x, ex[1], ex[7], f)
     if net[12][0].shape[0] != 0:        # massive bars sharing nodes: the banded KKT system
         return mm.accelerations(x, v, f, tail, head, rot, net[12], ws[11], bvec, lam, out)
     apply_w(f, w_diag, partner, w_off, wf)

@@ -151,18 +151,19 @@ def scene_extras(scene, network):
             'strikers': strikers, 'par': par, 'pairs': pairs, 'bpar': bpar}
 
 
-def _pair_slots(spec, reduced, n_rows):
+def _pair_slots(spec, reduced, n_rows, levels):
     """The four bar-contact slots of the extras tuple for a model (``reduced`` or None) whose
-    state has ``n_rows`` rows."""
+    state has ``n_rows`` rows and whose prisms are given by ``levels`` (the extras' slot)."""
     if spec.get('pairs') is None:
         return NO_EXTRAS[6:10]
     rows, mult = _model_pairs(spec['pairs'], reduced)
     bpar = spec['bpar'].copy()
     bpar[2] = mult
-    # contacts met, slack, look, motion since the last rescan, each pair's gap bound
-    # (kernels.barcontact.contact_step), the positions the last call ended at (resume); the
-    # motion NaN: the first scan evaluates every pair
-    state = np.concatenate(([0.0, -1.0, 1.0, np.nan], np.zeros(len(rows)),
+    # contacts met, slack, look, motion since the last rescan, each pair's and each prism's
+    # gap bound (kernels.barcontact.contact_step), the positions the last call ended at
+    # (resume); the motion NaN: the first scan evaluates every pair
+    prisms = levels.shape[0] * max(levels.shape[1] - 1, 0) if levels.size else 0
+    state = np.concatenate(([0.0, -1.0, 1.0, np.nan], np.zeros(len(rows) + prisms),
                             np.full(3 * n_rows, np.nan)))
     return rows, bpar, state, np.zeros((2, n_rows, 3))
 
@@ -189,7 +190,7 @@ def network_extras(spec, network):
     # writable like NO_EXTRAS's (one compiled type; never written)
     levels = np.array(network.levels, dtype=np.int64) if network.levels.size else NO_EXTRAS[1]
     return (damp, levels, stop_h, NO_EXTRAS[3], NO_EXTRAS[4], spec['par'].copy(),
-            *_pair_slots(spec, None, network.n_nodes), _dissipation_slot(spec),
+            *_pair_slots(spec, None, network.n_nodes, levels), _dissipation_slot(spec),
             _active_slot(spec))
 
 
@@ -228,7 +229,8 @@ def attach(model, spec, striker_state=None):
     if not levels.size:
         levels = NO_EXTRAS[1]
     ex = (damp, levels, stop_h, rows, np.arange(ns, dtype=np.int64), spec['par'].copy(),
-          *_pair_slots(spec, reduced, n + ns), _dissipation_slot(spec), _active_slot(spec))
+          *_pair_slots(spec, reduced, n + ns, levels), _dissipation_slot(spec),
+          _active_slot(spec))
     if ns and len(model.net) > 12 and np.asarray(model.net[12][0]).shape[0]:
         raise ValueError('loading.impact.mode: striker is not available with massive bars that '
                          'share nodes (materials.bar_mass_fraction, materials.bar_mass): the '
