@@ -5,8 +5,8 @@ from __future__ import annotations
 from solver._jit import jit
 from solver.integrators.base import Integrator
 from solver.kernels import dynamics as dyn
-from solver.kernels.barcontact import (add_motion, contact_step, gate, passed_clear, remember,
-                                      resume)
+from solver.kernels.barcontact import (add_motion, contact_step, gate, motion_so_far,
+                                      passed_clear, remember, resume)
 from solver.kernels.contact import striker_step
 from solver.kernels.kinks import keep_state, next_kink
 
@@ -63,7 +63,7 @@ def _contact_aware_step(x, v, h, a1, net, act, ws, met):
     :func:`~solver.kernels.barcontact.contact_step`. Returns (status, the step taken)."""
     ex = act[3]
     touched_at_start = ex[8][0] > met
-    known = ex[8][3] if ex[8][3] == ex[8][3] else 0.0    # the motion summed so far (NaN: none)
+    known = motion_so_far(ex[8])
     h_c = contact_step(x, v, a1, ex[6], ex[1], ex[7], h, ex[8], ex[11])
     if h_c >= h:
         return _rk4_step(x, v, h, a1, net, act, ws), h

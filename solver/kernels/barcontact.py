@@ -213,6 +213,32 @@ def bar_energy(x, pairs, bpar):
     return bpar[2] * e
 
 
+HEAD = 4        # contact state: contacts met, slack, look, motion summed; then the gap bounds
+
+
+@jit_inline
+def _motion(v, acc, h):
+    """Bound m of any relative motion within a step of ``h`` from velocities ``v``, accelerations
+    ``acc``: ``2 (V h + A h^2 / 2)`` with ``V``, ``A`` twice the largest node speed and
+    acceleration (see :func:`contact_step`)."""
+    V = 2.0 * _largest(v)
+    A = 2.0 * _largest(acc)
+    return 2.0 * (V * h + 0.5 * A * h * h)
+
+
+@jit_inline
+def _prism_slot(pairs, levels, c, j):
+    """Where the contact state keeps the gap bound of prism ``j`` (its bases ``j - 1``, ``j``)
+    of column ``c``: after the pairs'."""
+    return HEAD + pairs.shape[0] + c * (levels.shape[1] - 1) + j - 1
+
+
+@jit_inline
+def motion_so_far(state):
+    """The motion summed since the last :func:`rescan` (0 right after it: NaN there)."""
+    return state[3] if math.isfinite(state[3]) else 0.0
+
+
 @jit
 def passed_clear(x0, v0, a0, x1, pairs, levels, bpar, h, state, known):
     """Whether a step of ``h`` from ``x0`` (velocities ``v0``, accelerations ``a0``) to ``x1``
@@ -223,9 +249,9 @@ def passed_clear(x0, v0, a0, x1, pairs, levels, bpar, h, state, known):
     summed at the step's start) exceeds the bound of any relative motion within the step is only
     checked at the end."""
     D = bpar[0]
-    reach = 2.0 * (2.0 * _largest(v0) * h + _largest(a0) * h * h)
+    reach = _motion(v0, a0, h)
     for i in range(pairs.shape[0]):
-        if state[4 + i] - known > reach:
+        if state[HEAD + i] - known > reach:
             s, t, nx, ny, nz = _pair(x1, pairs, i)
             if nx * nx + ny * ny + nz * nz <= D * D:
                 return False
@@ -238,11 +264,10 @@ def passed_clear(x0, v0, a0, x1, pairs, levels, bpar, h, state, known):
         reach_p = 2.0 * (_reach(v0, p) * h + 0.5 * _reach(a0, p) * h * h)
         if g0 <= 0.0 or g1 <= 0.0 or g0 + g1 <= reach_p:
             return False
-    at = 4 + pairs.shape[0]
     for c in range(levels.shape[0]):
         for j in range(1, levels.shape[1]):
             g1 = _level_z(x1, levels, c, j) - _level_z(x1, levels, c, j - 1) - D
-            if state[at + c * (levels.shape[1] - 1) + j - 1] - known > reach:
+            if state[_prism_slot(pairs, levels, c, j)] - known > reach:
                 if g1 <= 0.0:
                     return False
                 continue
@@ -288,20 +313,18 @@ def contact_step(x, v, acc, pairs, levels, bpar, h, state, active):
     make, :func:`resume`). ``state[2]`` 0 tells the force evaluations of the step that no
     contact can act (they skip the pairs), 1 that they must look at the listed pairs and the
     bases, 2 at the listed pairs only. ``state[3]`` sums those
-    bounds of the motion over the steps since the last :func:`rescan`, and ``state[4 + i]`` holds
+    bounds of the motion over the steps since the last :func:`rescan`, and ``state[HEAD + i]`` holds
     pair ``i``'s gap at its last exact evaluation plus the sum then (then each prism's, for its
     bases): a scan evaluates again only the pairs whose gap, less the motion since, could close
     within the step. The last ``3 n`` entries are the positions of :func:`remember`."""
-    V = 2.0 * _largest(v)
-    A = 2.0 * _largest(acc)
-    reach = 2.0 * (V * h + 0.5 * A * h * h)
+    reach = _motion(v, acc, h)
     if state[1] > reach:
         state[1] -= reach
         state[3] += reach
         state[2] = 0.0          # no contact force within this step: not evaluated
         return h
     h_new, g_min, bases = scan_step(x, v, acc, pairs, levels, bpar, h, active, state, reach)
-    reach = 2.0 * (V * h_new + 0.5 * A * h_new * h_new)
+    reach = _motion(v, acc, h_new)
     state[1] = g_min - reach
     state[3] += reach
     state[2] = 0.0 if state[1] > 0.0 else (1.0 if bases else 2.0)
@@ -350,10 +373,8 @@ def add_motion(state, v, acc, h):
     """Count a step of ``h`` from velocities ``v``, accelerations ``acc`` in ``state[3]`` (the
     bound :func:`contact_step` adds) on top of what it counted already, and have the next step
     scan: for a step longer than the one :func:`contact_step` sized."""
-    V = 2.0 * _largest(v)
-    A = 2.0 * _largest(acc)
     state[1] = -1.0
-    state[3] += 2.0 * (V * h + 0.5 * A * h * h)
+    state[3] += _motion(v, acc, h)
 
 
 @jit
@@ -388,13 +409,11 @@ def scan_step(x, v, acc, pairs, levels, bpar, h, active, state, reach):
     h_new = h
     g_min = math.inf
     count = 0
-    known = state[3]
-    fresh = not math.isfinite(known)    # after rescan: every pair evaluated, the sum restarts
-    if fresh:
-        known = 0.0
-        state[3] = 0.0
+    fresh = not math.isfinite(state[3])     # after rescan: every pair evaluated, the sum
+    known = motion_so_far(state)            # restarts
+    state[3] = known
     for i in range(pairs.shape[0]):
-        bound = state[4 + i] - known
+        bound = state[HEAD + i] - known
         if not fresh and bound > reach:
             g_min = min(g_min, bound)
             continue
@@ -402,7 +421,7 @@ def scan_step(x, v, acc, pairs, levels, bpar, h, active, state, reach):
         s, t, nx, ny, nz = _pair(x, pairs, i)
         dist = math.sqrt(nx * nx + ny * ny + nz * nz)
         gap = dist - D
-        state[4 + i] = gap + known
+        state[HEAD + i] = gap + known
         g_min = min(g_min, gap)
         A = _reach(acc, p)
         if gap > 0.0:
@@ -420,10 +439,9 @@ def scan_step(x, v, acc, pairs, levels, bpar, h, active, state, reach):
         h_new = _resolve(gap, math.sqrt(u2), A, u2, h_new, bpar)
     active[0] = count
     bases = 0                           # prisms whose bases could touch within h
-    at = 4 + pairs.shape[0]             # the prisms' gap bounds follow the pairs'
     for c in range(levels.shape[0]):
         for j in range(1, levels.shape[1]):
-            slot = at + c * (levels.shape[1] - 1) + j - 1
+            slot = _prism_slot(pairs, levels, c, j)
             bound = state[slot] - known
             if not fresh and bound > reach:
                 g_min = min(g_min, bound)
