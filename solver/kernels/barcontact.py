@@ -312,11 +312,11 @@ def contact_step(x, v, acc, pairs, levels, bpar, h, state, active):
     (negative: scan now; an integrator sets it so when it starts from positions it did not
     make, :func:`resume`). ``state[2]`` 0 tells the force evaluations of the step that no
     contact can act (they skip the pairs), 1 that they must look at the listed pairs and the
-    bases, 2 at the listed pairs only. ``state[3]`` sums those
-    bounds of the motion over the steps since the last :func:`rescan`, and ``state[HEAD + i]`` holds
-    pair ``i``'s gap at its last exact evaluation plus the sum then (then each prism's, for its
-    bases): a scan evaluates again only the pairs whose gap, less the motion since, could close
-    within the step. The last ``3 n`` entries are the positions of :func:`remember`."""
+    bases, 2 at the listed pairs only. ``state[3]`` sums those bounds of the motion over the
+    steps since the last :func:`rescan`, and ``state[HEAD + i]`` holds pair ``i``'s gap at its
+    last exact evaluation plus the sum then (then each prism's, for its bases): a scan evaluates
+    again only the pairs whose gap, less the motion since, could close within the step. The
+    last ``3 n`` entries are the positions of :func:`remember`."""
     reach = _motion(v, acc, h)
     if state[1] > reach:
         state[1] -= reach
