@@ -355,7 +355,24 @@ def build_parser():
                    help='ROS_DOMAIN_ID (default: env, else 100 + pid %% 50)')
     p.add_argument('--no-record', action='store_true', help='no MCAP / Rerun recording')
     p.set_defaults(func=cmd_demo)
+    p = sub.add_parser('compile', help='compile the solver kernels into their cache now, on '
+                       'every core (otherwise the first run compiles what it uses)')
+    p.add_argument('--processes', type=int, help='parallel compiler processes (default: cores)')
+    p.set_defaults(func=cmd_compile)
     return parser
+
+
+def cmd_compile(args):
+    from solver.simulate.precompile import compile_all
+    if args.processes is not None and args.processes < 1:
+        raise UserError(f'--processes: must be at least 1, got {args.processes}')
+    try:
+        spent = compile_all(args.processes)
+    except RuntimeError as exc:
+        raise UserError(str(exc)) from None
+    if not spent:
+        print('the solver kernels are already compiled')
+    return 0
 
 
 def main(argv=None):

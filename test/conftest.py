@@ -4,3 +4,14 @@ import os
 os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 os.environ.setdefault('MPLBACKEND', 'Agg')
+
+
+def pytest_sessionstart(session):
+    """Compile the solver's kernels on every core before the first test needs one (a fresh
+    cache otherwise compiles them one by one inside the tests): solver.simulate.precompile."""
+    import sys
+    from solver.simulate.precompile import compile_all
+    try:
+        compile_all(log=lambda msg: print(msg, file=sys.stderr, flush=True))
+    except RuntimeError as exc:       # the tests that reach the failing kernel will say why
+        print(f'warning: {exc}', file=sys.stderr, flush=True)

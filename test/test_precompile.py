@@ -1,0 +1,49 @@
+"""tensegrity compile / solver.simulate.precompile: the kernels compiled in parallel processes at
+the start of the suite are found by a later process, which then compiles nothing."""
+import subprocess
+import sys
+from pathlib import Path
+
+from solver.simulate import precompile
+
+ROOT = Path(__file__).resolve().parents[1]
+
+COUNT_COMPILES = """
+import sys
+from numba.core import event
+from solver.simulate import precompile
+names = []
+class Count(event.Listener):
+    def on_start(self, ev):
+        names.append(getattr(getattr((ev.data or {}).get('dispatcher'), 'py_func', None),
+                             '__name__', '?'))
+    def on_end(self, ev):
+        pass
+event.register('numba:compile', Count())
+for method in sys.argv[1:]:
+    precompile._exercise(method)
+print(','.join(names))
+"""
+
+
+def test_a_later_process_loads_every_kernel_from_the_cache():
+    assert precompile.compile_all() == 0.0          # done at the session's start (conftest)
+    assert precompile._marker().exists()
+    methods = [m for group in precompile.GROUPS for m in group]
+    out = subprocess.run([sys.executable, '-c', COUNT_COMPILES, *methods], cwd=ROOT,
+                         capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip() == '', f'compiled again: {out.stdout.strip()}'
+
+
+def test_every_integrator_is_in_a_group():
+    from solver.integrators import registry
+    methods = {m for group in precompile.GROUPS for m in group}
+    assert set(registry.METHODS) | {'chain1d'} == methods
+
+
+def test_the_cli_refuses_zero_processes():
+    out = subprocess.run([sys.executable, '-m', 'tensegrity_ros.cli', 'compile', '--processes',
+                          '0'], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 2
+    assert out.stderr.strip() == 'tensegrity: --processes: must be at least 1, got 0'
