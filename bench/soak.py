@@ -364,11 +364,14 @@ def _check_mcap(mcap):
 def _check_rerun(rrd):
     import pyarrow as pa
     from rerun.chunk import RrdReader
+    from tensegrity_ros.io.rerun_sink import segment_files
     rows, bad, complete = 0, 0, True
+    files = segment_files(rrd)
+    chunks = (chunk for f in files for chunk in RrdReader(f).stream())
     with warnings.catch_warnings():
         warnings.simplefilter('error')
         try:
-            for chunk in RrdReader(rrd).stream():
+            for chunk in chunks:
                 if chunk.entity_path.lstrip('/') == 'world/nodes' and not chunk.is_static:
                     rb = chunk.to_record_batch()
                     rows += rb.num_rows
@@ -380,8 +383,8 @@ def _check_rerun(rrd):
                     bad += int(not np.all(np.isfinite(vals.to_numpy(zero_copy_only=False))))
         except Warning:
             complete = False
-    return {'complete': complete, 'frames': rows, 'non_finite': bad,
-            'mb': rrd.stat().st_size / 2**20}
+    return {'complete': complete, 'frames': rows, 'non_finite': bad, 'files': len(files),
+            'mb': sum(f.stat().st_size for f in files) / 2**20}
 
 
 def table(r):
@@ -421,7 +424,8 @@ def table(r):
                    for k in ('node', 'rerun_helper', 'flood_client'))),
         ('MCAP', f"complete {m['complete']}, {m['frames']} frames, {m['commands']} commands, "
                  f"{m['diagnostics']} diagnostics, {m['mb']:.0f} MB" if m else 'not recorded'),
-        ('Rerun', f"complete {rr['complete']}, {rr['frames']} frames, {rr['mb']:.0f} MB"
+        ('Rerun', f"complete {rr['complete']}, {rr['frames']} frames, {rr['mb']:.0f} MB in "
+                  f"{rr.get('files', 1)} file(s)"
          if rr else 'not recorded'),
         ('node log', f"{r['log_bytes'] / 1024:.0f} KiB"),
         ('node exit code (SIGINT)', str(r['node_exit_code'])),

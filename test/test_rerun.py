@@ -680,3 +680,33 @@ def test_commands_between_frames_are_all_recorded_in_order(tmp_path):
     got = [(t, str(flat(r['TextLog:text'])[0]), str(flat(r['TextLog:level'])[0]))
            for t, r in rows]
     assert got == sent
+
+
+def test_a_long_recording_goes_on_in_segment_files_of_one_recording(tmp_path):
+    """Past ``split_frames`` frames a file is finished (its footer written) and the recording
+    goes on in run_1.rrd, run_2.rrd: every file complete, static entities and blueprint in each,
+    one recording id, every frame once, in order; an earlier recording's extra segment is
+    removed."""
+    from tensegrity_ros.io.rerun_sink import segment_files
+    for k in (1, 2, 3):                 # an earlier, longer recording's segments
+        (tmp_path / f'run_{k}.rrd').write_bytes(b'old')
+    sim, frames, path = small_run(tmp_path, t_end=0.2, flush_every=6, split_frames=10)
+    files = segment_files(path)
+    assert [f.name for f in files] == ['run.rrd', 'run_1.rrd', 'run_2.rrd', 'run_3.rrd']
+    assert len(frames) == 41            # batches of 6: 12 frames in each of the first three
+    times, ids = [], set()
+    for f in files:
+        data = _read_checked(f)
+        assert data['/topology']['static'] and RrdReader(f).blueprints()
+        times += [t for t, _ in data['/energy']['rows']]
+        ids |= {str(r) for r in RrdReader(f).recordings()}
+    assert times == [round(fr.t * 1e9) for fr in frames]
+    assert len(ids) == 1, ids
+    assert b'old' not in files[-1].read_bytes()
+
+
+def test_split_frames_below_one_is_refused(tmp_path):
+    sim = simulation_for(Scene.load(FB).with_overrides(['structure.n_prisms=3']))
+    with pytest.raises(ValueError, match='split_frames must be at least 1'):
+        RerunRecorder(sim.network, tmp_path / 'x.rrd', split_frames=0)
+    assert not (tmp_path / 'x.rrd').exists()

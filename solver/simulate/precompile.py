@@ -77,8 +77,9 @@ def compile_all(processes=None, log=print):
     while pending or running:
         while pending and len(running) < processes:
             group = pending.pop(0)
-            proc = subprocess.Popen([sys.executable, '-m', 'solver.simulate.precompile', *group], cwd=ROOT,
-                                    stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+            proc = subprocess.Popen([sys.executable, '-m', 'solver.simulate.precompile', *group],
+                                    cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                    text=True)
             running.append((group, proc))
         group, proc = running.pop(0)
         out, _ = proc.communicate()

@@ -32,6 +32,7 @@ import math
 import socket
 import time
 import urllib.parse
+from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
@@ -46,6 +47,9 @@ BAR_RGBA = (200, 200, 210, 255)
 NODE_RGBA = (240, 120, 40, 255)
 SCALE_STEPS = 101
 F32_MAX = float(np.finfo(np.float32).max)
+# A file takes this many frames, then the recording goes on in the next segment file: rerun-sdk
+# holds native memory for every chunk of a file until the file is finished (docs/rerun.md).
+SPLIT_FRAMES = 50_000
 
 
 def check_viewer(url, timeout_s=1.0):
@@ -138,17 +142,24 @@ class RerunRecorder:
     the network, or holds a value that is not finite or beyond float32, raises ValueError and
     records nothing. A new episode (a frame's ``episode`` differs from the previous frame's, or
     its time is not after the previous frame's) flushes what came before and starts a new heat
-    map."""
+    map. After ``split_frames`` frames in one file (default :data:`SPLIT_FRAMES`; None: never)
+    the recording goes on in ``STEM_1.rrd``, ``STEM_2.rrd``, ... next to ``path``, each file
+    complete with the static entities and the blueprint, all of one recording id
+    (:func:`segment_files`; ``paths`` lists them); segments of an earlier recording to the same
+    ``path`` are removed when it starts."""
 
     def __init__(self, network, path=None, *, connect=None, tension_scale=None, flush_every=50,
                  max_latency_s=0.5, wave_window=1000, wave_period_s=2.0,
                  application_id='tensegrity_ros', recording_id=None, send_blueprint=True,
-                 field_grid=None):
+                 field_grid=None, split_frames=SPLIT_FRAMES):
         if path is None and not connect:
             raise ValueError('rerun: give a file path or a viewer URL (connect) to record to')
         if tension_scale is not None and not (np.isfinite(tension_scale) and tension_scale > 0):
             raise ValueError(f'rerun: tension_scale must be a positive number, got '
                              f'{tension_scale}')
+        if split_frames is not None and int(split_frames) < 1:
+            raise ValueError(f'rerun: split_frames must be at least 1 (or None), got '
+                             f'{split_frames}')
         if int(flush_every) < 1 or int(wave_window) < 1 or not max_latency_s > 0:
             raise ValueError('rerun: flush_every and wave_window must be at least 1, '
                              'max_latency_s positive')
@@ -163,12 +174,12 @@ class RerunRecorder:
         self.url = (DEFAULT_URL if connect is True else connect) or None
         if self.url is not None:
             check_viewer(self.url)
+        self.split_frames = None if split_frames is None else int(split_frames)
+        self.paths = []                 # the files recorded to: path, then its segments
         if self.path is not None:
-            try:
-                open(self.path, 'wb').close()
-            except OSError as exc:
-                raise ValueError(f'rerun: cannot record to {self.path}: '
-                                 f'{exc.strerror or exc}') from None
+            _writable(self.path)
+            for old in segment_files(self.path)[1:]:   # a previous recording's segments
+                old.unlink()
         self.tension_scale = (reference_tension_scale(network) if tension_scale is None
                               else float(tension_scale))
         self.flush_every, self.max_latency_s = int(flush_every), float(max_latency_s)
@@ -195,16 +206,33 @@ class RerunRecorder:
         self._last_flush = self._last_wave = time.monotonic()
         self.n_frames = self.n_commands = self.n_restarts = self.n_fields = 0
         self._closed = False
+        self._in_file = 0                             # frames sent to the current file
+        self._start(application_id, recording_id, self.path)
+
+    def _start(self, application_id, recording_id, path):
+        """A new stream to ``path`` (and the viewer): blueprint and static entities first."""
         self.stream = rr.RecordingStream(application_id, recording_id=recording_id)
         self.stream.set_log_time_enabled(False)
         self.stream.set_log_tick_enabled(False)
-        sinks = ([rr.FileSink(self.path)] if self.path else []) + (
+        sinks = ([rr.FileSink(path)] if path else []) + (
             [rr.GrpcSink(self.url)] if self.url else [])
         self.stream.set_sinks(*sinks)
-        if send_blueprint:
+        if path:
+            self.paths.append(path)
+        if self._layout is not None:
             self.stream.send_blueprint(blueprint(*self._layout), make_active=True,
                                        make_default=True)
-        self._log_static(n_col)
+        self._log_static(self._wave.shape[0])
+
+    def _next_file(self):
+        """Finish the current file and go on in the next segment (same recording id)."""
+        path = str(segment_path(self.path, len(self.paths)))
+        _writable(path)
+        app, rid = self.stream.get_application_id(), self.stream.get_recording_id()
+        self.stream.flush()
+        self.stream.disconnect()
+        self._in_file = 0
+        self._start(app, rid, path)
 
     # -- static ---------------------------------------------------------------------------------
     def _log_static(self, n_col):
@@ -324,7 +352,10 @@ class RerunRecorder:
         n, self._n = self._n, 0
         self._last_flush = time.monotonic()
         if n:
+            if self.path and self.split_frames and self._in_file >= self.split_frames:
+                self._next_file()
             self._send(n)
+            self._in_file += n
         if self._commands:
             times, texts, levels = zip(*self._commands)
             self._commands = []
@@ -445,6 +476,31 @@ class RerunRecorder:
     def __exit__(self, *exc):
         self.close()
         return False
+
+
+def _writable(path):
+    try:
+        open(path, 'wb').close()
+    except OSError as exc:
+        raise ValueError(f'rerun: cannot record to {path}: {exc.strerror or exc}') from None
+
+
+def segment_path(path, k):
+    """The ``k``-th file of a recording to ``path``: ``path`` itself for 0, else ``STEM_k.rrd``
+    next to it."""
+    p = Path(path)
+    return p if k == 0 else p.with_name(f'{p.stem}_{k}{p.suffix or ".rrd"}')
+
+
+def segment_files(path):
+    """The files of a recording to ``path`` that exist, in order: ``path``, ``STEM_1.rrd``,
+    ``STEM_2.rrd``, ... (to the first missing one). Open them together (``rerun STEM*.rrd``): they
+    are one recording."""
+    out, k = [], 0
+    while segment_path(path, k).exists():
+        out.append(segment_path(path, k))
+        k += 1
+    return out
 
 
 def constant_ranges(ranges):
