@@ -684,9 +684,13 @@ def test_commands_between_frames_are_all_recorded_in_order(tmp_path):
 
 def test_a_long_recording_goes_on_in_segment_files_of_one_recording(tmp_path):
     """Past ``split_frames`` frames a file is finished (its footer written) and the recording
-    goes on in run_1.rrd, run_2.rrd: every file complete, static entities and blueprint in each,
-    one recording id, every frame once, in order; an earlier recording's extra segment is
-    removed."""
+    goes on in run_1.rrd, run_2.rrd: every file complete with the static entities, the
+    blueprint in the first, one recording id, every frame once, in order; an earlier
+    recording's segments are removed; the process's threads do not grow with the files (a
+    recorder keeps the 4 native threads of its stream and blueprint; a stream or blueprint per
+    file would add 2 more each)."""
+    psutil = pytest.importorskip('psutil')
+    threads = psutil.Process().num_threads()
     from tensegrity_ros.io.rerun_sink import segment_files
     for k in (1, 2, 3):                 # an earlier, longer recording's segments
         (tmp_path / f'run_{k}.rrd').write_bytes(b'old')
@@ -697,12 +701,14 @@ def test_a_long_recording_goes_on_in_segment_files_of_one_recording(tmp_path):
     times, ids = [], set()
     for f in files:
         data = _read_checked(f)
-        assert data['/topology']['static'] and RrdReader(f).blueprints()
+        assert data['/topology']['static']
         times += [t for t, _ in data['/energy']['rows']]
         ids |= {str(r) for r in RrdReader(f).recordings()}
     assert times == [round(fr.t * 1e9) for fr in frames]
     assert len(ids) == 1, ids
+    assert RrdReader(files[0]).blueprints()
     assert b'old' not in files[-1].read_bytes()
+    assert psutil.Process().num_threads() - threads <= 4
 
 
 def test_split_frames_below_one_is_refused(tmp_path):

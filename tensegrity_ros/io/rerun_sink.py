@@ -144,7 +144,7 @@ class RerunRecorder:
     its time is not after the previous frame's) flushes what came before and starts a new heat
     map. After ``split_frames`` frames in one file (default :data:`SPLIT_FRAMES`; None: never)
     the recording goes on in ``STEM_1.rrd``, ``STEM_2.rrd``, ... next to ``path``, each file
-    complete with the static entities and the blueprint, all of one recording id
+    complete with the static entities (the blueprint is in the first), all of one recording id
     (:func:`segment_files`; ``paths`` lists them); segments of an earlier recording to the same
     ``path`` are removed when it starts."""
 
@@ -207,32 +207,33 @@ class RerunRecorder:
         self.n_frames = self.n_commands = self.n_restarts = self.n_fields = 0
         self._closed = False
         self._in_file = 0                             # frames sent to the current file
-        self._start(application_id, recording_id, self.path)
-
-    def _start(self, application_id, recording_id, path):
-        """A new stream to ``path`` (and the viewer): blueprint and static entities first."""
         self.stream = rr.RecordingStream(application_id, recording_id=recording_id)
         self.stream.set_log_time_enabled(False)
         self.stream.set_log_tick_enabled(False)
+        self._to_file(self.path)
+
+    def _to_file(self, path):
+        """Record to ``path`` (and the viewer) from now on: the static entities first, and in
+        the first file the blueprint. The stream stays the same and later files get no
+        blueprint of their own: rerun-sdk 0.41 never ends the two threads of a stream it
+        made, a blueprint's included (rerun-io/rerun#2116)."""
         sinks = ([rr.FileSink(path)] if path else []) + (
             [rr.GrpcSink(self.url)] if self.url else [])
         self.stream.set_sinks(*sinks)
         if path:
             self.paths.append(path)
-        if self._layout is not None:
+        if self._layout is not None and len(self.paths) <= 1:
             self.stream.send_blueprint(blueprint(*self._layout), make_active=True,
                                        make_default=True)
         self._log_static(self._wave.shape[0])
 
     def _next_file(self):
-        """Finish the current file and go on in the next segment (same recording id)."""
+        """Finish the current file (its footer written) and go on in the next segment."""
         path = str(segment_path(self.path, len(self.paths)))
         _writable(path)
-        app, rid = self.stream.get_application_id(), self.stream.get_recording_id()
         self.stream.flush()
-        self.stream.disconnect()
         self._in_file = 0
-        self._start(app, rid, path)
+        self._to_file(path)
 
     # -- static ---------------------------------------------------------------------------------
     def _log_static(self, n_col):
