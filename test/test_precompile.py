@@ -47,3 +47,24 @@ def test_the_cli_refuses_zero_processes():
                           '0'], cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert out.returncode == 2
     assert out.stderr.strip() == 'tensegrity: --processes: must be at least 1, got 0'
+
+
+def test_a_group_that_gives_no_result_in_time_is_killed_and_named(tmp_path):
+    """On an empty cache with a 0.5 s limit: one line naming every group, exit not 0, no
+    compiler process left behind, no marker written."""
+    import os
+    code = ('import sys\nfrom solver.simulate.precompile import compile_all\n'
+            'try:\n    compile_all(timeout_s=0.5, log=lambda m: None)\n'
+            'except RuntimeError as exc:\n    print(exc)\n    sys.exit(3)\n')
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path))
+    out = subprocess.run([sys.executable, '-c', code], cwd=ROOT, env=env, capture_output=True,
+                         text=True, timeout=120)
+    assert out.returncode == 3, out.stderr[-2000:]
+    lines = out.stdout.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith('precompile failed for ')
+    for group in precompile.GROUPS:
+        assert f'{"/".join(group)}: no result after 0.5 s' in lines[0]
+    assert not list(tmp_path.glob('*/.precompiled'))
+    left = subprocess.run(['pgrep', '-f', 'solver.simulate.precompile'], capture_output=True,
+                          text=True)
+    assert left.stdout.strip() == ''

@@ -60,10 +60,11 @@ def _marker():
     return Path(CACHE_DIR) / MARKER
 
 
-def compile_all(processes=None, log=print):
+def compile_all(processes=None, log=print, timeout_s=1200.0):
     """Compile every kernel into the cache, ``processes`` groups at a time (default: the
     cores, at most :data:`GROUPS`); returns the seconds spent (0.0 when the cache was complete).
-    Raises ``RuntimeError`` naming the group that failed."""
+    Raises ``RuntimeError`` naming each group that failed or gave no result within
+    ``timeout_s`` seconds (its process is killed)."""
     marker = _marker()
     if marker.exists():
         return 0.0
@@ -82,7 +83,13 @@ def compile_all(processes=None, log=print):
                                     text=True)
             running.append((group, proc))
         group, proc = running.pop(0)
-        out, _ = proc.communicate()
+        try:
+            out, _ = proc.communicate(timeout=max(timeout_s - (time.perf_counter() - t0), 0.0))
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.communicate()
+            failed.append(f'{"/".join(group)}: no result after {timeout_s:g} s')
+            continue
         if proc.returncode != 0:
             failed.append(f'{"/".join(group)}: {out.strip().splitlines()[-1] if out else "?"}')
     if failed:
