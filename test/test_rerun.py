@@ -24,7 +24,8 @@ from rerun.chunk import RrdReader  # noqa: E402
 from solver.simulate.runner import run  # noqa: E402
 from solver.build.scene import Scene  # noqa: E402
 from solver.simulate.array import simulation_for
-from tensegrity_ros.io.rerun_sink import RerunRecorder, heat_map_grid  # noqa: E402
+from tensegrity_ros.io.rerun_columns import heat_map_grid  # noqa: E402
+from tensegrity_ros.io.rerun_sink import RerunRecorder  # noqa: E402
 from tensegrity_ros.msgs.style import reference_tension_scale  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
