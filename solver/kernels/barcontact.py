@@ -409,8 +409,9 @@ def scan_step(x, v, acc, pairs, levels, bpar, h, active, state, reach):
     h_new = h
     g_min = math.inf
     count = 0
-    fresh = not math.isfinite(state[3])     # after rescan: every pair evaluated, the sum
-    known = motion_so_far(state)            # restarts
+    # after rescan (the motion NaN): every pair evaluated, and the sum restarts from 0
+    fresh = not math.isfinite(state[3])
+    known = motion_so_far(state)
     state[3] = known
     for i in range(pairs.shape[0]):
         bound = state[HEAD + i] - known

@@ -10,7 +10,7 @@ returns at once.
 
     python -m solver.simulate.precompile          # or: tensegrity compile
 
-The test suite calls it at the start (``test/conftest.py``).
+A test run of several files calls it before its first test (``test/conftest.py``).
 """
 from __future__ import annotations
 
