@@ -63,3 +63,38 @@ jit = numba.njit(cache=True, nogil=True)
 # then costs ten times the loop body (constraint_error_arrays: 2.4 us instead of 0.27 us for 50
 # members).
 jit_inline = numba.njit(cache=True, nogil=True, inline='always')
+
+
+# -- calling a compiled kernel without numba's dispatch ------------------------------------------
+# A kernel call goes through numba's dispatcher, which types every argument to pick the compiled
+# overload: about 4 us for the ~60 arrays of an integrator's checked call, per call. A caller that
+# makes the same call over and over with arguments of unchanging types (Simulation.advance) looks
+# the overload up once and calls its entry point, which only unboxes the arguments.
+_SIGNATURES: dict = {}
+
+
+def _layout(value):
+    """A key that determines numba's type of an argument: array dtype, dimensions, layout and
+    flags; tuples element by element; other values by their Python type."""
+    import numpy as np
+    if isinstance(value, np.ndarray):
+        f = value.flags
+        return (value.dtype.str, value.ndim, f.c_contiguous, f.f_contiguous, f.writeable,
+                f.aligned)
+    if isinstance(value, tuple):
+        return tuple(_layout(v) for v in value)
+    return type(value)
+
+
+def compiled_overload(dispatcher, args):
+    """The entry point of the overload ``dispatcher`` has compiled for the types of ``args``, or
+    None when it has none yet (call the dispatcher once first). Calling it is calling the kernel
+    with arguments of exactly those types; with others it would misread them, so a caller keeps it
+    only while its arguments are the same objects (or of the same types)."""
+    key = (id(dispatcher), tuple(_layout(a) for a in args))
+    sig = _SIGNATURES.get(key)
+    if sig is None:
+        from numba.core.typing.typeof import Purpose, typeof
+        sig = _SIGNATURES[key] = tuple(typeof(a, Purpose.argument) for a in args)
+    cres = dispatcher.overloads.get(sig)
+    return None if cres is None else cres.entry_point

@@ -280,3 +280,25 @@ def test_divergence_in_the_cli_is_one_line_and_writes_nothing(tmp_path):
     assert len(lines) == 1 and 'diverged at t =' in lines[0] and 'step' in lines[0]
     assert res.stdout.strip() == ''
     assert not (out / 'summary.json').exists()
+
+
+@pytest.mark.parametrize('method', METHODS)
+def test_advance_calls_the_compiled_overload_as_the_dispatcher_would(method, monkeypatch):
+    """After its first call Simulation.advance calls the integrator's compiled overload without
+    numba's type dispatch: the run is the same to the last bit as one that always goes through
+    the dispatcher."""
+    from solver.simulate import simulation as simulation_module
+    sets = [f'integrator.method={method}', 'model=sym3d', 'divergence.energy_error=0.01']
+    direct = _sim(COLUMN, sets, 0.1)
+    for _ in range(20):
+        direct.advance(0.005)
+    checked = direct.integrator.checked
+    assert direct._plan[6] is not None and direct._plan[6] is not checked
+    monkeypatch.setattr(simulation_module, 'compiled_overload', lambda *a: None)
+    dispatched = _sim(COLUMN, sets, 0.1)
+    for _ in range(20):
+        dispatched.advance(0.005)
+    assert dispatched._plan[6] is checked
+    np.testing.assert_array_equal(direct.model.x, dispatched.model.x)
+    np.testing.assert_array_equal(direct.model.v, dispatched.model.v)
+    assert direct.energy() == dispatched.energy()

@@ -216,6 +216,32 @@ def bar_energy(x, pairs, bpar):
 HEAD = 4        # contact state: contacts met, slack, look, motion summed; then the gap bounds
 
 
+@jit
+def bar_energy_scanned(x, pairs, bpar, state):
+    """:func:`bar_energy` of the positions ``x`` an integrator call ended at, skipping the pairs
+    whose gap the scans bound above zero (``state``, see :func:`contact_step`): they store none,
+    so the sum is the same, for a fraction of the pairs. At any other positions (a command moved
+    the state, a call stopped early, the scans were reset) every pair is evaluated."""
+    k = state.shape[0] - 3 * x.shape[0]
+    bounded = math.isfinite(state[3])
+    for p in range(x.shape[0]):
+        for i in range(3):
+            if state[k + 3 * p + i] != x[p, i]:
+                bounded = False
+    D = bpar[0]
+    known = state[3]
+    e = 0.0
+    for i in range(pairs.shape[0]):
+        if bounded and state[HEAD + i] - known > 0.0:
+            continue
+        s, t, nx, ny, nz = _pair(x, pairs, i)
+        dist = math.sqrt(nx * nx + ny * ny + nz * nz)
+        if dist < D:
+            d = D - dist
+            e += 0.4 * bpar[1] * d * d * math.sqrt(d)
+    return bpar[2] * e
+
+
 @jit_inline
 def _motion(v, acc, h):
     """Bound m of any relative motion within a step of ``h`` from velocities ``v``, accelerations

@@ -41,7 +41,7 @@ import numpy as np
 from solver.kernels import massmatrix as mm
 from solver.kernels.banded import band_ldl_solve
 from solver._jit import jit
-from solver.kernels.barcontact import bar_energy, bar_forces, base_energy, base_forces
+from solver.kernels.barcontact import bar_energy_scanned, bar_forces, base_energy, base_forces
 from solver.kernels.contact import NO_EXTRAS, axial_contacts, cable_forces_damped, extra_energy
 from solver.kernels.rotation import (ROT_C, ROT_S, add_constraint_forces_rot,  # noqa: F401
                                      assemble_band_rot, cable_forces_rot,
@@ -464,7 +464,7 @@ def state_summary(x, v, net, act, summ, heights):
     if ex[2].shape[0] != 0 or ex[3].shape[0] != 0:      # strikers, prism stops
         e += extra_energy(x, v, ex)
     if ex[6].shape[0] != 0:
-        e += bar_energy(x, ex[6], ex[7]) + base_energy(x, ex[1], ex[7])
+        e += bar_energy_scanned(x, ex[6], ex[7], ex[8]) + base_energy(x, ex[1], ex[7])
     return (all_finite(x) and all_finite(v), e,
             constraint_error_arrays(x, net[3], net[4], net[5], net[9]),
             level_heights(x, levels, heights))

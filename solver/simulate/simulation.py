@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from solver import status as codes
+from solver._jit import compiled_overload
 from solver.kernels import dynamics as dyn
 from solver.kernels import contact
 from solver.models import extras, memo
@@ -112,7 +113,7 @@ class Simulation(Loading, Checks):
             self.model.act[3][8][0] = 0.0
         self._set_dissipated(0.0)
         self._cache = {}
-        self._plan = (None, None)
+        self._plan = (None,) * 7
         self.t = 0.0
         self.step = 0
         self.steps_taken = 0
@@ -137,7 +138,7 @@ class Simulation(Loading, Checks):
         integ = new.integrator = copy.copy(self.integrator)
         integ.set_state(copy.deepcopy(self.integrator.get_state()))
         new._cache = {}
-        new._plan = (None, None)
+        new._plan = (None,) * 7
         new._prestrain = None if self._prestrain is None else self._prestrain.copy()
         new._ramp = None if self._ramp is None else tuple(
             np.array(r) if isinstance(r, np.ndarray) else r for r in self._ramp)
@@ -337,16 +338,24 @@ class Simulation(Loading, Checks):
             steps, status = self._integrate(n)
         else:
             integ, plan = self.integrator, self._plan
-            if plan[0] is not m or plan[1] is not integ:      # arrays of the checked call
+            if plan[0] is not m or plan[1] is not integ or plan[4] is not m.x or (
+                    plan[5] is not m.v):            # arrays of the checked call
                 kb = (np.empty_like(m.x), np.empty_like(m.v))
                 plan = self._plan = (m, integ, kb, integ.checked_args(
-                    m.x, m.net, m.act, m.ws, self.tol, self.max_iter, self.kinks, kb, summ))
+                    m.x, m.net, m.act, m.ws, self.tol, self.max_iter, self.kinks, kb, summ),
+                    m.x, m.v, None)
             kb = plan[2]
             keep = (kb[0], kb[1], m.act[0], self._prestrain, self._ramp, self._energy_ref,
                     integ.get_state(), self._energy_scale, self.energy_dissipated())
             h = np.empty(self._heights_shape)
-            steps, status, finite, e, cerr, h_min = integ.checked(m.x, m.v, float(self.dt), n,
-                                                                  *plan[3], h)
+            args = (m.x, m.v, float(self.dt), n, *plan[3], h)
+            if plan[6] is None:     # through numba's dispatch, then its compiled overload
+                out = integ.checked(*args)
+                self._plan = plan[:6] + (compiled_overload(integ.checked, args)
+                                         or integ.checked,)
+            else:
+                out = plan[6](*args)
+            steps, status, finite, e, cerr, h_min = out
             self._cache = {'summary': (finite, e, h, cerr, h_min)}
         problem = self._check(status)
         if problem is not None:
