@@ -2,6 +2,8 @@
 :mod:`solver.integrators.registry`, which lists the families)."""
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 
 
@@ -21,6 +23,17 @@ class Integrator:
     def __init__(self, rtol=1e-8, atol=1e-10):
         self.rtol, self.atol = float(rtol), float(atol)
         self._scratch = {}
+
+    def clone(self):
+        """An independent copy with the same settings and history (:meth:`get_state`), and its
+        own scratch and state arrays: simulations stepped at once on threads must not share the
+        arrays their kernels write."""
+        new = copy.copy(self)
+        new._scratch = {}
+        for name, value in vars(self).items():
+            if isinstance(value, np.ndarray):
+                setattr(new, name, value.copy())
+        return new
 
     def scratch(self, key, shape):
         """A zeroed float64 array owned by this integrator (reused while the shape is the same)."""

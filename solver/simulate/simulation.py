@@ -135,8 +135,7 @@ class Simulation(Loading, Checks):
         m.x, m.v = self.model.x.copy(), self.model.v.copy()
         m.act = _copy_arrays(self.model.act)
         m.ws = _copy_arrays(self.model.ws)
-        integ = new.integrator = copy.copy(self.integrator)
-        integ.set_state(copy.deepcopy(self.integrator.get_state()))
+        new.integrator = self.integrator.clone()
         new._cache = {}
         new._plan = (None,) * 7
         new._prestrain = None if self._prestrain is None else self._prestrain.copy()
