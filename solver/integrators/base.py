@@ -49,6 +49,11 @@ class Integrator:
     def reset(self):
         """Forget any step-size history (adaptive methods)."""
 
+    def state_changed(self):
+        """The state or the forces were changed outside the integrator (a command, new rest
+        lengths): forget what a method carries from one call to the next (``rattle``'s
+        accelerations)."""
+
     def get_state(self):
         """A copy of the integrator's own state (step-size history), for :meth:`set_state`."""
         return None

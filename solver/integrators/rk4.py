@@ -144,9 +144,39 @@ def _rk4_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks):
 
 
 @jit
-def _rattle_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, acc, x_old):
+def _carried(x, v, carry):
+    """Whether the call starts where the last one ended: ``carry[0]`` 1 and ``x``, ``v`` equal to
+    the copies after it."""
+    if carry[0] != 1.0:
+        return False
+    n = x.shape[0]
+    for p in range(n):
+        for i in range(3):
+            if carry[1 + 3 * p + i] != x[p, i] or carry[1 + 3 * (n + p) + i] != v[p, i]:
+                return False
+    return True
+
+
+@jit
+def _hold(x, v, carry):
+    n = x.shape[0]
+    for p in range(n):
+        for i in range(3):
+            carry[1 + 3 * p + i] = x[p, i]
+            carry[1 + 3 * (n + p) + i] = v[p, i]
+    carry[0] = 1.0
+
+
+@jit
+def _rattle_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, acc, x_old, carry):
     """Velocity Verlet with RATTLE constraints, ``n_steps`` steps of ``dt``; scratch ``acc`` and
-    ``x_old`` (n, 3). One force evaluation per step (plus one per call to start).
+    ``x_old`` (n, 3). One force evaluation per step.
+
+    Each step's position update uses the accelerations of the previous step's second stage. A
+    call that starts from the state the last call ended at (``carry``: a flag and copies of
+    ``x``, ``v``; cleared by :meth:`Rattle.state_changed` when a command changes the forces) uses
+    the accelerations that call left in ``acc``, so a run split into calls takes the steps of one
+    call; any other start evaluates them (one more force evaluation).
 
     Stage 1 (SHAKE): ``x+ = x + h v + h^2/2 a(x)``, projected on the rigid members; the half-step
     velocity is ``(x+ - x) / h`` (it includes the constraint impulse). Stage 2: ``v+ = v_1/2 +
@@ -159,9 +189,12 @@ def _rattle_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, acc, x_old):
     contact = ex[6].shape[0] != 0
     if contact:     # the pairs that could touch, listed by the scans (kernels.barcontact)
         resume(x, ex[8], ex[11])
-    status = dyn.accelerations(x, v, net, act, ws, acc)
-    if status != dyn.OK:
-        return 0, status
+    if not _carried(x, v, carry):
+        carry[0] = 0.0
+        status = dyn.accelerations(x, v, net, act, ws, acc)
+        if status != dyn.OK:
+            return 0, status
+    carry[0] = 0.0
     n = x.shape[0]
     for step in range(n_steps):
         h = dt
@@ -188,6 +221,7 @@ def _rattle_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, acc, x_old):
             return step, status
     if contact:
         remember(x, ex[8])
+    _hold(x, v, carry)
     return n_steps, dyn.OK
 
 
@@ -210,10 +244,10 @@ def _rk4_checked(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, keep, su
 
 
 @jit
-def _rattle_checked(x, v, dt, n_steps, net, act, ws, tol, max_iter, acc, x_old, keep, summ,
-                    heights):
+def _rattle_checked(x, v, dt, n_steps, net, act, ws, tol, max_iter, acc, x_old, carry, keep,
+                    summ, heights):
     keep_state(x, v, keep)
-    out = _rattle_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, acc, x_old)
+    out = _rattle_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, acc, x_old, carry)
     return out + dyn.state_summary(x, v, net, act, summ, heights)
 
 
@@ -249,4 +283,13 @@ class Rattle(Integrator):
     checked = staticmethod(_rattle_checked)
 
     def extra_args(self, x, kinks):
-        return self.scratch('acc', x.shape), self.scratch('x_old', x.shape)
+        return (self.scratch('acc', x.shape), self.scratch('x_old', x.shape),
+                self.scratch('carry', (1 + 2 * x.size,)))
+
+    def reset(self):
+        self.state_changed()
+
+    def state_changed(self):
+        carry = self._scratch.get('carry')
+        if carry is not None:
+            carry[0] = 0.0

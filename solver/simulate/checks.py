@@ -37,6 +37,7 @@ class Checks:
         m.x[:], m.v[:], m.act[0][:] = keep[:3]
         self._prestrain, self._ramp, self._energy_ref = keep[3:6]
         self.integrator.set_state(keep[6])
+        self.integrator.state_changed()
         self._energy_scale = keep[7]
         self._set_dissipated(keep[8])
         self._changed()

@@ -125,6 +125,7 @@ class Loading:
             if m.x[rows + c, 2] >= z_end[c]:
                 m.x[rows + c, 2] = z_end[c]
             m.v[rows + c, 2] = -vc
+        self.integrator.state_changed()
         self._changed()
 
     def apply_impact(self, v0, columns=None, mode=None):

@@ -271,6 +271,7 @@ class Simulation(Loading, Checks):
         except models.NotSymmetric as exc:
             self.expand_to_full3d(str(exc))
             getattr(self.model, setter)(*args)
+        self.integrator.state_changed()
         self._changed()
 
     def _load(self, x, v):
