@@ -199,17 +199,23 @@ def _resolve(gap, V, A, u2, h, bpar):
                       / bpar[4]))
 
 
+@jit_inline
+def _pair_energy(x, pairs, i, bpar):
+    """Energy J stored in pair ``i`` (0 unless it overlaps), not yet times the multiplicity."""
+    s, t, nx, ny, nz = _pair(x, pairs, i)
+    dist = math.sqrt(nx * nx + ny * ny + nz * nz)
+    if dist >= bpar[0]:
+        return 0.0
+    d = bpar[0] - dist
+    return 0.4 * bpar[1] * d * d * math.sqrt(d)
+
+
 @jit
 def bar_energy(x, pairs, bpar):
     """Energy J stored in the touching pairs (times the multiplicity ``bpar[2]``)."""
-    D = bpar[0]
     e = 0.0
     for i in range(pairs.shape[0]):
-        s, t, nx, ny, nz = _pair(x, pairs, i)
-        dist = math.sqrt(nx * nx + ny * ny + nz * nz)
-        if dist < D:
-            d = D - dist
-            e += 0.4 * bpar[1] * d * d * math.sqrt(d)
+        e += _pair_energy(x, pairs, i, bpar)
     return bpar[2] * e
 
 
@@ -228,17 +234,11 @@ def bar_energy_scanned(x, pairs, bpar, state):
         for i in range(3):
             if state[k + 3 * p + i] != x[p, i]:
                 bounded = False
-    D = bpar[0]
     known = state[3]
     e = 0.0
     for i in range(pairs.shape[0]):
-        if bounded and state[HEAD + i] - known > 0.0:
-            continue
-        s, t, nx, ny, nz = _pair(x, pairs, i)
-        dist = math.sqrt(nx * nx + ny * ny + nz * nz)
-        if dist < D:
-            d = D - dist
-            e += 0.4 * bpar[1] * d * d * math.sqrt(d)
+        if not (bounded and state[HEAD + i] - known > 0.0):
+            e += _pair_energy(x, pairs, i, bpar)
     return bpar[2] * e
 
 
