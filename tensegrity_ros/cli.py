@@ -139,9 +139,15 @@ def cmd_node(args):
 def cmd_demo(args):
     """``tensegrity demo``: the node in a second process, an impact over the topic, a summary;
     with ``--focus X,Z`` a focus of the lens array instead (the plan, the arrivals the node
-    measures, the focal gain)."""
+    measures, the focal gain). A fresh install (or an edited solver) first compiles the kernels
+    on every core, saying so, so that the node starts at once and keeps its real-time pace."""
     domain = args.domain_id if args.domain_id is not None else (
         int(os.environ['ROS_DOMAIN_ID']) if os.environ.get('ROS_DOMAIN_ID') else None)
+    from solver.simulate.precompile import compile_all
+    try:
+        compile_all()
+    except RuntimeError as exc:
+        raise UserError(f'demo: {exc}') from None
     if args.focus is not None:
         return _demo_focus(args, domain)
     from tensegrity_ros.node.demo import format_summary, run_demo

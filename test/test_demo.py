@@ -123,3 +123,24 @@ def test_demo_focus_prints_the_plan_measured_arrivals_and_gain(tmp_path, monkeyp
         fields = [m for _, channel, m in make_reader(f).iter_messages()
                   if channel.topic.endswith('/field')]
     assert len(fields) >= 1
+
+
+def test_demo_compiles_the_kernels_first_and_a_failed_compile_is_one_line(tmp_path, monkeypatch,
+                                                                          capsys):
+    """``tensegrity demo`` compiles the kernels (on every core, announced) before it starts the
+    node; when that fails it says so in one line, exits 2 and starts nothing."""
+    from solver.simulate import precompile
+    from tensegrity_ros.cli import main
+    from tensegrity_ros.node import demo
+    calls = []
+
+    def failing(*args, **kw):
+        calls.append('compile')
+        raise RuntimeError('precompile failed for rk4: no result after 1 s')
+
+    monkeypatch.setattr(precompile, 'compile_all', failing)
+    monkeypatch.setattr(demo, 'run_demo', lambda *a, **kw: calls.append('node'))
+    code = main(['demo', '--out', str(tmp_path / 'out')])
+    err = capsys.readouterr().err
+    assert code == 2 and calls == ['compile']
+    assert err.strip().count('\n') == 0 and 'precompile failed for rk4' in err
