@@ -323,3 +323,27 @@ def test_rattle_split_into_calls_takes_the_steps_of_one_call():
         sim.advance(0.005)
     np.testing.assert_array_equal(split.model.x, fresh.model.x)
     np.testing.assert_array_equal(split.model.v, fresh.model.v)
+
+
+@pytest.mark.parametrize('model', ['full3d', 'sym3d', 'chain1d'])
+def test_a_clone_steps_on_its_own(model):
+    """Simulation.clone: the copy and the original, driven differently, each end where a
+    simulation given only its own commands ends (nothing of the state is shared)."""
+    sets = [f'model={model}', 'structure.n_prisms=8']
+    if model == 'chain1d':
+        sets.append('contact.bars=none')
+    sim = _sim(COLUMN, sets, 0.05)
+    sim.advance(0.02)
+    twin = sim.clone()
+    sim.apply_impact(0.02)
+    twin.apply_impact(0.04)
+    for _ in range(10):
+        sim.advance(0.005)
+        twin.advance(0.005)
+    for v0, done in ((0.02, sim), (0.04, twin)):
+        alone = _sim(COLUMN, sets, 0.05)
+        alone.advance(0.02)
+        alone.apply_impact(v0)
+        for _ in range(10):
+            alone.advance(0.005)
+        np.testing.assert_array_equal(done.model.positions(), alone.model.positions())

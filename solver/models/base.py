@@ -20,6 +20,18 @@ and changes nothing; the simulation then expands the run to ``full3d``.
 """
 
 
+import copy
+
+import numpy as np
+
+
+def copy_arrays(value):
+    """A copy of a (nested) tuple of arrays: the kernels' ``act`` and ``ws`` tuples."""
+    if isinstance(value, tuple):
+        return tuple(copy_arrays(v) for v in value)
+    return np.array(value)
+
+
 class Model:
     name = ''
     summ = None
@@ -29,6 +41,16 @@ class Model:
 
     def __init__(self, network):
         self.network = network
+
+    def copy(self):
+        """An independent copy: the state and the arrays the kernels write (``x``, ``v``, the
+        ``act`` and ``ws`` tuples) its own, the network and the constant arrays shared."""
+        new = copy.copy(self)
+        new.x, new.v = self.x.copy(), self.v.copy()
+        new.act = copy_arrays(self.act)
+        if hasattr(self, 'ws'):
+            new.ws = copy_arrays(self.ws)
+        return new
 
     def positions(self):
         raise NotImplementedError

@@ -249,6 +249,12 @@ class Chain1D(Model):
         d = c[0, 0, :2] - self._center[0]
         self._theta0 = math.atan2(d[1], d[0])
 
+    def copy(self):
+        new = super().copy()            # x, v: copies of u, w; the kernel advances u, w
+        new.u, new.w, new._acc = new.x, new.v, self._acc.copy()
+        new._rest, new._EA = self._rest.copy(), self._EA.copy()
+        return new
+
     def _prism_cables(self, i):
         """Cross cables (k, L) of prism i, and the base cables (weight, k, L) it carries (half of
         an interior base cable, all of an end-level one)."""

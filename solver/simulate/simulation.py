@@ -131,10 +131,7 @@ class Simulation(Loading, Checks):
         prestrain and ramp, energy reference, integrator history); arrays of columns split their
         groups with it."""
         new = copy.copy(self)
-        m = new.model = copy.copy(self.model)
-        m.x, m.v = self.model.x.copy(), self.model.v.copy()
-        m.act = _copy_arrays(self.model.act)
-        m.ws = _copy_arrays(self.model.ws)
+        new.model = self.model.copy()
         new.integrator = self.integrator.clone()
         new._cache = {}
         new._plan = (None,) * 7
@@ -423,9 +420,3 @@ class Simulation(Loading, Checks):
                      base_force=np.array(self.base_force()), striker=self.striker(),
                      energy_balance_error=balance)
 
-
-def _copy_arrays(value):
-    """A copy of a (nested) tuple of arrays: the kernels' ``act`` and ``ws`` tuples."""
-    if isinstance(value, tuple):
-        return tuple(_copy_arrays(v) for v in value)
-    return np.array(value)
