@@ -35,7 +35,12 @@ the ``net``/``act``/``ws`` tuples through untouched) and its checked twin (three
 :class:`solver.integrators.base.Integrator` (``name``,
 ``order``, ``projected``, ``kernel``, ``checked``; override :meth:`Integrator.extra_args` when the
 kernel takes other arguments after ``max_iter``, e.g. scratch arrays from
-:meth:`Integrator.scratch`) and add it to :data:`METHODS`.
+:meth:`Integrator.scratch`) and add it to :data:`METHODS`. Keep every array the kernel writes in
+the scratch or in an array attribute: :meth:`Integrator.clone` copies those for a simulation's
+copy (the columns of an array step on threads at once). A method that carries something from one
+call to the next (``rattle`` its accelerations, ``dopri54_projected`` its step size) forgets it in
+:meth:`Integrator.reset` and, where a command invalidates it, in
+:meth:`Integrator.state_changed`.
 """
 from __future__ import annotations
 
