@@ -222,18 +222,24 @@ def bar_energy(x, pairs, bpar):
 HEAD = 4        # contact state: contacts met, slack, look, motion summed; then the gap bounds
 
 
+@jit_inline
+def _at_remembered(x, state):
+    """Whether ``x`` are the positions :func:`remember` kept in the last ``3 n`` entries."""
+    k = state.shape[0] - 3 * x.shape[0]
+    for p in range(x.shape[0]):
+        for i in range(3):
+            if state[k + 3 * p + i] != x[p, i]:
+                return False
+    return True
+
+
 @jit
 def bar_energy_scanned(x, pairs, bpar, state):
     """:func:`bar_energy` of the positions ``x`` an integrator call ended at, skipping the pairs
     whose gap the scans bound above zero (``state``, see :func:`contact_step`): they store none,
     so the sum is the same, for a fraction of the pairs. At any other positions (a command moved
     the state, a call stopped early, the scans were reset) every pair is evaluated."""
-    k = state.shape[0] - 3 * x.shape[0]
-    bounded = math.isfinite(state[3])
-    for p in range(x.shape[0]):
-        for i in range(3):
-            if state[k + 3 * p + i] != x[p, i]:
-                bounded = False
+    bounded = math.isfinite(state[3]) and _at_remembered(x, state)
     known = state[3]
     e = 0.0
     for i in range(pairs.shape[0]):
@@ -374,15 +380,9 @@ def resume(x, state, active):
     which the bounds allow for: they bound the motion of positions, step by step), else
     :func:`rescan`. Until :func:`remember` at its end, a call that stops early leaves nothing to
     resume from."""
-    k = state.shape[0] - 3 * x.shape[0]
-    same = True
-    for p in range(x.shape[0]):
-        for i in range(3):
-            if state[k + 3 * p + i] != x[p, i]:
-                same = False
-    if not same:
+    if not _at_remembered(x, state):
         rescan(state, active)
-    state[k] = math.nan
+    state[state.shape[0] - 3 * x.shape[0]] = math.nan
 
 
 @jit
