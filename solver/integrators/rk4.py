@@ -189,12 +189,12 @@ def _rattle_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, acc, x_old, carr
     contact = ex[6].shape[0] != 0
     if contact:     # the pairs that could touch, listed by the scans (kernels.barcontact)
         resume(x, ex[8], ex[11])
-    if not _carried(x, v, carry):
-        carry[0] = 0.0
+    carried = _carried(x, v, carry)
+    carry[0] = 0.0                  # set again by _hold when the call finishes
+    if not carried:
         status = dyn.accelerations(x, v, net, act, ws, acc)
         if status != dyn.OK:
             return 0, status
-    carry[0] = 0.0
     n = x.shape[0]
     for step in range(n_steps):
         h = dt
