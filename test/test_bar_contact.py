@@ -150,10 +150,10 @@ def _twists(sim, x):
 
 @pytest.mark.parametrize('name', ['fb_column', 'rb_column'])
 def test_the_paper_regime_is_unchanged_where_no_contact_acts(name):
-    """At 0.1, 0.125 and 0.15 m/s: where no contact force acted the summary equals the line-bar
-    one: to the last bit when the steps were the same, to 1e-6 (relative) when the contact step
-    control shortened steps near a closest approach (the integration error of the default step
-    moves); where a contact acted, the run says so (its contact count)."""
+    """At 0.1, 0.125 and 0.15 m/s: where no contact force acted the run takes the line-bar
+    steps and its summary equals the line-bar one to the last bit (near a closest approach the
+    plain step is kept when it surely passed clear); where a contact acted, the run says so
+    (its contact count)."""
     acted = []
     for v0 in (0.1, 0.125, 0.15):
         sets = [f'loading.impact.v0={v0}', 'run.t_end=1.2']
@@ -162,14 +162,11 @@ def test_the_paper_regime_is_unchanged_where_no_contact_acts(name):
         if with_bars.sim.contacts_met:
             acted.append(v0)
             continue
+        assert with_bars.sim.steps_taken == line.sim.steps_taken, v0
         a, b = with_bars.summary['pulse'], line.summary['pulse']
-        same_steps = with_bars.sim.steps_taken == line.sim.steps_taken
         for key, value in b.items():
             if isinstance(value, float):
-                if same_steps:
-                    assert a[key] == value, (v0, key)
-                else:
-                    assert math.isclose(a[key], value, rel_tol=1e-6, abs_tol=1e-12), (v0, key)
+                assert a[key] == value, (v0, key)
     assert len(acted) < 3, acted         # the bars act at most at the stronger impacts
 
 
@@ -282,3 +279,84 @@ def test_the_contact_energy_skips_only_pairs_that_store_none(name, method, v0):
     assert _pairs_known_apart(other) == 0
     e = bc.bar_energy(snap, pairs, bpar)
     assert e > 0.0 and bc.bar_energy_scanned(snap, pairs, bpar, other.model.act[3][8]) == e
+
+
+def _min_distance_over_step(x0, v, acc, h, n=201):
+    """Least axis distance of two bars whose four ends move exactly as ``x0 + v t + acc t^2 / 2``
+    over ``[0, h]``: a grid in time polished by a bounded scalar minimiser around its best
+    point (``segment_params`` is checked against a brute-force search above)."""
+    from scipy.optimize import minimize_scalar
+
+    def dist(t):
+        x = x0 + v * t + 0.5 * acc * t * t
+        a0, a1, b0, b1 = x
+        s, u = bc.segment_params(*a0, *(a1 - a0), *b0, *(b1 - b0))
+        return float(np.linalg.norm(a0 + s * (a1 - a0) - b0 - u * (b1 - b0)))
+
+    ts = np.linspace(0.0, h, n)
+    d = [dist(t) for t in ts]
+    k = int(np.argmin(d))
+    lo, hi = ts[max(k - 1, 0)], ts[min(k + 1, n - 1)]
+    polished = minimize_scalar(dist, bounds=(lo, hi), method='bounded',
+                               options={'xatol': 1e-12 * h}).fun
+    return min(min(d), polished)
+
+
+def _axis_distance(x, pairs):
+    s, t, nx, ny, nz = bc._pair(x, pairs, 0)
+    return math.sqrt(nx * nx + ny * ny + nz * nz)
+
+
+def test_the_near_miss_bound_never_passes_a_touch_and_passes_sliding_bars():
+    """``_kept_apart`` (a step that passed clear of a close pair) against exact motions: two
+    crossed bars 50 mm long sliding over each other at up to 0.1 m/s, turning, approaching and
+    accelerating (up to 20 m/s^2) within a 3.3 ms step, the threshold ``D`` either between
+    their least distance and the distances at both ends (a touch the ends do not see) or up to
+    30 um below the least distance (a near miss). The bound must never pass a step whose true least distance
+    reaches ``D``, and it must pass most near misses that the crude bound of the relative end
+    speed (``g0 + g1 > 2 (V h + A h^2 / 2)``) refuses: the case of a twisting prism."""
+    rng = np.random.default_rng(11)
+    pairs = np.array([[0, 0, 1, 0, 2, 0, 3, 0]], dtype=np.int64)
+    h, L = 1e-2 / 3, 0.05
+    passed = refused_crude = passed_near = unsound = touching = 0
+    for _ in range(400):
+        ta, tb = rng.normal(size=3), rng.normal(size=3)
+        ta /= np.linalg.norm(ta)
+        tb -= (tb @ ta) * ta
+        tb /= np.linalg.norm(tb)
+        tb = np.cos(rng.uniform(0.3, 1.2)) * ta + np.sin(rng.uniform(0.3, 1.2)) * tb
+        tb /= np.linalg.norm(tb)
+        n = np.cross(ta, tb)
+        n /= np.linalg.norm(n)
+        ca = rng.uniform(-0.3, 0.3) * L * ta
+        xm = np.array([ca - 0.5 * L * ta, ca + 0.5 * L * ta,     # crossed at mid-step
+                       -0.5 * L * tb + 5e-4 * n, 0.5 * L * tb + 5e-4 * n])
+        slide = rng.uniform(-0.1, 0.1, size=(4, 1)) * np.array([ta, ta, tb, tb])
+        vm = slide + rng.normal(scale=0.01, size=(4, 3))
+        vm[:2] += rng.uniform(-0.005, 0.005) * n          # bar a moves towards or away from b
+        acc = rng.normal(scale=20.0 / 3 ** 0.5, size=(4, 3)) * rng.uniform(0.0, 1.0)
+        x0 = xm - 0.5 * h * vm + 0.125 * h * h * acc       # the motion through xm at h / 2
+        v = vm - 0.5 * h * acc
+        x1 = x0 + v * h + 0.5 * acc * h * h
+        true_min = _min_distance_over_step(x0, v, acc, h)
+        ends = min(_axis_distance(x0, pairs), _axis_distance(x1, pairs))
+        if rng.uniform() < 0.5:         # touches within the step, clear at both ends
+            D = true_min + rng.uniform(0.0, 1.0) * (ends - true_min)
+        else:                           # a near miss, by up to 30 um
+            D = true_min - rng.uniform(0.0, 3e-5)
+        if D >= ends:
+            continue                                       # refused before either bound
+        g0, g1 = _axis_distance(x0, pairs) - D, _axis_distance(x1, pairs) - D
+        V, A = bc._reach(v, pairs[0]), bc._reach(acc, pairs[0])
+        ok = bc._kept_apart(x0, x1, pairs, 0, D, V, A, h)
+        if true_min <= D:
+            touching += 1
+            unsound += ok
+            continue
+        passed += ok
+        if g0 + g1 <= 2.0 * (V * h + 0.5 * A * h * h) and true_min - D > A * h * h / 4.0:
+            refused_crude += 1
+            passed_near += ok
+    assert touching > 20 and unsound == 0                 # never passes a step that touched
+    assert refused_crude > 20
+    assert passed_near == refused_crude                   # and keeps the near misses
