@@ -314,7 +314,8 @@ def test_the_near_miss_bound_never_passes_a_touch_and_passes_sliding_bars():
     their least distance and the distances at both ends (a touch the ends do not see) or up to
     30 um below the least distance (a near miss). The bound must never pass a step whose true
     least distance reaches ``D``, and it must pass every near miss by more than ``A h^2 / 4``
-    that the crude bound of the relative end speed (``g0 + g1 > 2 (V h + A h^2 / 2)``) refuses: the case of a twisting prism."""
+    that the crude bound of the relative end speed (``g0 + g1 > 2 (V h + A h^2 / 2)``) refuses:
+    the case of a twisting prism."""
     rng = np.random.default_rng(11)
     pairs = np.array([[0, 0, 1, 0, 2, 0, 3, 0]], dtype=np.int64)
     h, L = 1e-2 / 3, 0.05
