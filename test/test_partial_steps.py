@@ -42,8 +42,10 @@ def test_fractions_of_a_step_land_on_its_end_and_converge_to_the_reference():
 
 def test_in_lasting_contact_fractions_cost_their_share_of_the_sub_steps():
     """A column pressed into bar contact takes tens of contact sub-steps per step; taken in
-    quarters, the same stretch costs about the same sub-steps (a contact's steps follow its own
-    duration, not the call), so a tick that fits only part of a step still makes progress."""
+    quarters, the same stretch costs no more sub-steps (a contact's steps follow its own
+    duration, not the call; quarter steps may cost fewer, as more of their near misses are
+    slow enough to be kept whole), so a tick that fits only part of a step still makes
+    progress."""
     sim = _sim()
     for _ in range(30):                          # a hammered column: lasting contact
         sim.apply_impact(0.15)
@@ -59,7 +61,7 @@ def test_in_lasting_contact_fractions_cost_their_share_of_the_sub_steps():
         twin.advance_part(0.25)
     quarters = twin.steps_taken - before
     assert twin.t == pytest.approx(sim.t, rel=0, abs=1e-12)
-    assert 0.75 * whole <= quarters <= 1.25 * whole
+    assert quarters <= 1.25 * whole
     assert abs(twin.energy_error()) < twin.div.energy_error
 
 
