@@ -10,7 +10,11 @@
 - ``cluster``: a ``workers``-process ``LocalCluster``, one Dask task per batch, each batch on one
   thread, cluster start and close included.
 
-Ratios are of wall times against the serial sweep (per point for ``batched_1``). Where the rest
+The first three run interleaved: in each of :data:`ROUNDS` rounds a share of the points (every
+``ROUNDS``-th, spanning the grid) runs all three ways, in an order that rotates from round to
+round, so that the host's speed drifting over the minute weighs on all three alike (on this
+shared host two back-to-back runs gave 0.64x and 0.77x for the same code). Ratios are of wall
+times against the serial sweep (per point for ``batched_1``). Where the rest
 goes: ``set-up`` (scenes, simulations, shared reductions: the part of each point outside the
 threads), ``busy`` (a point's steps, records and summary on its thread: the summed busy time over
 the wall time and the threads is the threads' use), and for the cluster its start, close and the
@@ -18,6 +22,7 @@ first task of each worker (the numba cache load). Written to ``sweep.json``.
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import tempfile
 import time
@@ -25,6 +30,7 @@ from pathlib import Path
 
 from .common import COLUMNS
 
+ROUNDS = 6                   # interleaved rounds of the serial and batched runs (see main)
 V0S = '0.06:0.13:16'
 PRESTRAINS = '0.0015:0.0035:16'
 
@@ -60,14 +66,33 @@ def main(out, quick=False, log=print, workers=2):
         t0 = time.perf_counter()
         sw.run_point(serial.scene, serial.overrides(serial.points[0]))      # kernels warm
         res['serial_first_point_s'] = time.perf_counter() - t0
-        res['serial_s'], rows_s = _timed(sw, serial, task=sw.run_point)
+        sw.run_points(serial.scene, [(None, serial.overrides(serial.points[0]))], threads=1)
+        # the three in-process runs interleaved: ROUNDS rounds, each a share of the points
+        # (every ROUNDS-th, so each share spans the grid) run all three ways in a rotating order,
+        # so that a drift of the host's speed over the minute weighs on all three alike
+        kinds = (('serial', {'task': sw.run_point}), ('batched_1', {'threads': 1}),
+                 ('batched_threads', {'threads': workers}))
+        times = {k: 0.0 for k, _ in kinds}
+        rows = {k: [None] * n for k, _ in kinds}
+        for r in range(ROUNDS):
+            idx = list(range(r, n, ROUNDS))
+            for kind, kw in kinds[r % 3:] + kinds[:r % 3]:
+                sub = dataclasses.replace(serial, points=[serial.points[i] for i in idx],
+                                          out_dir=Path(tmp) / f'{kind}_{r}')
+                t, got = _timed(sw, sub, **kw)
+                times[kind] += t
+                for i, row in zip(idx, got):
+                    rows[kind][i] = row
+        rows_s, rows_1, rows_t = rows['serial'], rows['batched_1'], rows['batched_threads']
+        res['rounds'] = ROUNDS
+        res['serial_s'] = times['serial']
         log(f"  serial single runs {res['serial_s']:.2f} s ({res['serial_s'] / n * 1e3:.1f} ms "
             'a point)')
-        res['batched_1_s'], rows_1 = _timed(sw, build('batched_1'), threads=1)
+        res['batched_1_s'] = times['batched_1']
         res['batched_1_ratio_per_point'] = res['batched_1_s'] / res['serial_s']
         log(f"  batched, 1 thread {res['batched_1_s']:.2f} s: "
             f"{res['batched_1_ratio_per_point']:.3f}x a single run per point")
-        res['batched_threads_s'], rows_t = _timed(sw, build('threads'), threads=workers)
+        res['batched_threads_s'] = times['batched_threads']
         res['batched_threads_ratio'] = res['batched_threads_s'] / res['serial_s']
         log(f"  batched, {workers} threads {res['batched_threads_s']:.2f} s: "
             f"{res['batched_threads_ratio']:.3f}x serial")

@@ -40,6 +40,7 @@ import numpy as np
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 
+from solver.build import memo
 from solver.kernels import massmatrix
 
 
@@ -134,29 +135,9 @@ class Network:
         if np.any(bar_mass < 0) or np.any(node_mass < 0):
             raise NetworkError('masses must be non-negative')
 
-        class_k = massmatrix.needs_kkt(bars, bar_mass)
-        if class_k:
-            w_diag, partner, w_off, mass = _diagonal_inverse_mass(node_mass, is_clamped, bars,
-                                                                  bar_mass)
-        else:
-            w_diag, partner, w_off = _inverse_mass(node_mass, is_clamped, bars, bar_mass)
-
-        members = np.concatenate([bars, edges]) if len(edges) else bars
-        length = np.linalg.norm(x0[members[:, 1]] - x0[members[:, 0]], axis=1)
-        if np.any(length <= 0):
-            raise NetworkError('a rigid member has zero length')
-        free = ~(is_clamped[members[:, 0]] & is_clamped[members[:, 1]])
-        members, length = members[free], length[free]
-        order, bw = _band_order(members, partner)
-        members, length = members[order], length[order]
-        coef = _coupling(members, w_diag, partner, w_off, bw)
-        if len(members) and np.any(coef[:, 0] <= 0):
-            raise NetworkError('a rigid member has no free mass at either end')
-
-        kkt = massmatrix.NO_KKT
-        if class_k:
-            node_u, con_u, dims = massmatrix.layout(n, is_clamped, members, mass[0], mass[1], x0)
-            kkt = tuple(_ro(a, a.dtype) for a in (node_u, con_u, mass[0], mass[1], mass[2], dims))
+        w_diag, partner, w_off, members, length, bw, coef, kkt = memo.lookup(
+            'constraints', (x0, node_mass, is_clamped, bars, bar_mass, edges),
+            lambda: _constraints(x0, node_mass, is_clamped, bars, bar_mass, edges))
         if levels is None:
             levels = np.zeros((0, 0, 3), dtype=np.int64)
         kind = tuple(cable_kind) if cable_kind is not None else ('cable',) * len(cables)
@@ -307,3 +288,36 @@ def _coupling(members, w_diag, partner, w_off, bw):
                         total += sp * sq * w_off[p]
             coef[c, k] = total
     return coef
+
+
+def _constraints(x0, node_mass, is_clamped, bars, bar_mass, edges):
+    """The mass-weighted constraint structure of a network: inverse mass (or the KKT layout of
+    massive bars), the free rigid members in band order, their lengths, bandwidth and coupling
+    coefficients. It depends on the geometry, masses and members only (not on the cables), so
+    the points of a sweep that differ in prestrain or impact share it (:mod:`solver.build.memo`,
+    inside a batch)."""
+    class_k = massmatrix.needs_kkt(bars, bar_mass)
+    if class_k:
+        w_diag, partner, w_off, mass = _diagonal_inverse_mass(node_mass, is_clamped, bars,
+                                                              bar_mass)
+    else:
+        w_diag, partner, w_off = _inverse_mass(node_mass, is_clamped, bars, bar_mass)
+
+    members = np.concatenate([bars, edges]) if len(edges) else bars
+    length = np.linalg.norm(x0[members[:, 1]] - x0[members[:, 0]], axis=1)
+    if np.any(length <= 0):
+        raise NetworkError('a rigid member has zero length')
+    free = ~(is_clamped[members[:, 0]] & is_clamped[members[:, 1]])
+    members, length = members[free], length[free]
+    order, bw = _band_order(members, partner)
+    members, length = members[order], length[order]
+    coef = _coupling(members, w_diag, partner, w_off, bw)
+    if len(members) and np.any(coef[:, 0] <= 0):
+        raise NetworkError('a rigid member has no free mass at either end')
+
+    kkt = massmatrix.NO_KKT
+    if class_k:
+        node_u, con_u, dims = massmatrix.layout(len(x0), is_clamped, members, mass[0], mass[1],
+                                                x0)
+        kkt = tuple(_ro(a, a.dtype) for a in (node_u, con_u, mass[0], mass[1], mass[2], dims))
+    return w_diag, partner, w_off, members, length, bw, coef, kkt

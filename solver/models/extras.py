@@ -8,7 +8,7 @@ import numpy as np
 from solver.kernels import barcontact
 from solver.kernels import dynamics as dyn
 from solver.kernels.contact import NO_EXTRAS
-from solver.models import memo
+from solver.build import memo
 
 
 def active_spec(spec):
@@ -44,10 +44,19 @@ def bar_pairs(network):
     return np.array(pairs, dtype=np.int64).reshape(-1, 4) if pairs else None
 
 
+def _read_only(a):
+    if a is not None:
+        a.setflags(write=False)
+    return a
+
+
 def _bar_contact(scene, network):
     """``(pairs, bpar)`` of the scene's bar contact (:mod:`solver.kernels.barcontact`), or
     ``(None, None)`` with ``contact.bars: none`` or no prisms."""
-    pairs = bar_pairs(network) if scene.contact.bars != 'none' else None
+    pairs = None
+    if scene.contact.bars != 'none':         # one search per topology inside a batch
+        pairs = memo.lookup('bar-pairs', (network.levels, network.bar_a, network.bar_b),
+                            lambda: _read_only(bar_pairs(network)))
     if pairs is None:
         return None, None
     mat = scene.materials
@@ -65,7 +74,7 @@ def _model_pairs(pairs, reduced):
     """``pairs`` (full node indices) as the kernel's (n, 8) node/rotation rows of a model: all
     rotations 0 in ``full3d``; in ``sym3d`` one pair per orbit of three under the rotation (its
     ends as representatives and rotations), and the energy multiplicity 3 (found once per
-    topology inside :func:`solver.models.memo.sharing`)."""
+    topology inside :func:`solver.build.memo.sharing`)."""
     if reduced is None:
         rows = np.zeros((len(pairs), 8), dtype=np.int64)
         rows[:, 0::2] = pairs

@@ -28,7 +28,7 @@ from scipy.spatial import cKDTree
 
 from solver.kernels import dynamics as dyn
 from solver._jit import jit
-from solver.models import memo
+from solver.build import memo
 from solver.models.base import Model
 from solver.kernels.rotation import ROT_C, ROT_S
 from solver.kernels import massmatrix
@@ -131,7 +131,7 @@ def _reduce_members(pairs, rep, rot, props, what):
 
     ``props`` (n_members, k) values that must agree along an orbit (rest length, EA, ...).
 
-    Inside :func:`solver.models.memo.sharing` the grouping of a topology (``pairs``, ``rep``,
+    Inside :func:`solver.build.memo.sharing` the grouping of a topology (``pairs``, ``rep``,
     ``rot``) is found once: another network of that topology takes it when its own ``props``
     agree along every group it makes (as the search below would require them to), else it is
     searched for again."""
@@ -222,7 +222,7 @@ REDUCE_INPUTS = ('x0', 'node_mass', 'clamped', 'bar_a', 'bar_b', 'bar_mass', 'ed
 
 def reduce_network(network, tol=1e-9):
     """The :class:`ReducedNetwork` of a 3-fold symmetric network; raises :class:`NotSymmetric`.
-    Inside :func:`solver.models.memo.sharing` a network of the same values (every array of
+    Inside :func:`solver.build.memo.sharing` a network of the same values (every array of
     :data:`REDUCE_INPUTS`) gets the same (read-only) result, and one of the same topology reuses
     its orbits' member grouping (:func:`_reduce_members`)."""
     return memo.lookup('reduce', (tol, *(getattr(network, k) for k in REDUCE_INPUTS)),

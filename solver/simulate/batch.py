@@ -13,7 +13,7 @@ impacts, contact and damping parameters may differ. Every instance has its own s
 step diverges (or fails) stops, keeps its state, and is reported (``status`` ``diverged`` or
 ``error``, ``reasons`` its one-line message) while the others go on. What instances of one
 network topology share is built once: while a batch builds its instances the memo of
-:mod:`solver.models.memo` is on (the sym3d reduction, the grouping of the topology's member
+:mod:`solver.build.memo` is on (the sym3d reduction, the grouping of the topology's member
 orbits, the reduced bar-contact pairs).
 
 :func:`simulate_batch` is :func:`solver.simulate.runner.simulate` for a list of (scene,
@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 
 from solver.build.scene import Scene
-from solver.models import memo
+from solver.build import memo
 from solver.simulate.array import simulation_for
 from solver.simulate.parallel import default_threads, each as parallel_each
 from solver.simulate.runner import ImpactTrain, Point, Recorder, summary

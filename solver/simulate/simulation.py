@@ -23,7 +23,8 @@ from solver import status as codes
 from solver._jit import compiled_overload
 from solver.kernels import dynamics as dyn
 from solver.kernels import contact
-from solver.models import extras, memo
+from solver.build import memo
+from solver.models import extras
 from solver.integrators import registry as integrators
 from solver.models import family as models
 from solver.analysis import observables

@@ -154,7 +154,7 @@ TOPOLOGY_KEYS = ('structure.', 'model', 'contact.bars', 'contact.lock', 'loading
 def topology_of(overrides):
     """What of a point's ``overrides`` may change its network topology (a key of
     :data:`TOPOLOGY_KEYS` set to a value that is not a float): the points of a batch agree on it,
-    so they share the topology's sym3d reduction (:mod:`solver.models.memo`)."""
+    so they share the topology's sym3d reduction (:mod:`solver.build.memo`)."""
     return tuple(sorted((k, repr(canonical(v))) for k, v in overrides.items()
                         if k.startswith(TOPOLOGY_KEYS) and not isinstance(canonical(v), float)))
 

@@ -6,8 +6,11 @@ network).
 Keys are digests of the *values* a result is computed from (array bytes, shapes and dtypes), so a
 hit returns what the computation would return for those values: the sym3d reduction of a network
 (:func:`solver.models.sym3d.reduce_network`: the orbit and member maps depend on the topology and
-the geometry's symmetry only, the rest on the values; see there), the reduced bar-contact pairs of
-:func:`solver.models.extras._model_pairs`. Outside :func:`sharing` nothing is kept.
+the geometry's symmetry only, the rest on the values; see there), the constraint structure of a
+network (:func:`solver.build.network._constraints`: geometry, masses and members, not the cables,
+so points that differ in prestrain share it), the bar pairs that can touch and their reduced
+rows (:mod:`solver.models.extras`). Outside :func:`sharing` nothing is kept. What it returns is
+shared: callers copy it or only read it.
 """
 from __future__ import annotations
 
