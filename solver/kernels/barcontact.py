@@ -374,7 +374,7 @@ def _kept_apart(x0, x1, pairs, i, D, V, A, h):
         return False
     c = math.sqrt(c2)
     low0, far = _separation(x0, p, n0x, n0y, n0z)
-    low1, far1 = _separation(x1, p, n1x, n1y, n1z)
+    low1, _ = _separation(x1, p, n1x, n1y, n1z)
     K = (3.0 * d * d / (c2 * h * h) * (far + V * h + 0.5 * A * h * h)
          + 2.0 * d / (c * h) * (V + A * h) + A)
     return min(low0, low1) - K * h * h / 8.0 > D
