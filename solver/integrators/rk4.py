@@ -92,10 +92,13 @@ def _contact_aware_step(x, v, h, a1, net, act, ws, met):
 
 
 @jit
-def _rk4_advance(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, project):
+def _rk4_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, project):
     """Advance by ``n_steps * dt`` with classical RK4; with ``kinks`` a step is shortened to land
     on the next cable slack/taut transition, with ``project`` positions and velocities are
-    projected on the rigid members after every step. Returns (RK4 steps taken, status)."""
+    projected on the rigid members after every step (``rk4_projected``; without, ``rk4``: the
+    constraints hold only at the acceleration level, so bar lengths drift, and ``tol``,
+    ``max_iter`` are unused). One kernel for both methods, ``project`` an argument: one
+    compilation instead of two. Returns (RK4 steps taken, status)."""
     a1 = ws[10]
     ex = act[3]
     if ex[6].shape[0] != 0:
@@ -128,19 +131,6 @@ def _rk4_advance(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, project)
     if ex[6].shape[0] != 0:
         remember(x, ex[8])
     return steps, dyn.OK
-
-
-@jit
-def _rk4_projected_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks):
-    """RK4 with projection after every step (see :func:`_rk4_advance`)."""
-    return _rk4_advance(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, True)
-
-
-@jit
-def _rk4_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks):
-    """:func:`_rk4_projected_run` without the projections (``tol``, ``max_iter`` unused): the
-    constraints hold only at the acceleration level, so bar lengths drift."""
-    return _rk4_advance(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, False)
 
 
 @jit
@@ -229,17 +219,10 @@ def _rattle_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, acc, x_old, carr
 # The checked kernels (Integrator.checked_args): the run kernel between keep_state and
 # dynamics.state_summary, in one compiled call (a Simulation.advance makes no other).
 @jit
-def _rk4_projected_checked(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, keep, summ,
-                           heights):
+def _rk4_checked(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, project, keep, summ,
+                 heights):
     keep_state(x, v, keep)
-    out = _rk4_advance(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, True)
-    return out + dyn.state_summary(x, v, net, act, summ, heights)
-
-
-@jit
-def _rk4_checked(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, keep, summ, heights):
-    keep_state(x, v, keep)
-    out = _rk4_advance(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, False)
+    out = _rk4_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, project)
     return out + dyn.state_summary(x, v, net, act, summ, heights)
 
 
@@ -258,8 +241,11 @@ class RK4Projected(Integrator):
     order = 4
     projected = True
     evaluations_per_step = 4
-    kernel = staticmethod(_rk4_projected_run)
-    checked = staticmethod(_rk4_projected_checked)
+    kernel = staticmethod(_rk4_run)
+    checked = staticmethod(_rk4_checked)
+
+    def extra_args(self, x, kinks):
+        return (bool(kinks), self.projected)
 
 
 class RK4(RK4Projected):
@@ -267,8 +253,6 @@ class RK4(RK4Projected):
     kinks."""
     name = 'rk4'
     projected = False
-    kernel = staticmethod(_rk4_run)
-    checked = staticmethod(_rk4_checked)
 
 
 class Rattle(Integrator):
