@@ -15,7 +15,7 @@ import numpy as np
 
 from solver.kernels import dynamics as dyn
 from solver._jit import jit
-from solver.kernels.barcontact import gate
+from solver.kernels.contactsteps import gate
 from solver.kernels.kinks import next_kink
 
 
@@ -83,7 +83,7 @@ def profile(model, dt, n=2000, tol=1e-12, max_iter=3):
 
     Returns ``{'accelerations': s, 'next_kink': s, 'project_positions': s,
     'project_velocities': s}`` (``accelerations`` is one force-and-constraint evaluation), and
-    ``contact_scan`` with bar contact (:func:`solver.kernels.barcontact.gate`, on copies of the
+    ``contact_scan`` with bar contact (:func:`solver.kernels.contactsteps.gate`, on copies of the
     contact state, which the evaluation then uses). The
     projections are timed from a state pushed off the constraint manifold by one explicit Euler
     step of ``dt`` (what they see after a Runge-Kutta step); the copy that restores it is

@@ -11,6 +11,7 @@ import pytest
 
 from solver.build.scene import Scene
 from solver.kernels import barcontact as bc
+from solver.kernels import contactsteps as cs
 from solver.simulate.array import simulation_for
 from solver.simulate.runner import simulate
 from solver.simulate.simulation import SimulationDiverged
@@ -348,8 +349,8 @@ def test_the_near_miss_bound_never_passes_a_touch_and_passes_sliding_bars():
         if D >= ends:
             continue                                       # refused before either bound
         g0, g1 = _axis_distance(x0, pairs) - D, _axis_distance(x1, pairs) - D
-        V, A = bc._reach(v, pairs[0]), bc._reach(acc, pairs[0])
-        ok = bc._kept_apart(x0, x1, pairs, 0, D, V, A, h)
+        V, A = cs._reach(v, pairs[0]), cs._reach(acc, pairs[0])
+        ok = cs._kept_apart(x0, x1, pairs, 0, D, V, A, h)
         if true_min <= D:
             touching += 1
             unsound += ok

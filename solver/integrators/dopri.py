@@ -22,7 +22,8 @@ import numpy as np
 from solver.kernels import dynamics as dyn
 from solver._jit import jit
 from solver.integrators.base import Integrator
-from solver.kernels.barcontact import contact_step, remember, resume
+from solver.kernels.barcontact import remember
+from solver.kernels.contactsteps import contact_step, resume
 from solver.kernels.kinks import keep_state, next_kink
 from solver.status import STEP_TOO_SMALL
 
@@ -102,7 +103,7 @@ def dopri_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, rtol, atol,
     pw = np.zeros(7)                    # the cable damping's power at the stages
     dis = act[3][10]
     if act[3][6].shape[0] != 0:
-        resume(x, act[3][8], act[3][11])   # the scans (kernels.barcontact)
+        resume(x, act[3][8], act[3][11])   # the scans (kernels.contactsteps)
     while total - t > 1e-9 * dt:
         if need_k1:
             kx[0, :, :] = v

@@ -5,8 +5,9 @@ from __future__ import annotations
 from solver._jit import jit
 from solver.integrators.base import Integrator
 from solver.kernels import dynamics as dyn
-from solver.kernels.barcontact import (add_motion, contact_step, gate, motion_so_far,
-                                      passed_clear, remember, resume)
+from solver.kernels.barcontact import remember
+from solver.kernels.contactsteps import (add_motion, contact_step, gate, motion_so_far,
+                                       passed_clear, resume)
 from solver.kernels.contact import striker_step
 from solver.kernels.kinks import keep_state, next_kink
 
@@ -58,9 +59,9 @@ def _contact_aware_step(x, v, h, a1, net, act, ws, met):
     (:mod:`solver.kernels.barcontact`): the plain step of ``h`` when no contact can start within
     it; when one could, the plain step is still tried, with the contact forces looked for, and
     kept if none of its evaluations met a contact and it surely passed clear of every contact
-    (:func:`~solver.kernels.barcontact.passed_clear`: a near miss changes nothing); otherwise,
+    (:func:`~solver.kernels.contactsteps.passed_clear`: a near miss changes nothing); otherwise,
     and while a contact lasts, the step of
-    :func:`~solver.kernels.barcontact.contact_step`. Returns (status, the step taken)."""
+    :func:`~solver.kernels.contactsteps.contact_step`. Returns (status, the step taken)."""
     ex = act[3]
     touched_at_start = ex[8][0] > met
     known = motion_so_far(ex[8])
@@ -102,7 +103,7 @@ def _rk4_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, project):
     a1 = ws[10]
     ex = act[3]
     if ex[6].shape[0] != 0:
-        resume(x, ex[8], ex[11])    # the contact scans (kernels.barcontact)
+        resume(x, ex[8], ex[11])    # the contact scans (kernels.contactsteps)
     total = n_steps * dt
     t = 0.0
     steps = 0
@@ -177,7 +178,7 @@ def _rattle_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, acc, x_old, carr
     lies in the range the velocity projection removes, so stage 2 is exactly RATTLE's."""
     ex = act[3]
     contact = ex[6].shape[0] != 0
-    if contact:     # the pairs that could touch, listed by the scans (kernels.barcontact)
+    if contact:     # the pairs that could touch, listed by the scans (kernels.contactsteps)
         resume(x, ex[8], ex[11])
     carried = _carried(x, v, carry)
     carry[0] = 0.0                  # set again by _hold when the call finishes

@@ -169,7 +169,7 @@ def _pair_slots(spec, reduced, n_rows, levels):
     bpar = spec['bpar'].copy()
     bpar[2] = mult
     # contacts met, slack, look, motion since the last rescan (barcontact.HEAD entries), each
-    # pair's and each prism's gap bound (kernels.barcontact.contact_step), the positions the
+    # pair's and each prism's gap bound (kernels.contactsteps.contact_step), the positions the
     # last call ended at (resume); the motion NaN: the first scan evaluates every pair
     prisms = levels.shape[0] * max(levels.shape[1] - 1, 0) if levels.size else 0
     state = np.concatenate(([0.0, -1.0, 1.0, np.nan], np.zeros(len(rows) + prisms),
