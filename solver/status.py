@@ -44,12 +44,16 @@ HINT_CONSTRAINT = ('use a projected method (rk4_projected, rattle, dopri54_proje
 HINT_ENERGY = 'try a smaller integrator.dt or another method (rattle, dopri54_projected)'
 HINT_SLACK = ('cables went slack and the prism collapsed: raise the prestrain or lower the impact '
               'velocity')
-HINT_LOCK = ('the bars of the prism crossed (past the rigid-base lock at 180 deg, or fully '
-             'untwisted): lower the impact velocity, or stop the prisms at the lock with '
-             'contact.lock=penalty (divergence.bar_crossing=none lets bars pass through each '
-             'other)')
+HINT_LOCK = ('the bars of the prism crossed at the rigid-base lock: lower the impact velocity, or '
+             'stop the prisms at the lock with contact.lock=penalty (divergence.bar_crossing=none '
+             'lets bars pass through each other)')
 HINT_LOCK_CONTACT = ('the bars of the prism crossed although contact.lock is on: raise '
                      'contact.stiffness or contact.tolerance (and lower integrator.dt)')
+HINT_LOCK_BARS = ('the bars of the prism crossed although bar contact is on: lower '
+                  'integrator.dt or raise contact.resolution')
+HINT_UNTWIST = ('the prism was pulled out to its full bar length and turned over to the other '
+                'hand: lower the impact velocity (divergence.bar_crossing=none lets the run go on '
+                'through it)')
 DIAGNOSIS = {
     SINGULAR: ('rigid members', 'rigid members became degenerate (e.g. a rigid-base prism '
                    'driven through its lock by a fast impact): lower the impact velocity or try a '

@@ -77,10 +77,15 @@ class Checks:
             bad = None if twist is None else ~(twist * self._twist_sign > 0.0)
             if bad is not None and np.any(bad):
                 c, i = np.argwhere(bad)[0]
-                return ('prism twist', f'prism {i} of column {c} twisted through 0 or 180 deg '
-                                       f'({math.degrees(twist[c, i]):.1f} deg)',
-                        codes.HINT_LOCK if self._extras['stop_h'] is None
-                        else codes.HINT_LOCK_CONTACT)
+                deg = math.degrees(twist[c, i])
+                if abs(deg) < 90.0:     # through 0: unwound to full length, not a crossing
+                    return ('prism twist', f'prism {i} of column {c} untwisted through 0 deg '
+                                           f'({deg:.1f} deg)', codes.HINT_UNTWIST)
+                hint = (codes.HINT_LOCK_CONTACT if self._extras['stop_h'] is not None
+                        else codes.HINT_LOCK_BARS if not self.bar_contact.startswith('none')
+                        else codes.HINT_LOCK)
+                return ('prism twist', f'prism {i} of column {c} twisted through 180 deg '
+                                       f'({deg:.1f} deg)', hint)
         return None
 
     def _locate(self, n, keep, problem):
