@@ -100,7 +100,7 @@ def profile(model, dt, n=2000, tol=1e-12, max_iter=3):
         dyn.accelerations(x, v, net, act, ws, acc)
         out['contact_scan'] = _timed(_loop_gate, x, v, acc, ex, state, active, dt, n=n)
         # the force evaluation looks at the pairs the scan listed
-        act = (*act[:3], (*ex[:8], state, *ex[9:11], active))
+        act = (*act[:3], (*ex[:8], state, *ex[9:11], active, *ex[12:]))
     t_acc = _timed(_loop_acc, x, v, net, act, ws, acc, n=n)
     dyn.accelerations(x, v, net, act, ws, acc)
     t_kink = _timed(_loop_kink, x, v, acc, net, act, dt, n=n)

@@ -6,7 +6,8 @@ Everything here enters the dynamics through one tuple, the fourth slot of the ``
     (damp (n_cables,) N s/m, levels (n_columns, n_levels, k) node indices,
      stop_h (n_columns, n_prisms) m, st_row (n_strikers,), st_col (n_strikers,), par (6,),
      pairs (n_pairs, 8), bpar (6,), touched (3,), saved (2, n_nodes, 3), dissipation (2,),
-     active (n_pairs + 1,))
+     active (n_pairs + 1,), x0 (n_nodes, 3), node_mass, clamped, node_mult (n_nodes,),
+     bar_a, bar_b, bar_mass (n_massive_bars,), cable_mult (n_cables,), rate (1,))
 
 ``par = (k_stop N/m, k_contact, contact exponent (1 linear, 1.5 Hertz), nodes per level of the
 full network, striker mass kg, gravity m/s^2, steps per striker contact, effective mass kg of a
@@ -15,7 +16,9 @@ striker against its column's end level)``; ``pairs`` and ``bpar``: the bar pairs
 contact scan's slack m and whether forces must look for contacts; ``saved`` holds the state a
 step started from (scratch of the integrators' contact steps); ``dissipation``: the power W the
 cable damping takes out at the last force evaluation and the energy J it took out so far;
-``active``: the pairs the force evaluations look at.
+``active``: the pairs the force evaluations look at; ``x0`` to ``cable_mult``: the state
+summary's arrays (:func:`solver.kernels.dynamics.step_energy`, with bar contact only) and
+``rate`` the energy balance a whole step beside a near miss may spend, relative, per second.
 Empty arrays switch a part off: with all of them empty (:data:`NO_EXTRAS`, what
 :func:`solver.kernels.dynamics.pack` gives) the kernels of
 :mod:`solver.kernels.dynamics` take exactly the code path they take without this module.
@@ -52,7 +55,11 @@ def _empty(shape, dtype=np.float64):
 NO_EXTRAS = (_empty(0), _empty((0, 0, 1), np.int64), _empty((0, 0)), _empty(0, np.int64),
              _empty(0, np.int64), _empty(8), _empty((0, 8), np.int64), _empty(6),
              _empty(3), _empty((2, 0, 3)), _empty(2),
-             np.full(1, -1, dtype=np.int64))
+             np.full(1, -1, dtype=np.int64),
+             # the energy of a state without contact (models.extras.energy_slots): x0, node
+             # mass, clamped, node and cable multiplicity, massive bars, and the balance rate
+             _empty((0, 3)), _empty(0), _empty(0, np.bool_), _empty(0), _empty(0, np.int64),
+             _empty(0, np.int64), _empty(0), _empty(0), _empty(1))
 
 
 def active(extras):

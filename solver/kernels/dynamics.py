@@ -471,6 +471,22 @@ def state_summary(x, v, net, act, summ, heights):
 
 
 @jit
+def step_energy(x, v, net, act):
+    """Energy J of a state in which no contact acts (kinetic, cable, external forces, and strikers
+    and prism stops where a scene has them), from the state summary's arrays the extras carry
+    (``act[3][12:20]``, :func:`solver.models.extras.energy_slots`); NaN when they are empty."""
+    ex = act[3]
+    if ex[13].shape[0] == 0:
+        return math.nan
+    e = (_node_energy(x, v, ex[12], act[2], ex[13], ex[14], ex[15])
+         + _bar_kinetic_energy(v, ex[16], ex[17], ex[18])
+         + _cable_energy(x, net[7], net[8], net[10], act[0], act[1], ex[19]))
+    if ex[2].shape[0] != 0 or ex[3].shape[0] != 0:      # strikers, prism stops
+        e += extra_energy(x, v, ex)
+    return e
+
+
+@jit
 def cable_tensions(x, cable_a, cable_b, rest, EA, out):
     """Tension per cable (n_cables,) N, zero when slack."""
     for c in range(cable_a.shape[0]):

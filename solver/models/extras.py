@@ -157,7 +157,8 @@ def scene_extras(scene, network):
     pairs, bpar = _bar_contact(scene, network)
     return {'damp': cable_damping(scene, network),
             'stop_h': stop_heights(network, scene.contact.tolerance) if lock else None,
-            'strikers': strikers, 'par': par, 'pairs': pairs, 'bpar': bpar}
+            'strikers': strikers, 'par': par, 'pairs': pairs, 'bpar': bpar,
+            'energy_rate': float(scene.divergence.energy_error)}
 
 
 def _pair_slots(spec, reduced, n_rows, levels):
@@ -200,7 +201,24 @@ def network_extras(spec, network):
     levels = np.array(network.levels, dtype=np.int64) if network.levels.size else NO_EXTRAS[1]
     return (damp, levels, stop_h, NO_EXTRAS[3], NO_EXTRAS[4], spec['par'].copy(),
             *_pair_slots(spec, None, network.n_nodes, levels), _dissipation_slot(spec),
-            _active_slot(spec))
+            _active_slot(spec), *NO_EXTRAS[12:])
+
+
+def energy_slots(model, spec):
+    """The last extras slots: copies of the model's state summary arrays (``x0``, node mass,
+    clamped, node multiplicity, massive bars, cable multiplicity) and ``divergence.energy_error``
+    as a rate per second, for :func:`solver.kernels.dynamics.step_energy`, which the RK4 kernels
+    use to check a whole step beside a near miss of bar contact; empty without bar contact or
+    without a summary (a ``sym3d`` model that is not exact). Writable copies, like
+    :data:`NO_EXTRAS`' (one compiled type)."""
+    s = model.summ
+    if spec.get('pairs') is None or s is None:
+        return NO_EXTRAS[12:]
+    return (np.array(s[0], dtype=np.float64).reshape(-1, 3), np.array(s[1], dtype=np.float64),
+            np.array(s[2], dtype=np.bool_), np.array(s[3], dtype=np.float64),
+            np.array(s[4], dtype=np.int64), np.array(s[5], dtype=np.int64),
+            np.array(s[6], dtype=np.float64), np.array(s[7], dtype=np.float64),
+            np.array([spec.get('energy_rate', 0.0)], dtype=np.float64))
 
 
 def attach(model, spec, striker_state=None):
@@ -276,8 +294,7 @@ def attach(model, spec, striker_state=None):
                 np.concatenate([s[0], x_extra0]), np.concatenate([s[1], np.zeros(ns)]),
                 np.concatenate([s[2], np.zeros(ns, bool)]),
                 np.concatenate([s[3], np.zeros(ns)]))) + tuple(s[4:])
-    else:
-        model.act = (model.act[0], model.act[1], model.act[2], ex)
+    model.act = (model.act[0], model.act[1], model.act[2], ex + energy_slots(model, spec))
     model.n_strikers = ns
     return model
 
