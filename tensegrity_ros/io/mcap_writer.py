@@ -472,8 +472,10 @@ class McapRecorder:
 
 @contextlib.contextmanager
 def signals_as_interrupt():
-    """Within the block SIGTERM raises KeyboardInterrupt like SIGINT does, so ``with`` blocks and
-    ``finally`` clauses (closing a recording) run. Only in the main thread; elsewhere a no-op."""
+    """Within the block SIGINT and SIGTERM raise KeyboardInterrupt, so ``with`` blocks and
+    ``finally`` clauses (closing a recording) run; SIGINT too where the process started with it
+    ignored, as a shell starts its background jobs (``tensegrity run --mcap ... &``: ``kill
+    -INT`` then still closes the file). Only in the main thread; elsewhere a no-op."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -481,8 +483,9 @@ def signals_as_interrupt():
     def handler(signum, frame):
         raise KeyboardInterrupt(signal.Signals(signum).name)
 
-    old = signal.signal(signal.SIGTERM, handler)
+    old = {sig: signal.signal(sig, handler) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
         yield
     finally:
-        signal.signal(signal.SIGTERM, old)
+        for sig, previous in old.items():
+            signal.signal(sig, previous)
