@@ -51,9 +51,6 @@ HINT_LOCK_CONTACT = ('the bars of the prism crossed although contact.lock is on:
                      'contact.stiffness or contact.tolerance (and lower integrator.dt)')
 HINT_LOCK_BARS = ('the bars of the prism crossed although bar contact is on: lower '
                   'integrator.dt or raise contact.resolution')
-HINT_UNTWIST = ('the prism was pulled out to its full bar length and turned over to the other '
-                'hand: lower the impact velocity (divergence.bar_crossing=none lets the run go on '
-                'through it)')
 DIAGNOSIS = {
     SINGULAR: ('rigid members', 'rigid members became degenerate (e.g. a rigid-base prism '
                    'driven through its lock by a fast impact): lower the impact velocity or try a '

@@ -30,7 +30,7 @@ class Checks:
         m = self.model
         return (m.x.copy(), m.v.copy(), m.act[0].copy(), self._prestrain, self._ramp,
                 self._energy_ref, self.integrator.get_state(), self._energy_scale,
-                self.energy_dissipated())
+                self.energy_dissipated(), self._twist_ref)
 
     def _restore(self, keep):
         m = self.model
@@ -40,6 +40,7 @@ class Checks:
         self.integrator.state_changed()
         self._energy_scale = keep[7]
         self._set_dissipated(keep[8])
+        self._twist_ref = keep[9]
         self._changed()
 
     def _check(self, status):
@@ -68,25 +69,29 @@ class Checks:
                                         h.shape)
                 return ('prism height', f'prism {i} of column {c} collapsed (height '
                                         f'{h[c, i]:.3g} m)', codes.HINT_SLACK)
-            if self._check_twist and self._twist_sign is None:
-                self._twist_sign = np.sign(observables.prism_twists(np.asarray(net.x0),
-                                                                    net.levels))
-            twist = (observables.prism_twists(self._full_state()[0], net.levels)
-                     if self._check_twist
-                     else None)
-            bad = None if twist is None else ~(twist * self._twist_sign > 0.0)
-            if bad is not None and np.any(bad):
-                c, i = np.argwhere(bad)[0]
-                deg = math.degrees(twist[c, i])
-                if abs(deg) < 90.0:     # through 0: unwound to full length, not a crossing
-                    return ('prism twist', f'prism {i} of column {c} untwisted through 0 deg '
-                                           f'({deg:.1f} deg)', codes.HINT_UNTWIST)
-                hint = (codes.HINT_LOCK_CONTACT if self._extras['stop_h'] is not None
-                        else codes.HINT_LOCK_BARS if not self.bar_contact.startswith('none')
-                        else codes.HINT_LOCK)
-                return ('prism twist', f'prism {i} of column {c} twisted through 180 deg '
-                                       f'({deg:.1f} deg)', hint)
+            twist = self._twists()
+            if twist is not None:
+                ref = self._twist_ref
+                # a prism whose twist changed sign since the last accepted check went through
+                # 0 deg (pulled out to its full bar length and on to the other hand: followed)
+                # or through 180 deg (its bars crossed at the lock), whichever is the shorter way
+                locked = ~(twist * ref > 0.0) & ~(np.abs(twist) + np.abs(ref) <= math.pi)
+                if np.any(locked):
+                    c, i = np.argwhere(locked)[0]
+                    hint = (codes.HINT_LOCK_CONTACT if self._extras['stop_h'] is not None
+                            else codes.HINT_LOCK_BARS if not self.bar_contact.startswith('none')
+                            else codes.HINT_LOCK)
+                    return ('prism twist', f'prism {i} of column {c} twisted through 180 deg '
+                                           f'({math.degrees(twist[c, i]):.1f} deg)', hint)
+                self._twist_ref = twist
         return None
+
+    def _twists(self):
+        """Prism twists (n_columns, n_prisms) rad of the current state, where the twist is
+        checked (``divergence.bar_crossing``), else None."""
+        if not (self._check_twist and self.network.levels.size):
+            return None
+        return observables.prism_twists(self._full_state()[0], self.network.levels)
 
     def _locate(self, n, keep, problem):
         """The :class:`SimulationDiverged` of an interval of ``n`` steps that failed with

@@ -91,7 +91,6 @@ class Simulation(Loading, Checks):
         self.max_iter = it.projection_max_iter
         self.kinks = it.land_on_kinks
         self.div = scene.divergence
-        self._twist_sign = None
         rigid = getattr(scene.structure, 'bases', None) == 'rigid'
         self._check_twist = self.div.bar_crossing == 'all' or (
             self.div.bar_crossing == 'rigid' and rigid)
@@ -126,6 +125,7 @@ class Simulation(Loading, Checks):
             self._prestrain = np.full((net.n_columns, net.n_prisms), float(net.meta['prestrain']))
         self._energy_ref = self._energy_0 = self.energy()
         self._energy_scale = abs(self._energy_ref)
+        self._twist_ref = self._twists()
 
     def clone(self):
         """An independent copy that continues exactly as this simulation would (state, cables,
@@ -275,6 +275,7 @@ class Simulation(Loading, Checks):
     def _load(self, x, v):
         """Load a full state; an asymmetric one expands a ``sym3d`` run to ``full3d``."""
         self._into_model('set_state', x, v)
+        self._twist_ref = self._twists()
 
     def set_cable_rest_lengths(self, rest):
         """Set the cable rest lengths (n_cables,) m directly (finite, positive). A set that breaks
@@ -344,7 +345,8 @@ class Simulation(Loading, Checks):
                     m.x, m.v, None)
             kb = plan[2]
             keep = (kb[0], kb[1], m.act[0], self._prestrain, self._ramp, self._energy_ref,
-                    integ.get_state(), self._energy_scale, self.energy_dissipated())
+                    integ.get_state(), self._energy_scale, self.energy_dissipated(),
+                    self._twist_ref)
             h = np.empty(self._heights_shape)
             args = (m.x, m.v, float(self.dt), n, *plan[3], h)
             if plan[6] is None:     # through numba's dispatch, then its compiled overload
