@@ -53,13 +53,14 @@ def _rk4_step(x, v, h, a1, net, act, ws):
 
 
 @jit
-def _kept_balance(x, v, net, act, e0, h, dissipated):
-    """Whether a step of ``h`` that met no contact, from a state of energy ``e0`` J (cable damping
-    having taken out ``dissipated`` J before it), kept the energy balance within its share of the
-    ledger's limit: ``|E1 + D1 - D0 - E0| <= rate h |E0|``, ``rate`` = ``divergence.energy_error``
-    per second (``act[3][20]``). Beside contacts the bars vibrate fast: a whole step that passes
-    clear of every contact can still be too long for them. True where the extras carry no
-    energy arrays (``e0`` NaN)."""
+def _kept_balance(x0, v0, x, v, net, act, h, dissipated):
+    """Whether a step of ``h`` from ``x0``, ``v0`` to ``x``, ``v`` that met no contact (cable
+    damping having taken out ``dissipated`` J before it) kept the energy balance within its
+    share of the ledger's limit: ``|E1 + D1 - D0 - E0| <= rate h |E0|``, ``rate`` =
+    ``divergence.energy_error`` per second (``act[3][20]``). Beside contacts the bars vibrate
+    fast: a whole step that passes clear of every contact can still be too long for them. True
+    where the extras carry no energy arrays."""
+    e0 = dyn.step_energy(x0, v0, net, act)
     if e0 != e0:
         return True
     ex = act[3]
@@ -91,12 +92,11 @@ def _contact_aware_step(x, v, h, a1, net, act, ws, met):
         saved[1, :, :] = v
         before = ex[8][0]
         power, dissipated = ex[10][0], ex[10][1]
-        e0 = dyn.step_energy(x, v, net, act)
         ex[8][2] = 1.0
         status = _rk4_step(x, v, h, a1, net, act, ws)
         if status == dyn.OK and ex[8][0] == before and passed_clear(
                 saved[0], saved[1], a1, x, ex[6], ex[1], ex[7], h, ex[8], known) and (
-                _kept_balance(x, v, net, act, e0, h, dissipated)):
+                _kept_balance(saved[0], saved[1], x, v, net, act, h, dissipated)):
             add_motion(ex[8], saved[1], a1, h)  # the slack was for the shorter step
             ex[11][0] = -1
             return status, h

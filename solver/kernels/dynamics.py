@@ -446,6 +446,22 @@ def summary_arrays(x0, node_mass, clamped, bar_a, bar_b, bar_mass, levels, n_cab
 
 
 @jit
+def _contact_free_energy(x, v, net, act, x0, node_mass, clamped, node_mult, bar_a, bar_b,
+                         bar_mass, cable_mult):
+    """Kinetic, cable and external-force energy J, and that of strikers and prism stops where a
+    scene has them: :func:`state_summary`'s energy less the bar contact, from the summary's
+    arrays (see there)."""
+    # one compiled function per part: written as one loop nest, the same code ran 3x slower
+    e = (_node_energy(x, v, x0, act[2], node_mass, clamped, node_mult)
+         + _bar_kinetic_energy(v, bar_a, bar_b, bar_mass)
+         + _cable_energy(x, net[7], net[8], net[10], act[0], act[1], cable_mult))
+    ex = act[3]
+    if ex[2].shape[0] != 0 or ex[3].shape[0] != 0:      # strikers, prism stops
+        e += extra_energy(x, v, ex)
+    return e
+
+
+@jit
 def state_summary(x, v, net, act, summ, heights):
     """``(finite, energy J, relative constraint error, smallest prism height m)`` of a state, and
     the prism heights (n_columns, n_prisms) m into ``heights``, in one pass: what the divergence
@@ -456,13 +472,9 @@ def state_summary(x, v, net, act, summ, heights):
     ``node_mult``/``cable_mult`` times (a reduced network). The smallest height is NaN when a
     height is."""
     x0, node_mass, clamped, node_mult, bar_a, bar_b, bar_mass, cable_mult, levels = summ
-    # one compiled function per part: written as one loop nest, the same code ran 3x slower
-    e = (_node_energy(x, v, x0, act[2], node_mass, clamped, node_mult)
-         + _bar_kinetic_energy(v, bar_a, bar_b, bar_mass)
-         + _cable_energy(x, net[7], net[8], net[10], act[0], act[1], cable_mult))
+    e = _contact_free_energy(x, v, net, act, x0, node_mass, clamped, node_mult, bar_a, bar_b,
+                             bar_mass, cable_mult)
     ex = act[3]
-    if ex[2].shape[0] != 0 or ex[3].shape[0] != 0:      # strikers, prism stops
-        e += extra_energy(x, v, ex)
     if ex[6].shape[0] != 0:
         e += bar_energy_scanned(x, ex[6], ex[7], ex[8]) + base_energy(x, ex[1], ex[7])
     return (all_finite(x) and all_finite(v), e,
@@ -478,12 +490,8 @@ def step_energy(x, v, net, act):
     ex = act[3]
     if ex[13].shape[0] == 0:
         return math.nan
-    e = (_node_energy(x, v, ex[12], act[2], ex[13], ex[14], ex[15])
-         + _bar_kinetic_energy(v, ex[16], ex[17], ex[18])
-         + _cable_energy(x, net[7], net[8], net[10], act[0], act[1], ex[19]))
-    if ex[2].shape[0] != 0 or ex[3].shape[0] != 0:      # strikers, prism stops
-        e += extra_energy(x, v, ex)
-    return e
+    return _contact_free_energy(x, v, net, act, ex[12], ex[13], ex[14], ex[15], ex[16], ex[17],
+                                ex[18], ex[19])
 
 
 @jit
