@@ -264,6 +264,10 @@ def build_parser():
                    const='rerun+http://127.0.0.1:9876/proxy',
                    help='stream the run to a running Rerun viewer (default URL %(const)s)')
     p.add_argument('--json', action='store_true', help='print the summary as one JSON object')
+    p.add_argument('--convergence', nargs='?', type=float, const=0.01, metavar='TOL',
+                   help='also run the point with every step control refined (dt/2, contact '
+                        'resolution x2) and exit 1 unless every pulse figure moves by at most '
+                        'TOL (relative; default %(const)s)')
     p = _scene_command(sub, 'sweep', cmd_sweep, 'one run per point of a grid of scene values, '
                        'on Dask; a Parquet and CSV table')
     p.add_argument('--grid', action='append', metavar='KEY=V1,V2|KEY=START:STOP:N',

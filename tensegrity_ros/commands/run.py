@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import gc
 import json
+import sys
 from pathlib import Path
 
 from tensegrity_ros.io.progress import progress_bar
@@ -75,9 +76,49 @@ def run_overrides(args):
     return sets
 
 
+def _refined_run(args):
+    """With ``--convergence``: the point of ``args`` with every step control refined, started on
+    a thread (the kernels release the GIL: it runs beside the main run on a second core). Returns
+    ``(refined overrides, future)``, or None without the option. Bad input raises here, before
+    either run starts."""
+    if args.convergence is None:
+        return None
+    from concurrent.futures import ThreadPoolExecutor
+    from solver.build.scene import Scene
+    from solver.simulate import convergence
+    from solver.simulate.runner import simulate
+    if not 0.0 < args.convergence < 1.0:
+        raise ValueError(f'--convergence: {args.convergence!r} must be in (0, 1)')
+    overrides = run_overrides(args)
+    refined = convergence.refined_overrides(Scene.load(args.scene).with_overrides(overrides))
+    pool = ThreadPoolExecutor(1, thread_name_prefix='tensegrity-refined')
+    future = pool.submit(simulate, args.scene, overrides + refined)
+    pool.shutdown(wait=False)
+    return refined, future
+
+
+def _convergence(result, refined_run, tolerance):
+    """Add the check of ``--convergence`` to ``result``; the one line of a failure, or None."""
+    from solver.simulate import convergence
+    from solver.simulate.simulation import SimulationDiverged
+    refined, future = refined_run
+    try:
+        point = future.result()
+    except SimulationDiverged as exc:
+        result['convergence'] = {'tolerance': tolerance, 'refined': dict(refined),
+                                 'converged': False, 'refined_run': str(exc)}
+        return (f'convergence check: the refined run ({convergence.describe(refined)}) '
+                f'diverged: {exc}')
+    check = convergence.compare(result, point.summary, tolerance)
+    result['convergence'] = dict(check, refined=dict(refined),
+                                 refined_steps_taken=point.summary['steps_taken'])
+    return convergence.failure(check, refined)
+
+
 def cmd_run(args):
     from solver.simulate.runner import frame_count, simulate
 
+    refined_run = _refined_run(args)
     if args.rerun or args.rerun_connect:
         from tensegrity_ros.io import rerun_sink  # noqa: F401  (imported before gc.freeze below)
     outputs, ctx = {}, {}
@@ -118,6 +159,8 @@ def cmd_run(args):
                                           title=f'{scene.name}: v0 = {v0} m/s'))
     result = point.summary
     result['outputs'].update(outputs)
+    problem = None if refined_run is None else _convergence(result, refined_run,
+                                                            args.convergence)
     if out_dir is not None:
         (out_dir / 'summary.json').write_text(json.dumps(result, indent=2, allow_nan=False))
     if args.json:
@@ -139,7 +182,18 @@ def cmd_run(args):
             median = 'n/a' if p['amplitude_median'] is None else f"{p['amplitude_median']:.4f}"
             print(f"  pulse: amplitude {p['amplitude']:.4f} at t = {p['t_ref']:g} s (median "
                   f"{median}), speed {speed}, width {p['width_prisms']} prisms")
+        check = result.get('convergence')
+        if check is not None and 'changes' in check:
+            from solver.simulate.convergence import describe
+            moved = ', '.join(f'{k} {100 * c:.3g} %' for k, c in check['changes'].items()
+                              if c is not None) or 'no pulse figures to compare'
+            verdict = {True: 'converged', False: 'NOT converged', None: 'nothing to check'}
+            print(f"  convergence ({describe(check['refined'].items())}): {moved}: "
+                  f"{verdict[check['converged']]} (limit {100 * check['tolerance']:g} %)")
         for key, path in result['outputs'].items():
             if path:
                 print(f'  {key}: {path}')
+    if problem is not None:
+        print(f'tensegrity: {problem}', file=sys.stderr)
+        return 1
     return 0
