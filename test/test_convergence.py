@@ -112,3 +112,18 @@ def test_a_bad_tolerance_is_one_line_and_runs_nothing(capsys):
     code, out, err = _main(capsys, FB, '--t-end', '0.6', '--convergence', '2')
     assert code == 2 and out == ''
     assert err.strip().splitlines() == ["tensegrity: --convergence: 2.0 must be in (0, 1)"]
+
+
+def test_the_refined_run_stops_when_told():
+    """The main run failed or was interrupted: the refined run ends after its current interval,
+    raising instead of running on to t_end (nothing keeps the process waiting for it)."""
+    import argparse
+    import time
+    from tensegrity_ros.commands import run
+    args = argparse.Namespace(scene=FB, set=[], v0=1.0, prestrain=None, t_end=5.0,
+                              convergence=0.01)
+    refined, future, stop = run._refined_run(args)
+    time.sleep(0.5)
+    stop.set()
+    with pytest.raises(run._Stopped):
+        future.result()

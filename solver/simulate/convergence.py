@@ -15,11 +15,11 @@ from __future__ import annotations
 
 import math
 
+from solver.build.scene import RANGES
 from solver.integrators import registry as integrators
 
 # the figures a pulse is summarised by (solver.analysis.observables.Pulse)
 FIGURES = ('amplitude', 'amplitude_median', 'speed_m_s', 'speed_snapshot_m_s')
-RESOLUTION_MAX = 100000         # the largest contact.resolution a scene accepts
 
 
 def refined_overrides(scene):
@@ -32,7 +32,7 @@ def refined_overrides(scene):
     if integrators.get(it.method).adaptive:
         out.append(('integrator.rtol', it.rtol / 32.0))
     contact = scene.contact
-    if contact.bars != 'none' and 2 * contact.resolution <= RESOLUTION_MAX:
+    if contact.bars != 'none' and 2 * contact.resolution <= RANGES['contact.resolution'][1]:
         out.append(('contact.resolution', 2 * contact.resolution))
     return out
 

@@ -79,10 +79,13 @@ def run_overrides(args):
 def _refined_run(args):
     """With ``--convergence``: the point of ``args`` with every step control refined, started on
     a thread (the kernels release the GIL: it runs beside the main run on a second core). Returns
-    ``(refined overrides, future)``, or None without the option. Bad input raises here, before
-    either run starts."""
+    ``(refined overrides, future, stop)``, or None without the option; ``stop.set()`` ends the
+    refined run after its current output interval (the main run failed or was interrupted:
+    nothing waits for it).
+    Bad input raises here, before either run starts."""
     if args.convergence is None:
         return None
+    import threading
     from concurrent.futures import ThreadPoolExecutor
     from solver.build.scene import Scene
     from solver.simulate import convergence
@@ -91,17 +94,28 @@ def _refined_run(args):
         raise ValueError(f'--convergence: {args.convergence!r} must be in (0, 1)')
     overrides = run_overrides(args)
     refined = convergence.refined_overrides(Scene.load(args.scene).with_overrides(overrides))
+    stop = threading.Event()
+
+    def interval_done(n):          # run()'s progress hook: no frames recorded for it
+        if stop.is_set():
+            raise _Stopped()
+
     pool = ThreadPoolExecutor(1, thread_name_prefix='tensegrity-refined')
-    future = pool.submit(simulate, args.scene, overrides + refined)
+    future = pool.submit(simulate, args.scene, overrides + refined,
+                         setup=lambda stack, scene, sim: (None, interval_done, None))
     pool.shutdown(wait=False)
-    return refined, future
+    return refined, future, stop
+
+
+class _Stopped(Exception):
+    """The refined run of ``--convergence`` was told to stop."""
 
 
 def _convergence(result, refined_run, tolerance):
     """Add the check of ``--convergence`` to ``result``; the one line of a failure, or None."""
     from solver.simulate import convergence
     from solver.simulate.simulation import SimulationDiverged
-    refined, future = refined_run
+    refined, future, _ = refined_run
     try:
         point = future.result()
     except SimulationDiverged as exc:
@@ -116,9 +130,17 @@ def _convergence(result, refined_run, tolerance):
 
 
 def cmd_run(args):
+    refined_run = _refined_run(args)
+    try:
+        return _run(args, refined_run)
+    finally:
+        if refined_run is not None:
+            refined_run[2].set()
+
+
+def _run(args, refined_run):
     from solver.simulate.runner import frame_count, simulate
 
-    refined_run = _refined_run(args)
     if args.rerun or args.rerun_connect:
         from tensegrity_ros.io import rerun_sink  # noqa: F401  (imported before gc.freeze below)
     outputs, ctx = {}, {}
