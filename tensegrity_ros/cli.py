@@ -279,6 +279,11 @@ def build_parser():
     _study_options(p, 'seed of --samples')
     p.add_argument('--plot', metavar='FIGURE',
                    help='heat map of FIGURE (e.g. pulse.amplitude) over the first two keys')
+    p.add_argument('--convergence', nargs='?', type=float, const=0.01, metavar='TOL',
+                   help='also run every point with every step control refined (dt/2, contact '
+                        'resolution x2) and add the check to its row: column converged, '
+                        'False where a pulse figure moves by more than TOL (relative; default '
+                        '%(const)s)')
     p = _scene_command(sub, 'fit', cmd_fit, 'scene values that reproduce target figures '
                        '(differential evolution on Dask)')
     p.add_argument('--target', required=True, metavar='TARGET.yaml',

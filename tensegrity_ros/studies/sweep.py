@@ -14,6 +14,7 @@ points' keys are :mod:`tensegrity_ros.studies.grid`, the rows and tables
 from __future__ import annotations
 
 import json
+import math
 import os
 import time
 from dataclasses import dataclass, field
@@ -66,29 +67,110 @@ class Sweep:
     out_dir: Path
     keys: list
     extra: dict = field(default_factory=dict)
+    convergence: float | None = None     # the tolerance of the convergence check, when asked
 
     def overrides(self, point):
         return {**point, **self.extra}
+
+    def refined(self, overrides):
+        """The overrides of the refined twin of a point (``overrides``, as :meth:`overrides`
+        gives them): every step control of the point's scene refined
+        (:func:`solver.simulate.convergence.refined_overrides`)."""
+        from solver.simulate.convergence import refined_overrides
+        scene = self.scene.with_overrides(list(overrides.items()))
+        return {**overrides, **dict(refined_overrides(scene))}
 
     def ids(self):
         data = self.scene.data
         return [point_id(data, self.overrides(p)) for p in self.points]
 
+    def runs(self):
+        """Every run of the sweep, ``(point_id, overrides)``: the points, then with
+        ``convergence`` their refined twins (:meth:`refined`)."""
+        data = self.scene.data
+        base = [self.overrides(p) for p in self.points]
+        out = [(point_id(data, o), o) for o in base]
+        if self.convergence is not None:
+            out += [(point_id(data, t), t) for t in map(self.refined, base)]
+        return out
+
+    def table(self, done):
+        """The table's rows of the points run so far (``done``: rows by point id), in order; with
+        ``convergence`` each with the check of it against its refined twin
+        (:func:`convergence_columns`)."""
+        runs = self.runs()
+        n = len(self.points)
+        rows = []
+        for k, (pid, _) in enumerate(runs[:n]):
+            if pid not in done:
+                continue
+            row = done[pid]
+            if self.convergence is not None:
+                row = {**row, **convergence_columns(row, done.get(runs[n + k][0]),
+                                                    self.convergence, runs[n + k][1])}
+            rows.append(row)
+        return rows
+
     def columns(self):
+        check = list(convergence_columns(None, None, 0.01, {})) if self.convergence else []
         return (['point_id', *self.keys, *[k for k in self.extra if k not in self.keys],
-                 'status', 'reason', *[k for k in empty_figures()],
+                 'status', 'reason', *[k for k in empty_figures()], *check,
                  'task_wall_s', 'cpu_time_s', 'worker_pid'])
 
 
-def validate_points(scene, sweep_points, extra):
+def convergence_columns(row, twin, tolerance, refined):
+    """The convergence check of a point's ``row`` against the row of its refined ``twin`` (run
+    with the overrides ``refined``; None while it has not run): ``converged`` (True, False, or
+    None when the point did not run ok, its twin has not run or neither found a pulse),
+    ``convergence.worst`` (the figure that moved most), ``convergence.change`` (its relative
+    change) and ``convergence.<figure>`` for each figure of
+    :data:`solver.simulate.convergence.FIGURES` (from the row's pulse, the first column's), and
+    ``convergence.refined`` (what was refined, e.g. ``dt/2, contact.resolution x2``). A twin that
+    did not run ok fails the check: ``convergence.worst`` then says ``refined run diverged`` (or
+    ``error``)."""
+    from solver.simulate import convergence
+    out = {'converged': None, 'convergence.worst': None, 'convergence.change': None,
+           **{f'convergence.{k}': None for k in convergence.FIGURES},
+           'convergence.refined': None}
+    if row is None or row.get('status') != 'ok' or twin is None:
+        return out
+    scene = {k: v for k, v in refined.items() if k in ('integrator.dt', 'integrator.rtol',
+                                                        'contact.resolution')}
+    out['convergence.refined'] = convergence.describe(list(scene.items()))
+    if twin.get('status') != 'ok':
+        out.update({'converged': False, 'convergence.worst': f'refined run {twin.get("status")}'})
+        return out
+
+    def summary(r):
+        return {'pulse': {k: r.get(f'pulse.{k}') for k in convergence.FIGURES}}
+
+    check = convergence.compare(summary(row), summary(twin), tolerance)
+    out['converged'] = check['converged']
+    out['convergence.worst'] = check['worst']
+    if check['worst'] is not None:
+        out['convergence.change'] = check['changes'][check['worst']]
+    out.update({f'convergence.{k}': c for k, c in check['changes'].items()})
+    return out
+
+
+def validate_points(scene, sweep_points, extra, convergence=None):
     """Apply every point's overrides to ``scene`` once (no run): an unknown key or a value out of
-    range stops the sweep before anything runs, with the scene's message."""
+    range stops the sweep before anything runs, with the scene's message; with ``convergence``
+    the overrides of each point's refined twin as well."""
     from solver.build.scene import SceneError
+    from solver.simulate.convergence import refined_overrides
     for p in sweep_points:
+        overrides = list({**p, **extra}.items())
         try:
-            scene.with_overrides(list({**p, **extra}.items()))
+            point = scene.with_overrides(overrides)
         except SceneError as exc:
             raise SweepError(str(exc)) from None
+        if convergence is not None:
+            try:
+                point.with_overrides(refined_overrides(point))
+            except SceneError as exc:
+                raise SweepError(f'--convergence: the refined twin of {dict(overrides)}: '
+                                 f'{exc}') from None
 
 
 def chunks(todo, workers, size=None):
@@ -210,9 +292,8 @@ def execute(sweep, cluster=None, progress=None, task=None, on_row=None, chunk=No
     Ctrl-C or an error). Returns ``(rows of every point in order, number run now)``."""
     out = Path(sweep.out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    ids = sweep.ids()
     done = read_rows(out)
-    todo = [(pid, p) for pid, p in zip(ids, sweep.points) if pid not in done]
+    todo = [(pid, o) for pid, o in sweep.runs() if pid not in done]
     todo = list(dict(todo).items())                   # a point listed twice runs once
     columns = sweep.columns()
     last_write = [time.monotonic()]
@@ -230,29 +311,28 @@ def execute(sweep, cluster=None, progress=None, task=None, on_row=None, chunk=No
         if on_row is not None:
             on_row(row)
         if time.monotonic() - last_write[0] > 5.0:
-            write_table(out, [done[i] for i in ids if i in done], columns)
+            write_table(out, sweep.table(done), columns)
             last_write[0] = time.monotonic()
 
     def cut(workers, seconds=BATCH_SECONDS):
         if task is not None:
             return chunks(todo, workers, chunk)
-        scenes = [sweep.scene.with_overrides(list(sweep.overrides(p).items())) for _, p in todo]
+        scenes = [sweep.scene.with_overrides(list(o.items())) for _, o in todo]
         return batches(todo, workers, [point_cost(sc) for sc in scenes],
-                       [topology_of(sweep.overrides(p)) for _, p in todo], size=chunk,
-                       seconds=seconds)
+                       [topology_of(o) for _, o in todo], size=chunk, seconds=seconds)
 
     try:
         with (out / ROWS).open('a') as fh:
             if cluster is None:
                 if task is not None:
-                    for pid, p in todo:
-                        finish(task(sweep.scene, sweep.overrides(p), pid), fh)
+                    for pid, o in todo:
+                        finish(task(sweep.scene, o, pid), fh)
                 else:
                     from solver.simulate.batch import default_threads
                     n = threads or default_threads()
                     for b in cut(None, seconds=BATCH_SECONDS * n):
-                        run_points(sweep.scene, [(pid, sweep.overrides(p)) for pid, p in b],
-                                   threads=n, on_row=lambda row: finish(row, fh))
+                        run_points(sweep.scene, b, threads=n,
+                                   on_row=lambda row: finish(row, fh))
             elif todo:
                 from distributed import as_completed
                 # the scene (about 1 kB pickled) travels inside each task: scattered data lives
@@ -261,7 +341,7 @@ def execute(sweep, cluster=None, progress=None, task=None, on_row=None, chunk=No
                 scene = sweep.scene
                 futures = {}
                 for b in cut(cluster.n_workers):
-                    items = [(pid, sweep.overrides(p)) for pid, p in b]
+                    items = list(b)
                     key = f'points-{b[0][0]}-{len(b)}'
                     fut = (cluster.client.submit(run_batch, task, scene, items, key=key,
                                                  pure=False) if task is not None
@@ -274,9 +354,9 @@ def execute(sweep, cluster=None, progress=None, task=None, on_row=None, chunk=No
                             rows = fut.result()
                         except Exception as exc:    # noqa: BLE001 - e.g. KilledWorker
                             reason = f'{type(exc).__name__}: {exc}'.splitlines()[0]
-                            rows = [{'point_id': pid, **sweep.overrides(p), **empty_figures(),
+                            rows = [{'point_id': pid, **o, **empty_figures(),
                                      'status': 'error', 'reason': reason}
-                                    for pid, p in futures[fut]]
+                                    for pid, o in futures[fut]]
                         for row in rows:
                             finish(row, fh)
                 finally:
@@ -284,14 +364,36 @@ def execute(sweep, cluster=None, progress=None, task=None, on_row=None, chunk=No
                         if not fut.done():
                             fut.cancel()
     finally:
-        write_table(out, [done[i] for i in ids if i in done], columns)
-    return [done[i] for i in ids], n_run
+        write_table(out, sweep.table(done), columns)
+    return sweep.table(done), n_run
+
+
+def convergence_report(rows, tolerance, keys=()):
+    """One line: how many points passed the convergence check, and the worst of those that did
+    not."""
+    checked = [r for r in rows if r.get('converged') is not None]
+    failed = [r for r in checked if r['converged'] is False]
+    line = (f'convergence (every step control refined, limit {100 * tolerance:g} %): '
+            f'{len(checked) - len(failed)} of {len(checked)} checked points converged')
+    if failed:
+        def size(r):
+            c = r.get('convergence.change')
+            return math.inf if c is None else c
+        worst = max(failed, key=size)
+        moved = ('' if worst.get('convergence.change') is None else
+                 f' moves {100 * worst["convergence.change"]:.3g} %')
+        where = ', '.join(f'{k}={worst.get(k)}' for k in keys) or worst['point_id']
+        line += (f'; {len(failed)} not (column "converged"), worst at {where}: '
+                 f'{worst["convergence.worst"]}{moved}')
+    return line
 
 
 # -- the command ----------------------------------------------------------------------------------
-def build(scene_path, grids, samples=None, seed=0, out=None, t_end=None):
+def build(scene_path, grids, samples=None, seed=0, out=None, t_end=None, convergence=None):
     """A validated :class:`Sweep` from the command's options (raises :class:`SweepError` or
     :class:`solver.build.scene.SceneError`, nothing run)."""
+    if convergence is not None and not 0.0 < convergence < 1.0:
+        raise SweepError(f'--convergence: {convergence!r} must be in (0, 1)')
     from solver.build.scene import Scene
     scene = Scene.load(scene_path)
     if not grids:
@@ -299,9 +401,9 @@ def build(scene_path, grids, samples=None, seed=0, out=None, t_end=None):
     axes = [parse_axis(g) for g in grids]
     pts = points(axes, samples=samples, seed=seed)
     extra = {} if t_end is None else {'run.t_end': t_end}
-    validate_points(scene, pts, extra)
+    validate_points(scene, pts, extra, convergence)
     out_dir = Path(out) if out else Path('runs') / 'sweeps' / scene.name
-    return Sweep(scene, pts, out_dir, [a.key for a in axes], extra)
+    return Sweep(scene, pts, out_dir, [a.key for a in axes], extra, convergence)
 
 
 def main(args):
@@ -309,11 +411,13 @@ def main(args):
     if args.workers is not None and args.workers < 1:
         raise SweepError(f'--workers: must be >= 1, got {args.workers}')
     dashboard_option(args)
-    if args.plot and args.plot not in FIGURES:
-        raise SweepError(f'--plot {args.plot}: unknown figure (one of {", ".join(FIGURES)})')
+    plottable = FIGURES + (('convergence.change',) if getattr(args, 'convergence', None)
+                           is not None else ())
+    if args.plot and args.plot not in plottable:
+        raise SweepError(f'--plot {args.plot}: unknown figure (one of {", ".join(plottable)})')
     sweep = build(args.scene, args.grid, samples=args.samples, seed=args.seed, out=args.out,
-                  t_end=args.t_end)
-    n_todo = len(set(sweep.ids()) - set(read_rows(sweep.out_dir)))
+                  t_end=args.t_end, convergence=getattr(args, 'convergence', None))
+    n_todo = len({pid for pid, _ in sweep.runs()} - set(read_rows(sweep.out_dir)))
     cluster = None
     close = (lambda: None)
     try:
@@ -332,8 +436,12 @@ def main(args):
             cluster.close()
     counts = {s: sum(r['status'] == s for r in rows) for s in ('ok', 'diverged', 'error')}
     out = Path(sweep.out_dir)
-    print(f'{len(rows)} points ({n_run} run now, {len(rows) - n_run} already in {out}): '
+    n_runs = len({pid for pid, _ in sweep.runs()})
+    twins = '' if sweep.convergence is None else f', {n_runs} runs with the refined twins'
+    print(f'{len(rows)} points{twins} ({n_run} run now, {n_runs - n_run} already in {out}): '
           f'{counts["ok"]} ok, {counts["diverged"]} diverged, {counts["error"]} error')
+    if sweep.convergence is not None:
+        print('  ' + convergence_report(rows, sweep.convergence, sweep.keys))
     print(f'  table: {out / TABLE}, {out / CSV}')
     if args.plot:
         from tensegrity_ros.studies.plots import sweep_map

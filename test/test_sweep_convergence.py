@@ -1,0 +1,118 @@
+"""tensegrity sweep --convergence: each point run again with every step control refined, the
+check in its row; against separate runs of the refined points and changes computed here."""
+import json
+import math
+from pathlib import Path
+
+import pyarrow.parquet as pq
+import pytest
+
+from solver.build.scene import Scene
+from solver.simulate.runner import simulate
+from tensegrity_ros import cli
+from tensegrity_ros.studies import sweep as sw
+
+ROOT = Path(__file__).resolve().parents[1]
+FB = str(ROOT / 'config' / 'scenes' / 'fb_column.yaml')
+T_END = 0.55                     # past t_ref = 0.5 s: every pulse figure is defined
+FIGS = ('amplitude', 'amplitude_median', 'speed_m_s', 'speed_snapshot_m_s')
+
+
+def _refined_summary(v0):
+    """The refined twin of the FB point at ``v0``, run on its own: dt halved and the contact
+    resolution doubled, written out here rather than taken from the code under test."""
+    scene = Scene.load(FB)
+    sets = [('loading.impact.v0', v0), ('run.t_end', T_END),
+            ('integrator.dt', scene.integrator.dt / 2),
+            ('contact.resolution', 2 * scene.contact.resolution)]
+    return simulate(scene, sets).summary
+
+
+def _change(a, b):
+    return 0.0 if a == b else abs(a - b) / max(abs(a), abs(b))
+
+
+@pytest.fixture(scope='module')
+def checked(tmp_path_factory):
+    out = tmp_path_factory.mktemp('conv')
+    sweep = sw.build(FB, ['loading.impact.v0=0.1,1'], out=out, t_end=T_END, convergence=0.01)
+    rows, n = sw.execute(sweep, threads=1)
+    return out, sweep, rows, n
+
+
+def test_each_row_holds_the_change_against_a_separate_refined_run(checked):
+    out, sweep, rows, n = checked
+    assert n == 4                                 # two points and their two refined twins
+    assert [r['loading.impact.v0'] for r in rows] == [0.1, 1.0]
+    for row in rows:
+        ref = _refined_summary(row['loading.impact.v0'])['pulse']
+        changes = {k: _change(row[f'pulse.{k}'], ref[k]) for k in FIGS}
+        for k in FIGS:
+            assert row[f'convergence.{k}'] == pytest.approx(changes[k], rel=1e-9, abs=1e-15)
+        worst = max(changes, key=changes.get)
+        assert row['convergence.worst'] == worst
+        assert row['converged'] is (changes[worst] <= 0.01)
+        assert row['convergence.refined'] == 'dt/2, contact.resolution x2'
+    # the paper's velocity converges, 1 m/s (prisms pressed onto their bases) does not
+    assert rows[0]['converged'] is True and rows[1]['converged'] is False
+    table = pq.read_table(out / 'results.parquet').to_pylist()
+    assert len(table) == 2                        # the twins run, but the table has the points
+    assert [t['converged'] for t in table] == [True, False]
+    assert len((out / 'rows.jsonl').read_text().splitlines()) == 4
+
+
+def test_a_rerun_runs_nothing_and_a_plain_sweep_then_checked_runs_only_the_twins(checked,
+                                                                                tmp_path):
+    out, sweep, rows, _ = checked
+    again, n = sw.execute(sw.build(FB, ['loading.impact.v0=0.1,1'], out=out, t_end=T_END,
+                                   convergence=0.01))
+    assert n == 0 and again == rows
+    plain = sw.build(FB, ['loading.impact.v0=0.1'], out=tmp_path, t_end=T_END)
+    first, n = sw.execute(plain, threads=1)
+    assert n == 1 and 'converged' not in first[0]
+    later, n = sw.execute(sw.build(FB, ['loading.impact.v0=0.1'], out=tmp_path, t_end=T_END,
+                                   convergence=0.01), threads=1)
+    assert n == 1 and later[0]['converged'] is True
+    assert later[0]['pulse.amplitude'] == first[0]['pulse.amplitude']
+
+
+def test_the_command_reports_the_points_that_did_not_converge(tmp_path, capsys):
+    out = tmp_path / 'cmd'
+    assert cli.main(['sweep', FB, '--grid', 'loading.impact.v0=0.1,1', '--t-end', str(T_END),
+                     '--convergence', '--workers', '1', '--out', str(out),
+                     '--plot', 'convergence.change']) == 0
+    text = capsys.readouterr().out
+    assert '2 points, 4 runs with the refined twins (4 run now, 0 already' in text
+    assert '1 of 2 checked points converged; 1 not' in text
+    assert 'worst at loading.impact.v0=1: amplitude moves' in text
+    assert (out / 'convergence.change.png').stat().st_size > 0
+
+
+@pytest.mark.parametrize('args, needle', [
+    (['--convergence', '1.5'], '--convergence: 1.5 must be in (0, 1)'),
+    (['--plot', 'convergence.change'], '--plot convergence.change: unknown figure'),
+])
+def test_bad_convergence_input_is_one_line_exit_2_and_runs_nothing(args, needle, tmp_path,
+                                                                   capsys):
+    out = tmp_path / 'out'
+    capsys.readouterr()
+    assert cli.main(['sweep', FB, '--grid', 'prestrain=0.002', *args, '--out', str(out),
+                     '--workers', '1']) == 2
+    err = capsys.readouterr().err
+    assert needle in err and err.count('\n') == 1
+    assert not out.exists()
+
+
+def test_a_twin_that_did_not_run_ok_fails_the_check_and_a_failed_point_has_none():
+    row = {'status': 'ok', **{f'pulse.{k}': 1.0 for k in FIGS}}
+    refined = {'integrator.dt': 1e-4, 'run.t_end': 1.0}
+    cols = sw.convergence_columns(row, {'status': 'diverged'}, 0.01, refined)
+    assert cols['converged'] is False and cols['convergence.worst'] == 'refined run diverged'
+    assert cols['convergence.refined'] == 'dt/2'
+    assert sw.convergence_columns({'status': 'error'}, row, 0.01, refined)['converged'] is None
+    assert sw.convergence_columns(row, None, 0.01, refined)['converged'] is None
+    # a figure one run found and the other did not is not converged
+    twin = dict(row, **{'pulse.speed_m_s': None})
+    cols = sw.convergence_columns(row, twin, 0.01, refined)
+    assert cols['converged'] is False and math.isinf(cols['convergence.speed_m_s'])
+    json.dumps(cols)
