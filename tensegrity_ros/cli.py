@@ -296,6 +296,10 @@ def build_parser():
     p.add_argument('--popsize', type=int, default=8,
                    help='population per free dimension (default 8)')
     p.add_argument('--maxiter', type=int, default=20, help='generations at most (default 20)')
+    p.add_argument('--convergence', nargs='?', type=float, const=0.01, metavar='TOL',
+                   help='run the best point\'s cases again with every step control refined '
+                        '(dt/2, contact resolution x2) and exit 1 unless every fitted figure '
+                        'moves by at most TOL (relative; default %(const)s)')
     p.add_argument('--no-polish', action='store_true',
                    help='skip the least-squares refinement of the best point')
     p.add_argument('--json', action='store_true', help='print the result as one JSON object')

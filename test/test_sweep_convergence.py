@@ -116,3 +116,35 @@ def test_a_twin_that_did_not_run_ok_fails_the_check_and_a_failed_point_has_none(
     cols = sw.convergence_columns(row, twin, 0.01, refined)
     assert cols['converged'] is False and math.isinf(cols['convergence.speed_m_s'])
     json.dumps(cols)
+
+
+def test_fit_convergence_checks_the_best_point_against_separate_refined_runs(tmp_path, capsys):
+    target = tmp_path / 'target.yaml'
+    target.write_text('cases:\n'
+                      '  - {set: {loading.impact.v0: 0.1}, figures: {pulse.amplitude: 0.15}}\n'
+                      '  - {set: {loading.impact.v0: 1.0}, figures: {pulse.amplitude: 2.0}}\n')
+    out = tmp_path / 'fit.json'
+    args = ['fit', FB, '--target', str(target), '--free', 'prestrain=0.0019:0.0021',
+            '--popsize', '1', '--maxiter', '1', '--no-polish', '--t-end', str(T_END),
+            '--workers', '1', '--convergence', '--json']
+    capsys.readouterr()
+    assert cli.main(args) == 1
+    captured = capsys.readouterr()
+    result = json.loads(captured.out)
+    err = captured.err
+    assert err.count('\n') == 1
+    assert 'fitted figures not converged: case 2 pulse.amplitude moves' in err
+    check = result['convergence']
+    scene = Scene.load(FB)
+    for i, v0 in enumerate((0.1, 1.0)):
+        sets = [('loading.impact.v0', v0), ('prestrain', result['best']['prestrain']),
+                ('run.t_end', T_END)]
+        base = simulate(scene, sets).summary['pulse']['amplitude']
+        ref = simulate(scene, sets + [('integrator.dt', scene.integrator.dt / 2),
+                                      ('contact.resolution', 2 * scene.contact.resolution)]
+                       ).summary['pulse']['amplitude']
+        assert result['cases'][i]['figures']['pulse.amplitude']['simulated'] == base
+        assert check['cases'][i]['changes']['pulse.amplitude'] == pytest.approx(
+            _change(base, ref), rel=1e-9, abs=1e-15)
+    assert [c['converged'] for c in check['cases']] == [True, False]
+    assert check['converged'] is False and check['worst']['case'] == 2

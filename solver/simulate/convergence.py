@@ -51,7 +51,7 @@ def _pulses(summary):
     return pulses
 
 
-def _change(base, refined):
+def relative_change(base, refined):
     """Relative change of one figure, against the larger of the two values; inf when only
     one run found it (a pulse seen at one step size and not at the other is not converged), None
     when neither did."""
@@ -79,7 +79,7 @@ def compare(base, refined, tolerance=0.01):
         b = pb[i] if i < len(pb) else {}
         r = pr[i] if i < len(pr) else {}
         for k in FIGURES:
-            c = _change(b.get(k), r.get(k))
+            c = relative_change(b.get(k), r.get(k))
             if c is not None and (changes[k] is None or c > changes[k]):
                 changes[k] = c
     found = {k: c for k, c in changes.items() if c is not None}

@@ -13,6 +13,7 @@ import functools
 import itertools
 import json
 import math
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -323,6 +324,54 @@ def fit(problem, cluster=None, seed=0, popsize=8, maxiter=20, tol=1e-3, refine=T
     }
 
 
+def check_convergence(problem, result, tolerance, threads=None):
+    """The convergence check of a fit's best point (``result`` of :func:`fit`): each case run
+    again with every step control refined (:func:`solver.simulate.convergence.refined_overrides`
+    of the case's scene) and the relative change of each of its fitted figures from the value
+    the fit found (:func:`~solver.simulate.convergence.relative_change`). Returns
+    ``{'tolerance', 'converged', 'worst': {'case', 'figure', 'change', 'refined'}, 'cases':
+    [{'refined', 'status', 'changes', 'converged'}]}``; a case whose refined run (or whose own
+    run) does not end ok fails the check."""
+    from solver.simulate import convergence
+    from solver.simulate.batch import simulate_batch
+    items, refined = [], []
+    for case in problem.cases:
+        overrides = list(problem.overrides(case, result['best']).items())
+        extra = convergence.refined_overrides(problem.scene.with_overrides(overrides))
+        items.append((problem.scene, overrides + extra))
+        refined.append(convergence.describe(extra))
+    runs = simulate_batch(items, threads=threads or 1, base=False)
+    cases, worst = [], None
+    for k, (case, bp, found) in enumerate(zip(problem.cases, runs, result['cases'])):
+        entry = {'refined': refined[k], 'status': bp.status, 'changes': {}, 'converged': False}
+        if bp.status == 'ok' and found['status'] == 'ok':
+            f = flatten(bp.summary)
+            entry['changes'] = {name: convergence.relative_change(r['simulated'], f.get(name))
+                                for name, r in found['figures'].items()}
+            known = {n: c for n, c in entry['changes'].items() if c is not None}
+            entry['converged'] = all(c <= tolerance for c in known.values())
+        else:
+            known = {f'refined run {bp.status}' if bp.status != 'ok' else 'run': math.inf}
+        for name, c in known.items():
+            if worst is None or c > worst['change']:
+                worst = {'case': k + 1, 'figure': name, 'change': c, 'refined': refined[k]}
+        cases.append(entry)
+    return {'tolerance': tolerance, 'converged': all(c['converged'] for c in cases),
+            'worst': worst, 'cases': cases}
+
+
+def convergence_failure(check):
+    """The one line of a failed :func:`check_convergence` (None when it passed)."""
+    if check['converged']:
+        return None
+    w = check['worst']
+    moved = ('cannot be compared' if math.isinf(w['change'])
+             else f"moves {100 * w['change']:.3g} %")
+    return (f"fitted figures not converged: case {w['case']} {w['figure']} {moved} when every "
+            f"step control is refined ({w['refined']}; limit {100 * check['tolerance']:g} %); "
+            f"fit with a finer integrator.dt and contact.resolution")
+
+
 def format_result(result):
     """The result as lines of text."""
     lines = [f"best point (error {100 * result['error']:.3g} % rms): "
@@ -345,6 +394,14 @@ def format_result(result):
                              if k not in c['choice'])
             lines.append(f"    {choice:<32} error {100 * c['error']:8.3g} %   {free}"
                          f"   ({c['evaluations']} points)")
+    check = result.get('convergence')
+    if check is not None:
+        for i, case in enumerate(check['cases']):
+            moved = ', '.join(f'{k} {100 * c:.3g} %' for k, c in case['changes'].items()
+                              if c is not None) or f"refined run {case['status']}"
+            lines.append(f"  convergence, case {i + 1} ({case['refined']}): {moved}: "
+                         f"{'converged' if case['converged'] else 'NOT converged'} (limit "
+                         f"{100 * check['tolerance']:g} %)")
     lines.append(f"  {result['runs']} runs ({result['evaluations']} points x "
                  f"{len(result['cases'])} cases), {result['generations']} generations, "
                  f"seed {result['seed']}: {result['message']}")
@@ -380,6 +437,9 @@ def main(args):
         raise SweepError('--popsize and --maxiter: must be >= 1')
     if args.write_scene and not Path(args.write_scene).parent.exists():
         raise SweepError(f'--write-scene {args.write_scene}: directory does not exist')
+    tol = getattr(args, 'convergence', None)
+    if tol is not None and not 0.0 < tol < 1.0:
+        raise SweepError(f'--convergence: {tol!r} must be in (0, 1)')
     problem = build(args.scene, args.target, args.free, args.choice, t_end=args.t_end)
     cluster = None
     try:
@@ -393,6 +453,11 @@ def main(args):
     finally:
         if cluster is not None:
             cluster.close()
+    problem_line = None
+    if tol is not None:
+        result['convergence'] = check_convergence(problem, result, tol,
+                                                  threads=1 if args.workers == 1 else None)
+        problem_line = convergence_failure(result['convergence'])
     if args.write_scene:
         result['scene_file'] = write_scene(problem, result['best'], args.write_scene,
                                            args.target)
@@ -404,4 +469,7 @@ def main(args):
             print(line)
         if args.write_scene:
             print(f"  scene: {result['scene_file']}")
+    if problem_line is not None:
+        print(f'tensegrity: {problem_line}', file=sys.stderr)
+        return 1
     return 0
