@@ -123,7 +123,6 @@ def test_fit_convergence_checks_the_best_point_against_separate_refined_runs(tmp
     target.write_text('cases:\n'
                       '  - {set: {loading.impact.v0: 0.1}, figures: {pulse.amplitude: 0.15}}\n'
                       '  - {set: {loading.impact.v0: 1.0}, figures: {pulse.amplitude: 2.0}}\n')
-    out = tmp_path / 'fit.json'
     args = ['fit', FB, '--target', str(target), '--free', 'prestrain=0.0019:0.0021',
             '--popsize', '1', '--maxiter', '1', '--no-polish', '--t-end', str(T_END),
             '--workers', '1', '--convergence', '--json']
