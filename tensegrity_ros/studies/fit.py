@@ -340,7 +340,7 @@ def check_convergence(problem, result, tolerance, threads=None):
         extra = convergence.refined_overrides(problem.scene.with_overrides(overrides))
         items.append((problem.scene, overrides + extra))
         refined.append(convergence.describe(extra))
-    runs = simulate_batch(items, threads=threads or 1, base=False)
+    runs = simulate_batch(items, threads=threads, base=False)
     cases, worst = [], None
     for k, (case, bp, found) in enumerate(zip(problem.cases, runs, result['cases'])):
         entry = {'refined': refined[k], 'status': bp.status, 'changes': {}, 'converged': False}
