@@ -105,7 +105,7 @@ def test_bad_convergence_input_is_one_line_exit_2_and_runs_nothing(args, needle,
 
 def test_a_twin_that_did_not_run_ok_fails_the_check_and_a_failed_point_has_none():
     row = {'status': 'ok', **{f'pulse.{k}': 1.0 for k in FIGS}}
-    refined = {'integrator.dt': 1e-4, 'run.t_end': 1.0}
+    refined = {'integrator.dt': 1e-4}          # where the twin differs from the point
     cols = sw.convergence_columns(row, {'status': 'diverged'}, 0.01, refined)
     assert cols['converged'] is False and cols['convergence.worst'] == 'refined run diverged'
     assert cols['convergence.refined'] == 'dt/2'

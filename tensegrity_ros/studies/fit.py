@@ -350,8 +350,10 @@ def check_convergence(problem, result, tolerance, threads=None):
                                 for name, r in found['figures'].items()}
             known = {n: c for n, c in entry['changes'].items() if c is not None}
             entry['converged'] = all(c <= tolerance for c in known.values())
-        else:
-            known = {f'refined run {bp.status}' if bp.status != 'ok' else 'run': math.inf}
+        elif bp.status != 'ok':
+            known = {f'refined run {bp.status}': math.inf}
+        else:                       # the fit's own run of the case did not end ok
+            known = {f"run {found['status'].split(':')[0]}": math.inf}
         for name, c in known.items():
             if worst is None or c > worst['change']:
                 worst = {'case': k + 1, 'figure': name, 'change': c, 'refined': refined[k]}

@@ -80,10 +80,6 @@ class Sweep:
         scene = self.scene.with_overrides(list(overrides.items()))
         return {**overrides, **dict(refined_overrides(scene))}
 
-    def ids(self):
-        data = self.scene.data
-        return [point_id(data, self.overrides(p)) for p in self.points]
-
     def runs(self):
         """Every run of the sweep, ``(point_id, overrides)``: the points, then with
         ``convergence`` their refined twins (:meth:`refined`)."""
@@ -94,20 +90,22 @@ class Sweep:
             out += [(point_id(data, t), t) for t in map(self.refined, base)]
         return out
 
-    def table(self, done):
+    def table(self, done, runs=None):
         """The table's rows of the points run so far (``done``: rows by point id), in order; with
         ``convergence`` each with the check of it against its refined twin
-        (:func:`convergence_columns`)."""
-        runs = self.runs()
+        (:func:`convergence_columns`). ``runs``: :meth:`runs`, when the caller has it."""
+        runs = self.runs() if runs is None else runs
         n = len(self.points)
         rows = []
-        for k, (pid, _) in enumerate(runs[:n]):
+        for k, (pid, base) in enumerate(runs[:n]):
             if pid not in done:
                 continue
             row = done[pid]
             if self.convergence is not None:
-                row = {**row, **convergence_columns(row, done.get(runs[n + k][0]),
-                                                    self.convergence, runs[n + k][1])}
+                twin_id, twin = runs[n + k]
+                refined = {key: v for key, v in twin.items() if base.get(key) != v}
+                row = {**row, **convergence_columns(row, done.get(twin_id), self.convergence,
+                                                    refined)}
             rows.append(row)
         return rows
 
@@ -119,8 +117,9 @@ class Sweep:
 
 
 def convergence_columns(row, twin, tolerance, refined):
-    """The convergence check of a point's ``row`` against the row of its refined ``twin`` (run
-    with the overrides ``refined``; None while it has not run): ``converged`` (True, False, or
+    """The convergence check of a point's ``row`` against the row of its refined ``twin`` (None
+    while it has not run; ``refined``: the overrides in which the twin differs from the point,
+    e.g. ``{'integrator.dt': 5e-4}``): ``converged`` (True, False, or
     None when the point did not run ok, its twin has not run or neither found a pulse),
     ``convergence.worst`` (the figure that moved most), ``convergence.change`` (its relative
     change) and ``convergence.<figure>`` for each figure of
@@ -134,9 +133,7 @@ def convergence_columns(row, twin, tolerance, refined):
            'convergence.refined': None}
     if row is None or row.get('status') != 'ok' or twin is None:
         return out
-    scene = {k: v for k, v in refined.items() if k in ('integrator.dt', 'integrator.rtol',
-                                                        'contact.resolution')}
-    out['convergence.refined'] = convergence.describe(list(scene.items()))
+    out['convergence.refined'] = convergence.describe(list(refined.items()))
     if twin.get('status') != 'ok':
         out.update({'converged': False, 'convergence.worst': f'refined run {twin.get("status")}'})
         return out
@@ -293,7 +290,8 @@ def execute(sweep, cluster=None, progress=None, task=None, on_row=None, chunk=No
     out = Path(sweep.out_dir)
     out.mkdir(parents=True, exist_ok=True)
     done = read_rows(out)
-    todo = [(pid, o) for pid, o in sweep.runs() if pid not in done]
+    runs = sweep.runs()
+    todo = [(pid, o) for pid, o in runs if pid not in done]
     todo = list(dict(todo).items())                   # a point listed twice runs once
     columns = sweep.columns()
     last_write = [time.monotonic()]
@@ -311,7 +309,7 @@ def execute(sweep, cluster=None, progress=None, task=None, on_row=None, chunk=No
         if on_row is not None:
             on_row(row)
         if time.monotonic() - last_write[0] > 5.0:
-            write_table(out, sweep.table(done), columns)
+            write_table(out, sweep.table(done, runs), columns)
             last_write[0] = time.monotonic()
 
     def cut(workers, seconds=BATCH_SECONDS):
@@ -364,8 +362,9 @@ def execute(sweep, cluster=None, progress=None, task=None, on_row=None, chunk=No
                         if not fut.done():
                             fut.cancel()
     finally:
-        write_table(out, sweep.table(done), columns)
-    return sweep.table(done), n_run
+        rows = sweep.table(done, runs)
+        write_table(out, rows, columns)
+    return rows, n_run
 
 
 def convergence_report(rows, tolerance, keys=()):
@@ -411,13 +410,14 @@ def main(args):
     if args.workers is not None and args.workers < 1:
         raise SweepError(f'--workers: must be >= 1, got {args.workers}')
     dashboard_option(args)
-    plottable = FIGURES + (('convergence.change',) if getattr(args, 'convergence', None)
-                           is not None else ())
+    tolerance = getattr(args, 'convergence', None)
+    plottable = FIGURES + (('convergence.change',) if tolerance is not None else ())
     if args.plot and args.plot not in plottable:
         raise SweepError(f'--plot {args.plot}: unknown figure (one of {", ".join(plottable)})')
     sweep = build(args.scene, args.grid, samples=args.samples, seed=args.seed, out=args.out,
-                  t_end=args.t_end, convergence=getattr(args, 'convergence', None))
-    n_todo = len({pid for pid, _ in sweep.runs()} - set(read_rows(sweep.out_dir)))
+                  t_end=args.t_end, convergence=tolerance)
+    run_ids = {pid for pid, _ in sweep.runs()}
+    n_todo = len(run_ids - set(read_rows(sweep.out_dir)))
     cluster = None
     close = (lambda: None)
     try:
@@ -436,9 +436,9 @@ def main(args):
             cluster.close()
     counts = {s: sum(r['status'] == s for r in rows) for s in ('ok', 'diverged', 'error')}
     out = Path(sweep.out_dir)
-    n_runs = len({pid for pid, _ in sweep.runs()})
-    twins = '' if sweep.convergence is None else f', {n_runs} runs with the refined twins'
-    print(f'{len(rows)} points{twins} ({n_run} run now, {n_runs - n_run} already in {out}): '
+    twins = '' if sweep.convergence is None else f', {len(run_ids)} runs with the refined twins'
+    already = len(run_ids) - n_run
+    print(f'{len(rows)} points{twins} ({n_run} run now, {already} already in {out}): '
           f'{counts["ok"]} ok, {counts["diverged"]} diverged, {counts["error"]} error')
     if sweep.convergence is not None:
         print('  ' + convergence_report(rows, sweep.convergence, sweep.keys))
