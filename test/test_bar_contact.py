@@ -368,11 +368,11 @@ def test_the_near_miss_bound_never_passes_a_touch_and_passes_sliding_bars():
                                         ('paper_rb', ()),
                                         ('rb_column', ('loading.impact.mode=striker',))])
 def test_the_step_energy_is_the_state_summary_energy_where_no_contact_acts(name, sets):
-    """``dynamics.step_energy`` (what a whole step beside a near miss is checked with, from the
+    """``summary.step_energy`` (what a whole step beside a near miss is checked with, from the
     arrays the extras carry) equals the energy of the state summary (its own arrays) at states of
     a pulse where no bar touches: reduced and full models, lumped masses on the bases, a
     striker."""
-    from solver.kernels import dynamics as dyn
+    from solver.kernels import summary
     sim = simulation_for(_scene(name, *sets))
     sim.apply_impact(0.05)
     checked = 0
@@ -381,7 +381,7 @@ def test_the_step_energy_is_the_state_summary_energy_where_no_contact_acts(name,
         m = sim.model
         if sim.contacts_met:
             break
-        e = dyn.step_energy(m.x, m.v, m.net, m.act)
+        e = summary.step_energy(m.x, m.v, m.net, m.act)
         assert e == pytest.approx(sim.energy(), rel=1e-12, abs=1e-15)
         checked += 1
     assert checked >= 3

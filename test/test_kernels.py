@@ -5,6 +5,7 @@ import pytest
 
 import twins
 from solver.kernels import dynamics as dyn
+from solver.kernels import summary
 from solver.kernels import banded
 from solver.build import structures
 
@@ -123,7 +124,7 @@ def test_position_projection_matches_twin(name):
 
 @pytest.mark.parametrize('name', sorted(NETWORKS))
 def test_state_summary_matches_twin(name):
-    """dynamics.state_summary (one pass: energy, constraint error, prism heights) against NumPy:
+    """summary.state_summary (one pass: energy, constraint error, prism heights) against NumPy:
     kinetic energy with the dense mass matrix, cable strain energy, the work of external forces,
     mean level heights and the constraint error of each rigid member."""
     from solver.models.family import full_summary_arrays
@@ -135,7 +136,7 @@ def test_state_summary_matches_twin(name):
     h = np.empty((net.levels.shape[0], net.levels.shape[1] - 1))
     net_t, act = dyn.pack(net, rest, EA, f_ext)
     summ = full_summary_arrays(net)
-    finite, e, cerr, h_min = dyn.state_summary(x, v, net_t, act, summ, h)
+    finite, e, cerr, h_min = summary.state_summary(x, v, net_t, act, summ, h)
     d = np.linalg.norm(x[net.cable_b] - x[net.cable_a], axis=1)
     pe_ref = np.sum(0.5 * EA / rest * np.clip(d - rest, 0, None) ** 2)
     e_ref = twins.kinetic_energy(v, net) + pe_ref - np.sum(f_ext * (x - net.x0))
@@ -147,9 +148,9 @@ def test_state_summary_matches_twin(name):
          for a, b in twins.rigid_members(net)]
     assert cerr == pytest.approx(max(g), rel=1e-9)
     x[5, 1] = np.nan
-    assert not dyn.state_summary(x, v, net_t, act, summ, h)[0]
+    assert not summary.state_summary(x, v, net_t, act, summ, h)[0]
     x[net.levels[0, 1, 0], 2] = np.nan
-    assert np.isnan(dyn.state_summary(x, v, net_t, act, summ, h)[3])
+    assert np.isnan(summary.state_summary(x, v, net_t, act, summ, h)[3])
 
 
 @pytest.mark.parametrize('shape', [(7, 3), (8, 3), (5, 1), (4, 2), (0, 3)])

@@ -9,6 +9,7 @@ import pytest
 
 import twins
 from solver.kernels import dynamics as dyn
+from solver.kernels import summary
 from solver.kernels import massmatrix as mm
 from solver.build import structures
 from solver.build.network import Network
@@ -287,7 +288,7 @@ def test_sym3d_reduced_mass_matrix_matches_the_full_dense_kkt(bases):
     assert _relclose(model._expand(a), a_ref, 1e-9)
     # and the reduced energy summary equals the full kinetic energy
     h = np.empty((1, 4))
-    e = dyn.state_summary(xr, vr, model.net, model.act, model.summ, h)[1]
+    e = summary.state_summary(xr, vr, model.net, model.act, model.summ, h)[1]
     d = np.linalg.norm(x[net.cable_b] - x[net.cable_a], axis=1)
     rest = np.array(net.cable_rest_length)
     pe = np.sum(0.5 * np.array(net.cable_EA) / rest * np.clip(d - rest, 0, None) ** 2)

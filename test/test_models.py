@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize_scalar
 
-from solver.kernels import dynamics as dyn
+from solver.kernels import summary
 from solver.models import family as models
 from solver.models import chain1d
 from solver.models.chain1d import Chain1D
@@ -309,7 +309,7 @@ def test_sym3d_reduced_summary_equals_the_expanded_state(sets):
     sim.advance(0.05)
     m = sim.model
     h = np.empty((sim.network.levels.shape[0], sim.network.levels.shape[1] - 1))
-    finite, e, cerr, h_min = dyn.state_summary(m.x, m.v, m.net, m.act, m.summ, h)
+    finite, e, cerr, h_min = summary.state_summary(m.x, m.v, m.net, m.act, m.summ, h)
     assert h_min == h.min()
     f_ext = sim.f_ext if np.any(sim.f_ext) else None
     finite_ref, e_ref, h_ref, cerr_ref = state_summary(m.positions(), m.velocities(), sim.network,

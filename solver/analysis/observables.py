@@ -11,18 +11,19 @@ from dataclasses import dataclass
 import numpy as np
 
 from solver.kernels import dynamics as dyn
+from solver.kernels import summary
 
 
 def state_summary(x, v, network, rest, EA, f_ext=None):
     """``(finite, energy J, prism heights (n_columns, n_prisms) m, relative constraint error)`` of
-    a full state in one compiled call (:func:`solver.kernels.dynamics.state_summary`): what the
+    a full state in one compiled call (:func:`solver.kernels.summary.state_summary`): what the
     divergence check and a frame need. The energy is kinetic + cable strain energy, minus the
     work potential of constant external forces ``f_ext`` (n_nodes, 3) N when given."""
     from solver.models.family import full_summary_arrays
     levels = network.levels
     heights = np.empty((levels.shape[0], max(levels.shape[1] - 1, 0)))
     net, act = dyn.pack(network, rest, EA, f_ext)
-    finite, e, cerr, _ = dyn.state_summary(
+    finite, e, cerr, _ = summary.state_summary(
         np.ascontiguousarray(x, dtype=np.float64), np.ascontiguousarray(v, dtype=np.float64),
         net, act, full_summary_arrays(network), heights)
     return finite, e, heights, cerr
@@ -33,7 +34,7 @@ def prism_heights(x, levels):
 
     ``x`` (n_nodes, 3) m, ``levels`` (n_columns, n_levels, 3) node indices."""
     out = np.empty((levels.shape[0], max(levels.shape[1] - 1, 0)))
-    dyn.level_heights(np.ascontiguousarray(x, dtype=np.float64), levels, out)
+    summary.level_heights(np.ascontiguousarray(x, dtype=np.float64), levels, out)
     return out
 
 
@@ -46,14 +47,14 @@ def prism_strains(x, levels, h0):
 def cable_tensions(x, network, rest, EA):
     """Tension per cable (n_cables,) N (zero when slack)."""
     out = np.zeros(network.n_cables)
-    dyn.cable_tensions(x, network.cable_a, network.cable_b, rest, EA, out)
+    summary.cable_tensions(x, network.cable_a, network.cable_b, rest, EA, out)
     return out
 
 
 def kinetic_energy(v, network):
     """Kinetic energy J of node velocities ``v`` (n_nodes, 3) m/s (lumped and bar masses)."""
-    return dyn.kinetic_energy(v, network.node_mass, network.clamped, network.bar_a, network.bar_b,
-                              network.bar_mass)
+    return summary.kinetic_energy(v, network.node_mass, network.clamped, network.bar_a,
+                                  network.bar_b, network.bar_mass)
 
 
 def constraint_error(x, network):

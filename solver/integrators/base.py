@@ -71,7 +71,7 @@ class Integrator:
         """The arguments of ``checked`` between ``n_steps`` and ``heights``: ``checked(x, v, dt,
         n_steps, *checked_args(...), heights)`` is :meth:`run` in one compiled call that first
         copies ``x``, ``v`` into ``keep = (x_keep, v_keep)`` and then summarises the end state
-        (:func:`solver.kernels.dynamics.state_summary` with the arrays ``summ``, prism heights into
+        (:func:`solver.kernels.summary.state_summary` with the arrays ``summ``, prism heights into
         ``heights``), returning ``(steps, status, finite, energy J, relative constraint error,
         smallest prism height m)``. ``Simulation.advance`` builds them once per model."""
         return (net, act, ws, float(tol), int(max_iter)) + tuple(self.extra_args(x, kinks)) + (

@@ -20,6 +20,7 @@ import math
 import numpy as np
 
 from solver.kernels import dynamics as dyn
+from solver.kernels import summary
 from solver._jit import jit
 from solver.integrators.base import Integrator
 from solver.kernels.barcontact import remember
@@ -156,12 +157,12 @@ def dopri_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, rtol, atol,
 @jit
 def dopri_checked(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, rtol, atol, A, E, kx, kv,
                   xs, vs, hstate, keep, summ, heights):
-    """:func:`dopri_run` between ``keep_state`` and ``dynamics.state_summary`` (see
+    """:func:`dopri_run` between ``keep_state`` and ``summary.state_summary`` (see
     ``Integrator.checked_args``)."""
     keep_state(x, v, keep)
     out = dopri_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, rtol, atol, A, E, kx,
                     kv, xs, vs, hstate)
-    return out + dyn.state_summary(x, v, net, act, summ, heights)
+    return out + summary.state_summary(x, v, net, act, summ, heights)
 
 
 class DOPRI54Projected(Integrator):

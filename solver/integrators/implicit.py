@@ -46,6 +46,7 @@ import math
 import numpy as np
 
 from solver.kernels import dynamics as dyn
+from solver.kernels import summary
 from solver._jit import jit, jit_inline
 from solver.integrators.base import Integrator
 from solver.kernels.banded import band_ldl_apply, band_ldl_factor
@@ -406,12 +407,12 @@ def midpoint_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, node_pos, con_p
 @jit
 def midpoint_checked(x, v, dt, n_steps, net, act, ws, tol, max_iter, node_pos, con_pos, band,
                      rhs, nu, x0, v0, xm, f, acc, nstate, keep, summ, heights):
-    """:func:`midpoint_run` between ``keep_state`` and ``dynamics.state_summary``."""
+    """:func:`midpoint_run` between ``keep_state`` and ``summary.state_summary``."""
     keep[0][:, :] = x
     keep[1][:, :] = v
     out = midpoint_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, node_pos, con_pos, band,
                        rhs, nu, x0, v0, xm, f, acc, nstate)
-    return out + dyn.state_summary(x, v, net, act, summ, heights)
+    return out + summary.state_summary(x, v, net, act, summ, heights)
 
 
 class ImplicitMidpoint(Integrator):

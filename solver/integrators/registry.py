@@ -30,7 +30,7 @@ kinks)`` with that contract (calling only :func:`solver.kernels.dynamics.acceler
 :func:`solver.kernels.kinks.next_kink`, and passing
 the ``net``/``act``/``ws`` tuples through untouched) and its checked twin (three lines, as
 :func:`solver.integrators.rk4._rk4_checked`: ``keep_state``, the run kernel, then
-``dynamics.state_summary``: a
+``summary.state_summary``: a
 ``Simulation.advance`` is then one compiled call), subclass
 :class:`solver.integrators.base.Integrator` (``name``,
 ``order``, ``projected``, ``kernel``, ``checked``; override :meth:`Integrator.extra_args` when the

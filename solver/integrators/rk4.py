@@ -5,6 +5,7 @@ from __future__ import annotations
 from solver._jit import jit
 from solver.integrators.base import Integrator
 from solver.kernels import dynamics as dyn
+from solver.kernels import summary
 from solver.kernels.barcontact import remember
 from solver.kernels.contactsteps import (add_motion, contact_step, gate, motion_so_far,
                                        passed_clear, resume)
@@ -60,11 +61,11 @@ def _kept_balance(x0, v0, x, v, net, act, h, dissipated):
     ``divergence.energy_error`` per second (``act[3][20]``). Beside contacts the bars vibrate
     fast: a whole step that passes clear of every contact can still be too long for them. True
     where the extras carry no energy arrays."""
-    e0 = dyn.step_energy(x0, v0, net, act)
+    e0 = summary.step_energy(x0, v0, net, act)
     if e0 != e0:
         return True
     ex = act[3]
-    e1 = dyn.step_energy(x, v, net, act)
+    e1 = summary.step_energy(x, v, net, act)
     return abs(e1 + (ex[10][1] - dissipated) - e0) <= ex[20][0] * h * abs(e0)
 
 
@@ -236,13 +237,13 @@ def _rattle_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, acc, x_old, carr
 
 
 # The checked kernels (Integrator.checked_args): the run kernel between keep_state and
-# dynamics.state_summary, in one compiled call (a Simulation.advance makes no other).
+# summary.state_summary, in one compiled call (a Simulation.advance makes no other).
 @jit
 def _rk4_checked(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, project, keep, summ,
                  heights):
     keep_state(x, v, keep)
     out = _rk4_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, project)
-    return out + dyn.state_summary(x, v, net, act, summ, heights)
+    return out + summary.state_summary(x, v, net, act, summ, heights)
 
 
 @jit
@@ -250,7 +251,7 @@ def _rattle_checked(x, v, dt, n_steps, net, act, ws, tol, max_iter, acc, x_old, 
                     summ, heights):
     keep_state(x, v, keep)
     out = _rattle_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, acc, x_old, carry)
-    return out + dyn.state_summary(x, v, net, act, summ, heights)
+    return out + summary.state_summary(x, v, net, act, summ, heights)
 
 
 class RK4Projected(Integrator):

@@ -17,7 +17,7 @@ contact scan's slack m and whether forces must look for contacts; ``saved`` hold
 step started from (scratch of the integrators' contact steps); ``dissipation``: the power W the
 cable damping takes out at the last force evaluation and the energy J it took out so far;
 ``active``: the pairs the force evaluations look at; ``x0`` to ``cable_mult``: the state
-summary's arrays (:func:`solver.kernels.dynamics.step_energy`, with bar contact only) and
+summary's arrays (:func:`solver.kernels.summary.step_energy`, with bar contact only) and
 ``rate`` the energy balance a whole step beside a near miss may spend, relative, per second.
 Empty arrays switch a part off: with all of them empty (:data:`NO_EXTRAS`, what
 :func:`solver.kernels.dynamics.pack` gives) the kernels of

@@ -207,7 +207,7 @@ def network_extras(spec, network):
 def energy_slots(model, spec):
     """The last extras slots: copies of the model's state summary arrays (``x0``, node mass,
     clamped, node multiplicity, massive bars, cable multiplicity) and ``divergence.energy_error``
-    as a rate per second, for :func:`solver.kernels.dynamics.step_energy`, which the RK4 kernels
+    as a rate per second, for :func:`solver.kernels.summary.step_energy`, which the RK4 kernels
     use to check a whole step beside a near miss of bar contact; empty without bar contact or
     without a summary (a ``sym3d`` model that is not exact). Writable copies, like
     :data:`NO_EXTRAS`' (one compiled type)."""

@@ -8,7 +8,7 @@ network's node positions (for frames, messages and recordings):
 - ``positions()`` / ``velocities()``: full (n_nodes, 3) arrays of the network;
 - ``set_state(x_full, v_full)``: load a full state;
 - ``cable_rest_length``, ``cable_EA`` (full (n_cables,) arrays) and ``set_cables(rest, EA)``;
-- ``summ``: the arrays of :func:`solver.kernels.dynamics.state_summary` for the model's own state
+- ``summ``: the arrays of :func:`solver.kernels.summary.state_summary` for the model's own state
 (energy,
   prism heights, constraint error in one compiled pass, also run inside the integrator call of
   each ``Simulation.advance``), or None: the simulation then computes them from the full state
@@ -28,6 +28,7 @@ from __future__ import annotations
 import numpy as np
 
 from solver.kernels import dynamics as dyn
+from solver.kernels import summary
 from solver.models.base import Model
 
 
@@ -72,9 +73,9 @@ class Full3D(Model):
 
 
 def full_summary_arrays(network):
-    """The :func:`solver.kernels.dynamics.state_summary` arrays of a full network."""
+    """The :func:`solver.kernels.summary.state_summary` arrays of a full network."""
     levels = network.levels if network.levels.size else np.zeros((0, 0, 1), dtype=np.int64)
-    return dyn.summary_arrays(network.x0, network.node_mass, network.clamped, network.bar_a,
+    return summary.summary_arrays(network.x0, network.node_mass, network.clamped, network.bar_a,
                               network.bar_b, network.bar_mass,
                               np.ascontiguousarray(levels, dtype=np.int64), network.n_cables)
 

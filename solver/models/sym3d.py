@@ -27,6 +27,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from solver.kernels import dynamics as dyn
+from solver.kernels import summary
 from solver._jit import jit
 from solver.build import memo
 from solver.models.base import Model
@@ -324,7 +325,7 @@ class Sym3D(Model):
         self.summ = None
         if not levels.size or np.all(red.node_rep[levels] == red.node_rep[levels[:, :, :1]]):
             massive = np.asarray(red.bar_mass) != 0
-            self.summ = dyn.summary_arrays(
+            self.summ = summary.summary_arrays(
                 red.x0, red.node_mass, red.clamped,
                 np.ascontiguousarray(red.bar_a[massive]), np.ascontiguousarray(red.bar_b[massive]),
                 3.0 * np.asarray(red.bar_mass)[massive],

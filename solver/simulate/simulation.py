@@ -22,6 +22,7 @@ import numpy as np
 from solver import status as codes
 from solver._jit import compiled_overload
 from solver.kernels import dynamics as dyn
+from solver.kernels import summary
 from solver.kernels import contact
 from solver.build import memo
 from solver.models import extras
@@ -167,7 +168,7 @@ class Simulation(Loading, Checks):
         summ = m.summ
         if summ is not None:                    # on the model's own (maybe reduced) state
             h = np.empty(self._heights_shape)
-            finite, e, cerr, h_min = dyn.state_summary(m.x, m.v, m.net, m.act, summ, h)
+            finite, e, cerr, h_min = summary.state_summary(m.x, m.v, m.net, m.act, summ, h)
             return finite, e, h, cerr, h_min
         x, v = self._full_state()
         if len(m.act) > 3 and contact.active(m.act[3]):     # striker, contact energies

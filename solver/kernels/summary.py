@@ -1,0 +1,162 @@
+"""Numba kernels that summarise a state (docs/physics.md section 7): its energy (kinetic, cable,
+external forces, and the strikers, prism stops and bar contacts of a scene that has them), prism
+heights, constraint error and finiteness in one pass for the divergence check and a frame
+(:func:`state_summary`), the contact-free energy of a step beside a near miss
+(:func:`step_energy`), and cable tensions. The arrays are those of
+:mod:`solver.kernels.dynamics` (``net``, ``act``) and the ``summ`` tuple of
+:func:`summary_arrays`.
+"""
+import math
+
+import numpy as np
+
+from solver._jit import jit
+from solver.kernels.barcontact import bar_energy_scanned, base_energy
+from solver.kernels.contact import extra_energy
+from solver.kernels.dynamics import all_finite, readonly
+from solver.kernels.rotation import constraint_error_arrays, rel
+
+
+@jit
+def kinetic_energy(v, node_mass, clamped, bar_a, bar_b, bar_mass):
+    """``sum 1/2 m_p |v_p|^2 + sum_bars m_b / 6 (|v_a|^2 + v_a.v_b + |v_b|^2)`` J."""
+    e = 0.0
+    for p in range(v.shape[0]):
+        if not clamped[p]:
+            e += 0.5 * node_mass[p] * (v[p, 0] ** 2 + v[p, 1] ** 2 + v[p, 2] ** 2)
+    return e + _bar_kinetic_energy(v, bar_a, bar_b, bar_mass)
+
+
+@jit
+def _bar_kinetic_energy(v, bar_a, bar_b, bar_mass):
+    """``sum_bars m_b / 6 (|v_a|^2 + v_a.v_b + |v_b|^2)`` J (uniform bars)."""
+    e = 0.0
+    for j in range(bar_a.shape[0]):
+        mb = bar_mass[j]
+        if mb != 0.0:
+            a = bar_a[j]
+            b = bar_b[j]
+            e += mb / 6.0 * (v[a, 0] ** 2 + v[a, 1] ** 2 + v[a, 2] ** 2
+                             + v[a, 0] * v[b, 0] + v[a, 1] * v[b, 1] + v[a, 2] * v[b, 2]
+                             + v[b, 0] ** 2 + v[b, 1] ** 2 + v[b, 2] ** 2)
+    return e
+
+
+@jit
+def _node_energy(x, v, x0, f_ext, node_mass, clamped, node_mult):
+    """``sum mult_p (1/2 m_p |v_p|^2 - f_p . (x_p - x0_p))`` over free nodes, J."""
+    e = 0.0
+    for p in range(x.shape[0]):
+        if not clamped[p]:
+            e += node_mult[p] * (0.5 * node_mass[p] * (v[p, 0] ** 2 + v[p, 1] ** 2 + v[p, 2] ** 2)
+                                 - f_ext[p, 0] * (x[p, 0] - x0[p, 0])
+                                 - f_ext[p, 1] * (x[p, 1] - x0[p, 1])
+                                 - f_ext[p, 2] * (x[p, 2] - x0[p, 2]))
+    return e
+
+
+@jit
+def _cable_energy(x, cable_a, cable_b, cable_rot, rest, EA, cable_mult):
+    """``sum mult_c 1/2 EA_c / L_c (s_c - L_c)_+^2`` J (``cable_rot`` as in ``net``)."""
+    e = 0.0
+    for c in range(cable_a.shape[0]):
+        dx, dy, dz = rel(x, cable_a[c], cable_b[c], cable_rot, c)
+        s = math.sqrt(dx * dx + dy * dy + dz * dz)
+        if s > rest[c]:
+            e += cable_mult[c] * 0.5 * EA[c] / rest[c] * (s - rest[c]) ** 2
+    return e
+
+
+@jit
+def level_heights(x, levels, heights):
+    """Prism heights into ``heights`` (n_columns, n_levels - 1) m: the mean z of the k nodes of
+    level j + 1 minus that of level j (``levels`` (n_columns, n_levels, k) node indices).
+    Returns the smallest height (NaN when a height is NaN, inf when there is none)."""
+    h_min = math.inf
+    k = levels.shape[2]
+    for c in range(levels.shape[0]):
+        z_prev = 0.0
+        for j in range(levels.shape[1]):
+            z = 0.0
+            for i in range(k):
+                z += x[levels[c, j, i], 2]
+            z /= k
+            if j > 0:
+                h = z - z_prev
+                heights[c, j - 1] = h
+                if h < h_min or h != h:     # a NaN height stays the minimum
+                    h_min = h
+            z_prev = z
+    return h_min
+
+
+def summary_arrays(x0, node_mass, clamped, bar_a, bar_b, bar_mass, levels, n_cables,
+                   node_mult=None, cable_mult=None):
+    """The ``summ`` tuple of :func:`state_summary`: the arrays it needs that ``net``/``act`` do
+    not hold. ``levels`` (n_columns, n_levels, k) node indices (a level's height is the mean z of
+    its k nodes); ``node_mult``/``cable_mult``: how many nodes or cables of the full network each
+    one stands for (default 1)."""
+    return tuple(readonly(a) for a in (
+        x0, node_mass, clamped, np.ones(len(node_mass)) if node_mult is None else node_mult,
+        bar_a, bar_b, bar_mass, np.ones(n_cables) if cable_mult is None else cable_mult,
+        levels))
+
+
+@jit
+def _contact_free_energy(x, v, net, act, x0, node_mass, clamped, node_mult, bar_a, bar_b,
+                         bar_mass, cable_mult):
+    """Kinetic, cable and external-force energy J, and that of strikers and prism stops where a
+    scene has them: :func:`state_summary`'s energy less the bar contact, from the summary's
+    arrays (see there)."""
+    # one compiled function per part: written as one loop nest, the same code ran 3x slower
+    e = (_node_energy(x, v, x0, act[2], node_mass, clamped, node_mult)
+         + _bar_kinetic_energy(v, bar_a, bar_b, bar_mass)
+         + _cable_energy(x, net[7], net[8], net[10], act[0], act[1], cable_mult))
+    ex = act[3]
+    if ex[2].shape[0] != 0 or ex[3].shape[0] != 0:      # strikers, prism stops
+        e += extra_energy(x, v, ex)
+    return e
+
+
+@jit
+def state_summary(x, v, net, act, summ, heights):
+    """``(finite, energy J, relative constraint error, smallest prism height m)`` of a state, and
+    the prism heights (n_columns, n_prisms) m into ``heights``, in one pass: what the divergence
+    check and a frame need. ``net``, ``act``: the kernel tuples; ``summ``: the tuple of
+    :func:`summary_arrays`. The energy is kinetic (lumped node masses, bar masses ``m_b / 6
+    (|v_a|^2 + v_a.v_b + |v_b|^2)``) plus cable strain energy ``1/2 EA / L (s - L)_+^2``, minus
+    the work ``f_ext . (x - x0)`` of constant external forces; each node and cable term counts
+    ``node_mult``/``cable_mult`` times (a reduced network). The smallest height is NaN when a
+    height is."""
+    x0, node_mass, clamped, node_mult, bar_a, bar_b, bar_mass, cable_mult, levels = summ
+    e = _contact_free_energy(x, v, net, act, x0, node_mass, clamped, node_mult, bar_a, bar_b,
+                             bar_mass, cable_mult)
+    ex = act[3]
+    if ex[6].shape[0] != 0:
+        e += bar_energy_scanned(x, ex[6], ex[7], ex[8]) + base_energy(x, ex[1], ex[7])
+    return (all_finite(x) and all_finite(v), e,
+            constraint_error_arrays(x, net[3], net[4], net[5], net[9]),
+            level_heights(x, levels, heights))
+
+
+@jit
+def step_energy(x, v, net, act):
+    """Energy J of a state in which no contact acts (kinetic, cable, external forces, and strikers
+    and prism stops where a scene has them), from the state summary's arrays the extras carry
+    (``act[3][12:20]``, :func:`solver.models.extras.energy_slots`); NaN when they are empty."""
+    ex = act[3]
+    if ex[13].shape[0] == 0:
+        return math.nan
+    return _contact_free_energy(x, v, net, act, ex[12], ex[13], ex[14], ex[15], ex[16], ex[17],
+                                ex[18], ex[19])
+
+
+@jit
+def cable_tensions(x, cable_a, cable_b, rest, EA, out):
+    """Tension per cable (n_cables,) N, zero when slack."""
+    for c in range(cable_a.shape[0]):
+        a = cable_a[c]
+        b = cable_b[c]
+        s = math.sqrt((x[b, 0] - x[a, 0]) ** 2 + (x[b, 1] - x[a, 1]) ** 2
+                      + (x[b, 2] - x[a, 2]) ** 2)
+        out[c] = EA[c] / rest[c] * (s - rest[c]) if s > rest[c] else 0.0
