@@ -133,6 +133,27 @@ def test_a_run_too_short_for_a_pulse_gives_strict_json_with_nulls(tmp_path):
     assert res.returncode == 0 and 'pulse: none found by t = 0.005 s' in res.stdout
 
 
+@pytest.mark.parametrize('v0,t_end,reason', [
+    (2.0, 0.35, 'it reached the clamped end at t = '),   # RB at 2 m/s: the end by 0.27 s
+    (0.3, 0.3, 'the run ends at t = 0.3 s')])
+def test_a_pulse_without_an_amplitude_at_t_ref_is_still_reported(capsys, v0, t_end, reason):
+    """The amplitude is read at 0.5 s. A run that ends before, or whose pulse reaches the clamped
+    end before, has no amplitude but a speed and a median amplitude over the window: the text
+    summary gives those and says why the amplitude is missing, not that no pulse was found."""
+    args = [str(SCENES / 'rb_column.yaml'), '--v0', str(v0), '--t-end', str(t_end)]
+    p = _run_json(capsys, *args)['pulse']
+    assert p['amplitude'] is None and p['speed_m_s'] > 0 and p['amplitude_median'] > 0
+    from tensegrity_ros import cli
+    assert cli.main(['run', *args]) == 0
+    line = [ln for ln in capsys.readouterr().out.splitlines() if 'pulse:' in ln]
+    assert len(line) == 1 and 'none found' not in line[0], line
+    assert f"speed {p['speed_m_s']:.3f} m/s" in line[0]
+    assert f"median amplitude {p['amplitude_median']:.4f}" in line[0]
+    assert reason in line[0]
+    if v0 == 2.0:
+        assert p['arrival_end_s'] < 0.5
+
+
 @pytest.mark.parametrize('args,needle', [
     (('run', 'no/such/scene.yaml'), 'cannot read scene file'),
     (('run', str(SCENES / 'prism.yaml'), '--set', 'integrator.dt=-1'), 'integrator.dt'),

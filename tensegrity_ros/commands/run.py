@@ -111,6 +111,27 @@ class _Stopped(Exception):
     """The refined run of ``--convergence`` was told to stop."""
 
 
+def _pulse_line(p, t_end):
+    """The summary's line on the leading pulse ``p`` (the JSON's ``pulse``), or None without
+    one. The amplitude is read at ``T_REF``; a run that ends before it, or whose pulse reaches
+    the clamped end first, still reports the speed and median amplitude of the window."""
+    from solver.simulate.runner import T_REF
+    if not p:
+        return None
+    speed = 'n/a' if p['speed_m_s'] is None else f"{p['speed_m_s']:.3f} m/s"
+    median = 'n/a' if p['amplitude_median'] is None else f"{p['amplitude_median']:.4f}"
+    if p['amplitude'] is not None:
+        return (f"  pulse: amplitude {p['amplitude']:.4f} at t = {p['t_ref']:g} s (median "
+                f"{median}), speed {speed}, width {p['width_prisms']} prisms")
+    if p['speed_m_s'] is None and p['amplitude_median'] is None:
+        return f"  pulse: none found by t = {t_end:g} s"
+    why = (f"it reached the clamped end at t = {p['arrival_end_s']:.3g} s"
+           if p.get('arrival_end_s') is not None and p['arrival_end_s'] < T_REF
+           else f"the run ends at t = {t_end:g} s")
+    return (f"  pulse: speed {speed}, median amplitude {median} in the window; no amplitude "
+            f"at t = {T_REF:g} s: {why}")
+
+
 def _convergence(result, refined_run, tolerance):
     """Add the check of ``--convergence`` to ``result``; the one line of a failure, or None."""
     from solver.simulate import convergence
@@ -197,13 +218,9 @@ def _run(args, refined_run):
               f"{result['constraint_error_rel']:.2e}")
         print(f"  energy balance error {result['energy_balance_error']:.2e} (largest), work "
               f"{result['energy_work_J']:.3e} J in {len(result['impacts'])} impact(s)")
-        if p and p['amplitude'] is None:
-            print(f"  pulse: none found by t = {result['t_end']:g} s")
-        elif p:
-            speed = 'n/a' if p['speed_m_s'] is None else f"{p['speed_m_s']:.3f} m/s"
-            median = 'n/a' if p['amplitude_median'] is None else f"{p['amplitude_median']:.4f}"
-            print(f"  pulse: amplitude {p['amplitude']:.4f} at t = {p['t_ref']:g} s (median "
-                  f"{median}), speed {speed}, width {p['width_prisms']} prisms")
+        line = _pulse_line(p, result['t_end'])
+        if line:
+            print(line)
         check = result.get('convergence')
         if check is not None and 'changes' in check:
             from solver.simulate.convergence import describe
