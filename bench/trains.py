@@ -2,9 +2,11 @@
 
     python -m bench --only trains [--quick]
 
-Writes ``trains.json`` (one row per case: impacts applied, time reached, smallest prism height
-over h0, largest energy balance error, steps, wall time, status) and ``train_strain.png`` (the
-strain of every prism over time under a train of impacts on ``fb_column``)."""
+Writes ``trains.json`` (``rows``: one per case: impacts applied, time reached, smallest prism
+height over h0, largest energy balance error, steps, wall time, status; ``convergence``: the
+refinement ladder of the pulse figures of single impacts of 0.3, 1 and 2 m/s,
+:func:`convergence`) and ``train_strain.png`` (the strain of every prism over time under a train
+of impacts on ``fb_column``)."""
 from __future__ import annotations
 
 import json
@@ -54,39 +56,50 @@ def train(name, v0, period, count, t_end=None, overrides=(), strain=None):
     return row
 
 
-FIGURES = ('amplitude', 'speed_m_s', 'speed_snapshot_m_s')
+LEVELS = 3                  # refinements of the ladder: every step control halved 1, 2, 3 times
 
 
-def convergence(name, v0=1.0, t_end=1.0, perturbations=3):
-    """How well the leading pulse's figures at ``v0`` are determined: their relative change when
-    dt is halved (``dt_half``), when dt is halved and ``contact.resolution`` doubled
-    (``refined``: every step control halved), and their largest relative change under
-    perturbations of v0 by 1e-9, 2e-9, ... (``conditioning``: what no step size can do better
-    than, as the response amplifies a change of the input)."""
+def convergence(name, v0=1.0, t_end=1.0, levels=LEVELS, perturbations=3):
+    """How well the pulse figures at ``v0`` are determined, as a refinement ladder: the point
+    run with every step control refined ``k`` times (``solver.simulate.convergence.
+    refined_overrides`` applied ``k`` times: ``dt / 2^k``, ``contact.resolution x 2^k``) for
+    ``k = 0 .. levels``, and the relative change of each figure between consecutive rungs
+    (``steps``: ``solver.simulate.convergence.relative_change``, the measure of ``tensegrity run
+    --convergence``); converged figures show changes that shrink down the ladder. Also the
+    largest change under perturbations of v0 by 1e-9, 2e-9, ... at the scene's own steps
+    (``conditioning``: what no step size can do better than, as the response amplifies a change
+    of the input)."""
+    from solver.simulate.convergence import FIGURES, refined_overrides, relative_change
     from solver.simulate.runner import simulate
-    scene = Scene.load(ROOT / 'config' / 'scenes' / f'{name}.yaml')
-    dt, res = scene.integrator.dt, scene.contact.resolution
+    path = ROOT / 'config' / 'scenes' / f'{name}.yaml'
+    base = [f'loading.impact.v0={v0}', f'run.t_end={t_end}']
 
-    def figures(v, dt_, res_):
-        point = simulate(scene, [f'loading.impact.v0={v}', f'run.t_end={t_end}',
-                                 f'integrator.dt={dt_}', f'contact.resolution={res_}'])
+    def run(overrides):
+        t0 = time.perf_counter()
+        point = simulate(path, overrides)
         pulse = point.summary['pulse'] or {}
-        return {k: pulse.get(k) for k in FIGURES}, point.summary['energy_balance_error']
+        return {'figures': {k: pulse.get(k) for k in FIGURES},
+                'balance_error': point.summary['energy_balance_error'],
+                'steps_taken': point.summary['steps_taken'],
+                'dt': point.scene.integrator.dt, 'resolution': point.scene.contact.resolution,
+                'wall_s': time.perf_counter() - t0}, point.scene
+
+    ladder, refine = [], []
+    for _ in range(levels + 1):
+        rung, scene = run(base + [f'{k}={v}' for k, v in refine])
+        ladder.append(rung)
+        refine = [(k, v) for k, v in dict(refine + refined_overrides(scene)).items()]
 
     def change(a, b):
-        return {k: (abs(a[k] - b[k]) / abs(b[k]) if a[k] is not None and b[k] else None)
-                for k in FIGURES}
+        return {k: relative_change(a[k], b[k]) for k in FIGURES}
 
-    base, err = figures(v0, dt, res)
-    half, _ = figures(v0, dt / 2, res)
-    refined, err_refined = figures(v0, dt / 2, 2 * res)
     spread = {k: 0.0 for k in FIGURES}
     for j in range(1, perturbations + 1):
-        for k, c in change(figures(v0 * (1 + j * 1e-9), dt, res)[0], base).items():
+        moved = run([f'loading.impact.v0={v0 * (1 + j * 1e-9)}', f'run.t_end={t_end}'])[0]
+        for k, c in change(moved['figures'], ladder[0]['figures']).items():
             spread[k] = None if c is None or spread[k] is None else max(spread[k], c)
-    return {'scene': name, 'v0': v0, 'dt': dt, 'resolution': res, 'figures': base,
-            'balance_error': err, 'balance_error_refined': err_refined,
-            'dt_half': change(half, base), 'refined': change(refined, base),
+    return {'scene': name, 'v0': v0, 't_end': t_end, 'ladder': ladder,
+            'steps': [change(a['figures'], b['figures']) for a, b in zip(ladder, ladder[1:])],
             'conditioning': spread}
 
 
@@ -127,11 +140,12 @@ def main(out, quick=False, log=print):
             f'{row["h_min_over_h0"]:.3f}, balance error {row["balance_error_max"]:.2e}')
         rows.append(row)
     conv = [] if quick else [convergence(name, v0) for name in ('fb_column', 'rb_column')
-                             for v0 in (0.3, 1.0)]
+                             for v0 in (0.3, 1.0, 2.0)]
     for c in conv:
-        log(f'{c["scene"]} at {c["v0"]} m/s: ' + '; '.join(
-            f'{k} dt/2 {_pct(c["dt_half"][k])}, refined {_pct(c["refined"][k])}, '
-            f'v0 +1e-9 {_pct(c["conditioning"][k])}' for k in FIGURES))
+        log(f'{c["scene"]} at {c["v0"]} m/s, change per refinement (dt/2, resolution x2) and '
+            f'under v0 +1e-9: ' + '; '.join(
+                f'{k} ' + ' / '.join(_pct(st[k]) for st in c['steps'])
+                + f', {_pct(c["conditioning"][k])}' for k in c['conditioning']))
     strain = []
     train('fb_column', 0.1, 0.05, 10, t_end=1.2, strain=strain)
     plot(strain, 0.005, out / 'train_strain.png')

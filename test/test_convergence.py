@@ -127,3 +127,28 @@ def test_the_refined_run_stops_when_told():
     stop.set()
     with pytest.raises(run._Stopped):
         future.result()
+
+
+def test_the_trains_bench_ladder_refines_every_step_control_each_rung():
+    """``bench.trains.convergence``: rung k is the point with dt / 2^k and contact.resolution x
+    2^k (compared with runs given those values by hand), and each step of the ladder is the
+    relative change of ``run --convergence`` between consecutive rungs."""
+    from bench import trains
+    rb = str(SCENES / 'rb_column.yaml')
+    scene = Scene.load(rb)
+    c = trains.convergence('rb_column', 0.3, t_end=0.3, levels=2, perturbations=1)
+    assert len(c['ladder']) == 3 and len(c['steps']) == 2
+    for k, rung in enumerate(c['ladder']):
+        assert rung['dt'] == scene.integrator.dt / 2 ** k
+        assert rung['resolution'] == scene.contact.resolution * 2 ** k
+        hand = simulate(rb, ['loading.impact.v0=0.3', 'run.t_end=0.3',
+                             f'integrator.dt={scene.integrator.dt / 2 ** k}',
+                             f'contact.resolution={scene.contact.resolution * 2 ** k}'])
+        pulse = hand.summary['pulse']
+        assert rung['figures'] == {f: pulse[f] for f in convergence.FIGURES}
+        assert rung['steps_taken'] == hand.summary['steps_taken']
+    for k, step in enumerate(c['steps']):
+        a, b = c['ladder'][k]['figures'], c['ladder'][k + 1]['figures']
+        for f in convergence.FIGURES:
+            assert step[f] == convergence.relative_change(a[f], b[f])
+    assert c['steps'][0]['speed_m_s'] is not None and c['steps'][0]['speed_m_s'] < 0.01
