@@ -1,10 +1,12 @@
 """The layered layout (docs/architecture.md): every import in the product goes to a room below
-its own (or stays in its room), no import circle, no import of ``bench``; and the check itself
-catches a circle and an upward import added on purpose."""
+its own (or stays in its room), no import circle, no import of ``bench``; every tracked Python
+file under 500 lines; and the checks themselves catch a circle, an upward import and a long file
+added on purpose."""
 from __future__ import annotations
 
 import ast
 import shutil
+import subprocess
 from pathlib import Path
 
 import pytest
@@ -158,3 +160,47 @@ def test_sibling_rooms_do_not_import_each_other(copy_of_the_product):
             'from tensegrity_ros.studies import sweep  # noqa: F401')
     found = violations(root)
     assert any('tensegrity_ros.node.commands' in v and 'not below it' in v for v in found), found
+
+
+MAX_LINES = 500
+
+
+def long_files(paths, limit=MAX_LINES):
+    """``(path, line count)`` of every file of ``paths`` with ``limit`` lines or more."""
+    out = []
+    for path in paths:
+        with open(path, 'rb') as fh:
+            n = sum(1 for _ in fh)
+        if n >= limit:
+            out.append((path, n))
+    return out
+
+
+def _tracked_python_files():
+    files = subprocess.run(['git', 'ls-files', '*.py'], cwd=ROOT, capture_output=True,
+                           text=True, check=True).stdout.split()
+    return [ROOT / f for f in files]
+
+
+def _long_files_message(found):
+    return (f'files of {MAX_LINES} lines or more (split them into modules of one concern):\n'
+            + '\n'.join(f'  {p}: {n} lines' for p, n in found))
+
+
+def test_every_tracked_python_file_is_under_500_lines():
+    files = _tracked_python_files()
+    assert len(files) > 100                       # the listing found the repository's files
+    found = long_files(files)
+    assert not found, _long_files_message([(p.relative_to(ROOT), n) for p, n in found])
+
+
+def test_the_line_check_flags_a_long_file_written_on_purpose(tmp_path):
+    short, limit, long = tmp_path / 'short.py', tmp_path / 'limit.py', tmp_path / 'long.py'
+    short.write_text('x = 1\n' * (MAX_LINES - 1))
+    limit.write_text('x = 1\n' * MAX_LINES)
+    long.write_text('x = 1\n' * (MAX_LINES + 20) + 'y = 2')           # no final newline
+    found = long_files([short, limit, long])
+    assert found == [(limit, MAX_LINES), (long, MAX_LINES + 21)]
+    message = _long_files_message(found)
+    assert f'{limit}: {MAX_LINES} lines' in message
+    assert f'{long}: {MAX_LINES + 21} lines' in message

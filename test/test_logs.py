@@ -174,8 +174,8 @@ def test_a_run_with_a_train_logs_every_impact_and_frame_in_order(tmp_path):
 
 
 def _series(data, entity, comp):
-    """[(t ns, leaf values)] of every row of ``entity`` in a read recording (test_rerun.read)."""
-    from test_rerun import flat
+    """[(t ns, leaf values)] of every row of ``entity`` in rerun_helpers.read's result."""
+    from rerun_helpers import flat
     return [(t, flat(r[comp])) for t, r in data.get(entity, {'rows': []})['rows'] if comp in r]
 
 
@@ -188,7 +188,7 @@ ENTITIES = [('base_force/column_0', 'Scalars:scalars'), ('strain/column_0', 'Sca
 
 def same_recordings(live, converted):
     """Entity by entity, the converted recording holds what the live one holds."""
-    from test_rerun import read
+    from rerun_helpers import read
     a, b = read(live), read(converted)
     for entity, comp in ENTITIES:
         x, y = _series(a, '/' + entity, comp), _series(b, '/' + entity, comp)

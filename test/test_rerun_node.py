@@ -22,7 +22,7 @@ from tensegrity_ros.msgs import messages  # noqa: E402
 from tensegrity_ros.node.demo import spin_until  # noqa: E402
 from tensegrity_ros.node.node import TensegritySim  # noqa: E402
 
-from test_rerun import FB, at, flat, read  # noqa: E402
+from rerun_helpers import FB, at, flat, read  # noqa: E402
 
 DOMAIN = 60 + os.getpid() % 20
 
