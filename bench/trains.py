@@ -10,6 +10,7 @@ of impacts on ``fb_column``)."""
 from __future__ import annotations
 
 import json
+import math
 import time
 from pathlib import Path
 
@@ -107,6 +108,36 @@ def _pct(x):
     return 'n/a' if x is None else f'{x:.2%}'
 
 
+def _short_pct(x):
+    """A relative change in percent, two significant digits (``∞``: found in one run only)."""
+    if x is None:
+        return 'n/a'
+    if math.isinf(x):
+        return '∞'
+    if x == 0 or 100 * x < 0.005:
+        return '0'
+    return f'{100 * x:.2g}' if 100 * x >= 0.1 else f'{100 * x:.2f}'.rstrip('0')
+
+
+def convergence_table(conv):
+    """The markdown table of docs/physics.md section 7.1 from the ``convergence`` entries of
+    ``trains.json``: per case and figure the change at each rung, then under v0 +1e-9, in %."""
+    from solver.simulate.convergence import FIGURES
+    lines = ['| scene, v0 | amplitude | median amplitude | speed (window fit) | snapshot speed |',
+             '|---|---|---|---|---|']
+    for c in conv:
+        cells = []
+        for f in FIGURES:
+            steps = [st[f] for st in c['steps']]
+            if all(x is None for x in steps) and c['conditioning'][f] is None:
+                cells.append('n/a')
+            else:
+                cells.append(' / '.join(_short_pct(x) for x in steps) + '; '
+                             + _short_pct(c['conditioning'][f]))
+        lines.append(f"| `{c['scene']}`, {c['v0']:g} m/s | " + ' | '.join(cells) + ' |')
+    return lines
+
+
 def plot(strain, out_dt, path):
     import matplotlib
     matplotlib.use('Agg')
@@ -146,6 +177,8 @@ def main(out, quick=False, log=print):
             f'under v0 +1e-9: ' + '; '.join(
                 f'{k} ' + ' / '.join(_pct(st[k]) for st in c['steps'])
                 + f', {_pct(c["conditioning"][k])}' for k in c['conditioning']))
+    if conv:
+        log('\n'.join(convergence_table(conv)))
     strain = []
     train('fb_column', 0.1, 0.05, 10, t_end=1.2, strain=strain)
     plot(strain, 0.005, out / 'train_strain.png')

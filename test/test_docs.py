@@ -451,12 +451,14 @@ def test_programs_shown_are_installed_in_the_venv():
 
 # -- figures: from the result files ------------------------------------------------------------
 def test_figures_come_from_the_result_files():
-    """The README's figure table, the figures docs/ quote and docs/models.md's table of
-    ``tensegrity paper`` equal what bench/results/ holds (``python -m tools.figures --write``
-    rewrites the README's table; tools/figures.py names each figure's file and key)."""
+    """The README's figure table, the figures docs/ quote, docs/models.md's table of
+    ``tensegrity paper`` and docs/physics.md's convergence table equal what bench/results/ holds
+    (``python -m tools.figures --write`` rewrites the README's table; tools/figures.py names each
+    figure's file and key)."""
     from tools import figures
     assert set(figures.readme_values()) == {row[0] for row in figures.ROWS}
-    bad = figures.differences() + figures.doc_differences() + figures.paper_table_differences()
+    bad = (figures.differences() + figures.doc_differences() + figures.paper_table_differences()
+           + figures.trains_table_differences())
     assert not bad, '\n'.join(bad)
 
 
@@ -474,9 +476,12 @@ def test_the_figure_check_catches_a_drifted_number(monkeypatch):
             data['rows'][0]['amplitude'] += 0.01
         elif name == 'peers.json':
             data['reference']['pulse']['amplitude'] = 0.1473
+        elif name == 'trains.json':
+            data['convergence'][1]['steps'][0]['amplitude'] = 0.5
         return data
     monkeypatch.setattr(figures, '_json', other_run)
     assert figures.paper_table_differences()
+    assert [d for d in figures.trains_table_differences() if '`fb_column`, 1 m/s' in d]
     assert any('docs/peers.md' in d and '0.1473' in d for d in figures.doc_differences())
 
 

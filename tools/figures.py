@@ -8,7 +8,8 @@ Each row of :data:`ROWS` names the figure (the start of the README row's first c
 its value cell with ``{}`` for each number, and where each number comes from: a result file under
 ``bench/results/`` (JSON key path or CSV row) and its format. :data:`DOC_FIGURES` does the same for
 figures quoted in docs/, and docs/models.md's table of ``tensegrity paper --markdown`` is compared
-with ``bench/results/paper.json``. ``test/test_docs.py`` runs the checks.
+with ``bench/results/paper.json``, docs/physics.md's convergence table with
+``bench/results/trains.json``. ``test/test_docs.py`` runs the checks.
 """
 from __future__ import annotations
 
@@ -256,6 +257,20 @@ def paper_table_differences():
     if want == have:
         return []
     return [f'docs/models.md: {h!r} where paper.json gives {w!r}'
+            for h, w in zip(have + [''] * len(want), want) if h != w][:3]
+
+
+def trains_table_differences():
+    """Rows of docs/physics.md's convergence table that differ from the ``convergence`` entries
+    of bench/results/trains.json (:func:`bench.trains.convergence_table`)."""
+    from bench.trains import convergence_table
+    want = convergence_table(_json('trains.json')['convergence'])
+    lines = (ROOT / 'docs' / 'physics.md').read_text(encoding='utf-8').splitlines()
+    start = next((i for i, line in enumerate(lines) if line == want[0]), None)
+    if start is None:
+        return [f'docs/physics.md: lacks the convergence table {want[0]!r}']
+    have = lines[start:start + len(want)]
+    return [f'docs/physics.md: {h!r} where trains.json gives {w!r}'
             for h, w in zip(have + [''] * len(want), want) if h != w][:3]
 
 
