@@ -75,7 +75,7 @@ def test_run_json_summary_has_the_documented_keys(tmp_path):
     for key in ('scene', 'model', 'integrator', 'dt', 't_end', 'n_nodes', 'n_bars', 'n_cables',
                 'steps', 'wall_time_s', 'real_time_factor', 'energy_drift_rel',
                 'constraint_error_rel', 'pulse', 'outputs', 'impacts', 'energy_work_J',
-                'energy_balance_error', 'bar_contact'):
+                'energy_balance_error', 'bar_contact', 'contacts_met'):
         assert key in out
     assert out['n_nodes'] == 6 and out['n_bars'] == 3 and out['n_cables'] == 9
     assert out['t_end'] == pytest.approx(0.05)
@@ -152,6 +152,24 @@ def test_a_pulse_without_an_amplitude_at_t_ref_is_still_reported(capsys, v0, t_e
     assert reason in line[0]
     if v0 == 2.0:
         assert p['arrival_end_s'] < 0.5
+
+
+def test_a_run_where_bars_touched_says_so_and_points_to_the_check(capsys):
+    """``contacts_met`` in the summary counts the force evaluations that met a contact (the
+    simulation's own counter); the text output names it and points to ``--convergence``, and
+    says nothing where no contact acted (the paper's 0.1 m/s)."""
+    from solver.simulate.runner import simulate
+    from tensegrity_ros import cli
+    rb = [str(SCENES / 'rb_column.yaml'), '--v0', '0.3', '--t-end', '0.3']
+    met = _run_json(capsys, *rb)['contacts_met']
+    assert met > 0
+    assert met == simulate(rb[0], ['loading.impact.v0=0.3', 'run.t_end=0.3']).sim.contacts_met
+    assert cli.main(['run', *rb]) == 0
+    assert f'contact: bars touched in {met} force evaluations' in capsys.readouterr().out
+    fb = [str(SCENES / 'fb_column.yaml'), '--t-end', '0.1']
+    assert _run_json(capsys, *fb)['contacts_met'] == 0
+    assert cli.main(['run', *fb]) == 0
+    assert 'contact:' not in capsys.readouterr().out
 
 
 @pytest.mark.parametrize('args,needle', [

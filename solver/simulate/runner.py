@@ -248,6 +248,7 @@ def summary(scene: Scene, sim: Simulation, rec: RunRecord, outputs=None):
         'energy_work_J': float(sim.energy_work()),
         'energy_balance_error': float(np.max(np.abs(rec.energy_balance_error))),
         'bar_contact': sim.bar_contact,
+        'contacts_met': int(sim.contacts_met),
         'pulse': rec.pulses[0].as_dict() if rec.pulses else None,
         'pulses': [p.as_dict() for p in rec.pulses],
         'base': support.base_summary(rec.times, rec.base_force),

@@ -218,6 +218,10 @@ def _run(args, refined_run):
               f"{result['constraint_error_rel']:.2e}")
         print(f"  energy balance error {result['energy_balance_error']:.2e} (largest), work "
               f"{result['energy_work_J']:.3e} J in {len(result['impacts'])} impact(s)")
+        if result['contacts_met'] and result.get('convergence') is None:
+            print(f"  contact: bars touched in {result['contacts_met']} force evaluations; "
+                  f"figures read after a contact can depend on the steps (--convergence "
+                  f"checks them)")
         line = _pulse_line(p, result['t_end'])
         if line:
             print(line)

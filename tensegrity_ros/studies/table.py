@@ -11,8 +11,8 @@ TABLE = 'results.parquet'
 CSV = 'results.csv'
 # top-level figures of the run summary a row keeps (besides every ``pulse.*`` figure)
 SUMMARY_FIELDS = ('energy_drift_rel', 'energy_balance_error', 'constraint_error_rel',
-                  'wall_time_s', 'real_time_factor', 'steps', 'steps_taken', 'model',
-                  'integrator', 'dt', 't_end')
+                  'wall_time_s', 'real_time_factor', 'steps', 'steps_taken', 'contacts_met',
+                  'model', 'integrator', 'dt', 't_end')
 PULSE_FIELDS = ('amplitude', 'amplitude_median', 'amplitude_min', 'amplitude_max',
                 'amplitude_passage_max', 'speed_m_s', 'speed_snapshot_m_s', 'speed_arrival_m_s',
                 'width_prisms', 'width_half_prisms', 'width_10_prisms', 't_ref',
