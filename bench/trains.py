@@ -69,7 +69,8 @@ def convergence(name, v0=1.0, t_end=1.0, levels=LEVELS, perturbations=3):
     --convergence``); converged figures show changes that shrink down the ladder. Also the
     largest change under perturbations of v0 by 1e-9, 2e-9, ... at the scene's own steps
     (``conditioning``: what no step size can do better than, as the response amplifies a change
-    of the input)."""
+    of the input), and the change under v0 + 1e-9 at the finest rung's steps
+    (``conditioning_finest``: a sensitivity that stays there is the physics', not the steps')."""
     from solver.simulate.convergence import FIGURES, refined_overrides, relative_change
     from solver.simulate.runner import simulate
     path = ROOT / 'config' / 'scenes' / f'{name}.yaml'
@@ -87,7 +88,8 @@ def convergence(name, v0=1.0, t_end=1.0, levels=LEVELS, perturbations=3):
 
     ladder, refine = [], []
     for _ in range(levels + 1):
-        rung, scene = run(base + [f'{k}={v}' for k, v in refine])
+        finest = [f'{k}={v}' for k, v in refine]
+        rung, scene = run(base + finest)
         ladder.append(rung)
         refine = [(k, v) for k, v in dict(refine + refined_overrides(scene)).items()]
 
@@ -99,9 +101,11 @@ def convergence(name, v0=1.0, t_end=1.0, levels=LEVELS, perturbations=3):
         moved = run([f'loading.impact.v0={v0 * (1 + j * 1e-9)}', f'run.t_end={t_end}'])[0]
         for k, c in change(moved['figures'], ladder[0]['figures']).items():
             spread[k] = None if c is None or spread[k] is None else max(spread[k], c)
+    moved = run([f'loading.impact.v0={v0 * (1 + 1e-9)}', f'run.t_end={t_end}'] + finest)[0]
     return {'scene': name, 'v0': v0, 't_end': t_end, 'ladder': ladder,
             'steps': [change(a['figures'], b['figures']) for a, b in zip(ladder, ladder[1:])],
-            'conditioning': spread}
+            'conditioning': spread,
+            'conditioning_finest': change(moved['figures'], ladder[-1]['figures'])}
 
 
 def _pct(x):
@@ -121,7 +125,8 @@ def _short_pct(x):
 
 def convergence_table(conv):
     """The markdown table of docs/physics.md section 7.1 from the ``convergence`` entries of
-    ``trains.json``: per case and figure the change at each rung, then under v0 +1e-9, in %."""
+    ``trains.json``: per case and figure the change at each rung, then under v0 +1e-9 at the
+    scene's steps and at the finest rung's, in %."""
     from solver.simulate.convergence import FIGURES
     lines = ['| scene, v0 | amplitude | median amplitude | speed (window fit) | snapshot speed |',
              '|---|---|---|---|---|']
@@ -129,11 +134,12 @@ def convergence_table(conv):
         cells = []
         for f in FIGURES:
             steps = [st[f] for st in c['steps']]
-            if all(x is None for x in steps) and c['conditioning'][f] is None:
+            fine = c['conditioning_finest'][f]
+            if all(x is None for x in steps + [c['conditioning'][f], fine]):
                 cells.append('n/a')
             else:
                 cells.append(' / '.join(_short_pct(x) for x in steps) + '; '
-                             + _short_pct(c['conditioning'][f]))
+                             + _short_pct(c['conditioning'][f]) + ', ' + _short_pct(fine))
         lines.append(f"| `{c['scene']}`, {c['v0']:g} m/s | " + ' | '.join(cells) + ' |')
     return lines
 
@@ -174,9 +180,10 @@ def main(out, quick=False, log=print):
                              for v0 in (0.3, 1.0, 2.0)]
     for c in conv:
         log(f'{c["scene"]} at {c["v0"]} m/s, change per refinement (dt/2, resolution x2) and '
-            f'under v0 +1e-9: ' + '; '.join(
+            f'under v0 +1e-9 (scene steps, finest): ' + '; '.join(
                 f'{k} ' + ' / '.join(_pct(st[k]) for st in c['steps'])
-                + f', {_pct(c["conditioning"][k])}' for k in c['conditioning']))
+                + f', {_pct(c["conditioning"][k])}, {_pct(c["conditioning_finest"][k])}'
+                for k in c['conditioning']))
     if conv:
         log('\n'.join(convergence_table(conv)))
     strain = []

@@ -132,7 +132,8 @@ def test_the_refined_run_stops_when_told():
 def test_the_trains_bench_ladder_refines_every_step_control_each_rung():
     """``bench.trains.convergence``: rung k is the point with dt / 2^k and contact.resolution x
     2^k (compared with runs given those values by hand), and each step of the ladder is the
-    relative change of ``run --convergence`` between consecutive rungs."""
+    relative change of ``run --convergence`` between consecutive rungs; the change under v0 +1e-9
+    at the finest rung is that of a run given those steps by hand."""
     from bench import trains
     rb = str(SCENES / 'rb_column.yaml')
     scene = Scene.load(rb)
@@ -152,3 +153,10 @@ def test_the_trains_bench_ladder_refines_every_step_control_each_rung():
         for f in convergence.FIGURES:
             assert step[f] == convergence.relative_change(a[f], b[f])
     assert c['steps'][0]['speed_m_s'] is not None and c['steps'][0]['speed_m_s'] < 0.01
+    # the sensitivity to v0 at the finest rung's steps: the same figures of a run given them
+    moved = simulate(rb, [f'loading.impact.v0={0.3 * (1 + 1e-9)}', 'run.t_end=0.3',
+                          f'integrator.dt={scene.integrator.dt / 4}',
+                          f'contact.resolution={scene.contact.resolution * 4}']).summary['pulse']
+    for f in convergence.FIGURES:
+        assert c['conditioning_finest'][f] == convergence.relative_change(
+            moved[f], c['ladder'][-1]['figures'][f])
