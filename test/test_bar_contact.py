@@ -200,6 +200,24 @@ def test_pulse_figures_at_a_strong_impact_converge_as_the_step_is_halved(name):
         assert math.isclose(coarse[key], fine[key], rel_tol=0.01), (key, coarse[key], fine[key])
 
 
+def test_fb_figures_at_1_m_s_converge_once_the_steps_resolve_the_contacts():
+    """FB at 1 m/s: from the first refinement on (dt/2, 80 steps per contact) the amplitude and
+    the snapshot speed at 0.5 s move by less than 1 % when every step control is halved again
+    (at the scene's own steps they do not: docs/physics.md section 7.1)."""
+    from solver.simulate.convergence import relative_change
+    scene = _scene('fb_column')
+    dt, res = scene.integrator.dt, scene.contact.resolution
+    pulses = []
+    for k in (1, 2):
+        point = simulate(scene, ['loading.impact.v0=1.0', 'run.t_end=0.55',
+                                 f'integrator.dt={dt / 2 ** k}',
+                                 f'contact.resolution={res * 2 ** k}'])
+        assert point.summary['energy_balance_error'] < point.sim.div.energy_error
+        pulses.append(point.summary['pulse'])
+    for key in ('amplitude', 'speed_snapshot_m_s'):
+        assert relative_change(pulses[0][key], pulses[1][key]) < 0.01, key
+
+
 def _raw_steps(sim, n):
     """``n`` steps of the integrator kernel on the model's arrays, no Simulation checks."""
     m = sim.model
