@@ -99,4 +99,5 @@ def failure(check, refined):
     moved = 'is found in one run only' if math.isinf(c) else f'moves {100 * c:.3g} %'
     return (f'pulse figures not converged: {k} {moved} when every step control is refined '
             f'({describe(refined)}; limit {100 * check["tolerance"]:g} %); read it with a finer '
-            f'integrator.dt and contact.resolution, and check again')
+            f'integrator.dt and contact.resolution, and check again (after strong impacts some '
+            f'figures settle at no step: docs/physics.md section 7.1)')
