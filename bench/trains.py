@@ -68,9 +68,8 @@ def convergence(name, v0=1.0, t_end=1.0, levels=LEVELS, perturbations=3):
     (``steps``: ``solver.simulate.convergence.relative_change``, the measure of ``tensegrity run
     --convergence``); converged figures show changes that shrink down the ladder. Also the
     largest change under perturbations of v0 by 1e-9, 2e-9, ... at the scene's own steps
-    (``conditioning``: what no step size can do better than, as the response amplifies a change
-    of the input), and the change under v0 + 1e-9 at the finest rung's steps
-    (``conditioning_finest``: a sensitivity that stays there is the physics', not the steps')."""
+    (``conditioning``: how far the response at those steps carries a change of the input), and
+    the change under v0 + 1e-9 at the finest rung's steps (``conditioning_finest``)."""
     from solver.simulate.convergence import FIGURES, refined_overrides, relative_change
     from solver.simulate.runner import simulate
     path = ROOT / 'config' / 'scenes' / f'{name}.yaml'
