@@ -5,8 +5,8 @@
 Writes ``trains.json`` (``rows``: one per case: impacts applied, time reached, smallest prism
 height over h0, largest energy balance error, steps, wall time, status; ``convergence``: the
 refinement ladder of the pulse figures of single impacts of 0.3, 1 and 2 m/s,
-:func:`convergence`) and ``train_strain.png`` (the strain of every prism over time under a train
-of impacts on ``fb_column``)."""
+:func:`convergence`, drawn in ``trains_convergence.png``) and ``train_strain.png`` (the strain
+of every prism over time under a train of impacts on ``fb_column``)."""
 from __future__ import annotations
 
 import json
@@ -161,6 +161,40 @@ def plot(strain, out_dt, path):
     plt.close(fig)
 
 
+def plot_convergence(conv, path):
+    """The refinement ladder of ``conv`` (``convergence`` entries): each figure at each rung over
+    its value at the finest rung, one line per case; a figure that settles runs into 1."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    from solver.simulate.convergence import FIGURES
+    names = {'amplitude': 'amplitude at 0.5 s', 'amplitude_median': 'median amplitude',
+             'speed_m_s': 'speed (window fit)', 'speed_snapshot_m_s': 'snapshot speed at 0.5 s'}
+    fig, axes = plt.subplots(1, len(FIGURES), figsize=(13, 3.4), sharex=True)
+    colors = plt.rcParams['axes.prop_cycle'].by_key()['color']
+    for ax, f in zip(axes, FIGURES):
+        for i, c in enumerate(conv):
+            values = [r['figures'][f] for r in c['ladder']]
+            last = values[-1]
+            if last is None or not last:
+                continue
+            y = [np.nan if v is None else v / last for v in values]
+            ax.plot(range(len(y)), y, 'o-', ms=3, color=colors[i % len(colors)])
+        ax.axhspan(0.99, 1.01, color='0.85', zorder=0)
+        ax.set_title(names.get(f, f), fontsize=10)
+        ax.set_xticks(range(len(conv[0]['ladder'])))
+        ax.set_xticklabels(['scene'] + [f'/{2 ** k}' for k in range(1, len(conv[0]['ladder']))])
+        ax.set_xlabel('every step control')
+    axes[0].set_ylabel('value over the finest rung\'s (band: 1 %)')
+    handles = [plt.Line2D([], [], marker='o', ms=3, color=colors[i % len(colors)])
+               for i in range(len(conv))]
+    fig.legend(handles, [f"{c['scene']}, {c['v0']:g} m/s" for c in conv], fontsize=8,
+               loc='center right')
+    fig.tight_layout(rect=(0, 0, 0.86, 1))
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def main(out, quick=False, log=print):
     out = Path(out)
     rows = []
@@ -185,9 +219,10 @@ def main(out, quick=False, log=print):
                 for k in c['conditioning']))
     if conv:
         log('\n'.join(convergence_table(conv)))
+        plot_convergence(conv, out / 'trains_convergence.png')
     strain = []
     train('fb_column', 0.1, 0.05, 10, t_end=1.2, strain=strain)
     plot(strain, 0.005, out / 'train_strain.png')
     path = out / 'trains.json'
     path.write_text(json.dumps({'rows': rows, 'convergence': conv}, indent=1, default=float))
-    return [path, out / 'train_strain.png']
+    return [path, out / 'train_strain.png'] + ([out / 'trains_convergence.png'] if conv else [])

@@ -129,7 +129,7 @@ def test_the_refined_run_stops_when_told():
         future.result()
 
 
-def test_the_trains_bench_ladder_refines_every_step_control_each_rung():
+def test_the_trains_bench_ladder_refines_every_step_control_each_rung(tmp_path):
     """``bench.trains.convergence``: rung k is the point with dt / 2^k and contact.resolution x
     2^k (compared with runs given those values by hand), and each step of the ladder is the
     relative change of ``run --convergence`` between consecutive rungs; the change under v0 +1e-9
@@ -160,3 +160,5 @@ def test_the_trains_bench_ladder_refines_every_step_control_each_rung():
     for f in convergence.FIGURES:
         assert c['conditioning_finest'][f] == convergence.relative_change(
             moved[f], c['ladder'][-1]['figures'][f])
+    trains.plot_convergence([c], tmp_path / 'ladder.png')
+    assert (tmp_path / 'ladder.png').read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
