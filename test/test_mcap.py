@@ -14,8 +14,8 @@ mcap_reader = pytest.importorskip('mcap.reader')
 from tensegrity_ros.msgs import messages as M  # noqa: E402
 from tensegrity_ros.msgs import style  # noqa: E402
 from tensegrity_ros.io.mcap_reader import LogError, McapLog, load_run  # noqa: E402
-from tensegrity_ros.io.mcap_writer import (DELIMITER, McapRecorder, RecordingError,  # noqa: E402
-                                      full_definition, qos_yaml, share_dir)
+from tensegrity_ros.io.bag_format import DELIMITER, full_definition, qos_yaml, share_dir  # noqa: E402
+from tensegrity_ros.io.mcap_writer import McapRecorder, RecordingError  # noqa: E402
 
 
 @pytest.fixture(scope='module')
