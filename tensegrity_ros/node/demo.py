@@ -29,7 +29,7 @@ from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import SetBool, Trigger
 
 from tensegrity_ros.msgs import messages
-from tensegrity_ros.node.node import QOS
+from tensegrity_ros.node.qos import QOS
 
 
 def strain_matrix(msg):

@@ -28,9 +28,6 @@ from rclpy._rclpy_pybind11 import RCLError
 from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
-from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSPolicyKind, QoSProfile,
-                       ReliabilityPolicy)
-from rclpy.qos_overriding_options import QoSOverridingOptions
 from rclpy.signals import SignalHandlerOptions
 from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import SetBool, Trigger
@@ -45,24 +42,8 @@ from tensegrity_ros.node.params import (DEFAULTS, LOG_THROTTLE_S, ParameterError
                                         check_parameters, descriptor, load_simulation,
                                         measure_step_cost, refusal, unknown_parameters)
 from tensegrity_ros.node.publishing import STRUCTURE_TOPIC, Publishing
-
-QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
-# the structure (JSON): sent once per activation, kept for late subscribers and recorders
-STRUCTURE_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                           durability=DurabilityPolicy.TRANSIENT_LOCAL,
-                           history=HistoryPolicy.KEEP_LAST)
-# every publisher and command subscription takes its QoS from parameters
-# qos_overrides.<topic>.<publisher|subscription>.<policy> (parameters file or -p), defaults above
-QOS_OVERRIDES = QoSOverridingOptions(policy_kinds=(
-    QoSPolicyKind.HISTORY, QoSPolicyKind.DEPTH, QoSPolicyKind.RELIABILITY,
-    QoSPolicyKind.DURABILITY))
-
-
-def _qos(base=QOS):
-    """A fresh copy of ``base`` (rclpy writes the overrides into the profile it is given)."""
-    return QoSProfile(history=base.history, depth=base.depth, reliability=base.reliability,
-                      durability=base.durability)
-
+from tensegrity_ros.node.qos import (QOS, QOS_OVERRIDES, STRUCTURE_QOS, fresh as _qos,
+                                     unknown_overrides)
 
 class TensegritySim(LifecycleNode):
     """The node ``tensegrity_sim``. ``sim``: an existing simulation to drive (tests, benchmarks)
@@ -246,12 +227,7 @@ class TensegritySim(LifecycleNode):
         valid = sorted(n for n in self._parameters if n.startswith('qos_overrides.'))
         self._destroy_entities()
         self.sim = None
-        s, them = ('s', 'them') if len(bad) > 1 else ('', 'it')
-        raise ParameterError(
-            f'unknown QoS override{s} {", ".join(bad)}: no publisher or subscription of this '
-            f'node has {them} (valid: qos_overrides.<topic>.<publisher|subscription>.<history|'
-            f'depth|reliability|durability>, e.g. {valid[0] if valid else "none"}; '
-            f'{len(valid)} in all)')
+        raise ParameterError(unknown_overrides(bad, valid))
 
     # -- recorders ------------------------------------------------------------------------------
     def add_sink(self, sink):
