@@ -84,7 +84,13 @@ def test_the_command_reports_the_points_that_did_not_converge(tmp_path, capsys):
     text = capsys.readouterr().out
     assert '2 points, 4 runs with the refined twins (4 run now, 0 already' in text
     assert '1 of 2 checked points converged; 1 not' in text
-    assert 'worst at loading.impact.v0=1: amplitude moves' in text
+    # the worst point and figure named are the table's: the row at 1 m/s, its worst figure
+    rows = pq.read_table(out / 'results.parquet').to_pylist()
+    worst = max((r for r in rows if r['converged'] is False),
+                key=lambda r: r['convergence.change'])
+    assert worst['loading.impact.v0'] == 1.0 and worst['convergence.worst'] in FIGS
+    assert (f"worst at loading.impact.v0=1: {worst['convergence.worst']} moves "
+            f"{100 * worst['convergence.change']:.3g} %") in text
     assert (out / 'convergence.change.png').stat().st_size > 0
 
 
