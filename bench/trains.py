@@ -90,7 +90,7 @@ def convergence(name, v0=1.0, t_end=1.0, levels=LEVELS, perturbations=3):
         finest = [f'{k}={v}' for k, v in refine]
         rung, scene = run(base + finest)
         ladder.append(rung)
-        refine = [(k, v) for k, v in dict(refine + refined_overrides(scene)).items()]
+        refine = list(dict(refine + refined_overrides(scene)).items())
 
     def change(a, b):
         return {k: relative_change(a[k], b[k]) for k in FIGURES}

@@ -238,6 +238,23 @@ def doc_differences():
     return bad
 
 
+def _table_differences(page, want, source):
+    """Rows of the markdown table of ``page`` (docs/...) that starts with the header line
+    ``want[0]`` and differ from the lines ``want`` made from the result file ``source``: the
+    first three, or that the page lacks the table."""
+    lines = (ROOT / page).read_text(encoding='utf-8').splitlines()
+    start = next((i for i, line in enumerate(lines) if line == want[0]), None)
+    if start is None:
+        return [f'{page}: lacks the table {want[0]!r}']
+    have = []
+    for line in lines[start:]:
+        if not line.startswith('|'):
+            break
+        have.append(line)
+    return [f'{page}: {h!r} where {source} gives {w!r}'
+            for h, w in zip(have + [''] * len(want), want) if h != w][:3]
+
+
 def paper_table_differences():
     """Rows of docs/models.md's table of ``tensegrity paper --markdown`` that differ from
     bench/results/paper.json (the same command with --json)."""
@@ -247,31 +264,16 @@ def paper_table_differences():
     result['rows'] = [SimpleNamespace(**r) for r in result['rows']]
     want = [line for line in format_table(result, markdown=True).splitlines()
             if line.startswith('|')]
-    lines = (ROOT / 'docs' / 'models.md').read_text(encoding='utf-8').splitlines()
-    start = next((i for i, line in enumerate(lines) if line == want[0]), len(lines))
-    have = []
-    for line in lines[start:]:
-        if not line.startswith('|'):
-            break
-        have.append(line)
-    if want == have:
-        return []
-    return [f'docs/models.md: {h!r} where paper.json gives {w!r}'
-            for h, w in zip(have + [''] * len(want), want) if h != w][:3]
+    return _table_differences('docs/models.md', want, 'paper.json')
 
 
 def trains_table_differences():
     """Rows of docs/physics.md's convergence table that differ from the ``convergence`` entries
     of bench/results/trains.json (:func:`bench.trains.convergence_table`)."""
     from bench.trains import convergence_table
-    want = convergence_table(_json('trains.json')['convergence'])
-    lines = (ROOT / 'docs' / 'physics.md').read_text(encoding='utf-8').splitlines()
-    start = next((i for i, line in enumerate(lines) if line == want[0]), None)
-    if start is None:
-        return [f'docs/physics.md: lacks the convergence table {want[0]!r}']
-    have = lines[start:start + len(want)]
-    return [f'docs/physics.md: {h!r} where trains.json gives {w!r}'
-            for h, w in zip(have + [''] * len(want), want) if h != w][:3]
+    return _table_differences('docs/physics.md',
+                              convergence_table(_json('trains.json')['convergence']),
+                              'trains.json')
 
 
 def values():

@@ -76,8 +76,8 @@ def full_summary_arrays(network):
     """The :func:`solver.kernels.summary.state_summary` arrays of a full network."""
     levels = network.levels if network.levels.size else np.zeros((0, 0, 1), dtype=np.int64)
     return summary.summary_arrays(network.x0, network.node_mass, network.clamped, network.bar_a,
-                              network.bar_b, network.bar_mass,
-                              np.ascontiguousarray(levels, dtype=np.int64), network.n_cables)
+                                  network.bar_b, network.bar_mass,
+                                  np.ascontiguousarray(levels, dtype=np.int64), network.n_cables)
 
 
 

@@ -66,13 +66,18 @@ def relative_change(base, refined):
     return abs(base - refined) / max(abs(refined), abs(base))
 
 
+def check_tolerance(tolerance, name='--convergence', error=ValueError):
+    """Raise ``error`` naming ``name`` unless ``tolerance`` (a relative change) is in (0, 1)."""
+    if not 0.0 < tolerance < 1.0:
+        raise error(f'{name}: {tolerance!r} must be in (0, 1)')
+
+
 def compare(base, refined, tolerance=0.01):
     """The convergence check of two run summaries (``base``, and ``refined`` of the same point
     with every step control refined): per figure of :data:`FIGURES` its largest relative change
     over the columns (``changes``; None where no run found it), the worst figure and whether every
     change is within ``tolerance`` (``converged``; None when neither run has a pulse)."""
-    if not 0.0 < tolerance < 1.0:
-        raise ValueError(f'convergence tolerance {tolerance!r} must be in (0, 1)')
+    check_tolerance(tolerance, 'convergence tolerance')
     pb, pr = _pulses(base), _pulses(refined)
     changes = {k: None for k in FIGURES}
     for i in range(max(len(pb), len(pr))):

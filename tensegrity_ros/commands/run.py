@@ -90,8 +90,7 @@ def _refined_run(args):
     from solver.build.scene import Scene
     from solver.simulate import convergence
     from solver.simulate.runner import simulate
-    if not 0.0 < args.convergence < 1.0:
-        raise ValueError(f'--convergence: {args.convergence!r} must be in (0, 1)')
+    convergence.check_tolerance(args.convergence)
     overrides = run_overrides(args)
     refined = convergence.refined_overrides(Scene.load(args.scene).with_overrides(overrides))
     stop = threading.Event()

@@ -440,8 +440,9 @@ def main(args):
     if args.write_scene and not Path(args.write_scene).parent.exists():
         raise SweepError(f'--write-scene {args.write_scene}: directory does not exist')
     tol = getattr(args, 'convergence', None)
-    if tol is not None and not 0.0 < tol < 1.0:
-        raise SweepError(f'--convergence: {tol!r} must be in (0, 1)')
+    if tol is not None:
+        from solver.simulate.convergence import check_tolerance
+        check_tolerance(tol, error=SweepError)
     problem = build(args.scene, args.target, args.free, args.choice, t_end=args.t_end)
     cluster = None
     try:

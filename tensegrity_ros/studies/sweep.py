@@ -391,8 +391,9 @@ def convergence_report(rows, tolerance, keys=()):
 def build(scene_path, grids, samples=None, seed=0, out=None, t_end=None, convergence=None):
     """A validated :class:`Sweep` from the command's options (raises :class:`SweepError` or
     :class:`solver.build.scene.SceneError`, nothing run)."""
-    if convergence is not None and not 0.0 < convergence < 1.0:
-        raise SweepError(f'--convergence: {convergence!r} must be in (0, 1)')
+    if convergence is not None:
+        from solver.simulate.convergence import check_tolerance
+        check_tolerance(convergence, error=SweepError)
     from solver.build.scene import Scene
     scene = Scene.load(scene_path)
     if not grids:
