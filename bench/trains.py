@@ -5,8 +5,9 @@
 Writes ``trains.json`` (``rows``: one per case: impacts applied, time reached, smallest prism
 height over h0, largest energy balance error, steps, wall time, status; ``convergence``: the
 refinement ladder of the pulse figures of single impacts of 0.3, 1 and 2 m/s,
-:func:`convergence`, drawn in ``trains_convergence.png``) and ``train_strain.png`` (the strain
-of every prism over time under a train of impacts on ``fb_column``)."""
+:func:`convergence`, drawn in ``trains_convergence.png``; ``twins``: the twin runs of each of
+those impacts, :mod:`bench.twins`, drawn in ``trains_twins.png``) and ``train_strain.png``
+(the strain of every prism over time under a train of impacts on ``fb_column``)."""
 from __future__ import annotations
 
 import json
@@ -60,7 +61,11 @@ def train(name, v0, period, count, t_end=None, overrides=(), strain=None):
 LEVELS = 3                  # refinements of the ladder: every step control halved 1, 2, 3 times
 
 
-def convergence(name, v0=1.0, t_end=1.0, levels=LEVELS, perturbations=3):
+SENSITIVITIES = (1e-9, 1e-7, 1e-5)     # the v0 changes of the finest rung's twins
+
+
+def convergence(name, v0=1.0, t_end=1.0, levels=LEVELS, perturbations=3,
+                sensitivities=SENSITIVITIES):
     """How well the pulse figures at ``v0`` are determined, as a refinement ladder: the point
     run with every step control refined ``k`` times (``solver.simulate.convergence.
     refined_overrides`` applied ``k`` times: ``dt / 2^k``, ``contact.resolution x 2^k``) for
@@ -69,7 +74,8 @@ def convergence(name, v0=1.0, t_end=1.0, levels=LEVELS, perturbations=3):
     --convergence``); converged figures show changes that shrink down the ladder. Also the
     largest change under perturbations of v0 by 1e-9, 2e-9, ... at the scene's own steps
     (``conditioning``: how far the response at those steps carries a change of the input), and
-    the change under v0 + 1e-9 at the finest rung's steps (``conditioning_finest``)."""
+    the change under v0 (1 + rel) at the finest rung's steps for each ``rel`` of
+    ``sensitivities`` (``sensitivity_finest``; ``conditioning_finest`` is its 1e-9 entry)."""
     from solver.simulate.convergence import FIGURES, refined_overrides, relative_change
     from solver.simulate.runner import simulate
     path = ROOT / 'config' / 'scenes' / f'{name}.yaml'
@@ -100,11 +106,15 @@ def convergence(name, v0=1.0, t_end=1.0, levels=LEVELS, perturbations=3):
         moved = run([f'loading.impact.v0={v0 * (1 + j * 1e-9)}', f'run.t_end={t_end}'])[0]
         for k, c in change(moved['figures'], ladder[0]['figures']).items():
             spread[k] = None if c is None or spread[k] is None else max(spread[k], c)
-    moved = run([f'loading.impact.v0={v0 * (1 + 1e-9)}', f'run.t_end={t_end}'] + finest)[0]
+    sens = []
+    for rel in sensitivities:
+        moved = run([f'loading.impact.v0={v0 * (1 + rel)}', f'run.t_end={t_end}'] + finest)[0]
+        sens.append({'rel': rel, 'changes': change(moved['figures'], ladder[-1]['figures'])})
     return {'scene': name, 'v0': v0, 't_end': t_end, 'ladder': ladder,
             'steps': [change(a['figures'], b['figures']) for a, b in zip(ladder, ladder[1:])],
             'conditioning': spread,
-            'conditioning_finest': change(moved['figures'], ladder[-1]['figures'])}
+            'conditioning_finest': next((e['changes'] for e in sens if e['rel'] == 1e-9), None),
+            'sensitivity_finest': sens}
 
 
 def _pct(x):
@@ -139,6 +149,26 @@ def convergence_table(conv):
             else:
                 cells.append(' / '.join(_short_pct(x) for x in steps) + '; '
                              + _short_pct(c['conditioning'][f]) + ', ' + _short_pct(fine))
+        lines.append(f"| `{c['scene']}`, {c['v0']:g} m/s | " + ' | '.join(cells) + ' |')
+    return lines
+
+
+def sensitivity_table(conv, twin_cases):
+    """The second markdown table of docs/physics.md section 7.1: per case the distance of the
+    twin runs at 0.5 and 1 s and its mean e-folding time (:mod:`bench.twins`), and per figure
+    its change at the finest rung under v0 (1 + 1e-9 / 1e-7 / 1e-5), in %."""
+    from solver.simulate.convergence import FIGURES
+    from bench.twins import at
+    lines = ['| scene, v0 | twins apart at 0.5 s / 1 s | e-fold | amplitude | median amplitude '
+             '| speed (window fit) | snapshot speed |', '|---|---|---|---|---|---|---|']
+    for c, tw in zip(conv, twin_cases):
+        rate = tw['efold_rate_per_s']
+        cells = [f"{at(tw, 0.5):.1e} / {at(tw, 1.0):.1e} m",
+                 f'{1e3 / rate:.0f} ms' if rate and rate > 0 else 'none']
+        for f in FIGURES:
+            moved = [e['changes'][f] for e in c['sensitivity_finest']]
+            cells.append('n/a' if all(x is None for x in moved)
+                         else ' / '.join(_short_pct(x) for x in moved))
         lines.append(f"| `{c['scene']}`, {c['v0']:g} m/s | " + ' | '.join(cells) + ' |')
     return lines
 
@@ -217,12 +247,22 @@ def main(out, quick=False, log=print):
                 f'{k} ' + ' / '.join(_pct(st[k]) for st in c['steps'])
                 + f', {_pct(c["conditioning"][k])}, {_pct(c["conditioning_finest"][k])}'
                 for k in c['conditioning']))
+    from bench import twins
+    twin_cases = [] if quick else [twins.twins(c['scene'], c['v0']) for c in conv]
+    for tw in twin_cases:
+        log(f"{tw['scene']} at {tw['v0']} m/s, twins 1e-9 apart: e-fold rate "
+            f"{tw['efold_rate_per_s']} /s, 1 um apart at {tw['t_apart_s']} s, "
+            f"{tw['separation_m'][-1]:.2e} m at the end")
     if conv:
         log('\n'.join(convergence_table(conv)))
+        log('\n'.join(sensitivity_table(conv, twin_cases)))
         plot_convergence(conv, out / 'trains_convergence.png')
+        twins.plot(twin_cases, out / 'trains_twins.png')
     strain = []
     train('fb_column', 0.1, 0.05, 10, t_end=1.2, strain=strain)
     plot(strain, 0.005, out / 'train_strain.png')
     path = out / 'trains.json'
-    path.write_text(json.dumps({'rows': rows, 'convergence': conv}, indent=1, default=float))
-    return [path, out / 'train_strain.png'] + ([out / 'trains_convergence.png'] if conv else [])
+    path.write_text(json.dumps({'rows': rows, 'convergence': conv, 'twins': twin_cases},
+                               indent=1, default=float))
+    return [path, out / 'train_strain.png'] + ([out / 'trains_convergence.png',
+                                                out / 'trains_twins.png'] if conv else [])

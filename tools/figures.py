@@ -84,6 +84,13 @@ def _trains_lost():
     return 'no prism lost' if all(r['status'] == 'ok' for r in rows) else 'prisms lost'
 
 
+def _twins(scene, t, v0=1.0):
+    from bench.twins import at
+    case = next(c for c in _json('trains.json')['twins']
+                if c['scene'] == scene and c['v0'] == v0)
+    return fmt(at(case, t), 'e1')
+
+
 def _peer_ratio(peer):
     d = _json('peers.json')
     return fmt(d[peer]['cpu_s'] / d['ours']['cpu_s'], '.0f')
@@ -143,6 +150,11 @@ ROWS = [
         F('trains.json: largest balance_error_max of the 10 ms trains', lambda: _trains_max(0.01)),
         F('trains.json: largest balance_error_max of the 50 ms trains', lambda: _trains_max(0.05)),
         F('trains.json: every row ok', _trains_lost)]),
+    ('twin runs', '{} / {} m; {} / {} m', [
+        F('trains.json: twins fb_column 1 m/s at 0.5 s', lambda: _twins('fb_column', 0.5)),
+        F('trains.json: twins fb_column 1 m/s at 1 s', lambda: _twins('fb_column', 1.0)),
+        F('trains.json: twins rb_column 1 m/s at 0.5 s', lambda: _twins('rb_column', 0.5)),
+        F('trains.json: twins rb_column 1 m/s at 1 s', lambda: _twins('rb_column', 1.0))]),
     ('node, 30 s flood', '{}, {}, {}', [
         J('actuator.json', 'frames_per_s', spec='.1f'),
         F('actuator.json: non-finite strain and node messages received', _soak_non_finite),
@@ -268,12 +280,16 @@ def paper_table_differences():
 
 
 def trains_table_differences():
-    """Rows of docs/physics.md's convergence table that differ from the ``convergence`` entries
-    of bench/results/trains.json (:func:`bench.trains.convergence_table`)."""
-    from bench.trains import convergence_table
-    return _table_differences('docs/physics.md',
-                              convergence_table(_json('trains.json')['convergence']),
-                              'trains.json')
+    """Rows of docs/physics.md's convergence and sensitivity tables that differ from the
+    ``convergence`` and ``twins`` entries of bench/results/trains.json
+    (:func:`bench.trains.convergence_table`, :func:`bench.trains.sensitivity_table`)."""
+    from bench.trains import convergence_table, sensitivity_table
+    trains = _json('trains.json')
+    return (_table_differences('docs/physics.md', convergence_table(trains['convergence']),
+                               'trains.json')
+            + _table_differences('docs/physics.md',
+                                 sensitivity_table(trains['convergence'], trains['twins']),
+                                 'trains.json'))
 
 
 def values():

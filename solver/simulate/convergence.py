@@ -10,6 +10,16 @@ The energy ledger catches a step that loses or gains energy; it does not catch a
 read off a part of the response the steps do not resolve (a phase error keeps the energy, and a
 column struck at 1 m/s presses prisms flat onto their bases, where the strain ``(h - h0) / h``
 magnifies every error of ``h``). Halving every step control and comparing is the check that does.
+
+A figure that fails it may be under-resolved (finer steps settle it) or sensitive: after strong
+impacts the response is chaotic (twin runs part exponentially, docs/physics.md section 7.1), and
+a figure read late enough moves as much when the input changes in its seventh digit as when the
+steps are halved; no step size settles it. :func:`sensitivity` tells the two apart from a twin
+of the refined run with the impacts changed by :data:`PERTURBATION`:
+
+    twin = simulate(scene, overrides + refined_overrides(base.scene)
+                    + perturbed_overrides(base.scene))
+    check['sensitivity'] = sensitivity(check, refined.summary, twin.summary)
 """
 from __future__ import annotations
 
@@ -20,6 +30,10 @@ from solver.integrators import registry as integrators
 
 # the figures a pulse is summarised by (solver.analysis.observables.Pulse)
 FIGURES = ('amplitude', 'amplitude_median', 'speed_m_s', 'speed_snapshot_m_s')
+
+# the relative change of every impact velocity of the sensitivity twin: 0.1 um/s at 1 m/s, far
+# below what any measured input is known to, far above the round-off of the figures
+PERTURBATION = 1e-7
 
 
 def refined_overrides(scene):
@@ -35,6 +49,20 @@ def refined_overrides(scene):
     if contact.bars != 'none' and 2 * contact.resolution <= RANGES['contact.resolution'][1]:
         out.append(('contact.resolution', 2 * contact.resolution))
     return out
+
+
+def perturbed_overrides(scene, rel=PERTURBATION):
+    """The overrides that change every impact velocity of ``scene`` (loaded, its own overrides
+    applied) by the factor ``1 + rel``: ``loading.impact.velocities`` for a train with its own
+    velocities, else ``loading.impact.v0``. None when no impact has a velocity to change."""
+    imp = scene.loading.impact
+    if imp.velocities is not None:
+        if not any(imp.velocities):
+            return None
+        return [('loading.impact.velocities', [v * (1.0 + rel) for v in imp.velocities])]
+    if not imp.v0:
+        return None
+    return [('loading.impact.v0', imp.v0 * (1.0 + rel))]
 
 
 def describe(refined):
@@ -94,15 +122,72 @@ def compare(base, refined, tolerance=0.01):
             'figures_refined': {k: (pr[0].get(k) if pr else None) for k in FIGURES}}
 
 
+def sensitivity(check, refined, twin, rel=PERTURBATION):
+    """Which figures that failed ``check`` (:func:`compare`) are sensitive rather than
+    under-resolved: ``refined`` and ``twin`` are the summaries of the refined run and of the same
+    refined run with every impact velocity changed by the factor ``1 + rel``
+    (:func:`perturbed_overrides`). Per figure its largest relative change over the columns between
+    the two (``changes``), and ``sensitive``: the figures whose change under refinement and
+    under the perturbation both exceed the tolerance (in :data:`FIGURES` order)."""
+    moved = compare(refined, twin, check['tolerance'])['changes']
+    tol = check['tolerance']
+    sensitive = [k for k in FIGURES if check['changes'][k] is not None and
+                 check['changes'][k] > tol and moved[k] is not None and moved[k] > tol]
+    return {'perturbation': rel, 'changes': moved, 'sensitive': sensitive}
+
+
+def jsonable(check):
+    """``check`` (:func:`compare`, with its ``sensitivity``) for strict JSON: a change that is
+    infinite (a figure found in one run only) becomes None and its figure is listed in
+    ``found_in_one_run`` (of the check, or of its sensitivity)."""
+    def clean(part):
+        once = [k for k, c in part['changes'].items() if c is not None and math.isinf(c)]
+        return dict(part, changes={k: None if k in once else c
+                                   for k, c in part['changes'].items()},
+                    found_in_one_run=once)
+    out = clean(check)
+    if out.get('sensitivity'):
+        out['sensitivity'] = clean(out['sensitivity'])
+    return out
+
+
+def _moved(c):
+    return 'is found in one run only' if math.isinf(c) else f'moves {100 * c:.3g} %'
+
+
+def _parts(rel):
+    """``1 part in 10^7`` for 1e-7."""
+    return f'1 part in 10^{round(-math.log10(rel))}'
+
+
 def failure(check, refined):
     """The one line that says a check failed (None when it did not): the figure, its change,
-    the refinement and the limit."""
+    the refinement and the limit. With ``check['sensitivity']`` (:func:`sensitivity`) it also
+    names the figures that move by more than the limit when the impact velocity changes by
+    :data:`PERTURBATION`: finer steps settle those only once their errors are far below that
+    change (a chaotic response). A figure the twin leaves in place may still be sensitive: one
+    twin samples the response once."""
     if check['converged'] is not False:
         return None
-    k = check['worst']
-    c = check['changes'][k]
-    moved = 'is found in one run only' if math.isinf(c) else f'moves {100 * c:.3g} %'
-    return (f'pulse figures not converged: {k} {moved} when every step control is refined '
-            f'({describe(refined)}; limit {100 * check["tolerance"]:g} %); read it with a finer '
-            f'integrator.dt and contact.resolution, and check again (after strong impacts some '
-            f'figures settle at no step: docs/physics.md section 7.1)')
+    tol = check['tolerance']
+    sens = check.get('sensitivity')
+    sensitive = sens['sensitive'] if sens else []
+    failing = {k: c for k, c in check['changes'].items() if c is not None and c > tol}
+    unresolved = {k: c for k, c in failing.items() if k not in sensitive}
+    chaotic = (f'the response is chaotic there (docs/physics.md section 7.1): finer steps settle '
+               f'{", ".join(sensitive)} only once their errors are far below that change')
+    if not unresolved:
+        k = check['worst']
+        return (f'pulse figures not determined: {k} {_moved(check["changes"][k])} when every '
+                f'step control is refined ({describe(refined)}; limit {100 * tol:g} %) and '
+                f'{_moved(sens["changes"][k])} when the impact velocity changes by '
+                f'{_parts(sens["perturbation"])}: {chaotic}')
+    k = max(unresolved, key=unresolved.get)
+    line = (f'pulse figures not converged: {k} {_moved(unresolved[k])} when every step control '
+            f'is refined ({describe(refined)}; limit {100 * tol:g} %); read it with a finer '
+            f'integrator.dt and contact.resolution, and check again')
+    if sensitive:
+        return (f'{line}; {", ".join(sensitive)} also move(s) by more than the limit when the '
+                f'impact velocity changes by {_parts(sens["perturbation"])}: {chaotic}')
+    return (f'{line} (after strong impacts some figures settle at no step: docs/physics.md '
+            f'section 7.1)')

@@ -131,8 +131,9 @@ def _pulse_line(p, t_end):
             f"at t = {T_REF:g} s: {why}")
 
 
-def _convergence(result, refined_run, tolerance):
-    """Add the check of ``--convergence`` to ``result``; the one line of a failure, or None."""
+def _convergence(args, result, refined_run, tolerance):
+    """Add the check of ``--convergence`` to ``result``; the one line of a failure, or None.
+    A failed check also runs the sensitivity twin (:func:`_sensitivity`)."""
     from solver.simulate import convergence
     from solver.simulate.simulation import SimulationDiverged
     refined, future, _ = refined_run
@@ -144,9 +145,43 @@ def _convergence(result, refined_run, tolerance):
         return (f'convergence check: the refined run ({convergence.describe(refined)}) '
                 f'diverged: {exc}')
     check = convergence.compare(result, point.summary, tolerance)
-    result['convergence'] = dict(check, refined=dict(refined),
+    if check['converged'] is False:
+        check['sensitivity'] = _sensitivity(args, check, refined, point)
+    result['convergence'] = dict(convergence.jsonable(check), refined=dict(refined),
                                  refined_steps_taken=point.summary['steps_taken'])
     return convergence.failure(check, refined)
+
+
+def _sensitivity(args, check, refined, point):
+    """A failed check: the refined run again with every impact velocity changed by
+    ``convergence.PERTURBATION`` (with a progress bar), and which failing figures move by more
+    than the tolerance under it too (:func:`solver.simulate.convergence.sensitivity`); None
+    when the run has no impact velocity to change or the twin diverges."""
+    from solver.simulate import convergence
+    from solver.simulate.runner import frame_count, simulate
+    from solver.simulate.simulation import SimulationDiverged
+    perturbed = convergence.perturbed_overrides(point.scene)
+    if perturbed is None:
+        return None
+    run = point.scene.run
+    update, close = progress_bar(frame_count(run.t_end, run.output_dt) - 1,
+                                 'sensitivity twin', unit='frame', leave=False)
+    try:
+        twin = simulate(args.scene, run_overrides(args) + list(refined) + perturbed,
+                        setup=lambda stack, scene, sim: (None, update, None))
+    except SimulationDiverged:
+        return None
+    finally:
+        close()
+    return convergence.sensitivity(check, point.summary, twin.summary)
+
+
+def _changes(part):
+    """``amplitude 1.2 %, speed_m_s found in one run only``: the changes of a check (or of its
+    sensitivity) in the JSON's form (:func:`solver.simulate.convergence.jsonable`)."""
+    return ', '.join(f'{k} found in one run only' if k in part.get('found_in_one_run', ())
+                     else f'{k} {100 * c:.3g} %' for k, c in part['changes'].items()
+                     if c is not None or k in part.get('found_in_one_run', ()))
 
 
 def cmd_run(args):
@@ -201,7 +236,7 @@ def _run(args, refined_run):
                                           title=f'{scene.name}: v0 = {v0} m/s'))
     result = point.summary
     result['outputs'].update(outputs)
-    problem = None if refined_run is None else _convergence(result, refined_run,
+    problem = None if refined_run is None else _convergence(args, result, refined_run,
                                                             args.convergence)
     if out_dir is not None:
         (out_dir / 'summary.json').write_text(json.dumps(result, indent=2, allow_nan=False))
@@ -227,11 +262,16 @@ def _run(args, refined_run):
         check = result.get('convergence')
         if check is not None and 'changes' in check:
             from solver.simulate.convergence import describe
-            moved = ', '.join(f'{k} {100 * c:.3g} %' for k, c in check['changes'].items()
-                              if c is not None) or 'no pulse figures to compare'
+            moved = _changes(check) or 'no pulse figures to compare'
             verdict = {True: 'converged', False: 'NOT converged', None: 'nothing to check'}
             print(f"  convergence ({describe(check['refined'].items())}): {moved}: "
                   f"{verdict[check['converged']]} (limit {100 * check['tolerance']:g} %)")
+            sens = check.get('sensitivity')
+            if sens:
+                moved = _changes(sens)
+                print(f"  sensitivity (impact velocities x (1 + {sens['perturbation']:g}), "
+                      f"refined steps): {moved}: "
+                      f"{', '.join(sens['sensitive']) or 'none'} sensitive")
         for key, path in result['outputs'].items():
             if path:
                 print(f'  {key}: {path}')
