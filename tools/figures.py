@@ -150,7 +150,7 @@ ROWS = [
         F('trains.json: largest balance_error_max of the 10 ms trains', lambda: _trains_max(0.01)),
         F('trains.json: largest balance_error_max of the 50 ms trains', lambda: _trains_max(0.05)),
         F('trains.json: every row ok', _trains_lost)]),
-    ('twin runs', '{} / {} m; {} / {} m', [
+    ('twins', '{} / {} m; {} / {} m', [
         F('trains.json: twins fb_column 1 m/s at 0.5 s', lambda: _twins('fb_column', 0.5)),
         F('trains.json: twins fb_column 1 m/s at 1 s', lambda: _twins('fb_column', 1.0)),
         F('trains.json: twins rb_column 1 m/s at 0.5 s', lambda: _twins('rb_column', 0.5)),
