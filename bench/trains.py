@@ -6,7 +6,9 @@ Writes ``trains.json`` (``rows``: one per case: impacts applied, time reached, s
 height over h0, largest energy balance error, steps, wall time, status; ``convergence``: the
 refinement ladder of the pulse figures of single impacts of 0.3, 1 and 2 m/s,
 :func:`convergence`, drawn in ``trains_convergence.png``; ``twins``: the twin runs of each of
-those impacts, :mod:`bench.twins`, drawn in ``trains_twins.png``) and ``train_strain.png``
+those impacts at the finest rung, :mod:`bench.twins`, drawn in ``trains_twins.png``;
+``ensembles``: the pulse figures of 16 impacts within 1e-6 of 1 m/s at every rung,
+:func:`bench.twins.ensemble`) and ``train_strain.png``
 (the strain of every prism over time under a train of impacts on ``fb_column``)."""
 from __future__ import annotations
 
@@ -173,6 +175,29 @@ def sensitivity_table(conv, twin_cases):
     return lines
 
 
+ENSEMBLES = [('fb_column', 1.0), ('rb_column', 1.0)]   # bench.twins.ensemble at every rung
+
+
+def ensemble_table(ensembles):
+    """The third markdown table of docs/physics.md section 7.1: per case and rung the mean and
+    standard error of the amplitude and the window-fit speed over the ensemble's runs, and how
+    many runs the checks stopped (:func:`bench.twins.ensemble`)."""
+    lines = ['| scene, v0 | steps | runs stopped | amplitude | speed (window fit), m/s |',
+             '|---|---|---|---|---|']
+
+    def cell(st, digits):
+        if st['mean'] is None:
+            return 'n/a'
+        sem = '' if st['sem'] is None else f" ± {st['sem']:.{digits}f}"
+        return f"{st['mean']:.{digits}f}{sem} ({st['n']})"
+    for e in ensembles:
+        steps = 'scene' if e['refine'] == 0 else f"/{2 ** e['refine']}"
+        lines.append(f"| `{e['scene']}`, {e['v0']:g} m/s | {steps} | {len(e['stopped'])} of "
+                     f"{e['n']} | {cell(e['stats']['amplitude'], 4)} | "
+                     f"{cell(e['stats']['speed_m_s'], 4)} |")
+    return lines
+
+
 def plot(strain, out_dt, path):
     import matplotlib
     matplotlib.use('Agg')
@@ -248,13 +273,17 @@ def main(out, quick=False, log=print):
                 + f', {_pct(c["conditioning"][k])}, {_pct(c["conditioning_finest"][k])}'
                 for k in c['conditioning']))
     from bench import twins
-    twin_cases = [] if quick else [twins.twins(c['scene'], c['v0']) for c in conv]
+    twin_cases = [] if quick else [twins.twins(c['scene'], c['v0'], refine=LEVELS)
+                                  for c in conv]
     for tw in twin_cases:
         log(f"{tw['scene']} at {tw['v0']} m/s, twins 1e-9 apart: e-fold rate "
             f"{tw['efold_rate_per_s']} /s, 1 um apart at {tw['t_apart_s']} s, "
             f"{tw['separation_m'][-1]:.2e} m at the end")
+    ensembles = [] if quick else [twins.ensemble(name, v0, k) for name, v0 in ENSEMBLES
+                                  for k in range(LEVELS + 1)]
     if conv:
         log('\n'.join(convergence_table(conv)))
+        log('\n'.join(ensemble_table(ensembles)))
         log('\n'.join(sensitivity_table(conv, twin_cases)))
         plot_convergence(conv, out / 'trains_convergence.png')
         twins.plot(twin_cases, out / 'trains_twins.png')
@@ -262,7 +291,7 @@ def main(out, quick=False, log=print):
     train('fb_column', 0.1, 0.05, 10, t_end=1.2, strain=strain)
     plot(strain, 0.005, out / 'train_strain.png')
     path = out / 'trains.json'
-    path.write_text(json.dumps({'rows': rows, 'convergence': conv, 'twins': twin_cases},
-                               indent=1, default=float))
+    path.write_text(json.dumps({'rows': rows, 'convergence': conv, 'twins': twin_cases,
+                                'ensembles': ensembles}, indent=1, default=float))
     return [path, out / 'train_strain.png'] + ([out / 'trains_convergence.png',
                                                 out / 'trains_twins.png'] if conv else [])

@@ -90,9 +90,48 @@ def plot(cases, path):
     ax.axhline(APART, color='0.6', lw=0.8, ls='--')
     ax.set_xlabel('time after the impact (s)')
     ax.set_ylabel('largest node distance (m)')
+    k = cases[0]['refine']
     ax.set_title(f'twin runs, impact velocity 1 part in 10^{round(-math.log10(cases[0]["rel"]))}'
-                 ' apart', fontsize=10)
+                 f' apart' + (f', every step control / {2 ** k}' if k else ''), fontsize=10)
     ax.legend(fontsize=7, loc='lower right')
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def ensemble(name, v0, refine=0, n=16, step=1e-7, t_end=1.0, overrides=()):
+    """The pulse figures of ``n`` runs struck at ``v0 (1 + (j - (n - 1) / 2) step)``, ``j = 0 ..
+    n - 1``, with every step control refined ``refine`` times (and ``overrides``, ``KEY=VALUE``
+    strings): ``values`` (per figure, the runs
+    that found it), ``stopped`` (runs the ledger or another check stopped) and per figure its
+    ``mean``, ``sem`` (standard error of the mean) and ``std`` (None below two values). Where
+    a figure is a function of v0 the values agree; where the response is chaotic they scatter,
+    and a figure that converges in distribution has means that agree across rungs."""
+    from solver.simulate.convergence import FIGURES
+    from solver.simulate.runner import simulate
+    from solver.simulate.simulation import SimulationDiverged
+    path = ROOT / 'config' / 'scenes' / f'{name}.yaml'
+    scene = Scene.load(path)
+    ov = [f'integrator.dt={scene.integrator.dt / 2 ** refine}', f'run.t_end={t_end}']
+    if scene.contact.bars != 'none':
+        ov.append(f'contact.resolution={scene.contact.resolution * 2 ** refine}')
+    values, stopped = {f: [] for f in FIGURES}, []
+    for j in range(n):
+        v = v0 * (1.0 + (j - (n - 1) / 2) * step)
+        try:
+            pulse = simulate(path, ov + list(overrides) + [f'loading.impact.v0={v!r}']
+                             ).summary['pulse'] or {}
+        except SimulationDiverged as exc:
+            stopped.append({'v0': v, 'reason': str(exc)})
+            continue
+        for f in FIGURES:
+            if pulse.get(f) is not None:
+                values[f].append(pulse[f])
+    stats = {}
+    for f, vals in values.items():
+        a = np.asarray(vals, dtype=float)
+        std = float(a.std(ddof=1)) if len(a) > 1 else None
+        stats[f] = {'mean': float(a.mean()) if len(a) else None, 'std': std,
+                    'sem': std / math.sqrt(len(a)) if std is not None else None, 'n': len(a)}
+    return {'scene': name, 'v0': v0, 'refine': refine, 'n': n, 'step': step,
+            'values': values, 'stopped': stopped, 'stats': stats}

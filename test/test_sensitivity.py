@@ -146,3 +146,29 @@ def test_twin_runs_are_two_runs_apart_by_the_perturbation(tmp_path):
     assert 0 < c['separation_m'][-1] < 1e-6 and c['t_apart_s'] is None
     twins.plot([c], tmp_path / 'twins.png')
     assert (tmp_path / 'twins.png').read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
+
+
+def test_an_ensemble_is_the_runs_at_the_velocities_around_v0():
+    """``bench.twins.ensemble``: n runs at v0 (1 + (j - (n - 1) / 2) step) with the steps of the
+    rung, each as a run given them by hand; its mean and standard error are those of the
+    values; a run the ledger stops is counted, not averaged."""
+    from bench import twins
+    rb = str(SCENES / 'rb_column.yaml')
+    scene = Scene.load(rb)
+    e = twins.ensemble('rb_column', 0.3, refine=1, n=3, step=1e-3, t_end=0.3)
+    speeds = []
+    for j in range(3):
+        v = 0.3 * (1 + (j - 1) * 1e-3)
+        speeds.append(simulate(rb, [f'integrator.dt={scene.integrator.dt / 2}',
+                                    f'contact.resolution={2 * scene.contact.resolution}',
+                                    'run.t_end=0.3', f'loading.impact.v0={v!r}'])
+                      .summary['pulse']['speed_m_s'])
+    assert e['values']['speed_m_s'] == speeds and e['stopped'] == []
+    st = e['stats']['speed_m_s']
+    assert st['mean'] == pytest.approx(np.mean(speeds), rel=1e-12)
+    assert st['sem'] == pytest.approx(np.std(speeds, ddof=1) / math.sqrt(3), rel=1e-9)
+    # a balance limit no run keeps: each is stopped and counted, nothing averaged
+    strict = twins.ensemble('rb_column', 0.3, n=2, t_end=0.3,
+                            overrides=['divergence.energy_error=1e-12'])
+    assert len(strict['stopped']) == 2 and 'energy balance' in strict['stopped'][0]['reason']
+    assert strict['stats']['speed_m_s'] == {'mean': None, 'std': None, 'sem': None, 'n': 0}

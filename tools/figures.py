@@ -280,16 +280,16 @@ def paper_table_differences():
 
 
 def trains_table_differences():
-    """Rows of docs/physics.md's convergence and sensitivity tables that differ from the
-    ``convergence`` and ``twins`` entries of bench/results/trains.json
-    (:func:`bench.trains.convergence_table`, :func:`bench.trains.sensitivity_table`)."""
-    from bench.trains import convergence_table, sensitivity_table
+    """Rows of docs/physics.md's convergence, sensitivity and ensemble tables that differ from
+    the ``convergence``, ``twins`` and ``ensembles`` entries of bench/results/trains.json
+    (:func:`bench.trains.convergence_table`, :func:`~bench.trains.sensitivity_table`,
+    :func:`~bench.trains.ensemble_table`)."""
+    from bench.trains import convergence_table, ensemble_table, sensitivity_table
     trains = _json('trains.json')
-    return (_table_differences('docs/physics.md', convergence_table(trains['convergence']),
-                               'trains.json')
-            + _table_differences('docs/physics.md',
-                                 sensitivity_table(trains['convergence'], trains['twins']),
-                                 'trains.json'))
+    return [d for table in (convergence_table(trains['convergence']),
+                            sensitivity_table(trains['convergence'], trains['twins']),
+                            ensemble_table(trains['ensembles']))
+            for d in _table_differences('docs/physics.md', table, 'trains.json')]
 
 
 def values():
