@@ -63,7 +63,7 @@ def test_only_failing_figures_that_move_under_the_perturbation_too_are_sensitive
     line = convergence.failure(check, [('integrator.dt', 1e-4)])
     assert line.startswith('pulse figures not determined: speed_m_s moves 20 % when every step '
                            'control is refined (dt/2; limit 1 %)')
-    assert 'moves 16.7 % when the impact velocity changes by 1 part in 10^7' in line
+    assert 'moves 16.7 % when every impact velocity changes by 1 part in 10^7' in line
     assert 'settle amplitude, speed_m_s only once' in line
     assert 'finer integrator.dt' not in line
 

@@ -163,7 +163,7 @@ def _parts(rel):
 def failure(check, refined):
     """The one line that says a check failed (None when it did not): the figure, its change,
     the refinement and the limit. With ``check['sensitivity']`` (:func:`sensitivity`) it also
-    names the figures that move by more than the limit when the impact velocity changes by
+    names the figures that move by more than the limit when every impact velocity changes by
     :data:`PERTURBATION`: finer steps settle those only once their errors are far below that
     change (a chaotic response). A figure the twin leaves in place may still be sensitive: one
     twin samples the response once."""
@@ -180,14 +180,14 @@ def failure(check, refined):
         k = check['worst']
         return (f'pulse figures not determined: {k} {_moved(check["changes"][k])} when every '
                 f'step control is refined ({describe(refined)}; limit {100 * tol:g} %) and '
-                f'{_moved(sens["changes"][k])} when the impact velocity changes by '
+                f'{_moved(sens["changes"][k])} when every impact velocity changes by '
                 f'{_parts(sens["perturbation"])}: {chaotic}')
     k = max(unresolved, key=unresolved.get)
     line = (f'pulse figures not converged: {k} {_moved(unresolved[k])} when every step control '
             f'is refined ({describe(refined)}; limit {100 * tol:g} %); read it with a finer '
             f'integrator.dt and contact.resolution, and check again')
     if sensitive:
-        return (f'{line}; {", ".join(sensitive)} also move(s) by more than the limit when the '
+        return (f'{line}; {", ".join(sensitive)} also move(s) by more than the limit when every '
                 f'impact velocity changes by {_parts(sens["perturbation"])}: {chaotic}')
     return (f'{line} (after strong impacts some figures settle at no step: docs/physics.md '
             f'section 7.1)')
