@@ -15,11 +15,12 @@ A figure that fails it may be under-resolved (finer steps settle it) or sensitiv
 impacts the response is chaotic (twin runs part exponentially, docs/physics.md section 7.1), and
 a figure read late enough moves as much when the input changes in its seventh digit as when the
 steps are halved; no step size settles it. :func:`sensitivity` tells the two apart from a twin
-of the refined run with the impacts changed by :data:`PERTURBATION`:
+of the refined run with the impacts changed by :data:`PERTURBATION`, up and down:
 
-    twin = simulate(scene, overrides + refined_overrides(base.scene)
-                    + perturbed_overrides(base.scene))
-    check['sensitivity'] = sensitivity(check, refined.summary, twin.summary)
+    up, down = (simulate(scene, overrides + refined_overrides(base.scene)
+                         + perturbed_overrides(base.scene, rel)).summary
+                for rel in (PERTURBATION, -PERTURBATION))
+    check['sensitivity'] = sensitivity(check, refined.summary, up, down)
 """
 from __future__ import annotations
 
@@ -122,15 +123,19 @@ def compare(base, refined, tolerance=0.01):
             'figures_refined': {k: (pr[0].get(k) if pr else None) for k in FIGURES}}
 
 
-def sensitivity(check, refined, twin, rel=PERTURBATION):
+def sensitivity(check, refined, *twins, rel=PERTURBATION):
     """Which figures that failed ``check`` (:func:`compare`) are sensitive rather than
-    under-resolved: ``refined`` and ``twin`` are the summaries of the refined run and of the same
-    refined run with every impact velocity changed by the factor ``1 + rel``
-    (:func:`perturbed_overrides`). Per figure its largest relative change over the columns between
-    the two (``changes``), and ``sensitive``: the figures whose change under refinement and
+    under-resolved: ``refined`` is the summary of the refined run, ``twins`` those of the same
+    refined run with every impact velocity changed by the factor ``1 + rel`` (or ``1 - rel``:
+    :func:`perturbed_overrides`). Per figure its largest relative change over the columns and
+    the twins (``changes``), and ``sensitive``: the figures whose change under refinement and
     under the perturbation both exceed the tolerance (in :data:`FIGURES` order)."""
-    moved = compare(refined, twin, check['tolerance'])['changes']
     tol = check['tolerance']
+    moved = {k: None for k in FIGURES}
+    for twin in twins:
+        for k, c in compare(refined, twin, tol)['changes'].items():
+            if c is not None and (moved[k] is None or c > moved[k]):
+                moved[k] = c
     sensitive = [k for k in FIGURES if check['changes'][k] is not None and
                  check['changes'][k] > tol and moved[k] is not None and moved[k] > tol]
     return {'perturbation': rel, 'changes': moved, 'sensitive': sensitive}
@@ -165,8 +170,8 @@ def failure(check, refined):
     the refinement and the limit. With ``check['sensitivity']`` (:func:`sensitivity`) it also
     names the figures that move by more than the limit when every impact velocity changes by
     :data:`PERTURBATION`: finer steps settle those only once their errors are far below that
-    change (a chaotic response). A figure the twin leaves in place may still be sensitive: one
-    twin samples the response once."""
+    change (a chaotic response). A figure the twins leave in place may still be sensitive: two
+    twins sample the response twice."""
     if check['converged'] is not False:
         return None
     tol = check['tolerance']

@@ -153,27 +153,34 @@ def _convergence(args, result, refined_run, tolerance):
 
 
 def _sensitivity(args, check, refined, point):
-    """A failed check: the refined run again with every impact velocity changed by
-    ``convergence.PERTURBATION`` (with a progress bar), and which failing figures move by more
-    than the tolerance under it too (:func:`solver.simulate.convergence.sensitivity`); None
-    when the run has no impact velocity to change or the twin diverges."""
+    """A failed check: the refined run twice more, with every impact velocity changed by
+    ``convergence.PERTURBATION`` up and down (on two threads: the kernels release the GIL; a
+    progress bar for the pair), and which failing figures move by more than the tolerance under
+    either (:func:`solver.simulate.convergence.sensitivity`); None when the run has no impact
+    velocity to change or a twin diverges."""
+    from concurrent.futures import ThreadPoolExecutor
     from solver.simulate import convergence
     from solver.simulate.runner import frame_count, simulate
     from solver.simulate.simulation import SimulationDiverged
-    perturbed = convergence.perturbed_overrides(point.scene)
-    if perturbed is None:
+    rel = convergence.PERTURBATION
+    perturbed = [convergence.perturbed_overrides(point.scene, r) for r in (rel, -rel)]
+    if perturbed[0] is None:
         return None
     run = point.scene.run
-    update, close = progress_bar(frame_count(run.t_end, run.output_dt) - 1,
-                                 'sensitivity twin', unit='frame', leave=False)
+    update, close = progress_bar(2 * (frame_count(run.t_end, run.output_dt) - 1),
+                                 'sensitivity twins', unit='frame', leave=False)
+    base = run_overrides(args) + list(refined)
     try:
-        twin = simulate(args.scene, run_overrides(args) + list(refined) + perturbed,
-                        setup=lambda stack, scene, sim: (None, update, None))
+        with ThreadPoolExecutor(2, thread_name_prefix='tensegrity-twin') as pool:
+            twins = [pool.submit(simulate, args.scene, base + p,
+                                 setup=lambda stack, scene, sim: (None, update, None))
+                     for p in perturbed]
+            summaries = [t.result().summary for t in twins]
     except SimulationDiverged:
         return None
     finally:
         close()
-    return convergence.sensitivity(check, point.summary, twin.summary)
+    return convergence.sensitivity(check, point.summary, *summaries)
 
 
 def _changes(part):
@@ -269,7 +276,7 @@ def _run(args, refined_run):
             sens = check.get('sensitivity')
             if sens:
                 moved = _changes(sens)
-                print(f"  sensitivity (impact velocities x (1 + {sens['perturbation']:g}), "
+                print(f"  sensitivity (impact velocities x (1 ± {sens['perturbation']:g}), "
                       f"refined steps): {moved}: "
                       f"{', '.join(sens['sensitive']) or 'none'} sensitive")
         for key, path in result['outputs'].items():
