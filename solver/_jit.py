@@ -4,15 +4,12 @@
 starts without compiling. Numba checks only the source file of a cached function itself, not the
 functions it calls in other modules, so a kernel of ``integrators.py`` would keep running the old
 ``dynamics.py`` code after an edit. The cache therefore lives in a folder named after a hash of
-every solver source file compiled code can depend on (:func:`kernel_files`: the modules that
-import this one and every solver module they import, transitively) and of the numba version:
-an edit to any of them starts a fresh cache, an edit to a module no kernel reaches (the run
-loop, the convergence check, the studies) does not.
+every solver source file in every sub-package (and the numba version): any edit to the solver
+starts a fresh cache.
 
 No ``fastmath``: the benchmarks have not shown it is worth the loss of IEEE semantics (NaN
 detection relies on them).
 """
-import ast
 import hashlib
 import os
 import shutil
@@ -32,64 +29,6 @@ def source_hash(directory=Path(__file__).parent, salt=''):
     return digest.hexdigest()
 
 
-def _module_name(directory, path):
-    parts = (directory.name, *path.relative_to(directory).with_suffix('').parts)
-    return '.'.join(parts[:-1] if parts[-1] == '__init__' else parts)
-
-
-def _imports(name, path, modules):
-    """The modules of ``modules`` that the file ``path`` of module ``name`` imports (absolute or
-    relative ``import`` / ``from ... import``), with the packages above each."""
-    package = name if path.name == '__init__.py' else name.rpartition('.')[0]
-    found = set()
-    for node in ast.walk(ast.parse(path.read_bytes())):
-        if isinstance(node, ast.Import):
-            found.update(a.name for a in node.names)
-        elif isinstance(node, ast.ImportFrom):
-            base = node.module or ''
-            if node.level:
-                up = package.split('.')[:len(package.split('.')) - node.level + 1]
-                base = '.'.join(up + ([base] if base else []))
-            found.add(base)
-            found.update(f'{base}.{a.name}' for a in node.names)
-    out = set()
-    for mod in found:
-        parts = mod.split('.')
-        out.update(p for p in ('.'.join(parts[:i + 1]) for i in range(len(parts))) if p in modules)
-    return out
-
-
-def kernel_files(directory=Path(__file__).parent):
-    """The ``*.py`` files below ``directory`` (the solver package) that compiled code can depend
-    on: every module that imports its ``_jit`` module, and every module of the package those
-    import (with the packages above them), transitively, read from their import statements."""
-    directory = Path(directory)
-    modules = {_module_name(directory, p): p for p in directory.rglob('*.py')
-               if '__pycache__' not in p.parts}
-    jit_module = f'{directory.name}._jit'
-    reach = {name: _imports(name, path, modules) for name, path in modules.items()}
-    todo = [jit_module] + [name for name, deps in reach.items() if jit_module in deps]
-    closure = set()
-    while todo:
-        name = todo.pop()
-        if name in closure or name not in modules:
-            continue
-        closure.add(name)
-        todo.extend(reach[name])
-    return sorted(modules[name] for name in closure)
-
-
-def kernel_source_hash(directory=Path(__file__).parent, salt=''):
-    """sha256 (hex) of ``salt`` and of the relative paths and contents of :func:`kernel_files`:
-    the key of the kernel cache."""
-    directory = Path(directory)
-    digest = hashlib.sha256(salt.encode())
-    for path in kernel_files(directory):
-        digest.update(path.relative_to(directory).as_posix().encode() + b'\0')
-        digest.update(path.read_bytes() + b'\0')
-    return digest.hexdigest()
-
-
 def _writable(folder):
     try:
         folder.mkdir(parents=True, exist_ok=True)
@@ -102,7 +41,7 @@ def _writable(folder):
 
 
 def _cache_dir():
-    tag = f'numba-{kernel_source_hash(salt=numba.__version__)[:16]}'
+    tag = f'numba-{source_hash(salt=numba.__version__)[:16]}'
     if os.environ.get('NUMBA_CACHE_DIR'):
         return Path(os.environ['NUMBA_CACHE_DIR']) / f'tensegrity-{tag}'
     local = Path(__file__).parent / '__pycache__'
