@@ -94,6 +94,11 @@ def report(out):
 
     def mm(v):
         return f'{1e3 * float(v):.2f}'
+
+    def per_case(table, cells):
+        """The rows ``| label | v0 | cells... |`` of a ``{label: {v0: figures}}`` result."""
+        return [f"| {label} | {v0} | " + ' | '.join(cells(r)) + ' |'
+                for label, per in table.items() for v0, r in per.items()]
     fam = list(csv.DictReader(open(out / 'family.csv')))
     for reading, top in (('slope', 16), ('snapshot', 6), ('paper', 6)):
         rows = sorted((r for r in fam if r['speed_reading'] == reading),
@@ -197,12 +202,10 @@ def report(out):
         lines += ['\nPrediction:\n', '| column | v0 | amplitude at 0.5 s | median | speed | '
                   'snapshot speed | width (half max) | status |',
                   '|---|---|---|---|---|---|---|---|']
-        for label, per in pred.items():
-            for v0, r in per.items():
-                lines.append(f"| {label} | {v0} | {f(r['pulse.amplitude'])} | "
-                             f"{f(r['pulse.amplitude_median'])} | {f(r['pulse.speed_m_s'])} | "
-                             f"{f(r['pulse.speed_snapshot_m_s'])} | "
-                             f"{f(r['pulse.width_half_prisms'], '.2f')} | {r['status']} |")
+        lines += per_case(pred, lambda r: [
+            f(r['pulse.amplitude']), f(r['pulse.amplitude_median']), f(r['pulse.speed_m_s']),
+            f(r['pulse.speed_snapshot_m_s']), f(r['pulse.width_half_prisms'], '.2f'),
+            r['status']])
         for label in (k for k in pred if k.endswith('FB')):
             figs = {float(v0): r for v0, r in pred[label].items()}
             errs = ', '.join(f'{100 * residuals(figs, key)[0]:.1f} % ({reading})'
@@ -214,13 +217,9 @@ def report(out):
                   '| column | v0 | amplitude | speed (slope) | W (prisms) | f = P / (m v0) | '
                   'strain / velocity momentum | column momentum / (m v0) |',
                   '|---|---|---|---|---|---|---|---|']
-        for label, per in mom.items():
-            for v0, r in per.items():
-                lines.append(f"| {label} | {v0} | {f(r.get('pulse.amplitude'))} | "
-                             f"{f(r.get('pulse.speed_m_s'))} | "
-                             f"{f(r.get('pulse.width_eff_prisms'), '.2f')} | "
-                             f"{f(r.get('pulse.momentum_share'), '.3f')} | "
-                             f"{f(r.get('pulse.momentum_ratio'), '.3f')} | "
-                             f"{f(r.get('column_share'), '.3f')} |")
+        lines += per_case(mom, lambda r: [
+            f(r.get('pulse.amplitude')), f(r.get('pulse.speed_m_s')),
+            f(r.get('pulse.width_eff_prisms'), '.2f'), f(r.get('pulse.momentum_share'), '.3f'),
+            f(r.get('pulse.momentum_ratio'), '.3f'), f(r.get('column_share'), '.3f')])
     return '\n'.join(lines)
 

@@ -70,7 +70,7 @@ def convergence(name, v0=1.0, t_end=1.0, levels=LEVELS, perturbations=3,
                 sensitivities=SENSITIVITIES):
     """How well the pulse figures at ``v0`` are determined, as a refinement ladder: the point
     run with every step control refined ``k`` times (``solver.simulate.convergence.
-    refined_overrides`` applied ``k`` times: ``dt / 2^k``, ``contact.resolution x 2^k``) for
+    rung_overrides``: ``dt / 2^k``, ``contact.resolution x 2^k``) for
     ``k = 0 .. levels``, and the relative change of each figure between consecutive rungs
     (``steps``: ``solver.simulate.convergence.relative_change``, the measure of ``tensegrity run
     --convergence``); converged figures show changes that shrink down the ladder. Also the
@@ -78,7 +78,7 @@ def convergence(name, v0=1.0, t_end=1.0, levels=LEVELS, perturbations=3,
     (``conditioning``: how far the response at those steps carries a change of the input), and
     the change under v0 (1 + rel) at the finest rung's steps for each ``rel`` of
     ``sensitivities`` (``sensitivity_finest``; ``conditioning_finest`` is its 1e-9 entry)."""
-    from solver.simulate.convergence import FIGURES, refined_overrides, relative_change
+    from solver.simulate.convergence import FIGURES, relative_change, rung_overrides
     from solver.simulate.runner import simulate
     path = ROOT / 'config' / 'scenes' / f'{name}.yaml'
     base = [f'loading.impact.v0={v0}', f'run.t_end={t_end}']
@@ -91,26 +91,25 @@ def convergence(name, v0=1.0, t_end=1.0, levels=LEVELS, perturbations=3,
                 'balance_error': point.summary['energy_balance_error'],
                 'steps_taken': point.summary['steps_taken'],
                 'dt': point.scene.integrator.dt, 'resolution': point.scene.contact.resolution,
-                'wall_s': time.perf_counter() - t0}, point.scene
+                'wall_s': time.perf_counter() - t0}
 
-    ladder, refine = [], []
-    for _ in range(levels + 1):
-        finest = [f'{k}={v}' for k, v in refine]
-        rung, scene = run(base + finest)
-        ladder.append(rung)
-        refine = list(dict(refine + refined_overrides(scene)).items())
+    scene = Scene.load(path).with_overrides(base)
+    ladder = []
+    for k in range(levels + 1):
+        finest = [f'{key}={v}' for key, v in rung_overrides(scene, k)]
+        ladder.append(run(base + finest))
 
     def change(a, b):
         return {k: relative_change(a[k], b[k]) for k in FIGURES}
 
     spread = {k: 0.0 for k in FIGURES}
     for j in range(1, perturbations + 1):
-        moved = run([f'loading.impact.v0={v0 * (1 + j * 1e-9)}', f'run.t_end={t_end}'])[0]
+        moved = run([f'loading.impact.v0={v0 * (1 + j * 1e-9)}', f'run.t_end={t_end}'])
         for k, c in change(moved['figures'], ladder[0]['figures']).items():
             spread[k] = None if c is None or spread[k] is None else max(spread[k], c)
     sens = []
     for rel in sensitivities:
-        moved = run([f'loading.impact.v0={v0 * (1 + rel)}', f'run.t_end={t_end}'] + finest)[0]
+        moved = run([f'loading.impact.v0={v0 * (1 + rel)}', f'run.t_end={t_end}'] + finest)
         sens.append({'rel': rel, 'changes': change(moved['figures'], ladder[-1]['figures'])})
     return {'scene': name, 'v0': v0, 't_end': t_end, 'ladder': ladder,
             'steps': [change(a['figures'], b['figures']) for a, b in zip(ladder, ladder[1:])],

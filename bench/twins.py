@@ -27,14 +27,13 @@ APART = 1e-6                # m: the separation reported as "apart" (t_apart_s)
 
 def twins(name, v0, refine=1, rel=REL, t_end=1.0):
     """The twin runs of scene ``name`` struck at ``v0``, with every step control refined
-    ``refine`` times (``dt / 2^refine``, ``contact.resolution x 2^refine``): ``times`` (s),
+    ``refine`` times (``solver.simulate.convergence.rung_overrides``): ``times`` (s),
     ``separation_m`` (largest node distance at each output time), ``efold_rate_per_s`` (its mean
     growth rate from ``START`` to ``SATURATED``, :func:`efold_rate`), ``t_apart_s`` (the first
     time the twins are ``APART``; None when they never are)."""
+    from solver.simulate.convergence import rung_overrides
     scene = Scene.load(ROOT / 'config' / 'scenes' / f'{name}.yaml')
-    ov = [('integrator.dt', scene.integrator.dt / 2 ** refine), ('run.t_end', t_end)]
-    if scene.contact.bars != 'none':
-        ov.append(('contact.resolution', scene.contact.resolution * 2 ** refine))
+    ov = rung_overrides(scene, refine) + [('run.t_end', t_end)]
     sims = []
     for v in (v0, v0 * (1.0 + rel)):
         sim = simulation_for(scene.with_overrides(ov + [('loading.impact.v0', v)]))
@@ -107,14 +106,12 @@ def ensemble(name, v0, refine=0, n=16, step=1e-7, t_end=1.0, overrides=()):
     ``mean``, ``sem`` (standard error of the mean) and ``std`` (None below two values). Where
     a figure is a function of v0 the values agree; where the response is chaotic they scatter,
     and a figure that converges in distribution has means that agree across rungs."""
-    from solver.simulate.convergence import FIGURES
+    from solver.simulate.convergence import FIGURES, rung_overrides
     from solver.simulate.runner import simulate
     from solver.simulate.simulation import SimulationDiverged
     path = ROOT / 'config' / 'scenes' / f'{name}.yaml'
-    scene = Scene.load(path)
-    ov = [f'integrator.dt={scene.integrator.dt / 2 ** refine}', f'run.t_end={t_end}']
-    if scene.contact.bars != 'none':
-        ov.append(f'contact.resolution={scene.contact.resolution * 2 ** refine}')
+    ov = [f'{key}={v!r}' for key, v in rung_overrides(Scene.load(path), refine)]
+    ov.append(f'run.t_end={t_end}')
     values, stopped = {f: [] for f in FIGURES}, []
     for j in range(n):
         v = v0 * (1.0 + (j - (n - 1) / 2) * step)

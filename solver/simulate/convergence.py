@@ -52,6 +52,16 @@ def refined_overrides(scene):
     return out
 
 
+def rung_overrides(scene, k):
+    """The overrides of :func:`refined_overrides` applied ``k`` times to ``scene`` (rung ``k``
+    of a refinement ladder: ``dt / 2^k``, ``contact.resolution x 2^k``, ``rtol / 32^k``); a
+    list of ``(key, value)``, empty for ``k = 0``."""
+    out = {}
+    for _ in range(k):
+        out.update(refined_overrides(scene.with_overrides(list(out.items()))))
+    return list(out.items())
+
+
 def perturbed_overrides(scene, rel=PERTURBATION):
     """The overrides that change every impact velocity of ``scene`` (loaded, its own overrides
     applied) by the factor ``1 + rel``: ``loading.impact.velocities`` for a train with its own
