@@ -2,13 +2,15 @@
 kernels and their :class:`~solver.integrators.base.Integrator` classes."""
 from __future__ import annotations
 
+import math
+
 from solver._jit import jit
 from solver.integrators.base import Integrator
 from solver.kernels import dynamics as dyn
 from solver.kernels import summary
 from solver.kernels.barcontact import remember
-from solver.kernels.contactsteps import (add_motion, contact_step, gate, motion_so_far,
-                                       passed_clear, resume)
+from solver.kernels.contactsteps import (add_motion, bounded_contact_energy, contact_step, gate,
+                                       motion_so_far, passed_clear, rescan, resume)
 from solver.kernels.contact import striker_step
 from solver.kernels.kinks import keep_state, next_kink
 
@@ -70,7 +72,7 @@ def _kept_balance(x0, v0, x, v, net, act, h, dissipated):
 
 
 @jit
-def _contact_aware_step(x, v, h, a1, net, act, ws, met):
+def _contact_aware_step(x, v, h, a1, net, act, ws, met, scale):
     """One RK4 step from a state whose accelerations ``a1`` were just evaluated (``met``: the
     contact count before that evaluation), with bar contact on
     (:mod:`solver.kernels.barcontact`): the plain step of ``h`` when no contact can start within
@@ -79,13 +81,15 @@ def _contact_aware_step(x, v, h, a1, net, act, ws, met):
     (:func:`~solver.kernels.contactsteps.passed_clear`: a near miss changes nothing) and it kept
     the energy balance (:func:`_kept_balance`); otherwise,
     and while a contact lasts, the step of
-    :func:`~solver.kernels.contactsteps.contact_step`. Returns (status, the step taken)."""
+    :func:`~solver.kernels.contactsteps.contact_step` times ``scale`` (``_rk4_run``'s contact
+    refinement). Returns (status, the step taken)."""
     ex = act[3]
     touched_at_start = ex[8][0] > met
     known = motion_so_far(ex[8])
     h_c = contact_step(x, v, a1, ex[6], ex[1], ex[7], h, ex[8], ex[11])
     if h_c >= h:
         return _rk4_step(x, v, h, a1, net, act, ws), h
+    h_c *= scale
     flag = ex[8][2]
     if not touched_at_start:
         saved = ex[9]
@@ -111,6 +115,37 @@ def _contact_aware_step(x, v, h, a1, net, act, ws, met):
     return _rk4_step(x, v, h_c, a1, net, act, ws), h_c
 
 
+# Steps after a contact (docs/physics.md section 9.3): every step is checked against the energy
+# ledger, and one that used more than REFINE_SHARE of ``divergence.energy_error`` per second
+# (times the step and the energy) is taken again at half the step, down to 1 / 2^REFINE_LEVELS:
+# the step of ``dt`` where no contact limits it, the contact step where one does (two levels of
+# their own). A level is undone while steps use less than REFINE_COARSEN of their share.
+REFINE_SHARE = 1.0
+REFINE_LEVELS = 4
+REFINE_COARSEN = 1.0 / 64.0
+
+
+@jit
+def _refining(ex):
+    """Whether the steps are checked against the energy ledger (:data:`REFINE_SHARE`): bar
+    contact with the energy slots (``act[3][12:21]``), and a contact met since the reset. Until
+    a contact, the steps are the plain ones. Contacts excite the fast vibrations of bars and
+    nodes, which RK4 at the scene's step damps, and a lasting contact oscillates stiffly: both
+    lose energy, which the ledger counts."""
+    return ex[6].shape[0] != 0 and ex[13].shape[0] != 0 and ex[20].shape[0] > 2 and (
+        ex[8][0] > 0.0)
+
+
+@jit
+def _ledger_energy(x, v, net, act):
+    """Energy J of a state within or at the end of a step the contact scans bounded: without
+    contact (:func:`~solver.kernels.summary.step_energy`) plus what touching bars and bases store
+    (:func:`~solver.kernels.contactsteps.bounded_contact_energy`)."""
+    ex = act[3]
+    return summary.step_energy(x, v, net, act) + bounded_contact_energy(x, ex[6], ex[1], ex[7],
+                                                                         ex[8])
+
+
 @jit
 def _rk4_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, project):
     """Advance by ``n_steps * dt`` with classical RK4; with ``kinks`` a step is shortened to land
@@ -118,24 +153,46 @@ def _rk4_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, project):
     projected on the rigid members after every step (``rk4_projected``; without, ``rk4``: the
     constraints hold only at the acceleration level, so bar lengths drift, and ``tol``,
     ``max_iter`` are unused). One kernel for both methods, ``project`` an argument: one
-    compilation instead of two. Returns (RK4 steps taken, status)."""
+    compilation instead of two.
+
+    After a contact (:func:`_refining`) each step is checked against its share of the energy
+    ledger and taken again at half its length when it used more (:data:`REFINE_SHARE`); the two
+    halving levels (``act[3][20][1:3]``: state of the run, which the Simulation keeps, restores
+    and resets with the rest) carry over to the next call. Returns (RK4 steps taken, status)."""
     a1 = ws[10]
     ex = act[3]
-    if ex[6].shape[0] != 0:
+    contact = ex[6].shape[0] != 0
+    level = clevel = 0              # halvings of dt, of the contact step
+    if contact:
+        if ex[20].shape[0] > 2:
+            level, clevel = int(ex[20][1]), int(ex[20][2])
         resume(x, ex[8], ex[11])    # the contact scans (kernels.contactsteps)
     total = n_steps * dt
     t = 0.0
     steps = 0
+    e0 = math.nan                   # the energy at the step's start, when refining
     while total - t > 1e-9 * dt:
-        h = min(dt, total - t)
+        refine = contact and _refining(ex)
+        if not refine:
+            level = clevel = 0
+        h = min(dt * 0.5 ** level, total - t)
+        p0 = d0 = 0.0
         met = ex[8][0]              # contacts met so far (kernels.barcontact)
+        if refine:
+            ex[9][0, :, :] = x
+            ex[9][1, :, :] = v
+            if e0 != e0:
+                e0 = _ledger_energy(x, v, net, act)
+            if ex[10].shape[0] != 0:
+                p0, d0 = ex[10][0], ex[10][1]
         status = dyn.accelerations(x, v, net, act, ws, a1)
         if status == dyn.OK and kinks:
             h = next_kink(x, v, a1, net, act, h, 1e-3 * dt)
         if status == dyn.OK and ex[3].shape[0] != 0:
             h = striker_step(x, v, a1, ex, h)
-        if status == dyn.OK and ex[6].shape[0] != 0:
-            status, h = _contact_aware_step(x, v, h, a1, net, act, ws, met)
+        h_free = h
+        if status == dyn.OK and contact:
+            status, h = _contact_aware_step(x, v, h, a1, net, act, ws, met, 0.5 ** clevel)
         elif status == dyn.OK:
             status = _rk4_step(x, v, h, a1, net, act, ws)
         if project and status == dyn.OK:
@@ -146,10 +203,38 @@ def _rk4_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, project):
             status = dyn.NONFINITE
         if status != dyn.OK:
             return steps, status
+        if refine:
+            e1 = _ledger_energy(x, v, net, act)
+            d1 = ex[10][1] if ex[10].shape[0] != 0 else 0.0
+            err = abs(e1 + (d1 - d0) - e0)
+            budget = REFINE_SHARE * ex[20][0] * h * abs(e0)
+            limited = h < h_free or ex[8][0] > met      # by a contact
+            if err > budget and (clevel if limited else level) < REFINE_LEVELS:
+                x[:, :] = ex[9][0]
+                v[:, :] = ex[9][1]
+                if ex[10].shape[0] != 0:
+                    ex[10][0] = p0
+                    ex[10][1] = d0
+                ex[8][0] = met
+                rescan(ex[8], ex[11])
+                if limited:
+                    clevel += 1
+                else:
+                    level += 1
+                continue
+            if err < REFINE_COARSEN * budget:
+                if limited and clevel > 0:
+                    clevel -= 1
+                elif not limited and level > 0:
+                    level -= 1
+            e0 = e1
         t += h
         steps += 1
-    if ex[6].shape[0] != 0:
+    if contact:
         remember(x, ex[8])
+    if ex[20].shape[0] > 2:
+        ex[20][1] = level
+        ex[20][2] = clevel
     return steps, dyn.OK
 
 

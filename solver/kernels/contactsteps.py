@@ -16,8 +16,8 @@ positions an integrator call ended at (``barcontact.remember``).
 import math
 
 from solver._jit import jit, jit_inline
-from solver.kernels.barcontact import (HEAD, _at_remembered, _level_z, _pair, _point,
-                                      _rel_velocity)
+from solver.kernels.barcontact import (HEAD, _at_remembered, _level_z, _pair, _pair_energy,
+                                      _point, _rel_velocity)
 from solver.kernels.contact import hertz_duration
 
 
@@ -355,3 +355,27 @@ def scan_step(x, v, acc, pairs, levels, bpar, h, active, state, reach):
                 bases += 1
             h_new = _resolve(gap, abs(rate), abs(accel), u2, h_new, bpar)
     return h_new, g_min, bases
+
+
+@jit
+def bounded_contact_energy(x, pairs, levels, bpar, state):
+    """Energy J stored in touching bars and bases at positions ``x`` that the scans' bounds cover
+    (the start or the end of a step :func:`contact_step` sized): a pair or a prism whose gap
+    bound less the motion summed so far (``state``) is positive stores none and is skipped;
+    after a :func:`rescan` every pair and prism is evaluated. Times the multiplicities, as
+    :func:`~solver.kernels.barcontact.bar_energy` and ``base_energy``."""
+    known = state[3]
+    fresh = not math.isfinite(known)
+    e = 0.0
+    for i in range(pairs.shape[0]):
+        if fresh or state[HEAD + i] - known <= 0.0:
+            e += _pair_energy(x, pairs, i, bpar)
+    D = bpar[0]
+    eb = 0.0
+    for c in range(levels.shape[0]):
+        for j in range(1, levels.shape[1]):
+            if fresh or state[_prism_slot(pairs, levels, c, j)] - known <= 0.0:
+                d = D - (_level_z(x, levels, c, j) - _level_z(x, levels, c, j - 1))
+                if d > 0.0:
+                    eb += 0.4 * bpar[1] * d * d * math.sqrt(d)
+    return bpar[2] * e + bpar[5] * eb

@@ -218,7 +218,7 @@ def energy_slots(model, spec):
             np.array(s[2], dtype=np.bool_), np.array(s[3], dtype=np.float64),
             np.array(s[4], dtype=np.int64), np.array(s[5], dtype=np.int64),
             np.array(s[6], dtype=np.float64), np.array(s[7], dtype=np.float64),
-            np.array([spec.get('energy_rate', 0.0)], dtype=np.float64))
+            np.array([spec.get('energy_rate', 0.0), 0.0, 0.0], dtype=np.float64))
 
 
 def attach(model, spec, striker_state=None):

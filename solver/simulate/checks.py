@@ -30,7 +30,7 @@ class Checks:
         m = self.model
         return (m.x.copy(), m.v.copy(), m.act[0].copy(), self._prestrain, self._ramp,
                 self._energy_ref, self.integrator.get_state(), self._energy_scale,
-                self.energy_dissipated(), self._twist_ref)
+                self.energy_dissipated(), self._twist_ref, self._refinement())
 
     def _restore(self, keep):
         m = self.model
@@ -41,6 +41,7 @@ class Checks:
         self._energy_scale = keep[7]
         self._set_dissipated(keep[8])
         self._twist_ref = keep[9]
+        self._set_refinement(keep[10])
         self._changed()
 
     def _check(self, status):

@@ -112,6 +112,7 @@ class Simulation(Loading, Checks):
         self.model.set_cables(net.cable_rest_length, net.cable_EA)
         if self.contacts_met:
             self.model.act[3][8][0] = 0.0
+        self._set_refinement((0.0, 0.0, 0.0))
         self._set_dissipated(0.0)
         self._cache = {}
         self._plan = (None,) * 7
@@ -198,6 +199,21 @@ class Simulation(Loading, Checks):
         act = getattr(self.model, 'act', ())
         return float(act[3][10][1]) if len(act) > 3 and act[3][10].shape[0] else 0.0
 
+    def _refinement(self):
+        """What the steps of ``rk4`` after a contact depend on besides the state
+        (:data:`solver.integrators.rk4.REFINE_SHARE`): the contacts met since the reset and the
+        two halving levels (``act[3][8][0]``, ``act[3][20][1:3]``), or None where the model has
+        no bar contact."""
+        act = getattr(self.model, 'act', ())
+        if len(act) > 3 and act[3][20].shape[0] > 2:
+            return float(act[3][8][0]), float(act[3][20][1]), float(act[3][20][2])
+        return None
+
+    def _set_refinement(self, kept):
+        act = getattr(self.model, 'act', ())
+        if kept is not None and len(act) > 3 and act[3][20].shape[0] > 2:
+            act[3][8][0], act[3][20][1], act[3][20][2] = kept
+
     def _set_dissipated(self, value):
         act = getattr(self.model, 'act', ())
         if len(act) > 3 and act[3][10].shape[0]:
@@ -254,10 +270,11 @@ class Simulation(Loading, Checks):
         """Continue a ``sym3d`` run with ``full3d`` from the same (expanded) state: no jump."""
         if isinstance(self.model, models.Sym3D):
             strikers = extras.striker_state(self.model)
-            dissipated = self.energy_dissipated()
+            dissipated, kept = self.energy_dissipated(), self._refinement()
             self.model = extras.attach(models.expand(self.model, f_ext=self.f_ext),
                                         self._extras, strikers if len(strikers) else None)
             self._set_dissipated(dissipated)
+            self._set_refinement(kept)          # contacts met and the halvings go on
             self.integrator.reset()                 # forget step-size history of sym3d
             self.expanded = reason
             self._changed()
@@ -347,7 +364,7 @@ class Simulation(Loading, Checks):
             kb = plan[2]
             keep = (kb[0], kb[1], m.act[0], self._prestrain, self._ramp, self._energy_ref,
                     integ.get_state(), self._energy_scale, self.energy_dissipated(),
-                    self._twist_ref)
+                    self._twist_ref, self._refinement())
             h = np.empty(self._heights_shape)
             args = (m.x, m.v, float(self.dt), n, *plan[3], h)
             if plan[6] is None:     # through numba's dispatch, then its compiled overload
