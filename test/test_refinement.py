@@ -1,5 +1,5 @@
 """The steps of ``rk4_projected`` after a contact (solver.integrators.rk4, docs/physics.md
-section 9.3): each is checked against its share of the energy ledger and taken again at half its
+section 7.1): each is checked against its share of the energy ledger and taken again at half its
 length when it used more. Checked against the ledger itself (energy is conserved: nothing
 damps these columns), against runs at a fixed finer step, and for the state a stop restores."""
 from pathlib import Path
@@ -25,11 +25,14 @@ def test_strong_impacts_run_well_inside_the_ledger(name, v0):
     """Two impacts of a sweep from 0.3 to 2 m/s that stopped at the ledger (balance lost 1.03e-4
     of the energy scale at 0.34 s and 1.02e-4 at 0.235 s) when RK4 at the scene's step damped
     the vibrations the contacts excite: they run 1 s with a balance error under a tenth of the
-    limit."""
-    point = simulate(_scene(name), [f'loading.impact.v0={v0}', 'run.t_end=1.0'])
+    limit; with ``contact.refine: none`` they stop there again."""
+    sets = [f'loading.impact.v0={v0}', 'run.t_end=1.0']
+    point = simulate(_scene(name), sets)
     s = point.summary
     assert s['contacts_met'] > 0
     assert abs(s['energy_balance_error']) < 0.1 * point.sim.div.energy_error, s
+    with pytest.raises(SimulationDiverged, match='energy balance lost'):
+        simulate(_scene(name), sets + ['contact.refine=none'])
 
 
 def _interval(sim, keep, t0, dt, refine):

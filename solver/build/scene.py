@@ -68,7 +68,10 @@ DEFAULTS = {
                    'projection_max_iter': 3, 'land_on_kinks': True, 'rtol': 1e-8, 'atol': 1e-10},
     'run': {'t_end': 1.2, 'output_dt': 0.005},
     'contact': {'bars': 'hertz', 'resolution': 40, 'lock': 'none', 'stiffness': 1.0e5,
-                'tolerance': 0.05},
+                'tolerance': 0.05,
+                # after a contact, rk4's steps checked against the energy ledger and halved
+                # where they use more than their share (solver.integrators.rk4); none: never
+                'refine': 'ledger'},
     'divergence': {'energy_error': 1e-4, 'constraint_error': 1e-6, 'bar_crossing': 'rigid'},
     'outputs': {'dir': None},
     # the focusing design (solver/studies/lens.py): the prestrain range it may use, the grid of
@@ -91,6 +94,7 @@ CHOICES = {
     'contact.lock': ('none', 'penalty'),
     # the bars of each prism touch with their thickness: Hertz contact of crossed rods, or not
     'contact.bars': ('hertz', 'none'),
+    'contact.refine': ('ledger', 'none'),
     'model': ('auto', 'full3d', 'sym3d', 'chain1d'),
     # stop when a prism twists through 180 deg (its bars cross): in rigid-base columns only (the
     # lock), in every column, or never

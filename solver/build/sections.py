@@ -106,6 +106,7 @@ class Contact:
     lock: str
     stiffness: float
     tolerance: float
+    refine: str
 
 
 @dataclass(frozen=True)

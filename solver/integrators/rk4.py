@@ -115,7 +115,7 @@ def _contact_aware_step(x, v, h, a1, net, act, ws, met, scale):
     return _rk4_step(x, v, h_c, a1, net, act, ws), h_c
 
 
-# Steps after a contact (docs/physics.md section 9.3): every step is checked against the energy
+# Steps after a contact (docs/physics.md section 7.1): every step is checked against the energy
 # ledger, and one that used more than REFINE_SHARE of ``divergence.energy_error`` per second
 # (times the step and the energy) is taken again at half the step, down to 1 / 2^REFINE_LEVELS:
 # the step of ``dt`` where no contact limits it, the contact step where one does (two levels of

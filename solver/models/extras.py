@@ -158,7 +158,8 @@ def scene_extras(scene, network):
     return {'damp': cable_damping(scene, network),
             'stop_h': stop_heights(network, scene.contact.tolerance) if lock else None,
             'strikers': strikers, 'par': par, 'pairs': pairs, 'bpar': bpar,
-            'energy_rate': float(scene.divergence.energy_error)}
+            'energy_rate': float(scene.divergence.energy_error),
+            'refine': scene.contact.refine == 'ledger'}
 
 
 def _pair_slots(spec, reduced, n_rows, levels):
@@ -207,8 +208,10 @@ def network_extras(spec, network):
 def energy_slots(model, spec):
     """The last extras slots: copies of the model's state summary arrays (``x0``, node mass,
     clamped, node multiplicity, massive bars, cable multiplicity) and ``divergence.energy_error``
-    as a rate per second, for :func:`solver.kernels.summary.step_energy`, which the RK4 kernels
-    use to check a whole step beside a near miss of bar contact; empty without bar contact or
+    as a rate per second, followed by the two halving levels of the steps after a contact
+    (``contact.refine: ledger``; without them the steps are never refined), for
+    :func:`solver.kernels.summary.step_energy`, which the RK4 kernels use to check a whole step
+    beside a near miss of bar contact and every step after a contact; empty without bar contact or
     without a summary (a ``sym3d`` model that is not exact). Writable copies, like
     :data:`NO_EXTRAS`' (one compiled type)."""
     s = model.summ
@@ -218,7 +221,8 @@ def energy_slots(model, spec):
             np.array(s[2], dtype=np.bool_), np.array(s[3], dtype=np.float64),
             np.array(s[4], dtype=np.int64), np.array(s[5], dtype=np.int64),
             np.array(s[6], dtype=np.float64), np.array(s[7], dtype=np.float64),
-            np.array([spec.get('energy_rate', 0.0), 0.0, 0.0], dtype=np.float64))
+            np.array([spec.get('energy_rate', 0.0)] + [0.0, 0.0] * spec.get('refine', True),
+                     dtype=np.float64))
 
 
 def attach(model, spec, striker_state=None):
