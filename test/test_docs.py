@@ -127,7 +127,7 @@ def test_figures_come_from_the_result_files():
     from tools import figures
     assert set(figures.readme_values()) == {row[0] for row in figures.ROWS}
     bad = (figures.differences() + figures.doc_differences() + figures.paper_table_differences()
-           + figures.trains_table_differences())
+           + figures.trains_table_differences() + figures.impacts_table_differences())
     assert not bad, '\n'.join(bad)
 
 
@@ -147,10 +147,13 @@ def test_the_figure_check_catches_a_drifted_number(monkeypatch):
             data['reference']['pulse']['amplitude'] = 0.1473
         elif name == 'trains.json':
             data['convergence'][1]['steps'][0]['amplitude'] = 0.5
+        elif name == 'impacts.json':
+            data['summary']['rb_column']['none']['stopped'] += 1
         return data
     monkeypatch.setattr(figures, '_json', other_run)
     assert figures.paper_table_differences()
     assert [d for d in figures.trains_table_differences() if '`fb_column`, 1 m/s' in d]
+    assert [d for d in figures.impacts_table_differences() if '`rb_column` | `none`' in d]
     assert any('docs/peers.md' in d and '0.1473' in d for d in figures.doc_differences())
 
 

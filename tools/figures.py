@@ -79,16 +79,18 @@ def _trains_max(period):
     return fmt(max(r['balance_error_max'] for r in rows), 'e1')
 
 
+def _impacts(key):
+    """Over both columns of bench/results/impacts.json with the refined steps: the points
+    stopped (``stopped``) or the largest balance error (``balance_error_max``)."""
+    s = [v['ledger'] for v in _json('impacts.json')['summary'].values()]
+    if key == 'stopped':
+        return str(sum(m['stopped'] for m in s))
+    return fmt(max(m['balance_error_max'] for m in s), 'e1')
+
+
 def _trains_lost():
     rows = _json('trains.json')['rows']
     return 'no prism lost' if all(r['status'] == 'ok' for r in rows) else 'prisms lost'
-
-
-def _twins(scene, t, v0=1.0):
-    from bench.twins import at
-    case = next(c for c in _json('trains.json')['twins']
-                if c['scene'] == scene and c['v0'] == v0)
-    return fmt(at(case, t), 'e1')
 
 
 def _peer_ratio(peer):
@@ -150,11 +152,10 @@ ROWS = [
         F('trains.json: largest balance_error_max of the 10 ms trains', lambda: _trains_max(0.01)),
         F('trains.json: largest balance_error_max of the 50 ms trains', lambda: _trains_max(0.05)),
         F('trains.json: every row ok', _trains_lost)]),
-    ('twins', '{} / {} m; {} / {} m', [
-        F('trains.json: twins fb_column 1 m/s at 0.5 s', lambda: _twins('fb_column', 0.5)),
-        F('trains.json: twins fb_column 1 m/s at 1 s', lambda: _twins('fb_column', 1.0)),
-        F('trains.json: twins rb_column 1 m/s at 0.5 s', lambda: _twins('rb_column', 0.5)),
-        F('trains.json: twins rb_column 1 m/s at 1 s', lambda: _twins('rb_column', 1.0))]),
+    ('70 single impacts', '{}, {}', [
+        F('impacts.json: points stopped with contact.refine ledger', lambda: _impacts('stopped')),
+        F('impacts.json: largest balance error with contact.refine ledger',
+          lambda: _impacts('balance_error_max'))]),
     ('node, 30 s flood', '{}, {}, {}', [
         J('actuator.json', 'frames_per_s', spec='.1f'),
         F('actuator.json: non-finite strain and node messages received', _soak_non_finite),
@@ -292,6 +293,13 @@ def trains_table_differences():
             for d in _table_differences('docs/physics.md', table, 'trains.json')]
 
 
+def impacts_table_differences():
+    """Rows of docs/physics.md's table of single impacts that differ from
+    bench/results/impacts.json (:func:`bench.impacts.table`)."""
+    from bench.impacts import table
+    return _table_differences('docs/physics.md', table(_json('impacts.json')), 'impacts.json')
+
+
 def values():
     """{figure: value cell} as the result files give them."""
     return {figure: template.format(*(get() for get in getters))
@@ -344,7 +352,8 @@ def main(argv=None):
     if '--write' in argv:
         write()
     if '--check' in argv:
-        bad = differences() + doc_differences() + paper_table_differences()
+        bad = (differences() + doc_differences() + paper_table_differences()
+               + trains_table_differences() + impacts_table_differences())
         for line in bad:
             print(line)
         return 1 if bad else 0

@@ -208,7 +208,7 @@ def _rk4_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, project):
             d1 = ex[10][1] if ex[10].shape[0] != 0 else 0.0
             err = abs(e1 + (d1 - d0) - e0)
             budget = REFINE_SHARE * ex[20][0] * h * abs(e0)
-            limited = h < h_free or ex[8][0] > met      # by a contact
+            limited = h < h_free        # shortened by a contact: its step is halved, else dt
             if err > budget and (clevel if limited else level) < REFINE_LEVELS:
                 x[:, :] = ex[9][0]
                 v[:, :] = ex[9][1]
