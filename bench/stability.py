@@ -37,7 +37,7 @@ largest stable, conserving and accurate dt and the ratios to ``rk4_projected`` t
 ``stability_stiff_limits.csv``.
 
 Cost: the no-contact map is 1470 runs and 42 references, the contact map 1512 and 42, the stiff
-scenes 153 and 3. ``tensegrity bench --only stability`` (all three) takes about 3 min of one core
+scenes 153 and 3. ``tensegrity bench --only stability`` (all three) takes about 7 min of one core
 on a shared 2-core machine, ``--quick`` about 15 s; the grids are the full ones (no shrinking
 was needed).
 """
