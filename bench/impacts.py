@@ -112,7 +112,7 @@ def plot(rows, limit, path):
         ax.axhline(limit, color='k', lw=0.8, ls='--', label='divergence.energy_error')
         ax.set_title(f'{name}, one impact, {T_END:g} s')
         ax.set_xlabel('impact velocity v0, m/s')
-    axes[0].set_ylabel('|energy balance error| at the end')
+    axes[0].set_ylabel('largest |energy balance error| of the run')
     axes[0].legend(fontsize=7, loc='lower right')
     fig.tight_layout()
     fig.savefig(path, dpi=110)
