@@ -2,7 +2,7 @@
 refined against the energy ledger (``contact.refine: ledger``, the default) and without
 (``none``); docs/physics.md section 7.1.
 
-    python -m bench.impacts [--quick] [--out bench/results]
+    python -m bench.impacts [--quick] [--out bench/results]    # tensegrity bench --only impacts
 
 Writes ``impacts.json``: per scene and mode every point (v0, status, the stop's message,
 energy balance error, contacts met, steps, CPU seconds of its thread) and a summary (points
