@@ -24,6 +24,13 @@ COLUMNS = {'FB': ROOT / 'config' / 'scenes' / 'fb_column.yaml',
 DEFAULT = ('rk4_projected', 5e-4)           # the default method and step: cost ratios refer to it
 
 
+def short_e(value):
+    """``value`` with one decimal in scientific notation and a short exponent (8.6e-4), as the
+    docs quote figures."""
+    mantissa, exp = f'{value:.1e}'.split('e')
+    return f'{mantissa}e{int(exp)}'
+
+
 def available_models(wanted=('sym3d', 'full3d')):
     """The models of ``wanted`` this checkout provides (sym3d may be absent)."""
     return [m for m in wanted if m in models.MODELS]

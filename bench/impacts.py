@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.common import short_e
 from solver.build.scene import Scene
 from solver.simulate.parallel import each
 from solver.simulate.runner import simulate
@@ -70,12 +71,6 @@ def summarize(rows, limit):
     return out
 
 
-def _e(x):
-    """``8.3e-6``: two digits, the exponent without padding."""
-    m, e = f'{x:.1e}'.split('e')
-    return f'{m}e{int(e)}'
-
-
 def table(result):
     """The lines of docs/physics.md's table of ``impacts.json`` (section 7.1)."""
     rows = ['| scene | `contact.refine` | stopped at the ledger | largest / median balance error '
@@ -88,8 +83,8 @@ def table(result):
                 stop += f" ({', '.join(f'{v:.3g}' for v in m['stopped_v0'])} m/s)"
             cost = (f"x{m['steps_ratio_median']:.2f}, x{m['cpu_ratio']:.2f}" if 'cpu_ratio' in m
                     else '')
-            rows.append(f"| `{name}` | `{mode}` | {stop} | {_e(m['balance_error_max'])} / "
-                        f"{_e(m['balance_error_median'])} | {cost} |")
+            rows.append(f"| `{name}` | `{mode}` | {stop} | {short_e(m['balance_error_max'])} / "
+                        f"{short_e(m['balance_error_median'])} | {cost} |")
     return rows
 
 

@@ -40,8 +40,8 @@ def fmt(value, spec):
     """``format(value, spec)``; ``e1``: one decimal in scientific notation with a short exponent
     (8.6e-4)."""
     if spec == 'e1':
-        mantissa, exp = f'{value:.1e}'.split('e')
-        return f'{mantissa}e{int(exp)}'
+        from bench.common import short_e
+        return short_e(value)
     return format(value, spec)
 
 

@@ -167,16 +167,23 @@ def base_forces(x, levels, bpar, f):
     return touching
 
 
+@jit_inline
+def prism_base_energy(x, levels, bpar, c, j):
+    """Energy J stored where the bases of prism ``j`` of column ``c`` touch, per node, not yet
+    times the multiplicity (0 unless its height is below ``D``)."""
+    d = bpar[0] - (_level_z(x, levels, c, j) - _level_z(x, levels, c, j - 1))
+    if d > 0.0:
+        return 0.4 * bpar[1] * d * d * math.sqrt(d)
+    return 0.0
+
+
 @jit
 def base_energy(x, levels, bpar):
     """Energy J stored where bases touch (every node of the full network counted)."""
-    D = bpar[0]
     e = 0.0
     for c in range(levels.shape[0]):
         for j in range(1, levels.shape[1]):
-            d = D - (_level_z(x, levels, c, j) - _level_z(x, levels, c, j - 1))
-            if d > 0.0:
-                e += 0.4 * bpar[1] * d * d * math.sqrt(d)
+            e += prism_base_energy(x, levels, bpar, c, j)
     return bpar[5] * e
 
 
@@ -221,7 +228,15 @@ def bar_energy_scanned(x, pairs, bpar, state):
     store none, so the sum is the same, for a fraction of the pairs. At any other positions (a
     command moved the state, a call stopped early, the scans were reset) every pair is
     evaluated."""
-    bounded = math.isfinite(state[3]) and _at_remembered(x, state)
+    return bar_energy_bounded(x, pairs, bpar, state,
+                              math.isfinite(state[3]) and _at_remembered(x, state))
+
+
+@jit_inline
+def bar_energy_bounded(x, pairs, bpar, state, bounded):
+    """:func:`bar_energy`, skipping the pairs whose gap bound in ``state`` less the motion summed
+    since (``state[3]``) is positive, where the bounds hold at ``x`` (``bounded``); with
+    ``bounded`` False every pair is evaluated."""
     known = state[3]
     e = 0.0
     for i in range(pairs.shape[0]):

@@ -16,8 +16,8 @@ positions an integrator call ended at (``barcontact.remember``).
 import math
 
 from solver._jit import jit, jit_inline
-from solver.kernels.barcontact import (HEAD, _at_remembered, _level_z, _pair, _pair_energy,
-                                      _point, _rel_velocity)
+from solver.kernels.barcontact import (HEAD, _at_remembered, _level_z, _pair, _point,
+                                      _rel_velocity, bar_energy_bounded, prism_base_energy)
 from solver.kernels.contact import hertz_duration
 
 
@@ -365,17 +365,10 @@ def bounded_contact_energy(x, pairs, levels, bpar, state):
     after a :func:`rescan` every pair and prism is evaluated. Times the multiplicities, as
     :func:`~solver.kernels.barcontact.bar_energy` and ``base_energy``."""
     known = state[3]
-    fresh = not math.isfinite(known)
-    e = 0.0
-    for i in range(pairs.shape[0]):
-        if fresh or state[HEAD + i] - known <= 0.0:
-            e += _pair_energy(x, pairs, i, bpar)
-    D = bpar[0]
+    bounded = math.isfinite(known)
     eb = 0.0
     for c in range(levels.shape[0]):
         for j in range(1, levels.shape[1]):
-            if fresh or state[_prism_slot(pairs, levels, c, j)] - known <= 0.0:
-                d = D - (_level_z(x, levels, c, j) - _level_z(x, levels, c, j - 1))
-                if d > 0.0:
-                    eb += 0.4 * bpar[1] * d * d * math.sqrt(d)
-    return bpar[2] * e + bpar[5] * eb
+            if not (bounded and state[_prism_slot(pairs, levels, c, j)] - known > 0.0):
+                eb += prism_base_energy(x, levels, bpar, c, j)
+    return bar_energy_bounded(x, pairs, bpar, state, bounded) + bpar[5] * eb
