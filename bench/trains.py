@@ -133,13 +133,24 @@ def _short_pct(x):
     return f'{100 * x:.2g}' if 100 * x >= 0.1 else f'{100 * x:.2f}'.rstrip('0')
 
 
+# the column names of the pulse figures (solver.simulate.convergence.FIGURES) in the tables
+NAMES = {'amplitude': 'amplitude', 'amplitude_median': 'median amplitude',
+         'speed_m_s': 'speed (window fit)', 'speed_snapshot_m_s': 'snapshot speed',
+         'front_speed_m_s': 'front speed', 'front_amplitude': 'front amplitude'}
+
+
+def _header(first):
+    from solver.simulate.convergence import FIGURES
+    cols = list(first) + [NAMES[f] for f in FIGURES]
+    return ['| ' + ' | '.join(cols) + ' |', '|' + '---|' * len(cols)]
+
+
 def convergence_table(conv):
     """The markdown table of docs/physics.md section 7.1 from the ``convergence`` entries of
     ``trains.json``: per case and figure the change at each rung, then under v0 +1e-9 at the
     scene's steps and at the finest rung's, in %."""
     from solver.simulate.convergence import FIGURES
-    lines = ['| scene, v0 | amplitude | median amplitude | speed (window fit) | snapshot speed |',
-             '|---|---|---|---|---|']
+    lines = _header(['scene, v0'])
     for c in conv:
         cells = []
         for f in FIGURES:
@@ -160,8 +171,7 @@ def sensitivity_table(conv, twin_cases):
     its change at the finest rung under v0 (1 + 1e-9 / 1e-7 / 1e-5), in %."""
     from solver.simulate.convergence import FIGURES
     from bench.twins import at
-    lines = ['| scene, v0 | twins apart at 0.5 s / 1 s | e-fold | amplitude | median amplitude '
-             '| speed (window fit) | snapshot speed |', '|---|---|---|---|---|---|---|']
+    lines = _header(['scene, v0', 'twins apart at 0.5 s / 1 s', 'e-fold'])
     for c, tw in zip(conv, twin_cases):
         rate = tw['efold_rate_per_s']
         cells = [f"{at(tw, 0.5):.1e} / {at(tw, 1.0):.1e} m",
@@ -179,21 +189,22 @@ ENSEMBLES = [('fb_column', 1.0), ('rb_column', 1.0)]   # bench.twins.ensemble at
 
 def ensemble_table(ensembles):
     """The third markdown table of docs/physics.md section 7.1: per case and rung the mean and
-    standard error of the amplitude and the window-fit speed over the ensemble's runs, and how
-    many runs the checks stopped (:func:`bench.twins.ensemble`)."""
-    lines = ['| scene, v0 | steps | runs stopped | amplitude | speed (window fit), m/s |',
-             '|---|---|---|---|---|']
+    standard error of the amplitude, the window-fit speed and the front speed over the
+    ensemble's runs, and how many runs the checks stopped (:func:`bench.twins.ensemble`)."""
+    lines = ['| scene, v0 | steps | runs stopped | amplitude | speed (window fit), m/s '
+             '| front speed, m/s |', '|---|---|---|---|---|---|']
 
-    def cell(st, digits):
+    def cell(st, digits, sem_format=None):
         if st['mean'] is None:
             return 'n/a'
-        sem = '' if st['sem'] is None else f" ± {st['sem']:.{digits}f}"
+        sem = '' if st['sem'] is None else f" ± {st['sem']:{sem_format or f'.{digits}f'}}"
         return f"{st['mean']:.{digits}f}{sem} ({st['n']})"
     for e in ensembles:
         steps = 'scene' if e['refine'] == 0 else f"/{2 ** e['refine']}"
         lines.append(f"| `{e['scene']}`, {e['v0']:g} m/s | {steps} | {len(e['stopped'])} of "
                      f"{e['n']} | {cell(e['stats']['amplitude'], 4)} | "
-                     f"{cell(e['stats']['speed_m_s'], 4)} |")
+                     f"{cell(e['stats']['speed_m_s'], 4)} | "
+                     f"{cell(e['stats']['front_speed_m_s'], 6, '.0e')} |")
     return lines
 
 
@@ -222,9 +233,12 @@ def plot_convergence(conv, path):
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
     from solver.simulate.convergence import FIGURES
-    names = {'amplitude': 'amplitude at 0.5 s', 'amplitude_median': 'median amplitude',
-             'speed_m_s': 'speed (window fit)', 'speed_snapshot_m_s': 'snapshot speed at 0.5 s'}
-    fig, axes = plt.subplots(1, len(FIGURES), figsize=(13, 3.4), sharex=True)
+    names = dict(NAMES, amplitude='amplitude at 0.5 s',
+                 speed_snapshot_m_s='snapshot speed at 0.5 s',
+                 front_speed_m_s='front speed, prisms 5-20',
+                 front_amplitude='front peak, prism 20')
+    fig, axes = plt.subplots(2, (len(FIGURES) + 1) // 2, figsize=(11, 6), sharex=True)
+    axes = axes.ravel()
     colors = plt.rcParams['axes.prop_cycle'].by_key()['color']
     for ax, f in zip(axes, FIGURES):
         for i, c in enumerate(conv):
@@ -238,8 +252,10 @@ def plot_convergence(conv, path):
         ax.set_title(names.get(f, f), fontsize=10)
         ax.set_xticks(range(len(conv[0]['ladder'])))
         ax.set_xticklabels(['scene'] + [f'/{2 ** k}' for k in range(1, len(conv[0]['ladder']))])
+    for ax in axes[-(len(axes) // 2):]:
         ax.set_xlabel('every step control')
-    axes[0].set_ylabel('value over the finest rung\'s (band: 1 %)')
+    for ax in axes[::len(axes) // 2]:
+        ax.set_ylabel('over the finest rung (band: 1 %)')
     handles = [plt.Line2D([], [], marker='o', ms=3, color=colors[i % len(colors)])
                for i in range(len(conv))]
     fig.legend(handles, [f"{c['scene']}, {c['v0']:g} m/s" for c in conv], fontsize=8,

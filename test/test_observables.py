@@ -216,3 +216,39 @@ def test_pulse_momenta_of_the_fb_column_from_strains_and_from_velocities_agree()
     assert pulse['momentum_ratio'] == pytest.approx(1.0, abs=0.06)
     assert pulse['momentum_column'] == pytest.approx(m * v0, rel=0.01)
     assert pulse['momentum_share'] == pytest.approx(pulse['momentum_nodes'] / (m * v0))
+
+
+def test_front_figures_of_a_known_pulse():
+    """Two stations (prisms 5 and 20 of 50 from the impacted end) registering the front at 3 %
+    strain: a Gaussian of height A and width sigma reaches a level L sigma sqrt(2 ln(A / L))
+    prisms ahead of its centre, at every station alike, so the time of flight is 15 prisms over
+    the speed, and the first peak after the arrival is the Gaussian's height."""
+    h0, speed, amp, sigma = 0.0062, 40.0, 0.054, 1.2
+    times, strain = _travelling_pulse(speed, amp, sigma)
+    p = track_pulse(times, strain, h0)
+    assert p.front_speed_m_s == pytest.approx(speed * h0, rel=1e-3)
+    assert p.front_amplitude == pytest.approx(amp, rel=1e-3)
+    lead = sigma * np.sqrt(2 * np.log(amp / 0.03))
+    assert p.front_arrival_s == pytest.approx((20 - lead) / speed, abs=1e-3)
+    # a weaker, faster pulse ahead (below the level) is not the front
+    pre_t, pre = _travelling_pulse(3 * speed, 0.02, sigma, tail=False)
+    q = track_pulse(times, strain + pre, h0)
+    assert q.front_speed_m_s == pytest.approx(speed * h0, rel=2e-3)
+    assert q.front_amplitude == pytest.approx(amp, rel=2e-3)
+
+
+def test_front_figures_are_nan_without_a_passage():
+    h0 = 0.0062
+    times, strain = _travelling_pulse(40.0, 0.054, sigma=1.2, t_end=0.5, tail=False)
+    # the centre reaches prism 20 at 0.5 s, the history's last frame: the front has arrived,
+    # its peak has not
+    p = track_pulse(times, strain, h0)
+    assert p.front_speed_m_s == pytest.approx(40.0 * h0, rel=1e-3)
+    assert np.isnan(p.front_amplitude)
+    still = track_pulse(times, np.zeros_like(strain), h0)
+    assert np.isnan(still.front_speed_m_s) and np.isnan(still.front_amplitude)
+    assert np.isnan(still.front_arrival_s)
+    weak = track_pulse(times, 0.5 * strain, h0)          # 2.7 %: below the level everywhere
+    assert np.isnan(weak.front_speed_m_s) and np.isnan(weak.front_arrival_s)
+    short = track_pulse(times, strain[:, -3:], h0)       # three prisms: no two stations
+    assert np.isnan(short.front_speed_m_s)

@@ -15,7 +15,8 @@ from tensegrity_ros.studies import sweep as sw
 ROOT = Path(__file__).resolve().parents[1]
 FB = str(ROOT / 'config' / 'scenes' / 'fb_column.yaml')
 T_END = 0.55                     # past t_ref = 0.5 s: every pulse figure is defined
-FIGS = ('amplitude', 'amplitude_median', 'speed_m_s', 'speed_snapshot_m_s')
+FIGS = ('amplitude', 'amplitude_median', 'speed_m_s', 'speed_snapshot_m_s', 'front_speed_m_s',
+        'front_amplitude')
 
 
 def _refined_summary(v0):

@@ -88,6 +88,17 @@ def _impacts(key):
     return fmt(max(m['balance_error_max'] for m in s), 'e1')
 
 
+def _front(scene, key):
+    """The single impact of 1 m/s on ``scene`` in bench/results/trains.json's refinement
+    ladder: its front speed at the scene's steps (``speed``) or that speed's relative change at
+    the first halving (``change``)."""
+    c = next(c for c in _json('trains.json')['convergence']
+             if c['scene'] == scene and c['v0'] == 1.0)
+    if key == 'speed':
+        return fmt(c['ladder'][0]['figures']['front_speed_m_s'], '.3f')
+    return fmt(c['steps'][0]['front_speed_m_s'], 'e1')
+
+
 def _trains_lost():
     rows = _json('trains.json')['rows']
     return 'no prism lost' if all(r['status'] == 'ok' for r in rows) else 'prisms lost'
@@ -156,6 +167,13 @@ ROWS = [
         F('impacts.json: points stopped with contact.refine ledger', lambda: _impacts('stopped')),
         F('impacts.json: largest balance error with contact.refine ledger',
           lambda: _impacts('balance_error_max'))]),
+    ('1 m/s impact, FB, RB: front speed', '{}, {} m/s; {}, {}', [
+        F('trains.json: front_speed_m_s at the scene steps, fb_column 1 m/s',
+          lambda: _front('fb_column', 'speed')),
+        F('trains.json: front_speed_m_s at the scene steps, rb_column 1 m/s',
+          lambda: _front('rb_column', 'speed')),
+        F('trains.json: its change at dt/2, fb_column', lambda: _front('fb_column', 'change')),
+        F('trains.json: its change at dt/2, rb_column', lambda: _front('rb_column', 'change'))]),
     ('node, 30 s flood', '{}, {}, {}', [
         J('actuator.json', 'frames_per_s', spec='.1f'),
         F('actuator.json: non-finite strain and node messages received', _soak_non_finite),

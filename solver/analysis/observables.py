@@ -97,6 +97,14 @@ class Pulse:
     ``speed_paper_m_s`` is the paper's reading of a speed: the peak position at ``t_ref`` rounded
     to whole prisms, times ``h0``, over ``t_ref`` ("the peak moved 20 prisms in 0.5 s").
 
+    The front figures read the column as two strain gauges would (:func:`front_figures`, at the
+    prisms of :func:`front_stations`: 5 and 20 from the impacted end of 50): ``front_arrival_s``
+    the time the far station's compression first reaches :data:`FRONT_LEVEL`,
+    ``front_speed_m_s`` the stations' distance over the time between their arrivals,
+    ``front_amplitude`` the |strain| of the far station's first peak after the arrival. They
+    depend on the front alone, not on where the peak is at one moment, and stay determined
+    after strong impacts whose later response is chaotic (docs/physics.md section 7.1).
+
     The momentum figures (:func:`pulse_momentum`, filled in by a run that has the node
     velocities at the frame nearest ``t_ref``; NaN otherwise) describe the leading pulse at that
     frame over its prisms, the contiguous prisms around the peak whose ``|eps|`` is at least 10 %
@@ -124,6 +132,9 @@ class Pulse:
     width_half_prisms: float = math.nan
     width_10_prisms: float = math.nan
     speed_paper_m_s: float = math.nan
+    front_speed_m_s: float = math.nan
+    front_amplitude: float = math.nan
+    front_arrival_s: float = math.nan
     momentum_strain: float = math.nan
     momentum_nodes: float = math.nan
     momentum_ratio: float = math.nan
@@ -142,6 +153,8 @@ class Pulse:
                 'width_10_prisms': self.width_10_prisms,
                 't_ref': self.t_ref, 'arrival_time_s': self.arrival_time_s,
                 'arrival_end_s': self.arrival_end_s, 'speed_paper_m_s': self.speed_paper_m_s,
+                'front_speed_m_s': self.front_speed_m_s, 'front_amplitude': self.front_amplitude,
+                'front_arrival_s': self.front_arrival_s,
                 'momentum_strain': self.momentum_strain, 'momentum_nodes': self.momentum_nodes,
                 'momentum_ratio': self.momentum_ratio, 'width_eff_prisms': self.width_eff_prisms,
                 'momentum_share': self.momentum_share, 'momentum_prisms': self.momentum_prisms,
@@ -262,6 +275,60 @@ def _near(times, t):
     return near
 
 
+def front_stations(n_prisms):
+    """The two prisms, counted from the impacted end (0 = next to it), whose front arrivals
+    (:func:`station_front`) give the front figures: a tenth and two fifths of the column (5
+    and 20 of 50). ``None`` for a column too short to hold two stations two prisms apart."""
+    near, far = int(round(n_prisms / 10)), int(round(2 * n_prisms / 5))
+    return (near, far) if far - near >= 2 and far < n_prisms else None
+
+
+# the compression (strain) at which a station registers the front: above the weak precursors
+# that run ahead of strong pulses (1.5 % at 1 m/s on fb_column), below the pulses of the paper's
+# regime (15 % at 0.1 m/s)
+FRONT_LEVEL = 0.03
+
+
+def station_front(times, compression, level=FRONT_LEVEL):
+    """``(arrival, peak)`` of the front at one prism: the first time ``compression`` (n_t,)
+    reaches ``level``, interpolated linearly between the two frames around the crossing, and the
+    first maximum after it, refined by the parabola through it and its two neighbouring frames
+    (uniform output steps). ``(nan, nan)`` when the level is never reached; the peak is NaN
+    when the compression still rises at the history's end."""
+    c = np.asarray(compression, dtype=float)
+    above = np.nonzero(c >= level)[0]
+    if not above.size:
+        return math.nan, math.nan
+    k = int(above[0])
+    arrival = float(times[0]) if k == 0 else float(
+        times[k - 1] + (level - c[k - 1]) / (c[k] - c[k - 1]) * (times[k] - times[k - 1]))
+    j = k
+    while j + 1 < len(c) and c[j + 1] >= c[j]:
+        j += 1
+    if j == len(c) - 1:
+        return arrival, math.nan
+    peak = float(c[j]) if j == 0 else float(_parabola(c[j - 1], c[j], c[j + 1])[1])
+    return arrival, peak
+
+
+def front_figures(times, from_impact, h0):
+    """``(front_speed_m_s, front_amplitude, front_arrival_s)`` of :class:`Pulse` from a strain
+    history ``from_impact`` (n_t, n_prisms) ordered from the impacted end: the front's arrivals
+    (:func:`station_front`) at the two prisms of :func:`front_stations`, and its first peak of
+    compression at the far one. NaN where the front does not reach a station, or the far
+    station before the near one."""
+    nan = math.nan
+    stations = front_stations(from_impact.shape[1])
+    if stations is None or not len(times):
+        return nan, nan, nan
+    near, far = stations
+    t_near, _ = station_front(times, -from_impact[:, near])
+    t_far, peak = station_front(times, -from_impact[:, far])
+    if not (math.isfinite(t_near) and math.isfinite(t_far)) or t_far <= t_near:
+        return nan, peak, t_far
+    return (far - near) * h0 / (t_far - t_near), peak, t_far
+
+
 def track_pulse(times, strains, h0, window=(10, 40), t_ref=0.5, peaks=None):
     """Pulse figures from a strain history of one column.
 
@@ -325,12 +392,14 @@ def track_pulse(times, strains, h0, window=(10, 40), t_ref=0.5, peaks=None):
         while hi_i < n - 1 and abs(eps[hi_i + 1]) >= half:
             hi_i += 1
         width = hi_i - lo_i + 1 if abs(eps[i]) >= half else 0
+    front_speed, front_amplitude, front_arrival = front_figures(times, from_impact, h0)
     return Pulse(amplitude, med, lo, hi, speed, int(width),
                  float(times[k_ref]) if len(times) else t_ref, arrival,
                  amplitude_passage_max=_max_over_time(times, np.where(pos >= window[0], amp,
                                                                       np.nan)),
                  speed_snapshot_m_s=float(snapshot), speed_arrival_m_s=speed_arrival,
-                 speed_paper_m_s=float(paper),
+                 speed_paper_m_s=float(paper), front_speed_m_s=front_speed,
+                 front_amplitude=front_amplitude, front_arrival_s=front_arrival,
                  arrival_end_s=arrival_end, width_half_prisms=_at_time(times, halves, t_ref),
                  width_10_prisms=_at_time(times, tenths, t_ref))
 

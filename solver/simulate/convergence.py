@@ -29,8 +29,10 @@ import math
 from solver.build.scene import RANGES
 from solver.integrators import registry as integrators
 
-# the figures a pulse is summarised by (solver.analysis.observables.Pulse)
-FIGURES = ('amplitude', 'amplitude_median', 'speed_m_s', 'speed_snapshot_m_s')
+# the figures a pulse is summarised by (solver.analysis.observables.Pulse): the tracked peak's
+# and the front's at two stations
+FIGURES = ('amplitude', 'amplitude_median', 'speed_m_s', 'speed_snapshot_m_s', 'front_speed_m_s',
+           'front_amplitude')
 
 # the relative change of every impact velocity of the sensitivity twin: 0.1 um/s at 1 m/s, far
 # below what any measured input is known to, far above the round-off of the figures

@@ -131,6 +131,21 @@ def _pulse_line(p, t_end):
             f"at t = {T_REF:g} s: {why}")
 
 
+def _front_line(p, n_prisms):
+    """The summary's line on the front (``front_*`` of the JSON's ``pulse``), or None where the
+    front did not reach both stations (:func:`~solver.analysis.observables.front_stations` of a
+    column of ``n_prisms``)."""
+    from solver.analysis.observables import FRONT_LEVEL, front_stations
+    stations = front_stations(n_prisms)
+    if not p or p.get('front_speed_m_s') is None or stations is None:
+        return None
+    near, far = stations
+    peak = ('still rising at the end' if p.get('front_amplitude') is None
+            else f"first peak {p['front_amplitude']:.4f} there")
+    return (f"  front ({100 * FRONT_LEVEL:g} % strain): {p['front_speed_m_s']:.3f} m/s from prism "
+            f"{near} to {far}, at prism {far} at t = {p['front_arrival_s']:.3g} s, {peak}")
+
+
 def _convergence(args, result, refined_run, tolerance):
     """Add the check of ``--convergence`` to ``result``; the one line of a failure, or None.
     A failed check also runs the sensitivity twin (:func:`_sensitivity`)."""
@@ -263,9 +278,10 @@ def _run(args, refined_run):
             print(f"  contact: bars touched in {result['contacts_met']} force evaluations; "
                   f"figures read after a contact can depend on the steps (--convergence "
                   f"checks them)")
-        line = _pulse_line(p, result['t_end'])
-        if line:
-            print(line)
+        for line in (_pulse_line(p, result['t_end']),
+                     _front_line(p, point.sim.network.n_prisms)):
+            if line:
+                print(line)
         check = result.get('convergence')
         if check is not None and 'changes' in check:
             from solver.simulate.convergence import describe

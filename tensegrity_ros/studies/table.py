@@ -16,7 +16,8 @@ SUMMARY_FIELDS = ('energy_drift_rel', 'energy_balance_error', 'constraint_error_
 PULSE_FIELDS = ('amplitude', 'amplitude_median', 'amplitude_min', 'amplitude_max',
                 'amplitude_passage_max', 'speed_m_s', 'speed_snapshot_m_s', 'speed_arrival_m_s',
                 'width_prisms', 'width_half_prisms', 'width_10_prisms', 't_ref',
-                'arrival_time_s', 'arrival_end_s', 'speed_paper_m_s', 'momentum_strain',
+                'arrival_time_s', 'arrival_end_s', 'speed_paper_m_s', 'front_speed_m_s',
+                'front_amplitude', 'front_arrival_s', 'momentum_strain',
                 'momentum_nodes', 'momentum_ratio', 'width_eff_prisms', 'momentum_share',
                 'momentum_prisms', 'momentum_column')
 # the fields of a row that depend on the machine and the moment, not on the point
