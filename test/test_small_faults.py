@@ -106,6 +106,28 @@ def test_strain_plot_shows_its_lines_labels_and_whole_prisms(n_prisms):
     plt.close(fig)
 
 
+def test_strain_plot_marks_the_front_at_its_stations():
+    """A compression of 5 % moving at 40 prisms per second away from the impacted end of 50
+    prisms: the heat map joins its arrivals at prisms 5 and 20 from that end (plot prisms 45 and
+    30) and names the speed; a pulse below the front's level gets no mark."""
+    from types import SimpleNamespace
+    from tensegrity_ros.studies.plots import strain_wave_figure
+    import matplotlib.pyplot as plt
+    times = np.arange(0.0, 1.0 + 1e-9, 0.005)
+    from_impact = np.arange(50)[None, :] - 40 * times[:, None]
+    strain = (-0.05 * np.exp(-0.5 * (from_impact / 1.2) ** 2))[:, ::-1]
+    fig = strain_wave_figure(SimpleNamespace(times=times, strain=strain[:, None, :]))
+    front = [ln for ln in fig.axes[1].get_lines() if 'front' in ln.get_label()]
+    assert len(front) == 1 and list(front[0].get_ydata()) == [45, 30]
+    t5, t20 = front[0].get_xdata()
+    assert t20 - t5 == pytest.approx(15 / 40, rel=1e-3)
+    assert '40.0 prisms/s' in front[0].get_label()
+    plt.close(fig)
+    weak = strain_wave_figure(SimpleNamespace(times=times, strain=0.5 * strain[:, None, :]))
+    assert not [ln for ln in weak.axes[1].get_lines() if 'front' in ln.get_label()]
+    plt.close(weak)
+
+
 def test_run_plot_of_the_prism_scene(tmp_path):
     from tensegrity_ros.cli import main
     assert main(['run', str(SCENES / 'prism.yaml'), '--plot', '--out', str(tmp_path)]) == 0

@@ -45,8 +45,30 @@ def strain_wave_figure(rec, title='', column=0, snapshots=(0.1, 0.3, 0.5, 0.7, 0
     ax2.yaxis.set_major_locator(MaxNLocator(integer=True))
     if n_prisms == 1:
         ax2.set_yticks([1])
+    _mark_front(ax2, rec.times, strain)
     fig.suptitle(title)
     return fig
+
+
+def _mark_front(ax, times, strain):
+    """On the heat map ``ax`` (prism 1 at the clamped end): where the front reaches the two
+    stations of the front figures (solver.analysis.observables.front_stations, at
+    FRONT_LEVEL), joined by a line labelled with its time-of-flight speed in prisms per second;
+    nothing where it does not reach both."""
+    from solver.analysis.observables import FRONT_LEVEL, front_stations, station_front
+    n = strain.shape[1]
+    stations = front_stations(n)
+    if stations is None:
+        return
+    from_impact = -np.asarray(strain)[:, ::-1]
+    arrivals = [station_front(times, from_impact[:, p])[0] for p in stations]
+    if not all(np.isfinite(arrivals)) or arrivals[1] <= arrivals[0]:
+        return
+    rows = [n - p for p in stations]            # prism numbers of the plot, 1 = clamped end
+    rate = (stations[1] - stations[0]) / (arrivals[1] - arrivals[0])
+    ax.plot(arrivals, rows, 'k--', marker='x', markersize=7, linewidth=1,
+            label=f'front at {100 * FRONT_LEVEL:g} % strain: {rate:.1f} prisms/s')
+    ax.legend(fontsize=8, loc='upper right')
 
 
 def lens_title(result, spacing):
