@@ -218,6 +218,12 @@ def cmd_fit(args):
         raise UserError(str(exc)) from None
 
 
+def _convergence_figures(p):
+    p.add_argument('--convergence-figures', metavar='F1,F2',
+                   help='the pulse figures the convergence check judges (default: all), e.g. '
+                        'front_speed_m_s,front_amplitude; implies --convergence')
+
+
 def _study_options(p, seed_help):
     """The options sweeps and fits share: run length, Dask workers or scheduler, the local
     cluster's dashboard, seed."""
@@ -268,6 +274,7 @@ def build_parser():
                    help='also run the point with every step control refined (dt/2, contact '
                         'resolution x2) and exit 1 unless every pulse figure moves by at most '
                         'TOL (relative; default %(const)s)')
+    _convergence_figures(p)
     p = _scene_command(sub, 'sweep', cmd_sweep, 'one run per point of a grid of scene values, '
                        'on Dask; a Parquet and CSV table')
     p.add_argument('--grid', action='append', metavar='KEY=V1,V2|KEY=START:STOP:N',
@@ -284,6 +291,7 @@ def build_parser():
                         'resolution x2) and add the check to its row: column converged, '
                         'False where a pulse figure moves by more than TOL (relative; default '
                         '%(const)s)')
+    _convergence_figures(p)
     p = _scene_command(sub, 'fit', cmd_fit, 'scene values that reproduce target figures '
                        '(differential evolution on Dask)')
     p.add_argument('--target', required=True, metavar='TARGET.yaml',

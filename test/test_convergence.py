@@ -37,6 +37,22 @@ def test_compare_takes_the_largest_change_over_columns_against_the_larger_value(
     assert 'speed_m_s moves 2.44 %' in line and 'dt/2' in line and 'limit 1 %' in line
 
 
+def test_a_check_on_chosen_figures_judges_those_and_lists_every_change():
+    base = _summary(_pulse(0.150, 0.148, 0.250, None))
+    refined = _summary(_pulse(0.151, 0.148, 0.256, None))
+    check = convergence.compare(base, refined, 0.01, figures=('amplitude',))
+    assert check['figures'] == ['amplitude'] and check['worst'] == 'amplitude'
+    assert check['converged'] is True and convergence.failure(check, []) is None
+    assert check['changes']['speed_m_s'] == pytest.approx(0.006 / 0.256)   # listed, not judged
+    assert convergence.compare(base, refined, 0.01)['converged'] is False
+    assert convergence.check_figures('pulse.front_speed_m_s, amplitude') == (
+        'amplitude', 'front_speed_m_s')
+    with pytest.raises(ValueError, match="unknown figure 'speed'"):
+        convergence.check_figures('amplitude,speed')
+    with pytest.raises(ValueError, match='no figure given'):
+        convergence.check_figures(' , ')
+
+
 def test_a_figure_found_in_one_run_only_is_not_converged():
     check = convergence.compare(_summary(_pulse(0.1, 0.1, None, 0.2)),
                                 _summary(_pulse(0.1, 0.1, 0.25, 0.2)))
@@ -106,6 +122,24 @@ def test_a_column_struck_at_1_m_s_is_not_converged_and_exits_1(capsys):
     check = json.loads(out)['convergence']
     assert check['converged'] is False and check['changes'][check['worst']] > 0.01
     assert check['worst'] in lines[0]
+
+
+def test_at_1_m_s_the_front_figures_pass_the_check_the_tracked_peak_fails(capsys):
+    """--convergence-figures judges the front only (and implies --convergence): the same FB
+    point at 1 m/s exits 0, its JSON still lists the tracked peak's changes past the limit."""
+    code, out, err = _main(capsys, FB, '--v0', '1', '--t-end', '0.6', '--convergence-figures',
+                           'front_speed_m_s,front_amplitude', '--json')
+    assert code == 0, err
+    check = json.loads(out)['convergence']
+    assert check['figures'] == ['front_speed_m_s', 'front_amplitude']
+    assert check['converged'] is True and check['tolerance'] == 0.01
+    assert all(check['changes'][k] < 0.01 for k in check['figures'])
+    assert check['changes']['amplitude_median'] > 0.01
+    code, out, err = _main(capsys, FB, '--t-end', '0.6', '--convergence-figures', 'front_sped')
+    assert code == 2 and out == ''
+    assert err.strip().splitlines() == [
+        "tensegrity: --convergence-figures: unknown figure 'front_sped' (one of "
+        + ', '.join(convergence.FIGURES) + ')']
 
 
 def test_a_bad_tolerance_is_one_line_and_runs_nothing(capsys):

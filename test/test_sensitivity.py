@@ -73,8 +73,8 @@ def test_a_figure_found_in_one_run_only_is_strict_json(capsys, monkeypatch):
     in ``found_in_one_run`` (the check and its sensitivity twin), and the run exits 1."""
     compare = convergence.compare
 
-    def one_run_only(base, refined, tolerance=0.01):
-        check = compare(base, refined, tolerance)
+    def one_run_only(base, refined, tolerance=0.01, figures=None):
+        check = compare(base, refined, tolerance, figures)
         check['changes']['speed_m_s'] = math.inf
         check.update(worst='speed_m_s', converged=False)
         return check

@@ -113,12 +113,28 @@ def check_tolerance(tolerance, name='--convergence', error=ValueError):
         raise error(f'{name}: {tolerance!r} must be in (0, 1)')
 
 
-def compare(base, refined, tolerance=0.01):
+def check_figures(figures, name='--convergence-figures', error=ValueError):
+    """``figures`` (names of :data:`FIGURES`, a comma-separated string or a sequence) as a tuple
+    in :data:`FIGURES` order; ``error`` naming ``name`` and the unknown figure otherwise."""
+    names = [f.strip() for f in figures.split(',')] if isinstance(figures, str) else list(figures)
+    names = [f[len('pulse.'):] if f.startswith('pulse.') else f for f in names if f]
+    if not names:
+        raise error(f'{name}: no figure given (any of {", ".join(FIGURES)})')
+    for f in names:
+        if f not in FIGURES:
+            raise error(f'{name}: unknown figure {f!r} (one of {", ".join(FIGURES)})')
+    return tuple(f for f in FIGURES if f in names)
+
+
+def compare(base, refined, tolerance=0.01, figures=None):
     """The convergence check of two run summaries (``base``, and ``refined`` of the same point
     with every step control refined): per figure of :data:`FIGURES` its largest relative change
     over the columns (``changes``; None where no run found it), the worst figure and whether every
-    change is within ``tolerance`` (``converged``; None when neither run has a pulse)."""
+    change is within ``tolerance`` (``converged``; None when neither run has a pulse). With
+    ``figures`` (a subset of :data:`FIGURES`, :func:`check_figures`) only those decide ``worst``
+    and ``converged``; ``changes`` still lists every figure, ``figures`` the ones checked."""
     check_tolerance(tolerance, 'convergence tolerance')
+    checked = FIGURES if figures is None else check_figures(figures)
     pb, pr = _pulses(base), _pulses(refined)
     changes = {k: None for k in FIGURES}
     for i in range(max(len(pb), len(pr))):
@@ -128,9 +144,9 @@ def compare(base, refined, tolerance=0.01):
             c = relative_change(b.get(k), r.get(k))
             if c is not None and (changes[k] is None or c > changes[k]):
                 changes[k] = c
-    found = {k: c for k, c in changes.items() if c is not None}
+    found = {k: c for k, c in changes.items() if c is not None and k in checked}
     worst = max(found, key=found.get) if found else None
-    return {'tolerance': tolerance, 'changes': changes, 'worst': worst,
+    return {'tolerance': tolerance, 'changes': changes, 'worst': worst, 'figures': list(checked),
             'converged': None if worst is None else bool(found[worst] <= tolerance),
             'figures_refined': {k: (pr[0].get(k) if pr else None) for k in FIGURES}}
 
@@ -148,9 +164,14 @@ def sensitivity(check, refined, *twins, rel=PERTURBATION):
         for k, c in compare(refined, twin, tol)['changes'].items():
             if c is not None and (moved[k] is None or c > moved[k]):
                 moved[k] = c
-    sensitive = [k for k in FIGURES if check['changes'][k] is not None and
+    sensitive = [k for k in _checked(check) if check['changes'][k] is not None and
                  check['changes'][k] > tol and moved[k] is not None and moved[k] > tol]
     return {'perturbation': rel, 'changes': moved, 'sensitive': sensitive}
+
+
+def _checked(check):
+    """The figures ``check`` (:func:`compare`) judged."""
+    return check.get('figures') or FIGURES
 
 
 def jsonable(check):
@@ -189,7 +210,8 @@ def failure(check, refined):
     tol = check['tolerance']
     sens = check.get('sensitivity')
     sensitive = sens['sensitive'] if sens else []
-    failing = {k: c for k, c in check['changes'].items() if c is not None and c > tol}
+    failing = {k: c for k, c in check['changes'].items()
+               if c is not None and c > tol and k in _checked(check)}
     unresolved = {k: c for k, c in failing.items() if k not in sensitive}
     chaotic = (f'the response is chaotic there (docs/physics.md section 7.1): finer steps settle '
                f'{", ".join(sensitive)} only once their errors are far below that change')

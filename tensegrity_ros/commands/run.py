@@ -83,14 +83,18 @@ def _refined_run(args):
     refined run after its current output interval (the main run failed or was interrupted:
     nothing waits for it).
     Bad input raises here, before either run starts."""
-    if args.convergence is None:
+    figures = getattr(args, 'convergence_figures', None)
+    if args.convergence is None and figures is None:
         return None
     import threading
     from concurrent.futures import ThreadPoolExecutor
     from solver.build.scene import Scene
     from solver.simulate import convergence
     from solver.simulate.runner import simulate
+    if args.convergence is None:
+        args.convergence = 0.01
     convergence.check_tolerance(args.convergence)
+    args.convergence_figures = None if figures is None else convergence.check_figures(figures)
     overrides = run_overrides(args)
     refined = convergence.refined_overrides(Scene.load(args.scene).with_overrides(overrides))
     stop = threading.Event()
@@ -159,7 +163,8 @@ def _convergence(args, result, refined_run, tolerance):
                                  'converged': False, 'refined_run': str(exc)}
         return (f'convergence check: the refined run ({convergence.describe(refined)}) '
                 f'diverged: {exc}')
-    check = convergence.compare(result, point.summary, tolerance)
+    check = convergence.compare(result, point.summary, tolerance,
+                                getattr(args, 'convergence_figures', None))
     if check['converged'] is False:
         check['sensitivity'] = _sensitivity(args, check, refined, point)
     result['convergence'] = dict(convergence.jsonable(check), refined=dict(refined),
@@ -287,8 +292,12 @@ def _run(args, refined_run):
             from solver.simulate.convergence import describe
             moved = _changes(check) or 'no pulse figures to compare'
             verdict = {True: 'converged', False: 'NOT converged', None: 'nothing to check'}
+            from solver.simulate.convergence import FIGURES
+            judged = ('' if len(check.get('figures') or FIGURES) == len(FIGURES)
+                      else f"; judged on {', '.join(check['figures'])}")
             print(f"  convergence ({describe(check['refined'].items())}): {moved}: "
-                  f"{verdict[check['converged']]} (limit {100 * check['tolerance']:g} %)")
+                  f"{verdict[check['converged']]} (limit {100 * check['tolerance']:g} %"
+                  f"{judged})")
             sens = check.get('sensitivity')
             if sens:
                 moved = _changes(sens)

@@ -68,6 +68,7 @@ class Sweep:
     keys: list
     extra: dict = field(default_factory=dict)
     convergence: float | None = None     # the tolerance of the convergence check, when asked
+    convergence_figures: tuple | None = None     # the figures it judges (None: all)
 
     def overrides(self, point):
         return {**point, **self.extra}
@@ -105,7 +106,7 @@ class Sweep:
                 twin_id, twin = runs[n + k]
                 refined = {key: v for key, v in twin.items() if base.get(key) != v}
                 row = {**row, **convergence_columns(row, done.get(twin_id), self.convergence,
-                                                    refined)}
+                                                    refined, self.convergence_figures)}
             rows.append(row)
         return rows
 
@@ -116,7 +117,7 @@ class Sweep:
                  'task_wall_s', 'cpu_time_s', 'worker_pid'])
 
 
-def convergence_columns(row, twin, tolerance, refined):
+def convergence_columns(row, twin, tolerance, refined, figures=None):
     """The convergence check of a point's ``row`` against the row of its refined ``twin`` (None
     while it has not run; ``refined``: the overrides in which the twin differs from the point,
     e.g. ``{'integrator.dt': 5e-4}``): ``converged`` (True, False, or
@@ -126,7 +127,8 @@ def convergence_columns(row, twin, tolerance, refined):
     :data:`solver.simulate.convergence.FIGURES` (from the row's pulse, the first column's), and
     ``convergence.refined`` (what was refined, e.g. ``dt/2, contact.resolution x2``). A twin that
     did not run ok fails the check: ``convergence.worst`` then says ``refined run diverged`` (or
-    ``error``)."""
+    ``error``). ``figures``: the figures that decide ``converged`` and ``convergence.worst``
+    (:func:`solver.simulate.convergence.compare`; None: all)."""
     from solver.simulate import convergence
     out = {'converged': None, 'convergence.worst': None, 'convergence.change': None,
            **{f'convergence.{k}': None for k in convergence.FIGURES},
@@ -141,7 +143,7 @@ def convergence_columns(row, twin, tolerance, refined):
     def summary(r):
         return {'pulse': {k: r.get(f'pulse.{k}') for k in convergence.FIGURES}}
 
-    check = convergence.compare(summary(row), summary(twin), tolerance)
+    check = convergence.compare(summary(row), summary(twin), tolerance, figures)
     out['converged'] = check['converged']
     out['convergence.worst'] = check['worst']
     if check['worst'] is not None:
@@ -388,9 +390,16 @@ def convergence_report(rows, tolerance, keys=()):
 
 
 # -- the command ----------------------------------------------------------------------------------
-def build(scene_path, grids, samples=None, seed=0, out=None, t_end=None, convergence=None):
+def build(scene_path, grids, samples=None, seed=0, out=None, t_end=None, convergence=None,
+          convergence_figures=None):
     """A validated :class:`Sweep` from the command's options (raises :class:`SweepError` or
-    :class:`solver.build.scene.SceneError`, nothing run)."""
+    :class:`solver.build.scene.SceneError`, nothing run). ``convergence_figures`` (names, or one
+    comma-separated string) implies ``convergence`` 0.01 when it is None."""
+    if convergence_figures is not None:
+        from solver.simulate.convergence import check_figures
+        convergence_figures = check_figures(convergence_figures, error=SweepError)
+        if convergence is None:
+            convergence = 0.01
     if convergence is not None:
         from solver.simulate.convergence import check_tolerance
         check_tolerance(convergence, error=SweepError)
@@ -403,7 +412,8 @@ def build(scene_path, grids, samples=None, seed=0, out=None, t_end=None, converg
     extra = {} if t_end is None else {'run.t_end': t_end}
     validate_points(scene, pts, extra, convergence)
     out_dir = Path(out) if out else Path('runs') / 'sweeps' / scene.name
-    return Sweep(scene, pts, out_dir, [a.key for a in axes], extra, convergence)
+    return Sweep(scene, pts, out_dir, [a.key for a in axes], extra, convergence,
+                 convergence_figures)
 
 
 def main(args):
@@ -412,11 +422,14 @@ def main(args):
         raise SweepError(f'--workers: must be >= 1, got {args.workers}')
     dashboard_option(args)
     tolerance = getattr(args, 'convergence', None)
+    figures = getattr(args, 'convergence_figures', None)
+    if figures is not None and tolerance is None:
+        tolerance = 0.01
     plottable = FIGURES + (('convergence.change',) if tolerance is not None else ())
     if args.plot and args.plot not in plottable:
         raise SweepError(f'--plot {args.plot}: unknown figure (one of {", ".join(plottable)})')
     sweep = build(args.scene, args.grid, samples=args.samples, seed=args.seed, out=args.out,
-                  t_end=args.t_end, convergence=tolerance)
+                  t_end=args.t_end, convergence=tolerance, convergence_figures=figures)
     run_ids = {pid for pid, _ in sweep.runs()}
     n_todo = len(run_ids - set(read_rows(sweep.out_dir)))
     cluster = None
