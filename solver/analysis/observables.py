@@ -12,6 +12,7 @@ import numpy as np
 
 from solver.kernels import dynamics as dyn
 from solver.kernels import summary
+from solver.analysis.front import crossing, front_figures, parabola, vertex
 
 
 def state_summary(x, v, network, rest, EA, f_ext=None):
@@ -97,9 +98,9 @@ class Pulse:
     ``speed_paper_m_s`` is the paper's reading of a speed: the peak position at ``t_ref`` rounded
     to whole prisms, times ``h0``, over ``t_ref`` ("the peak moved 20 prisms in 0.5 s").
 
-    The front figures read the column as two strain gauges would (:func:`front_figures`, at the
-    prisms of :func:`front_stations`: 5 and 20 from the impacted end of 50): ``front_arrival_s``
-    the time the far station's compression first reaches :data:`FRONT_LEVEL`,
+    The front figures read the column as two strain gauges would (:mod:`solver.analysis.front`,
+    at prisms 5 and 20 from the impacted end of 50): ``front_arrival_s`` the time the far
+    station's compression first reaches ``FRONT_LEVEL``,
     ``front_speed_m_s`` the stations' distance over the time between their arrivals,
     ``front_amplitude`` the |strain| of the far station's first peak after the arrival. They
     depend on the front alone, not on where the peak is at one moment, and stay determined
@@ -161,17 +162,6 @@ class Pulse:
                 'momentum_column': self.momentum_column}
 
 
-def _parabola(c0, c1, c2):
-    """``(offset, value)`` of the vertex of the parabola through ``(-1, c0), (0, c1), (1, c2)``
-    when it is a maximum inside ``[-1, 1]`` ((0, c1) otherwise)."""
-    den = c0 - 2 * c1 + c2
-    if den < 0:
-        d = 0.5 * (c0 - c2) / den
-        if -1.0 <= d <= 1.0:
-            return d, c1 - 0.25 * (c0 - c2) * d
-    return 0.0, c1
-
-
 def _peak_index(eps, threshold=0.25, floor=1e-6):
     comp = -eps
     top = comp.max()
@@ -196,7 +186,7 @@ def leading_peak(eps, threshold=0.25, floor=1e-6):
     if i < 0:
         return np.nan, np.nan
     if 0 < i < len(eps) - 1:
-        d, c = _parabola(-eps[i - 1], -eps[i], -eps[i + 1])
+        d, c = parabola(-eps[i - 1], -eps[i], -eps[i + 1])
         return float(i + d), -float(c)
     return float(i), float(eps[i])
 
@@ -247,14 +237,10 @@ def _at_time(times, values, t):
 
 
 def _max_over_time(times, amp):
-    """Largest of the per-frame values ``amp`` (NaN ignored), refined by the parabola through it
-    and its two neighbouring frames (uniform output steps)."""
+    """Largest of the per-frame values ``amp`` (NaN ignored), refined by :func:`vertex`."""
     if not np.any(np.isfinite(amp)):
         return math.nan
-    k = int(np.nanargmax(amp))
-    if 0 < k < len(amp) - 1 and np.isfinite(amp[k - 1]) and np.isfinite(amp[k + 1]):
-        return float(_parabola(amp[k - 1], amp[k], amp[k + 1])[1])
-    return float(amp[k])
+    return vertex(amp, int(np.nanargmax(amp)))
 
 
 def _peaks(from_impact):
@@ -273,60 +259,6 @@ def _near(times, t):
     k = int(np.searchsorted(times, t))
     near[max(k - 2, 0):k + 2] = True
     return near
-
-
-def front_stations(n_prisms):
-    """The two prisms, counted from the impacted end (0 = next to it), whose front arrivals
-    (:func:`station_front`) give the front figures: a tenth and two fifths of the column (5
-    and 20 of 50). ``None`` for a column too short to hold two stations two prisms apart."""
-    near, far = int(round(n_prisms / 10)), int(round(2 * n_prisms / 5))
-    return (near, far) if far - near >= 2 and far < n_prisms else None
-
-
-# the compression (strain) at which a station registers the front: above the weak precursors
-# that run ahead of strong pulses (1.5 % at 1 m/s on fb_column), below the pulses of the paper's
-# regime (15 % at 0.1 m/s)
-FRONT_LEVEL = 0.03
-
-
-def station_front(times, compression, level=FRONT_LEVEL):
-    """``(arrival, peak)`` of the front at one prism: the first time ``compression`` (n_t,)
-    reaches ``level``, interpolated linearly between the two frames around the crossing, and the
-    first maximum after it, refined by the parabola through it and its two neighbouring frames
-    (uniform output steps). ``(nan, nan)`` when the level is never reached; the peak is NaN
-    when the compression still rises at the history's end."""
-    c = np.asarray(compression, dtype=float)
-    above = np.nonzero(c >= level)[0]
-    if not above.size:
-        return math.nan, math.nan
-    k = int(above[0])
-    arrival = float(times[0]) if k == 0 else float(
-        times[k - 1] + (level - c[k - 1]) / (c[k] - c[k - 1]) * (times[k] - times[k - 1]))
-    j = k
-    while j + 1 < len(c) and c[j + 1] >= c[j]:
-        j += 1
-    if j == len(c) - 1:
-        return arrival, math.nan
-    peak = float(c[j]) if j == 0 else float(_parabola(c[j - 1], c[j], c[j + 1])[1])
-    return arrival, peak
-
-
-def front_figures(times, from_impact, h0):
-    """``(front_speed_m_s, front_amplitude, front_arrival_s)`` of :class:`Pulse` from a strain
-    history ``from_impact`` (n_t, n_prisms) ordered from the impacted end: the front's arrivals
-    (:func:`station_front`) at the two prisms of :func:`front_stations`, and its first peak of
-    compression at the far one. NaN where the front does not reach a station, or the far
-    station before the near one."""
-    nan = math.nan
-    stations = front_stations(from_impact.shape[1])
-    if stations is None or not len(times):
-        return nan, nan, nan
-    near, far = stations
-    t_near, _ = station_front(times, -from_impact[:, near])
-    t_far, peak = station_front(times, -from_impact[:, far])
-    if not (math.isfinite(t_near) and math.isfinite(t_far)) or t_far <= t_near:
-        return nan, peak, t_far
-    return (far - near) * h0 / (t_far - t_near), peak, t_far
 
 
 def track_pulse(times, strains, h0, window=(10, 40), t_ref=0.5, peaks=None):
@@ -360,11 +292,7 @@ def track_pulse(times, strains, h0, window=(10, 40), t_ref=0.5, peaks=None):
     end = n - 2
     reached = np.nonzero(pos >= end)[0]
     if end > 0 and reached.size:
-        k = int(reached[0])
-        arrival_end = float(times[k])
-        if k > 0 and np.isfinite(pos[k - 1]) and pos[k] > pos[k - 1]:
-            arrival_end = float(times[k - 1] + (end - pos[k - 1]) / (pos[k] - pos[k - 1])
-                                * (times[k] - times[k - 1]))
+        arrival_end = crossing(times, pos, int(reached[0]), end)
         if arrival_end > 0:
             speed_arrival = end * h0 / arrival_end
     k_ref = int(np.argmin(np.abs(times - t_ref))) if len(times) else 0

@@ -34,6 +34,9 @@ from solver.integrators import registry as integrators
 FIGURES = ('amplitude', 'amplitude_median', 'speed_m_s', 'speed_snapshot_m_s', 'front_speed_m_s',
            'front_amplitude')
 
+# the default limit of the check (relative change of a figure): --convergence without TOL
+TOLERANCE = 0.01
+
 # the relative change of every impact velocity of the sensitivity twin: 0.1 um/s at 1 m/s, far
 # below what any measured input is known to, far above the round-off of the figures
 PERTURBATION = 1e-7

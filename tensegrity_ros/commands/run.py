@@ -92,7 +92,7 @@ def _refined_run(args):
     from solver.simulate import convergence
     from solver.simulate.runner import simulate
     if args.convergence is None:
-        args.convergence = 0.01
+        args.convergence = convergence.TOLERANCE
     convergence.check_tolerance(args.convergence)
     args.convergence_figures = None if figures is None else convergence.check_figures(figures)
     overrides = run_overrides(args)
@@ -137,9 +137,9 @@ def _pulse_line(p, t_end):
 
 def _front_line(p, n_prisms):
     """The summary's line on the front (``front_*`` of the JSON's ``pulse``), or None where the
-    front did not reach both stations (:func:`~solver.analysis.observables.front_stations` of a
+    front did not reach both stations (:func:`~solver.analysis.front.front_stations` of a
     column of ``n_prisms``)."""
-    from solver.analysis.observables import FRONT_LEVEL, front_stations
+    from solver.analysis.front import FRONT_LEVEL, front_stations
     stations = front_stations(n_prisms)
     if not p or p.get('front_speed_m_s') is None or stations is None:
         return None

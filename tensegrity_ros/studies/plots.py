@@ -52,16 +52,15 @@ def strain_wave_figure(rec, title='', column=0, snapshots=(0.1, 0.3, 0.5, 0.7, 0
 
 def _mark_front(ax, times, strain):
     """On the heat map ``ax`` (prism 1 at the clamped end): where the front reaches the two
-    stations of the front figures (solver.analysis.observables.front_stations, at
+    stations of the front figures (solver.analysis.front.front_stations, at
     FRONT_LEVEL), joined by a line labelled with its time-of-flight speed in prisms per second;
     nothing where it does not reach both."""
-    from solver.analysis.observables import FRONT_LEVEL, front_stations, station_front
+    from solver.analysis.front import FRONT_LEVEL, front_arrivals
     n = strain.shape[1]
-    stations = front_stations(n)
-    if stations is None:
+    front = front_arrivals(times, np.asarray(strain)[:, ::-1])
+    if front is None:
         return
-    from_impact = -np.asarray(strain)[:, ::-1]
-    arrivals = [station_front(times, from_impact[:, p])[0] for p in stations]
+    stations, arrivals, _ = front
     if not all(np.isfinite(arrivals)) or arrivals[1] <= arrivals[0]:
         return
     rows = [n - p for p in stations]            # prism numbers of the plot, 1 = clamped end

@@ -399,7 +399,8 @@ def build(scene_path, grids, samples=None, seed=0, out=None, t_end=None, converg
         from solver.simulate.convergence import check_figures
         convergence_figures = check_figures(convergence_figures, error=SweepError)
         if convergence is None:
-            convergence = 0.01
+            from solver.simulate.convergence import TOLERANCE
+            convergence = TOLERANCE
     if convergence is not None:
         from solver.simulate.convergence import check_tolerance
         check_tolerance(convergence, error=SweepError)
@@ -423,9 +424,8 @@ def main(args):
     dashboard_option(args)
     tolerance = getattr(args, 'convergence', None)
     figures = getattr(args, 'convergence_figures', None)
-    if figures is not None and tolerance is None:
-        tolerance = 0.01
-    plottable = FIGURES + (('convergence.change',) if tolerance is not None else ())
+    checked = tolerance is not None or figures is not None
+    plottable = FIGURES + (('convergence.change',) if checked else ())
     if args.plot and args.plot not in plottable:
         raise SweepError(f'--plot {args.plot}: unknown figure (one of {", ".join(plottable)})')
     sweep = build(args.scene, args.grid, samples=args.samples, seed=args.seed, out=args.out,
