@@ -126,3 +126,34 @@ def test_pulse_arrival_times_the_largest_compression():
     assert a.peak_time_s == pytest.approx(0.7, abs=1e-3) and a.peak_N == pytest.approx(1.5, 1e-4)
     assert a.precursor_N == pytest.approx(-0.1, rel=1e-3)
     assert math.isnan(pulse_arrival(t, pull).time_s)
+
+
+@pytest.mark.parametrize('name,sets', [
+    ('fb_column', ['structure.n_prisms=8']),                       # sym3d, bases touch at 0.3
+    ('rb_column', ['structure.n_prisms=8']),
+    ('fb_column', ['structure.n_prisms=8', 'materials.cable_damping_ratio=0.05']),
+    ('fb_column', ['structure.n_prisms=8', 'model=full3d']),
+    ('fb_column', ['structure.n_prisms=6', 'loading.gravity=9.81']),
+])
+def test_the_base_force_of_the_model_state_equals_the_full_state_one(name, sets):
+    """The base force a simulation gives (from the model's own, maybe reduced, state: no
+    expansion) equals the slower one of the full expanded state (BaseForce over the full network,
+    with every bar pair and base looked at) to round-off, through an impact strong enough for
+    bars and bases to touch."""
+    from solver.analysis.support import BaseForce, ModelBaseForce
+    sim = _sim(name, *sets)
+    assert ModelBaseForce.applies(sim.model)
+    full = BaseForce(sim.network, sim._extras)
+    sim.apply_impact(0.3)
+    worst = scale = 0.0
+    for _ in range(60):
+        sim.advance(0.005)
+        x, v = sim.model.positions(), sim.model.velocities()
+        want = full(x, v, sim.model.cable_rest_length, sim.model.cable_EA, sim.f_ext)
+        got = sim.base_force()
+        worst = max(worst, float(np.max(np.abs(got - want))))
+        scale = max(scale, float(np.max(np.abs(want))))
+    assert scale > 1e-3                          # the pulse reached the base
+    assert worst <= 1e-11 * scale
+    if 'n_prisms=8' in sets and name == 'fb_column':
+        assert sim.contacts_met > 0              # contact forces were part of it

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from solver import status as codes
+from solver._jit import jit
 from solver.kernels import dynamics as dyn
 
 ARRIVAL_FRACTION = 0.5        # arrival: the rise to the first compressive peak crosses this share
@@ -34,15 +35,84 @@ PEAK_DROP = 0.1               # ... after which the force falls by this share of
 def base_levels(network):
     """Node indices (n_columns, 3) of each column's base level (its lowest fully clamped level),
     -1 rows for a column without one."""
-    levels = network.levels
-    out = -np.ones((levels.shape[0], 3), dtype=np.int64)
-    clamped = np.asarray(network.clamped)
+    return _base_rows(network.levels, network.clamped)
+
+
+def _base_rows(levels, clamped):
+    """Node indices (n_columns, k) of each column's lowest level whose ``k`` nodes (``levels``
+    (n_columns, n_levels, k)) are all ``clamped``; -1 rows for a column without one."""
+    levels = np.asarray(levels)
+    out = -np.ones((levels.shape[0], levels.shape[2]), dtype=np.int64)
+    clamped = np.asarray(clamped)
     for c in range(levels.shape[0]):
         for j in range(levels.shape[1]):
             if np.all(clamped[levels[c, j]]):
                 out[c] = levels[c, j]
                 break
     return out
+
+
+def _zeros_like(arrays):
+    """Fresh zeroed arrays shaped as the (nested) tuple ``arrays``: a workspace of the same
+    compiled type."""
+    return tuple(_zeros_like(a) if isinstance(a, tuple) else np.zeros_like(a) for a in arrays)
+
+
+class ModelBaseForce:
+    """Base force per column of a model's current state, from the model's own state and kernel
+    tuples (``x``, ``v``, ``net``, ``act``, ``summ``): ``full3d`` or the exact ``sym3d``
+    reduction, where a reduced node stands for ``node_mult`` nodes of the full network and the z
+    force on each of its rotated images is the same, so the base force is the multiplicity-weighted
+    z sum over the reduced base nodes. No full state is expanded, and the force evaluation is the
+    integrator's own compiled kernel on a workspace of its own. The member forces are those of
+    :class:`BaseForce`: cables with their damping, prism stops, touching bars and bases (every
+    pair looked at, as after a rescan) and the bars' multipliers; strikers, which act at the free
+    end, are left out. Raises ValueError if the constraint matrix is singular."""
+
+    def __init__(self, model):
+        levels, clamped, mult = model.summ[8], model.summ[2], model.summ[3]
+        self.base = _base_rows(levels, clamped)
+        self.mult = np.asarray(mult, dtype=np.float64)[np.maximum(self.base, 0)]
+        self.ws = _zeros_like(model.ws)
+        self.acc = np.zeros_like(model.x)
+
+    @staticmethod
+    def applies(model):
+        """Whether ``model`` offers what this needs: a state summary (an exact model) and
+        node-local masses (no mass-matrix system of massive bars sharing nodes)."""
+        net = getattr(model, 'net', None)
+        return (getattr(model, 'summ', None) is not None and net is not None
+                and net[12][0].shape[0] == 0 and not model.integrates_itself)
+
+    def __call__(self, model):
+        act = model.act
+        ex = act[3]
+        scan, active = ex[8].copy(), ex[11].copy()     # the contact state's copies: every
+        if scan.shape[0] > 2:                           # pair and every prism's bases looked at
+            scan[2] = 1.0
+            active[0] = -1
+        ex = ex[:8] + (scan, ex[9], ex[10].copy(), active) + ex[12:]   # damping power: scratch
+        status = dyn.accelerations(model.x, model.v, model.net, (act[0], act[1], act[2], ex),
+                                   self.ws, self.acc)
+        if status != dyn.OK:
+            raise ValueError(f'base force: {codes.text(status)}')
+        out = np.empty(self.base.shape[0])
+        _base_sum(self.ws[0], act[2], self.base, self.mult, out)
+        return out
+
+
+@jit
+def _base_sum(f, f_ext, base, mult, out):
+    """``out[c] = -sum_i mult[c, i] (f - f_ext)[base[c, i], 2]``, 0 for a column without a base
+    (``base[c, 0]`` -1)."""
+    for c in range(base.shape[0]):
+        s = 0.0
+        if base[c, 0] >= 0:
+            for i in range(base.shape[1]):
+                p = base[c, i]
+                s += mult[c, i] * (f[p, 2] - f_ext[p, 2])
+            s = -s
+        out[c] = s
 
 
 class BaseForce:

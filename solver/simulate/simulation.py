@@ -401,19 +401,24 @@ class Simulation(Loading, Checks):
             self.dt = dt
 
     def base_force(self):
-        """Axial base force (n_columns,) N of the current state, positive compressive
-        (:class:`solver.analysis.support.BaseForce`; zeros for a network without columns or a model
-        without a full state of rigid members)."""
+        """Axial base force (n_columns,) N of the current state, positive compressive (zeros for
+        a network without columns or a model without a full state of rigid members): from the
+        model's own state where it has a summary (:class:`solver.analysis.support.ModelBaseForce`:
+        no expansion of a ``sym3d`` state), else from the full state
+        (:class:`solver.analysis.support.BaseForce`)."""
         def compute():
-            net = self.network
-            if not net.levels.size or self.model.integrates_itself:       # chain1d: none
+            net, m = self.network, self.model
+            if not net.levels.size or m.integrates_itself:       # chain1d: none
                 return np.zeros(net.n_columns)
-            if getattr(self, '_base_force', None) is None:
-                from solver.analysis.support import BaseForce
-                self._base_force = BaseForce(net, self._extras)
+            kept = getattr(self, '_base_force', None)
+            if kept is None or kept[0] is not m:
+                from solver.analysis.support import BaseForce, ModelBaseForce
+                kept = self._base_force = (m, ModelBaseForce(m) if ModelBaseForce.applies(m)
+                                           else BaseForce(net, self._extras))
+            if kept[1].__class__.__name__ == 'ModelBaseForce':
+                return kept[1](m)
             x, v = self._full_state()
-            return self._base_force(x, v, self.model.cable_rest_length, self.model.cable_EA,
-                                    self.f_ext)
+            return kept[1](x, v, m.cable_rest_length, m.cable_EA, self.f_ext)
         return self._cached('base_force', compute)
 
     def frame_figures(self):
