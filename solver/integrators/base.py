@@ -70,7 +70,8 @@ class Integrator:
     def checked_args(self, x, net, act, ws, tol, max_iter, kinks, keep, summ):
         """The arguments of ``checked`` between ``n_steps`` and ``heights``: ``checked(x, v, dt,
         n_steps, *checked_args(...), heights)`` is :meth:`run` in one compiled call that first
-        copies ``x``, ``v`` into ``keep = (x_keep, v_keep)`` and then summarises the end state
+        copies ``x``, ``v`` and the run state the steps change into ``keep = (x_keep, v_keep,
+        scalars)`` (:func:`solver.kernels.kinks.keep_state`) and then summarises the end state
         (:func:`solver.kernels.summary.state_summary` with the arrays ``summ``, prism heights into
         ``heights``), returning ``(steps, status, finite, energy J, relative constraint error,
         smallest prism height m)``. ``Simulation.advance`` builds them once per model."""

@@ -159,7 +159,7 @@ def dopri_checked(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, rtol, a
                   xs, vs, hstate, keep, summ, heights):
     """:func:`dopri_run` between ``keep_state`` and ``summary.state_summary`` (see
     ``Integrator.checked_args``)."""
-    keep_state(x, v, keep)
+    keep_state(x, v, act, keep)
     out = dopri_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, rtol, atol, A, E, kx,
                     kv, xs, vs, hstate)
     return out + summary.state_summary(x, v, net, act, summ, heights)

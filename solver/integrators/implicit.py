@@ -50,6 +50,7 @@ from solver.kernels import summary
 from solver._jit import jit, jit_inline
 from solver.integrators.base import Integrator
 from solver.kernels.banded import band_ldl_apply, band_ldl_factor
+from solver.kernels.kinks import keep_state
 from solver.kernels.rotation import ROT_C, ROT_S, rel
 
 from solver.status import NEWTON_FAILED  # noqa: E402
@@ -408,8 +409,7 @@ def midpoint_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, node_pos, con_p
 def midpoint_checked(x, v, dt, n_steps, net, act, ws, tol, max_iter, node_pos, con_pos, band,
                      rhs, nu, x0, v0, xm, f, acc, nstate, keep, summ, heights):
     """:func:`midpoint_run` between ``keep_state`` and ``summary.state_summary``."""
-    keep[0][:, :] = x
-    keep[1][:, :] = v
+    keep_state(x, v, act, keep)
     out = midpoint_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, node_pos, con_pos, band,
                        rhs, nu, x0, v0, xm, f, acc, nstate)
     return out + summary.state_summary(x, v, net, act, summ, heights)

@@ -326,7 +326,7 @@ def _rattle_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, acc, x_old, carr
 @jit
 def _rk4_checked(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, project, keep, summ,
                  heights):
-    keep_state(x, v, keep)
+    keep_state(x, v, act, keep)
     out = _rk4_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, project)
     return out + summary.state_summary(x, v, net, act, summ, heights)
 
@@ -334,7 +334,7 @@ def _rk4_checked(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, project,
 @jit
 def _rattle_checked(x, v, dt, n_steps, net, act, ws, tol, max_iter, acc, x_old, carry, keep,
                     summ, heights):
-    keep_state(x, v, keep)
+    keep_state(x, v, act, keep)
     out = _rattle_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, acc, x_old, carry)
     return out + summary.state_summary(x, v, net, act, summ, heights)
 

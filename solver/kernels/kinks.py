@@ -57,8 +57,28 @@ def next_kink(x, v, acc, net, act, h, ignore):
 
 
 
+# what keep_state saves of the run state besides x, v (``keep[2]``): the energy cable damping
+# took out, the contacts met and the two halving levels of the steps after a contact (the
+# Simulation's ledger and refinement state, which the steps change), and whether the levels exist
+KEPT_SCALARS = 5
+
+
 @jit
-def keep_state(x, v, keep):
-    """Copy ``x``, ``v`` into ``keep = (x_keep, v_keep)`` (the state to restore on failure)."""
+def keep_state(x, v, act, keep):
+    """Copy ``x``, ``v`` into ``keep = (x_keep, v_keep, scalars)`` (the state to restore on
+    failure), and into ``scalars`` (:data:`KEPT_SCALARS`) what the steps change of the run state
+    in ``act``'s extras: the dissipated energy (``act[3][10][1]``, 0 without damping), the
+    contacts met (``act[3][8][0]``, 0 without bar contact), the halving levels
+    (``act[3][20][1:3]``) and 1 where those exist, else 0."""
     keep[0][:, :] = x
     keep[1][:, :] = v
+    ks = keep[2]
+    ex = act[3]
+    ks[0] = ex[10][1] if ex[10].shape[0] != 0 else 0.0
+    ks[1] = ex[8][0] if ex[8].shape[0] != 0 else 0.0
+    if ex[20].shape[0] > 2:
+        ks[2] = ex[20][1]
+        ks[3] = ex[20][2]
+        ks[4] = 1.0
+    else:
+        ks[4] = 0.0

@@ -24,6 +24,7 @@ from solver._jit import compiled_overload
 from solver.kernels import dynamics as dyn
 from solver.kernels import summary
 from solver.kernels import contact
+from solver.kernels.kinks import KEPT_SCALARS
 from solver.build import memo
 from solver.models import extras
 from solver.integrators import registry as integrators
@@ -357,14 +358,11 @@ class Simulation(Loading, Checks):
             integ, plan = self.integrator, self._plan
             if plan[0] is not m or plan[1] is not integ or plan[4] is not m.x or (
                     plan[5] is not m.v):            # arrays of the checked call
-                kb = (np.empty_like(m.x), np.empty_like(m.v))
+                kb = (np.empty_like(m.x), np.empty_like(m.v), np.zeros(KEPT_SCALARS))
                 plan = self._plan = (m, integ, kb, integ.checked_args(
                     m.x, m.net, m.act, m.ws, self.tol, self.max_iter, self.kinks, kb, summ),
                     m.x, m.v, None)
-            kb = plan[2]
-            keep = (kb[0], kb[1], m.act[0], self._prestrain, self._ramp, self._energy_ref,
-                    integ.get_state(), self._energy_scale, self.energy_dissipated(),
-                    self._twist_ref, self._refinement())
+            integ_state = integ.get_state()
             h = np.empty(self._heights_shape)
             args = (m.x, m.v, float(self.dt), n, *plan[3], h)
             if plan[6] is None:     # through numba's dispatch, then its compiled overload
@@ -375,8 +373,15 @@ class Simulation(Loading, Checks):
                 out = plan[6](*args)
             steps, status, finite, e, cerr, h_min = out
             self._cache = {'summary': (finite, e, h, cerr, h_min)}
+            keep = None
         problem = self._check(status)
         if problem is not None:
+            if keep is None:        # the call kept x, v and the run state it changes (kb[2])
+                kb = plan[2]
+                ks = kb[2]
+                keep = (kb[0], kb[1], m.act[0], self._prestrain, self._ramp, self._energy_ref,
+                        integ_state, self._energy_scale, float(ks[0]), self._twist_ref,
+                        (float(ks[1]), float(ks[2]), float(ks[3])) if ks[4] else None)
             self._restore(keep)
             raise self._locate(n, keep, problem)
         self._energy_scale = max(self._energy_scale, abs(self._summary()[1]))
