@@ -134,6 +134,8 @@ def test_pulse_arrival_times_the_largest_compression():
     ('fb_column', ['structure.n_prisms=8', 'materials.cable_damping_ratio=0.05']),
     ('fb_column', ['structure.n_prisms=8', 'model=full3d']),
     ('fb_column', ['structure.n_prisms=6', 'loading.gravity=9.81']),
+    ('fb_column', ['structure.n_prisms=6', 'loading.impact.mode=striker']),
+    ('fb_column', ['structure.n_prisms=6', 'contact.lock=penalty']),
 ])
 def test_the_base_force_of_the_model_state_equals_the_full_state_one(name, sets):
     """The base force a simulation gives (from the model's own, maybe reduced, state: no
