@@ -43,7 +43,7 @@ def checked(tmp_path_factory):
 
 def test_each_row_holds_the_change_against_a_separate_refined_run(checked):
     out, sweep, rows, n = checked
-    assert n == 4                                 # two points and their two refined twins
+    assert n == 6                # two points, their refined twins, the failing one's two twins
     assert [r['loading.impact.v0'] for r in rows] == [0.1, 1.0]
     for row in rows:
         ref = _refined_summary(row['loading.impact.v0'])['pulse']
@@ -59,7 +59,63 @@ def test_each_row_holds_the_change_against_a_separate_refined_run(checked):
     table = pq.read_table(out / 'results.parquet').to_pylist()
     assert len(table) == 2                        # the twins run, but the table has the points
     assert [t['converged'] for t in table] == [True, False]
-    assert len((out / 'rows.jsonl').read_text().splitlines()) == 4
+    assert len((out / 'rows.jsonl').read_text().splitlines()) == 6
+
+
+def _refined(scene_path, v0, t_end):
+    scene = Scene.load(scene_path)
+    sets = [('loading.impact.v0', v0), ('run.t_end', t_end),
+            ('integrator.dt', scene.integrator.dt / 2),
+            ('contact.resolution', 2 * scene.contact.resolution)]
+    return simulate(scene, sets).summary['pulse']
+
+
+def _sensitive_by_hand(row, scene_path, v0, t_end):
+    """The failing figures of ``row`` that also move past 1 % between the refined run and its
+    twins at v0 x (1 +- 1e-7), from refined runs made here."""
+    refined = _refined(scene_path, v0, t_end)
+    moved = {k: 0.0 for k in FIGS}
+    for v in (v0 * (1.0 + 1e-7), v0 * (1.0 - 1e-7)):
+        twin = _refined(scene_path, v, t_end)
+        for k in FIGS:
+            a, b = refined[k], twin[k]
+            if a is None and b is None:
+                continue
+            moved[k] = max(moved[k], math.inf if (a is None) != (b is None) else _change(a, b))
+    failing = [k for k in FIGS if row[f'convergence.{k}'] is not None
+               and row[f'convergence.{k}'] > 0.01]
+    return failing, [k for k in failing if moved[k] > 0.01]
+
+
+def test_a_failed_point_names_the_figures_its_sensitivity_twins_move_past_the_limit(checked):
+    """The point that failed (FB at 1 m/s) ran its refined twin twice more with v0 x (1 +- 1e-7):
+    its ``convergence.sensitive`` lists the failing figures that move by more than the limit
+    under that change too, recomputed here from separate refined runs (none at 0.55 s: the twins
+    part later); the point that passed has none, and ran no twin."""
+    out, sweep, rows, n = checked
+    assert rows[0]['convergence.sensitive'] is None
+    failing, want = _sensitive_by_hand(rows[1], FB, 1.0, T_END)
+    assert failing and rows[1]['convergence.sensitive'] == ','.join(want)
+    table = pq.read_table(out / 'results.parquet').to_pylist()
+    assert table[1]['convergence.sensitive'] == rows[1]['convergence.sensitive']
+
+
+def test_a_chaotic_point_is_named_sensitive(tmp_path, capsys):
+    """RB at 1 m/s over 1 s (twins part in about 20 ms, docs/physics.md section 7.1): the failing
+    figures its sensitivity twins also move are named, as separate refined runs give them, and
+    the command's line counts the point as sensitive."""
+    rb = str(ROOT / 'config' / 'scenes' / 'rb_column.yaml')
+    out = tmp_path / 'rb'
+    assert cli.main(['sweep', rb, '--grid', 'loading.impact.v0=1', '--t-end', '1',
+                     '--convergence', '--workers', '1', '--out', str(out)]) == 0
+    text = capsys.readouterr().out
+    row = pq.read_table(out / 'results.parquet').to_pylist()[0]
+    assert row['converged'] is False
+    failing, want = _sensitive_by_hand(row, rb, 1.0, 1.0)
+    assert want, 'this point was chosen for figures the twins move'
+    assert row['convergence.sensitive'] == ','.join(want)
+    assert '1 points, 4 runs with the refined and sensitivity twins (4 run now' in text
+    assert '1 of them sensitive (column "convergence.sensitive"' in text
 
 
 def test_a_rerun_runs_nothing_and_a_plain_sweep_then_checked_runs_only_the_twins(checked,
@@ -83,7 +139,8 @@ def test_the_command_reports_the_points_that_did_not_converge(tmp_path, capsys):
                      '--convergence', '--workers', '1', '--out', str(out),
                      '--plot', 'convergence.change']) == 0
     text = capsys.readouterr().out
-    assert '2 points, 4 runs with the refined twins (4 run now, 0 already' in text
+    assert ('2 points, 6 runs with the refined and sensitivity twins (6 run now, 0 already'
+            in text)
     assert '1 of 2 checked points converged; 1 not' in text
     # the worst point and figure named are the table's: the row at 1 m/s, its worst figure
     rows = pq.read_table(out / 'results.parquet').to_pylist()

@@ -12,3 +12,18 @@ def progress_bar(total, desc, unit='run', leave=True):
     from tqdm import tqdm
     bar = tqdm(total=total, desc=desc, unit=unit, leave=leave)
     return bar.update, bar.close
+
+
+def growing_bar(total, desc, unit='run'):
+    """:func:`progress_bar` whose total can grow while it runs (a sweep's sensitivity twins,
+    known only once the points they check have run). Returns ``(update, grow, close)``;
+    ``update`` and ``grow`` (``grow(n)`` adds ``n`` to the total) are None without a bar."""
+    if not sys.stderr.isatty() or total == 0:
+        return None, None, (lambda: None)
+    from tqdm import tqdm
+    bar = tqdm(total=total, desc=desc, unit=unit)
+
+    def grow(n):
+        bar.total += n
+        bar.refresh()
+    return bar.update, grow, bar.close

@@ -14,15 +14,15 @@ points' keys are :mod:`tensegrity_ros.studies.grid`, the rows and tables
 from __future__ import annotations
 
 import json
-import math
 import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from tensegrity_ros.io.progress import progress_bar
+from tensegrity_ros.io.progress import growing_bar
 from tensegrity_ros.studies.cluster import Cluster, dashboard_option
 from tensegrity_ros.studies.grid import SweepError, canonical, parse_axis, point_id, points
+from tensegrity_ros.studies.sweep_check import convergence_columns, convergence_report, failed
 from tensegrity_ros.studies.table import (CSV, FIGURES, ROWS, TABLE, empty_figures, flatten,
                                           read_rows, write_table)
 
@@ -81,22 +81,47 @@ class Sweep:
         scene = self.scene.with_overrides(list(overrides.items()))
         return {**overrides, **dict(refined_overrides(scene))}
 
-    def runs(self):
+    def sensitivity_twins(self, overrides):
+        """The overrides of the two sensitivity twins of a point (``overrides``, as
+        :meth:`overrides` gives them): its refined twin with every impact velocity changed by
+        ``1 +- PERTURBATION`` (:func:`solver.simulate.convergence.perturbed_overrides`); none
+        for a point without an impact velocity."""
+        from solver.simulate.convergence import PERTURBATION, perturbed_overrides
+        refined = self.refined(overrides)
+        scene = self.scene.with_overrides(list(refined.items()))
+        out = []
+        for rel in (PERTURBATION, -PERTURBATION):
+            changed = perturbed_overrides(scene, rel)
+            if changed is not None:
+                out.append({**refined, **dict(changed)})
+        return out
+
+    def runs(self, done=None):
         """Every run of the sweep, ``(point_id, overrides)``: the points, then with
-        ``convergence`` their refined twins (:meth:`refined`)."""
+        ``convergence`` their refined twins (:meth:`refined`), then, given the rows ``done``
+        so far, the sensitivity twins (:meth:`sensitivity_twins`) of each point whose check
+        failed there."""
         data = self.scene.data
         base = [self.overrides(p) for p in self.points]
         out = [(point_id(data, o), o) for o in base]
         if self.convergence is not None:
-            out += [(point_id(data, t), t) for t in map(self.refined, base)]
+            twins = [(point_id(data, t), t) for t in map(self.refined, base)]
+            out += twins
+            if done is not None:
+                for (pid, o), (tid, _) in zip(out, twins):
+                    if failed(done.get(pid), done.get(tid), self.convergence,
+                              self.convergence_figures):
+                        out += [(point_id(data, t), t) for t in self.sensitivity_twins(o)]
         return out
 
     def table(self, done, runs=None):
         """The table's rows of the points run so far (``done``: rows by point id), in order; with
-        ``convergence`` each with the check of it against its refined twin
-        (:func:`convergence_columns`). ``runs``: :meth:`runs`, when the caller has it."""
+        ``convergence`` each with the check of it against its refined twin and, where it failed,
+        its sensitivity twins (:func:`convergence_columns`). ``runs``: :meth:`runs`, when the
+        caller has it."""
         runs = self.runs() if runs is None else runs
         n = len(self.points)
+        data = self.scene.data
         rows = []
         for k, (pid, base) in enumerate(runs[:n]):
             if pid not in done:
@@ -105,8 +130,12 @@ class Sweep:
             if self.convergence is not None:
                 twin_id, twin = runs[n + k]
                 refined = {key: v for key, v in twin.items() if base.get(key) != v}
+                twins = None
+                if failed(row, done.get(twin_id), self.convergence, self.convergence_figures):
+                    found = [done.get(point_id(data, t)) for t in self.sensitivity_twins(base)]
+                    twins = found if found and None not in found else None
                 row = {**row, **convergence_columns(row, done.get(twin_id), self.convergence,
-                                                    refined, self.convergence_figures)}
+                                                    refined, self.convergence_figures, twins)}
             rows.append(row)
         return rows
 
@@ -115,41 +144,6 @@ class Sweep:
         return (['point_id', *self.keys, *[k for k in self.extra if k not in self.keys],
                  'status', 'reason', *[k for k in empty_figures()], *check,
                  'task_wall_s', 'cpu_time_s', 'worker_pid'])
-
-
-def convergence_columns(row, twin, tolerance, refined, figures=None):
-    """The convergence check of a point's ``row`` against the row of its refined ``twin`` (None
-    while it has not run; ``refined``: the overrides in which the twin differs from the point,
-    e.g. ``{'integrator.dt': 5e-4}``): ``converged`` (True, False, or
-    None when the point did not run ok, its twin has not run or neither found a pulse),
-    ``convergence.worst`` (the figure that moved most), ``convergence.change`` (its relative
-    change) and ``convergence.<figure>`` for each figure of
-    :data:`solver.simulate.convergence.FIGURES` (from the row's pulse, the first column's), and
-    ``convergence.refined`` (what was refined, e.g. ``dt/2, contact.resolution x2``). A twin that
-    did not run ok fails the check: ``convergence.worst`` then says ``refined run diverged`` (or
-    ``error``). ``figures``: the figures that decide ``converged`` and ``convergence.worst``
-    (:func:`solver.simulate.convergence.compare`; None: all)."""
-    from solver.simulate import convergence
-    out = {'converged': None, 'convergence.worst': None, 'convergence.change': None,
-           **{f'convergence.{k}': None for k in convergence.FIGURES},
-           'convergence.refined': None}
-    if row is None or row.get('status') != 'ok' or twin is None:
-        return out
-    out['convergence.refined'] = convergence.describe(list(refined.items()))
-    if twin.get('status') != 'ok':
-        out.update({'converged': False, 'convergence.worst': f'refined run {twin.get("status")}'})
-        return out
-
-    def summary(r):
-        return {'pulse': {k: r.get(f'pulse.{k}') for k in convergence.FIGURES}}
-
-    check = convergence.compare(summary(row), summary(twin), tolerance, figures)
-    out['converged'] = check['converged']
-    out['convergence.worst'] = check['worst']
-    if check['worst'] is not None:
-        out['convergence.change'] = check['changes'][check['worst']]
-    out.update({f'convergence.{k}': c for k, c in check['changes'].items()})
-    return out
 
 
 def validate_points(scene, sweep_points, extra, convergence=None):
@@ -281,20 +275,20 @@ def batches(todo, workers, costs, topologies, size=None, seconds=BATCH_SECONDS):
 
 
 def execute(sweep, cluster=None, progress=None, task=None, on_row=None, chunk=None,
-            threads=None):
+            threads=None, more=None):
     """Run the points of ``sweep`` not yet in its ``out_dir``, in batches (:func:`batches`;
     ``chunk`` fixes the number of points per batch): in this process when ``cluster`` is None
     (each batch on ``threads`` threads, default every core), else one Dask task per batch (one
     thread each). ``task`` (a function like :func:`run_point`) runs the points one by one
     instead, a task of a few points each (:func:`chunks`). Each finished row is appended to
     ``rows.jsonl`` at once; the table is rewritten every few seconds and at the end (also after
-    Ctrl-C or an error). Returns ``(rows of every point in order, number run now)``."""
+    Ctrl-C or an error). With ``convergence``, once the points and their refined twins have run,
+    the sensitivity twins of the points that failed the check run (``more(n)`` is told how many
+    first). Returns ``(rows of every point in order, number run now)``."""
     out = Path(sweep.out_dir)
     out.mkdir(parents=True, exist_ok=True)
     done = read_rows(out)
     runs = sweep.runs()
-    todo = [(pid, o) for pid, o in runs if pid not in done]
-    todo = list(dict(todo).items())                   # a point listed twice runs once
     columns = sweep.columns()
     last_write = [time.monotonic()]
     n_run = 0
@@ -314,6 +308,32 @@ def execute(sweep, cluster=None, progress=None, task=None, on_row=None, chunk=No
             write_table(out, sweep.table(done, runs), columns)
             last_write[0] = time.monotonic()
 
+    def missing(runs):
+        return list(dict((pid, o) for pid, o in runs if pid not in done).items())
+
+    try:
+        with (out / ROWS).open('a') as fh:
+            _run_all(sweep, missing(runs), cluster, task, chunk, threads,
+                     lambda row: finish(row, fh))
+            if sweep.convergence is not None:      # the sensitivity twins of failed points
+                runs = sweep.runs(done)
+                todo = missing(runs)
+                if todo and more is not None:
+                    more(len(todo))
+                _run_all(sweep, todo, cluster, task, chunk, threads,
+                         lambda row: finish(row, fh))
+    finally:
+        rows = sweep.table(done, runs)
+        write_table(out, rows, columns)
+    return rows, n_run
+
+
+def _run_all(sweep, todo, cluster, task, chunk, threads, finish):
+    """Run ``todo`` (``(point_id, overrides)`` pairs) as :func:`execute` describes, calling
+    ``finish(row)`` for each row as it completes."""
+    if not todo:
+        return
+
     def cut(workers, seconds=BATCH_SECONDS):
         if task is not None:
             return chunks(todo, workers, chunk)
@@ -321,72 +341,43 @@ def execute(sweep, cluster=None, progress=None, task=None, on_row=None, chunk=No
         return batches(todo, workers, [point_cost(sc) for sc in scenes],
                        [topology_of(o) for _, o in todo], size=chunk, seconds=seconds)
 
+    if cluster is None:
+        if task is not None:
+            for pid, o in todo:
+                finish(task(sweep.scene, o, pid))
+        else:
+            from solver.simulate.batch import default_threads
+            n = threads or default_threads()
+            for b in cut(None, seconds=BATCH_SECONDS * n):
+                run_points(sweep.scene, b, threads=n, on_row=finish)
+        return
+    from distributed import as_completed
+    # the scene (about 1 kB pickled) travels inside each task: scattered data lives only on the
+    # workers that hold it and is lost for good when they die, a task's arguments go again with
+    # its retry
+    scene = sweep.scene
+    futures = {}
+    for b in cut(cluster.n_workers):
+        items = list(b)
+        key = f'points-{b[0][0]}-{len(b)}'
+        fut = (cluster.client.submit(run_batch, task, scene, items, key=key, pure=False)
+               if task is not None
+               else cluster.client.submit(run_points, scene, items, key=key, pure=False))
+        futures[fut] = b
     try:
-        with (out / ROWS).open('a') as fh:
-            if cluster is None:
-                if task is not None:
-                    for pid, o in todo:
-                        finish(task(sweep.scene, o, pid), fh)
-                else:
-                    from solver.simulate.batch import default_threads
-                    n = threads or default_threads()
-                    for b in cut(None, seconds=BATCH_SECONDS * n):
-                        run_points(sweep.scene, b, threads=n,
-                                   on_row=lambda row: finish(row, fh))
-            elif todo:
-                from distributed import as_completed
-                # the scene (about 1 kB pickled) travels inside each task: scattered data lives
-                # only on the workers that hold it and is lost for good when they die, a task's
-                # arguments go again with its retry
-                scene = sweep.scene
-                futures = {}
-                for b in cut(cluster.n_workers):
-                    items = list(b)
-                    key = f'points-{b[0][0]}-{len(b)}'
-                    fut = (cluster.client.submit(run_batch, task, scene, items, key=key,
-                                                 pure=False) if task is not None
-                           else cluster.client.submit(run_points, scene, items, key=key,
-                                                      pure=False))
-                    futures[fut] = b
-                try:
-                    for fut in as_completed(futures):
-                        try:
-                            rows = fut.result()
-                        except Exception as exc:    # noqa: BLE001 - e.g. KilledWorker
-                            reason = f'{type(exc).__name__}: {exc}'.splitlines()[0]
-                            rows = [{'point_id': pid, **o, **empty_figures(),
-                                     'status': 'error', 'reason': reason}
-                                    for pid, o in futures[fut]]
-                        for row in rows:
-                            finish(row, fh)
-                finally:
-                    for fut in futures:
-                        if not fut.done():
-                            fut.cancel()
+        for fut in as_completed(futures):
+            try:
+                rows = fut.result()
+            except Exception as exc:    # noqa: BLE001 - e.g. KilledWorker
+                reason = f'{type(exc).__name__}: {exc}'.splitlines()[0]
+                rows = [{'point_id': pid, **o, **empty_figures(), 'status': 'error',
+                         'reason': reason} for pid, o in futures[fut]]
+            for row in rows:
+                finish(row)
     finally:
-        rows = sweep.table(done, runs)
-        write_table(out, rows, columns)
-    return rows, n_run
-
-
-def convergence_report(rows, tolerance, keys=()):
-    """One line: how many points passed the convergence check, and the worst of those that did
-    not."""
-    checked = [r for r in rows if r.get('converged') is not None]
-    failed = [r for r in checked if r['converged'] is False]
-    line = (f'convergence (every step control refined, limit {100 * tolerance:g} %): '
-            f'{len(checked) - len(failed)} of {len(checked)} checked points converged')
-    if failed:
-        def size(r):
-            c = r.get('convergence.change')
-            return math.inf if c is None else c
-        worst = max(failed, key=size)
-        moved = ('' if worst.get('convergence.change') is None else
-                 f' moves {100 * worst["convergence.change"]:.3g} %')
-        where = ', '.join(f'{k}={worst.get(k)}' for k in keys) or worst['point_id']
-        line += (f'; {len(failed)} not (column "converged"), worst at {where}: '
-                 f'{worst["convergence.worst"]}{moved}')
-    return line
+        for fut in futures:
+            if not fut.done():
+                fut.cancel()
 
 
 # -- the command ----------------------------------------------------------------------------------
@@ -430,8 +421,9 @@ def main(args):
         raise SweepError(f'--plot {args.plot}: unknown figure (one of {", ".join(plottable)})')
     sweep = build(args.scene, args.grid, samples=args.samples, seed=args.seed, out=args.out,
                   t_end=args.t_end, convergence=tolerance, convergence_figures=figures)
-    run_ids = {pid for pid, _ in sweep.runs()}
-    n_todo = len(run_ids - set(read_rows(sweep.out_dir)))
+    out = Path(sweep.out_dir)
+    done = read_rows(out)
+    n_todo = len({pid for pid, _ in sweep.runs(done)} - set(done))
     cluster = None
     close = (lambda: None)
     try:
@@ -441,16 +433,20 @@ def main(args):
             cluster = Cluster(workers=args.workers, address=args.scheduler,
                               dashboard=dashboard_option(args))
             cluster.report_dashboard()
-        update, close = progress_bar(n_todo, 'sweep')
-        rows, n_run = execute(sweep, cluster, progress=update,
+        update, grow, close = growing_bar(n_todo, 'sweep')
+        rows, n_run = execute(sweep, cluster, progress=update, more=grow,
                               threads=1 if args.workers == 1 else None)
     finally:
         close()
         if cluster is not None:
             cluster.close()
     counts = {s: sum(r['status'] == s for r in rows) for s in ('ok', 'diverged', 'error')}
-    out = Path(sweep.out_dir)
-    twins = '' if sweep.convergence is None else f', {len(run_ids)} runs with the refined twins'
+    run_ids = {pid for pid, _ in sweep.runs(read_rows(out))}
+    twins = ''
+    if sweep.convergence is not None:
+        which = ('refined twins' if len(run_ids) == 2 * len(sweep.points)
+                 else 'refined and sensitivity twins')
+        twins = f', {len(run_ids)} runs with the {which}'
     already = len(run_ids) - n_run
     print(f'{len(rows)} points{twins} ({n_run} run now, {already} already in {out}): '
           f'{counts["ok"]} ok, {counts["diverged"]} diverged, {counts["error"]} error')
