@@ -21,7 +21,8 @@ from pathlib import Path
 
 from tensegrity_ros.io.progress import growing_bar
 from tensegrity_ros.studies.cluster import Cluster, dashboard_option
-from tensegrity_ros.studies.grid import SweepError, canonical, parse_axis, point_id, points
+from tensegrity_ros.studies.grid import (SweepError, canonical, code_version, parse_axis,
+                                         point_id, points)
 from tensegrity_ros.studies.sweep_check import convergence_columns, convergence_report, failed
 from tensegrity_ros.studies.table import (CSV, FIGURES, ROWS, TABLE, empty_figures, flatten,
                                           read_rows, write_table)
@@ -69,6 +70,8 @@ class Sweep:
     extra: dict = field(default_factory=dict)
     convergence: float | None = None     # the tolerance of the convergence check, when asked
     convergence_figures: tuple | None = None     # the figures it judges (None: all)
+    # the sensitivity twins' (point_id, overrides) by the point's id, made once
+    _twins: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def overrides(self, point):
         return {**point, **self.extra}
@@ -96,22 +99,31 @@ class Sweep:
                 out.append({**refined, **dict(changed)})
         return out
 
+    def twin_runs(self, pid, overrides, code=None):
+        """``(point_id, overrides)`` of the sensitivity twins of the point ``pid`` (its
+        ``overrides``), kept once made."""
+        if pid not in self._twins:
+            code = code or code_version()
+            self._twins[pid] = [(point_id(self.scene.data, t, code), t)
+                                for t in self.sensitivity_twins(overrides)]
+        return self._twins[pid]
+
     def runs(self, done=None):
         """Every run of the sweep, ``(point_id, overrides)``: the points, then with
         ``convergence`` their refined twins (:meth:`refined`), then, given the rows ``done``
         so far, the sensitivity twins (:meth:`sensitivity_twins`) of each point whose check
         failed there."""
-        data = self.scene.data
+        data, code = self.scene.data, code_version()
         base = [self.overrides(p) for p in self.points]
-        out = [(point_id(data, o), o) for o in base]
+        out = [(point_id(data, o, code), o) for o in base]
         if self.convergence is not None:
-            twins = [(point_id(data, t), t) for t in map(self.refined, base)]
+            twins = [(point_id(data, t, code), t) for t in map(self.refined, base)]
             out += twins
             if done is not None:
                 for (pid, o), (tid, _) in zip(out, twins):
                     if failed(done.get(pid), done.get(tid), self.convergence,
                               self.convergence_figures):
-                        out += [(point_id(data, t), t) for t in self.sensitivity_twins(o)]
+                        out += self.twin_runs(pid, o, code)
         return out
 
     def table(self, done, runs=None):
@@ -121,7 +133,6 @@ class Sweep:
         caller has it."""
         runs = self.runs() if runs is None else runs
         n = len(self.points)
-        data = self.scene.data
         rows = []
         for k, (pid, base) in enumerate(runs[:n]):
             if pid not in done:
@@ -132,7 +143,7 @@ class Sweep:
                 refined = {key: v for key, v in twin.items() if base.get(key) != v}
                 twins = None
                 if failed(row, done.get(twin_id), self.convergence, self.convergence_figures):
-                    found = [done.get(point_id(data, t)) for t in self.sensitivity_twins(base)]
+                    found = [done.get(tid) for tid, _ in self.twin_runs(pid, base)]
                     twins = found if found and None not in found else None
                 row = {**row, **convergence_columns(row, done.get(twin_id), self.convergence,
                                                     refined, self.convergence_figures, twins)}
