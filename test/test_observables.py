@@ -252,3 +252,21 @@ def test_front_figures_are_nan_without_a_passage():
     assert np.isnan(weak.front_speed_m_s) and np.isnan(weak.front_arrival_s)
     short = track_pulse(times, strain[:, -3:], h0)       # three prisms: no two stations
     assert np.isnan(short.front_speed_m_s)
+
+
+@pytest.mark.parametrize('n, near, far', [(30, 3, 12), (20, 2, 8), (80, 8, 32)])
+def test_front_stations_scale_with_the_column(n, near, far):
+    """On a column of ``n`` prisms the stations are a tenth and two fifths of it from the
+    impacted end (written out here): the same Gaussian gives the speed over their distance, its
+    height, and the arrival at the far station ``lead`` prisms ahead of the centre."""
+    h0, speed, amp, sigma = 0.0062, 40.0, 0.054, 1.2
+    times, strain = _travelling_pulse(speed, amp, sigma, n=n, tail=False)
+    p = track_pulse(times, strain, h0)
+    assert p.front_speed_m_s == pytest.approx(speed * h0, rel=1e-3)
+    assert p.front_amplitude == pytest.approx(amp, rel=1e-3)
+    lead = sigma * np.sqrt(2 * np.log(amp / 0.03))
+    assert p.front_arrival_s == pytest.approx((far - lead) / speed, abs=1e-3)
+    # a pulse that stops between the stations (it fades to nothing past prism near + 2) gives
+    # an arrival at the near station only: no speed
+    fade = strain * (np.arange(n)[::-1] <= near + 2)[None, :]
+    assert np.isnan(track_pulse(times, fade, h0).front_speed_m_s)
