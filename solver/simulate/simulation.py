@@ -415,12 +415,13 @@ class Simulation(Loading, Checks):
             net, m = self.network, self.model
             if not net.levels.size or m.integrates_itself:       # chain1d: none
                 return np.zeros(net.n_columns)
-            kept = getattr(self, '_base_force', None)
+            kept = getattr(self, '_base_force', None)       # (model, force, of the model's state)
             if kept is None or kept[0] is not m:
                 from solver.analysis.support import BaseForce, ModelBaseForce
-                kept = self._base_force = (m, ModelBaseForce(m) if ModelBaseForce.applies(m)
-                                           else BaseForce(net, self._extras))
-            if kept[1].__class__.__name__ == 'ModelBaseForce':
+                own = ModelBaseForce.applies(m)
+                kept = self._base_force = (m, ModelBaseForce(m) if own
+                                           else BaseForce(net, self._extras), own)
+            if kept[2]:
                 return kept[1](m)
             x, v = self._full_state()
             return kept[1](x, v, m.cable_rest_length, m.cable_EA, self.f_ext)
