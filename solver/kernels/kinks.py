@@ -47,6 +47,12 @@ def next_kink(x, v, acc, net, act, h, ignore):
         bbdd = dx * ax + dy * ay + dz * az
         s = math.sqrt(bb)
         g = s - rest[c]
+        # far from its kink: |s'| s = |b.b'| and |s''| s <= |b'.b' + b.b''| + |b'|^2 (Cauchy-
+        # Schwarz: s'^2 <= |b'|^2) bound the model's change within t_best, so it has no root
+        # there (with a margin far above round-off: the same t_best as the full test)
+        if abs(g) * s > 1.000001 * (abs(bbd) * t_best
+                                    + 0.5 * (abs(bdbd + bbdd) + bdbd) * t_best * t_best):
+            continue
         sd = bbd / s
         sdd = (bdbd + bbdd - sd * sd) / s
         t_best = gap_kink(g, sd, sdd, t_best, ignore)
