@@ -28,9 +28,15 @@ class Checks:
 
     def _keep(self):
         m = self.model
-        return (m.x.copy(), m.v.copy(), m.act[0].copy(), self._prestrain, self._ramp,
-                self._energy_ref, self.integrator.get_state(), self._energy_scale,
-                self.energy_dissipated(), self._twist_ref, self._refinement())
+        return self._kept(m.x.copy(), m.v.copy(), m.act[0].copy(), self.integrator.get_state(),
+                          self.energy_dissipated(), self._refinement())
+
+    def _kept(self, x, v, rest, integ_state, dissipated, refinement):
+        """What :meth:`_restore` takes: the state ``x``, ``v``, the rest lengths, the
+        integrator's and the run's state kept before an interval (the rest is unchanged by the
+        steps, read now)."""
+        return (x, v, rest, self._prestrain, self._ramp, self._energy_ref, integ_state,
+                self._energy_scale, dissipated, self._twist_ref, refinement)
 
     def _restore(self, keep):
         m = self.model

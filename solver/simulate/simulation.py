@@ -377,11 +377,9 @@ class Simulation(Loading, Checks):
         problem = self._check(status)
         if problem is not None:
             if keep is None:        # the call kept x, v and the run state it changes (kb[2])
-                kb = plan[2]
-                ks = kb[2]
-                keep = (kb[0], kb[1], m.act[0], self._prestrain, self._ramp, self._energy_ref,
-                        integ_state, self._energy_scale, float(ks[0]), self._twist_ref,
-                        (float(ks[1]), float(ks[2]), float(ks[3])) if ks[4] else None)
+                kx, kv, ks = plan[2]
+                keep = self._kept(kx, kv, m.act[0], integ_state, float(ks[0]),
+                                  (float(ks[1]), float(ks[2]), float(ks[3])) if ks[4] else None)
             self._restore(keep)
             raise self._locate(n, keep, problem)
         self._energy_scale = max(self._energy_scale, abs(self._summary()[1]))

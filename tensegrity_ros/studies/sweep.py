@@ -141,10 +141,9 @@ class Sweep:
             if self.convergence is not None:
                 twin_id, twin = runs[n + k]
                 refined = {key: v for key, v in twin.items() if base.get(key) != v}
-                twins = None
-                if failed(row, done.get(twin_id), self.convergence, self.convergence_figures):
+                def twins(pid=pid, base=base):
                     found = [done.get(tid) for tid, _ in self.twin_runs(pid, base)]
-                    twins = found if found and None not in found else None
+                    return found if found and None not in found else None
                 row = {**row, **convergence_columns(row, done.get(twin_id), self.convergence,
                                                     refined, self.convergence_figures, twins)}
             rows.append(row)

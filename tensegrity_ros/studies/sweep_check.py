@@ -56,12 +56,12 @@ def convergence_columns(row, twin, tolerance, refined, figures=None, twins=None)
     ``error``). ``figures``: the figures that decide ``converged`` and ``convergence.worst``
     (:func:`solver.simulate.convergence.compare`; None: all).
 
-    ``twins``: the rows of the two sensitivity twins of a point that failed (None while they have
-    not both run). ``convergence.sensitive`` names the failing figures that also move past the
-    limit when every impact velocity changes by :data:`~solver.simulate.convergence.PERTURBATION`
-    (comma-separated; empty when none
-    does: finer steps settle the failure), None where the check passed, was not made, or a twin
-    did not run ok."""
+    ``twins``: called when the check fails, it gives the rows of the point's two sensitivity
+    twins (None while they have not both run). ``convergence.sensitive`` names the failing
+    figures that also move past the limit when every impact velocity changes by
+    :data:`~solver.simulate.convergence.PERTURBATION` (comma-separated; empty when none does:
+    finer steps settle the failure), None where the check passed, was not made, or a twin did
+    not run ok."""
     from solver.simulate import convergence
     out = {'converged': None, 'convergence.worst': None, 'convergence.change': None,
            **{f'convergence.{k}': None for k in convergence.FIGURES},
@@ -78,9 +78,9 @@ def convergence_columns(row, twin, tolerance, refined, figures=None, twins=None)
     if c['worst'] is not None:
         out['convergence.change'] = c['changes'][c['worst']]
     out.update({f'convergence.{k}': v for k, v in c['changes'].items()})
-    if (c['converged'] is False and twins is not None
-            and all(t is not None and t.get('status') == 'ok' for t in twins)):
-        sens = convergence.sensitivity(c, _pulse_summary(twin), *map(_pulse_summary, twins))
+    found = twins() if c['converged'] is False and twins is not None else None
+    if found is not None and all(t is not None and t.get('status') == 'ok' for t in found):
+        sens = convergence.sensitivity(c, _pulse_summary(twin), *map(_pulse_summary, found))
         out[SENSITIVE] = ','.join(sens['sensitive'])
     return out
 
