@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from solver.kernels import dynamics as dyn
+from solver.kernels import records
 from solver.kernels import summary
 from solver.analysis.front import crossing, front_figures, parabola, vertex
 
@@ -20,13 +20,16 @@ def state_summary(x, v, network, rest, EA, f_ext=None):
     a full state in one compiled call (:func:`solver.kernels.summary.state_summary`): what the
     divergence check and a frame need. The energy is kinetic + cable strain energy, minus the
     work potential of constant external forces ``f_ext`` (n_nodes, 3) N when given."""
-    from solver.models.family import full_summary_arrays
+    from solver.models.full3d import full_summary_arrays
     levels = network.levels
     heights = np.empty((levels.shape[0], max(levels.shape[1] - 1, 0)))
-    net, act = dyn.pack(network, rest, EA, f_ext)
-    finite, e, cerr, _ = summary.state_summary(
-        np.ascontiguousarray(x, dtype=np.float64), np.ascontiguousarray(v, dtype=np.float64),
-        net, act, full_summary_arrays(network), heights)
+    sm = full_summary_arrays(network)
+    m = records.bare_model(network.topology(), sm, sm.levels)
+    x = np.ascontiguousarray(x, dtype=np.float64)
+    v = np.ascontiguousarray(v, dtype=np.float64)
+    f = np.zeros((network.n_nodes, 3)) if f_ext is None else np.array(f_ext, dtype=np.float64)
+    d = records.data_of(x, v, np.array(rest, dtype=np.float64), np.array(EA, dtype=np.float64), f)
+    finite, e, cerr, _ = summary.state_summary(x, v, m, d, heights)
     return finite, e, heights, cerr
 
 

@@ -25,6 +25,7 @@ import numpy as np
 from solver import status as codes
 from solver._jit import jit
 from solver.kernels import dynamics as dyn
+from solver.kernels import records
 
 ARRIVAL_FRACTION = 0.5        # arrival: the rise to the first compressive peak crosses this share
 PEAK_FLOOR = 0.02             # the first peak: a local maximum above this share of the top ...
@@ -52,52 +53,44 @@ def _base_rows(levels, clamped):
     return out
 
 
-def _zeros_like(arrays):
-    """Fresh zeroed arrays shaped as the (nested) tuple ``arrays``: a workspace of the same
-    compiled type."""
-    return tuple(_zeros_like(a) if isinstance(a, tuple) else np.zeros_like(a) for a in arrays)
-
-
 class ModelBaseForce:
-    """Base force per column of a model's current state, from the model's own state and kernel
-    tuples (``x``, ``v``, ``net``, ``act``, ``summ``): ``full3d`` or the exact ``sym3d``
-    reduction, where a reduced node stands for ``node_mult`` nodes of the full network and the z
-    force on each of its rotated images is the same, so the base force is the multiplicity-weighted
-    z sum over the reduced base nodes. No full state is expanded, and the force evaluation is the
-    integrator's own compiled kernel on a workspace of its own. The member forces are those of
-    :class:`BaseForce`: cables with their damping, prism stops, touching bars and bases (every
-    pair looked at, as after a rescan) and the bars' multipliers; strikers, which act at the free
-    end, are left out. Raises ValueError if the constraint matrix is singular."""
+    """Base force per column of a model's current state, from the model's own state and records
+    (:mod:`solver.kernels.records`): ``full3d`` or the exact ``sym3d`` reduction, where a reduced
+    node stands for ``node_mult`` nodes of the full network and the z force on each of its rotated
+    images is the same, so the base force is the multiplicity-weighted z sum over the reduced base
+    nodes. No full state is expanded, and the force evaluation is the integrator's own compiled
+    kernel on a workspace of its own. The member forces are those of :class:`BaseForce`: cables
+    with their damping, prism stops, touching bars and bases (every pair looked at, as after a
+    rescan) and the bars' multipliers; strikers, which act at the free end, are left out. Raises
+    ValueError if the constraint matrix is singular."""
 
     def __init__(self, model):
-        levels, clamped, mult = model.summ[8], model.summ[2], model.summ[3]
-        self.base = _base_rows(levels, clamped)
-        self.mult = np.asarray(mult, dtype=np.float64)[np.maximum(self.base, 0)]
-        self.ws = _zeros_like(model.ws)
+        sm = model.rec.summary
+        self.base = _base_rows(sm.levels, sm.clamped)
+        self.mult = np.asarray(sm.node_mult, dtype=np.float64)[np.maximum(self.base, 0)]
+        self.work = records.clone_work(model.work)
         self.acc = np.zeros_like(model.x)
 
     @staticmethod
     def applies(model):
-        """Whether ``model`` offers what this needs: a state summary (an exact model) and
-        node-local masses (no mass-matrix system of massive bars sharing nodes)."""
-        net = getattr(model, 'net', None)
-        return (getattr(model, 'summ', None) is not None and net is not None
-                and net[12][0].shape[0] == 0 and not model.integrates_itself)
+        """Whether ``model`` offers what this needs: a summary of its own state (an exact model
+        stepped on records) and node-local masses (no mass-matrix system of massive bars sharing
+        nodes)."""
+        return (model.exact and not model.integrates_itself
+                and model.rec.topo.kkt.node_u.shape[0] == 0)
 
     def __call__(self, model):
-        act = model.act
-        ex = act[3]
-        scan, active = ex[8].copy(), ex[11].copy()     # the contact state's copies: every
-        if scan.shape[0] > 2:                           # pair and every prism's bases looked at
-            scan[2] = 1.0
-            active[0] = -1
-        ex = ex[:8] + (scan, ex[9], ex[10].copy(), active) + ex[12:]   # damping power: scratch
-        status = dyn.accelerations(model.x, model.v, model.net, (act[0], act[1], act[2], ex),
-                                   self.ws, self.acc)
+        d = model.data
+        contact = records.ContactState(d.contact.scan.copy(), d.contact.active.copy())
+        contact.scan[records.LOOK] = 1.0    # the contact state's copies: every pair and every
+        contact.active[0] = -1              # prism's bases looked at
+        # the damping's power: scratch
+        own = d._replace(contact=contact, ledger=d.ledger.copy())
+        status = dyn.accelerations(d.x, d.v, model.rec, own, self.work, self.acc)
         if status != dyn.OK:
             raise ValueError(f'base force: {codes.text(status)}')
         out = np.empty(self.base.shape[0])
-        _base_sum(self.ws[0], act[2], self.base, self.mult, out)
+        _base_sum(self.work.f, d.f_ext, self.base, self.mult, out)
         return out
 
 
@@ -116,34 +109,32 @@ def _base_sum(f, f_ext, base, mult, out):
 
 
 class BaseForce:
-    """Base force per column of a full state of ``network`` (see the module text)."""
+    """Base force per column of a full state of ``network`` (see the module text), with the cable
+    damping, prism stops and bar contact of ``effects`` (:class:`solver.models.extras.Effects`,
+    or None)."""
 
-    def __init__(self, network, extras=None):
-        from solver.models.extras import network_extras
+    def __init__(self, network, effects=None):
+        from solver.models.extras import NONE, full_effects
         self.network = network
         self.base = base_levels(network)
-        self.net, _ = dyn.pack(network)
-        self.ws = dyn.workspace_for(network)
-        self.extras = network_extras(extras, network)   # cable damping and prism stops
+        self.model, self.data, self.work = full_effects(effects or NONE, network)
         self._acc = np.zeros((network.n_nodes, 3))
         self._zero = np.zeros((network.n_nodes, 3))
 
     def member_forces(self, x, v, rest, EA, f_ext=None):
         """Resultant member force (n_nodes, 3) N on every node (cables with their damping, prism
-        stops and bar multipliers; ``extras``: the :func:`solver.models.extras.scene_extras` of the
-        scene, or None) of
-        the state ``x``, ``v`` (n_nodes, 3) with rest lengths ``rest`` and ``EA`` (n_cables,);
-        ``f_ext`` (n_nodes, 3) N enters the multipliers. Raises ValueError if the constraint
-        matrix is singular."""
+        stops, touching bars and bases, bar multipliers) of the state ``x``, ``v`` (n_nodes, 3)
+        with rest lengths ``rest`` and ``EA`` (n_cables,); ``f_ext`` (n_nodes, 3) N enters the
+        multipliers. Raises ValueError if the constraint matrix is singular."""
         f_ext = self._zero if f_ext is None else np.ascontiguousarray(f_ext, dtype=np.float64)
-        act = (np.ascontiguousarray(rest, dtype=np.float64),
-               np.ascontiguousarray(EA, dtype=np.float64), f_ext, self.extras)
+        d = self.data._replace(rest=np.ascontiguousarray(rest, dtype=np.float64),
+                               EA=np.ascontiguousarray(EA, dtype=np.float64), f_ext=f_ext)
         status = dyn.accelerations(np.ascontiguousarray(x, dtype=np.float64),
-                                   np.ascontiguousarray(v, dtype=np.float64), self.net, act,
-                                   self.ws, self._acc)
+                                   np.ascontiguousarray(v, dtype=np.float64), self.model, d,
+                                   self.work, self._acc)
         if status != dyn.OK:
             raise ValueError(f'base force: {codes.text(status)}')
-        return self.ws[0] - f_ext
+        return self.work.f - f_ext
 
     def __call__(self, x, v, rest, EA, f_ext=None):
         """Base force (n_columns,) N, positive compressive."""

@@ -42,6 +42,7 @@ from scipy.sparse.csgraph import reverse_cuthill_mckee
 
 from solver.build import memo
 from solver.kernels import massmatrix
+from solver.kernels import records
 
 
 class NetworkError(ValueError):
@@ -156,6 +157,14 @@ class Network:
             con_length=_ro(length, np.float64), con_coef=_ro(coef, np.float64),
             bandwidth=int(bw), levels=_ro(levels, np.int64), h0=float(h0), meta=dict(meta or {}),
             kkt=kkt)
+
+    def topology(self):
+        """The kernels' :class:`~solver.kernels.records.Topology` of this network (no rotated
+        members)."""
+        return records.Topology(
+            self.w_diag, self.partner, self.w_off, self.con_tail, self.con_head, self.con_length,
+            self.con_coef, self.cable_a, self.cable_b, records.NO_ROT, records.NO_ROT,
+            records.NO_COEF3, self.kkt)
 
     def gravity_mass(self):
         """Mass (n_nodes,) kg on which uniform gravity acts at each node: the lumped mass plus
@@ -319,5 +328,7 @@ def _constraints(x0, node_mass, is_clamped, bars, bar_mass, edges):
     if class_k:
         node_u, con_u, dims = massmatrix.layout(len(x0), is_clamped, members, mass[0], mass[1],
                                                 x0)
-        kkt = tuple(_ro(a, a.dtype) for a in (node_u, con_u, mass[0], mass[1], mass[2], dims))
+        mass_p, mass_q, mass_val = mass
+        kkt = massmatrix.KKT(*(_ro(a, a.dtype) for a in (node_u, con_u, mass_p, mass_q, mass_val,
+                                                          dims)))
     return w_diag, partner, w_off, members, length, bw, coef, kkt

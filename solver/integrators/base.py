@@ -61,19 +61,20 @@ class Integrator:
     def set_state(self, state):
         pass
 
-    def run(self, x, v, dt, n_steps, net, act, ws, tol=1e-12, max_iter=3, kinks=True):
-        """Advance ``x``, ``v`` (n, 3) in place by ``n_steps * dt`` s; returns (steps, status)."""
-        steps, status = self.kernel(x, v, float(dt), int(n_steps), net, act, ws, float(tol),
-                                     int(max_iter), *self.extra_args(x, kinks))
+    def run(self, m, d, w, dt, n_steps, tol=1e-12, max_iter=3, kinks=True):
+        """Advance ``d.x``, ``d.v`` (the state of the model record ``m``, its data ``d`` and
+        scratch ``w``, :mod:`solver.kernels.records`) in place by ``n_steps * dt`` s; returns
+        (steps, status)."""
+        steps, status = self.kernel(m, d, w, float(dt), int(n_steps), float(tol), int(max_iter),
+                                    *self.extra_args(d.x, kinks))
         return int(steps), int(status)
 
-    def checked_args(self, x, net, act, ws, tol, max_iter, kinks, keep, summ):
-        """The arguments of ``checked`` between ``n_steps`` and ``heights``: ``checked(x, v, dt,
-        n_steps, *checked_args(...), heights)`` is :meth:`run` in one compiled call that first
-        copies ``x``, ``v`` and the run state the steps change into ``keep = (x_keep, v_keep,
-        scalars)`` (:func:`solver.kernels.kinks.keep_state`) and then summarises the end state
-        (:func:`solver.kernels.summary.state_summary` with the arrays ``summ``, prism heights into
-        ``heights``), returning ``(steps, status, finite, energy J, relative constraint error,
-        smallest prism height m)``. ``Simulation.advance`` builds them once per model."""
-        return (net, act, ws, float(tol), int(max_iter)) + tuple(self.extra_args(x, kinks)) + (
-            keep, summ)
+    def checked_args(self, m, d, w, tol, max_iter, kinks, kept):
+        """The arguments of ``checked`` between ``n_steps`` and ``heights``: ``checked(m, d, w,
+        dt, n_steps, *checked_args(...), heights)`` is :meth:`run` in one compiled call that
+        first copies the data ``d`` into ``kept`` (:func:`solver.kernels.records.copy_data`: the
+        state to restore when a check fails) and then summarises the end state
+        (:func:`solver.kernels.summary.state_summary`, prism heights into ``heights``),
+        returning ``(steps, status, finite, energy J, relative constraint error, smallest prism
+        height m)``. ``Simulation.advance`` builds them once per model."""
+        return (float(tol), int(max_iter)) + tuple(self.extra_args(d.x, kinks)) + (kept,)

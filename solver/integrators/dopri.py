@@ -20,12 +20,12 @@ import math
 import numpy as np
 
 from solver.kernels import dynamics as dyn
+from solver.kernels import effects
 from solver.kernels import summary
 from solver._jit import jit
 from solver.integrators.base import Integrator
-from solver.kernels.barcontact import remember
-from solver.kernels.contactsteps import contact_step, resume
-from solver.kernels.kinks import keep_state, next_kink
+from solver.kernels.kinks import next_kink
+from solver.kernels.records import copy_data
 from solver.status import STEP_TOO_SMALL
 
 H_MIN_FRACTION = 1e-9      # smallest step, as a fraction of dt, before giving up
@@ -46,10 +46,10 @@ E = np.array([-71 / 57600, 0.0, 71 / 16695, -71 / 1920, 17253 / 339200, -22 / 52
 
 
 @jit
-def _stages(x, v, h, A, net, act, ws, kx, kv, xs, vs, pw):
+def _stages(x, v, h, A, m, d, w, kx, kv, xs, vs, pw):
     """Stages 2..7 of the step of size h from (x, v), given stage 1 in ``kx[0] = v``, ``kv[0] =
     a(x, v)``. Stage 7 is evaluated at the 5th-order solution, left in ``xs``, ``vs``. ``pw``:
-    the cable damping's power at each stage (``pw[0]`` given)."""
+    the power the forces dissipate at each stage (``pw[0]`` given)."""
     n = x.shape[0]
     for s in range(1, 7):
         for p in range(n):
@@ -65,10 +65,10 @@ def _stages(x, v, h, A, net, act, ws, kx, kv, xs, vs, pw):
                 vs[p, i] = v[p, i] + h * dv
         if not (dyn.all_finite(xs) and dyn.all_finite(vs)):
             return dyn.NONFINITE
-        status = dyn.accelerations(xs, vs, net, act, ws, kv[s])
+        status = dyn.accelerations(xs, vs, m, d, w, kv[s])
         if status != dyn.OK:
             return status
-        pw[s] = act[3][10][0] if act[3][10].shape[0] else 0.0
+        pw[s] = effects.power(d)
         kx[s, :, :] = vs
     return dyn.OK
 
@@ -92,46 +92,43 @@ def _error_norm(x, v, xs, vs, h, E, kx, kv, rtol, atol):
 
 
 @jit
-def dopri_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, rtol, atol, A, E, kx, kv,
-               xs, vs, hstate):
-    """Advance by ``n_steps * dt`` adaptively. ``hstate``: [proposed step, accepted, rejected,
-    force evaluations], carried between calls. Returns (accepted steps, status)."""
+def dopri_run(m, d, w, dt, n_steps, tol, max_iter, kinks, rtol, atol, A, E, kx, kv, xs, vs,
+              hstate):
+    """Advance ``d.x``, ``d.v`` by ``n_steps * dt`` adaptively. ``hstate``: [proposed step,
+    accepted, rejected, force evaluations], carried between calls. Returns (accepted steps,
+    status)."""
+    x, v, topo = d.x, d.v, m.topo
     total = n_steps * dt
     t = 0.0
     accepted = 0
     h_prop = hstate[0] if 0.0 < hstate[0] <= dt else dt
     need_k1 = True
-    pw = np.zeros(7)                    # the cable damping's power at the stages
-    dis = act[3][10]
-    if act[3][6].shape[0] != 0:
-        resume(x, act[3][8], act[3][11])   # the scans (kernels.contactsteps)
+    pw = np.zeros(7)                    # the dissipated power at the stages
+    effects.start(x, m, d)
     while total - t > 1e-9 * dt:
         if need_k1:
             kx[0, :, :] = v
-            status = dyn.accelerations(x, v, net, act, ws, kv[0])
-            pw[0] = dis[0] if dis.shape[0] else 0.0
+            status = dyn.accelerations(x, v, m, d, w, kv[0])
+            pw[0] = effects.power(d)
             hstate[3] += 1
             if status != dyn.OK:
                 return accepted, status
             need_k1 = False
         h = min(h_prop, total - t)
         if kinks:
-            h = next_kink(x, v, kv[0], net, act, h, 1e-3 * h)
-        if act[3][6].shape[0] != 0:       # bars that touch
-            h = contact_step(x, v, kv[0], act[3][6], act[3][1], act[3][7], h, act[3][8],
-                             act[3][11])
-        status = _stages(x, v, h, A, net, act, ws, kx, kv, xs, vs, pw)
+            h = next_kink(x, v, kv[0], m, d, h, 1e-3 * h)
+        h = effects.scan_limit(x, v, kv[0], m, d, h)
+        status = _stages(x, v, h, A, m, d, w, kx, kv, xs, vs, pw)
         hstate[3] += 6
         err = _error_norm(x, v, xs, vs, h, E, kx, kv, rtol, atol) if status == dyn.OK else np.inf
         if err <= 1.0:
             x[:, :] = xs
             v[:, :] = vs
-            if dis.shape[0]:            # the damping's energy, with the 5th-order weights
-                for s in range(6):
-                    dis[1] += h * A[6, s] * pw[s]
-            status = dyn.project_positions(x, net, ws, tol, max_iter)
+            for s in range(6):          # the dissipated energy, with the 5th-order weights
+                effects.dissipate(d, h * A[6, s] * pw[s])
+            status = dyn.project_positions(x, topo, w, tol, max_iter)
             if status == dyn.OK:
-                status = dyn.project_velocities(x, v, net, ws)
+                status = dyn.project_velocities(x, v, topo, w)
             if status != dyn.OK:
                 return accepted, status
             t += h
@@ -149,20 +146,19 @@ def dopri_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, rtol, atol,
                 hstate[0] = h_prop
                 return accepted, STEP_TOO_SMALL
     hstate[0] = h_prop
-    if act[3][6].shape[0] != 0:
-        remember(x, act[3][8])
+    effects.finish(x, m, d)
     return accepted, dyn.OK
 
 
 @jit
-def dopri_checked(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, rtol, atol, A, E, kx, kv,
-                  xs, vs, hstate, keep, summ, heights):
-    """:func:`dopri_run` between ``keep_state`` and ``summary.state_summary`` (see
+def dopri_checked(m, d, w, dt, n_steps, tol, max_iter, kinks, rtol, atol, A, E, kx, kv, xs, vs,
+                  hstate, kept, heights):
+    """:func:`dopri_run` between ``copy_data`` and ``summary.state_summary`` (see
     ``Integrator.checked_args``)."""
-    keep_state(x, v, act, keep)
-    out = dopri_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, kinks, rtol, atol, A, E, kx,
-                    kv, xs, vs, hstate)
-    return out + summary.state_summary(x, v, net, act, summ, heights)
+    copy_data(d, kept)
+    out = dopri_run(m, d, w, dt, n_steps, tol, max_iter, kinks, rtol, atol, A, E, kx, kv, xs, vs,
+                    hstate)
+    return out + summary.state_summary(d.x, d.v, m, d, heights)
 
 
 class DOPRI54Projected(Integrator):

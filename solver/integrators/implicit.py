@@ -16,7 +16,7 @@ conserves the energy to the Newton tolerance. Then positions and velocities are 
 (:func:`solver.kernels.dynamics.project_positions`, ``project_velocities``) as in
 ``rk4_projected``: bar
 errors stay at the projection tolerance and the energy can only decrease. External forces enter
-as they are (``act[2]``); velocity-dependent forces are not part of the step.
+as they are (``d.f_ext``); velocity-dependent forces are not part of the step.
 
 Newton's method on the saddle-point (KKT) system
 
@@ -36,8 +36,9 @@ Properties: order 2; for a linear spring A-stable without damping (the step is a
 ``2 atan(omega h / 2)``) and the quadratic energy is conserved; the energy never rises.
 
 Two levels as in :mod:`solver.kernels.dynamics`: :func:`layout` (Python) orders the unknowns and
-sizes the band, the ``@jit`` kernels take arrays and tuples. Networks with massive bars (a
-non-diagonal mass matrix) are refused.
+sizes the band, the ``@jit`` kernels take arrays and the records of
+:mod:`solver.kernels.records`. Networks with massive bars (a non-diagonal mass matrix) are
+refused.
 """
 from __future__ import annotations
 
@@ -50,7 +51,7 @@ from solver.kernels import summary
 from solver._jit import jit, jit_inline
 from solver.integrators.base import Integrator
 from solver.kernels.banded import band_ldl_apply, band_ldl_factor
-from solver.kernels.kinks import keep_state
+from solver.kernels.records import copy_data
 from solver.kernels.rotation import ROT_C, ROT_S, rel
 
 from solver.status import NEWTON_FAILED  # noqa: E402
@@ -83,17 +84,18 @@ def _band_of(node_key, tail, head, ca, cb):
     return node_pos, con_pos, bw
 
 
-def layout(net):
-    """``(node_pos, con_pos, n_unknowns, bandwidth)`` of the KKT system of a ``net`` tuple:
-    node p's three unknowns at ``node_pos[p] ..+2``, rigid member c's multiplier at
-    ``con_pos[c]``. Raises ``ValueError`` for massive bars."""
-    if np.any(np.asarray(net[1]) >= 0) or (len(net) > 12 and np.asarray(net[12][0]).shape[0]):
+def layout(topo):
+    """``(node_pos, con_pos, n_unknowns, bandwidth)`` of the KKT system of a
+    :class:`~solver.kernels.records.Topology`: node p's three unknowns at ``node_pos[p] ..+2``,
+    rigid member c's multiplier at ``con_pos[c]``. Raises ``ValueError`` for massive bars."""
+    if np.any(np.asarray(topo.partner) >= 0) or topo.kkt.node_u.shape[0]:
         raise ValueError('implicit_midpoint: networks with massive bars (materials.bar_mass > 0) '
                          'are not supported (non-diagonal mass matrix); use rk4_projected, '
                          'rattle or dopri54_projected')
-    n = len(net[0])
-    tail, head = np.asarray(net[3], dtype=np.int64), np.asarray(net[4], dtype=np.int64)
-    ca, cb = np.asarray(net[7], dtype=np.int64), np.asarray(net[8], dtype=np.int64)
+    n = len(topo.w_diag)
+    tail = np.asarray(topo.con_tail, dtype=np.int64)
+    head = np.asarray(topo.con_head, dtype=np.int64)
+    ca, cb = np.asarray(topo.cable_a, dtype=np.int64), np.asarray(topo.cable_b, dtype=np.int64)
     best = _band_of(np.arange(n), tail, head, ca, cb)
     if n > 2:
         from scipy.sparse import coo_matrix
@@ -149,12 +151,12 @@ def _chords(x0, x1, a, b, cable_rot, c):
 
 
 @jit
-def dg_forces(x0, x1, net, act, f):
+def dg_forces(x0, x1, m, d, f):
     """``f`` = external forces + discrete-gradient cable forces ``gbar (d0 + d1) / 2`` between
     the configurations ``x0`` and ``x1`` (their work over the step equals the change of the
     cable energy exactly)."""
-    cable_a, cable_b, cable_rot = net[7], net[8], net[10]
-    rest, EA, f_ext = act[0], act[1], act[2]
+    cable_a, cable_b, cable_rot = m.topo.cable_a, m.topo.cable_b, m.topo.cable_rot
+    rest, EA, f_ext = d.rest, d.EA, d.f_ext
     f[:, :] = f_ext
     for c in range(cable_a.shape[0]):
         a = cable_a[c]
@@ -220,20 +222,21 @@ def _add_pair(band, pa, pb, fa, fb, K, cr, sr, same):
 
 
 @jit
-def assemble_kkt(x0, x1, xm, h, nu, net, act, node_pos, con_pos, band):
+def assemble_kkt(x0, x1, xm, h, nu, m, d, node_pos, con_pos, band):
     """The KKT matrix of the step from ``x0`` at the iterate ``x1`` (midpoint ``xm``) into
     ``band`` (see the module doc): the cable blocks are the symmetric part of the derivative of
     the discrete-gradient force ``gbar dm`` with respect to ``x1``."""
-    w_diag, tail, head, cable_a, cable_b = net[0], net[3], net[4], net[7], net[8]
-    rot, cable_rot = net[9], net[10]
-    rest, EA = act[0], act[1]
+    topo = m.topo
+    w_diag, tail, head = topo.w_diag, topo.con_tail, topo.con_head
+    cable_a, cable_b, rot, cable_rot = topo.cable_a, topo.cable_b, topo.con_rot, topo.cable_rot
+    rest, EA = d.rest, d.EA
     band[:, :] = 0.0
     c2 = 0.5 * h * h
     for p in range(xm.shape[0]):
         q = node_pos[p]
-        m = 1.0 / w_diag[p] if w_diag[p] > 0.0 else 1.0      # a clamped node: identity rows
+        mass = 1.0 / w_diag[p] if w_diag[p] > 0.0 else 1.0   # a clamped node: identity rows
         for i in range(3):
-            band[q + i, 0] += m
+            band[q + i, 0] += mass
     K = np.empty((3, 3))
     dm = np.empty(3)
     n1 = np.empty(3)
@@ -283,10 +286,11 @@ def assemble_kkt(x0, x1, xm, h, nu, net, act, node_pos, con_pos, band):
 
 
 @jit
-def _residual(x, x0, v0, h, f, xm, nu, net, node_pos, con_pos, rhs):
+def _residual(x, x0, v0, h, f, xm, nu, topo, node_pos, con_pos, rhs):
     """``rhs = -(r, g(x1))``: ``r = M (x1 - x0 - h v0) - h^2/2 f + G(xm)^T nu`` with the step's
     forces ``f`` (:func:`dg_forces`); g at ``x1 = x``."""
-    w_diag, tail, head, length, rot = net[0], net[3], net[4], net[5], net[9]
+    w_diag, tail, head = topo.w_diag, topo.con_tail, topo.con_head
+    length, rot = topo.con_length, topo.con_rot
     hh = 0.5 * h * h
     for p in range(x.shape[0]):
         q = node_pos[p]
@@ -319,20 +323,20 @@ def _residual(x, x0, v0, h, f, xm, nu, net, node_pos, con_pos, rhs):
 
 
 @jit
-def _midpoint_step(x, v, h, net, act, ws, node_pos, con_pos, band, rhs, nu, x0, v0, xm, f, acc,
+def _midpoint_step(x, v, h, m, d, w, node_pos, con_pos, band, rhs, nu, x0, v0, xm, f, acc,
                    scale, nstate):
     """One step (Newton until ``max |dx| <= NEWTON_TOL * scale``); the new positions are left in
     ``x`` (velocities not yet updated), the start state in ``x0``, ``v0``. Returns a status
     code."""
     n = x.shape[0]
-    w_diag = net[0]
+    w_diag = m.topo.w_diag
     x0[:, :] = x
     v0[:, :] = v
-    status = dyn.accelerations(x0, v0, net, act, ws, acc)
+    status = dyn.accelerations(x0, v0, m, d, w, acc)
     nstate[3] += 1
     if status != dyn.OK:
         return status
-    lam = ws[4]
+    lam = w.lam
     for c in range(nu.shape[0]):
         nu[c] = -0.5 * h * h * lam[c]
     for p in range(n):                       # predictor: x0 + h v0 + h^2/2 a(x0, v0)
@@ -345,10 +349,10 @@ def _midpoint_step(x, v, h, net, act, ws, node_pos, con_pos, band, rhs, nu, x0, 
         for p in range(n):
             for i in range(3):
                 xm[p, i] = 0.5 * (x0[p, i] + x[p, i])
-        dg_forces(x0, x, net, act, f)
+        dg_forces(x0, x, m, d, f)
         nstate[3] += 1
-        _residual(x, x0, v0, h, f, xm, nu, net, node_pos, con_pos, rhs)
-        assemble_kkt(x0, x, xm, h, nu, net, act, node_pos, con_pos, band)
+        _residual(x, x0, v0, h, f, xm, nu, m.topo, node_pos, con_pos, rhs)
+        assemble_kkt(x0, x, xm, h, nu, m, d, node_pos, con_pos, band)
         status = band_ldl_factor(band)
         nstate[1] += 1
         if status != dyn.OK:
@@ -375,26 +379,27 @@ def _midpoint_step(x, v, h, net, act, ws, node_pos, con_pos, band, rhs, nu, x0, 
 
 
 @jit
-def midpoint_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, node_pos, con_pos, band, rhs,
-                 nu, x0, v0, xm, f, acc, nstate):
+def midpoint_run(m, d, w, dt, n_steps, tol, max_iter, node_pos, con_pos, band, rhs, nu, x0, v0,
+                 xm, f, acc, nstate):
     """``n_steps`` implicit midpoint steps of ``dt`` with projection after each; ``nstate``:
     [Newton iterations, factorisations, steps, force evaluations], accumulated. Returns (steps,
     status)."""
+    x, v, topo = d.x, d.v, m.topo
     n = x.shape[0]
     for step in range(n_steps):
         scale = 0.0
         for p in range(n):
             for i in range(3):
                 scale = max(scale, abs(x[p, i]))
-        status = _midpoint_step(x, v, dt, net, act, ws, node_pos, con_pos, band, rhs, nu, x0, v0,
+        status = _midpoint_step(x, v, dt, m, d, w, node_pos, con_pos, band, rhs, nu, x0, v0,
                                 xm, f, acc, max(scale, 1e-300), nstate)
         if status == dyn.OK:
-            status = dyn.project_positions(x, net, ws, tol, max_iter)
+            status = dyn.project_positions(x, topo, w, tol, max_iter)
         if status == dyn.OK:
             for p in range(n):
                 for i in range(3):
                     v[p, i] = 2.0 * (x[p, i] - x0[p, i]) / dt - v0[p, i]
-            status = dyn.project_velocities(x, v, net, ws)
+            status = dyn.project_velocities(x, v, topo, w)
         if status == dyn.OK and not (dyn.all_finite(x) and dyn.all_finite(v)):
             status = dyn.NONFINITE
         if status != dyn.OK:
@@ -406,13 +411,13 @@ def midpoint_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, node_pos, con_p
 
 
 @jit
-def midpoint_checked(x, v, dt, n_steps, net, act, ws, tol, max_iter, node_pos, con_pos, band,
-                     rhs, nu, x0, v0, xm, f, acc, nstate, keep, summ, heights):
-    """:func:`midpoint_run` between ``keep_state`` and ``summary.state_summary``."""
-    keep_state(x, v, act, keep)
-    out = midpoint_run(x, v, dt, n_steps, net, act, ws, tol, max_iter, node_pos, con_pos, band,
-                       rhs, nu, x0, v0, xm, f, acc, nstate)
-    return out + summary.state_summary(x, v, net, act, summ, heights)
+def midpoint_checked(m, d, w, dt, n_steps, tol, max_iter, node_pos, con_pos, band, rhs, nu, x0,
+                     v0, xm, f, acc, nstate, kept, heights):
+    """:func:`midpoint_run` between ``copy_data`` and ``summary.state_summary``."""
+    copy_data(d, kept)
+    out = midpoint_run(m, d, w, dt, n_steps, tol, max_iter, node_pos, con_pos, band, rhs, nu, x0,
+                       v0, xm, f, acc, nstate)
+    return out + summary.state_summary(d.x, d.v, m, d, heights)
 
 
 class ImplicitMidpoint(Integrator):
@@ -443,39 +448,39 @@ class ImplicitMidpoint(Integrator):
         return {'steps': int(s[2]), 'newton_iterations': int(s[0]),
                 'factorizations': int(s[1]), 'evaluations': int(s[3])}
 
-    def _args(self, x, net):
-        if self._layout is None or self._layout[0] is not net:
-            self._layout = (net, layout(net))
+    def _args(self, m, d):
+        if self._layout is None or self._layout[0] is not m.topo:
+            self._layout = (m.topo, layout(m.topo))
+        x = d.x
         node_pos, con_pos, size, bw = self._layout[1]
-        n, m = x.shape[0], len(con_pos)
+        n, n_con = x.shape[0], len(con_pos)
         return (node_pos, con_pos, self.scratch('band', (size, bw + 1)),
-                self.scratch('rhs', (size,)), self.scratch('nu', (m,)),
+                self.scratch('rhs', (size,)), self.scratch('nu', (n_con,)),
                 self.scratch('x0', x.shape), self.scratch('v0', x.shape),
                 self.scratch('xm', x.shape), self.scratch('f', x.shape),
                 self.scratch('acc', (n, 3)), self.nstate)
 
     @staticmethod
-    def _refuse_extras(act):
-        """The step has no cable damping, prism stops or strikers (``act[3]``): refuse them
+    def _refuse_effects(m):
+        """The step has no bar contact, cable damping, prism stops or strikers: refuse them
         rather than run without them."""
-        ex = act[3] if len(act) > 3 else ()
-        if len(ex) > 6 and np.asarray(ex[6]).size:
+        if m.bar_contact.pairs.size:
             raise ValueError('implicit_midpoint: bar contact (contact.bars: hertz) is not part of '
                              'its step: its discrete gradient conserves the cable energy only, '
                              'and its long fixed steps cannot resolve a contact lasting '
                              'microseconds; use rk4_projected or dopri54_projected, or set '
                              'contact.bars: none')
-        if any(np.asarray(ex[i]).size for i in (0, 2, 3) if i < len(ex)):
+        if m.damping.coef.size or m.stops.height.size or m.strikers.row.size:
             raise ValueError('implicit_midpoint: cable damping, prism stops (contact.lock) and '
                              'strikers are not part of its step; use rk4_projected or '
                              'dopri54_projected')
 
-    def run(self, x, v, dt, n_steps, net, act, ws, tol=1e-12, max_iter=3, kinks=True):
-        self._refuse_extras(act)
-        steps, status = self.kernel(x, v, float(dt), int(n_steps), net, act, ws, float(tol),
-                                    int(max_iter), *self._args(x, net))
+    def run(self, m, d, w, dt, n_steps, tol=1e-12, max_iter=3, kinks=True):
+        self._refuse_effects(m)
+        steps, status = self.kernel(m, d, w, float(dt), int(n_steps), float(tol), int(max_iter),
+                                    *self._args(m, d))
         return int(steps), int(status)
 
-    def checked_args(self, x, net, act, ws, tol, max_iter, kinks, keep, summ):
-        self._refuse_extras(act)
-        return (net, act, ws, float(tol), int(max_iter)) + self._args(x, net) + (keep, summ)
+    def checked_args(self, m, d, w, tol, max_iter, kinks, kept):
+        self._refuse_effects(m)
+        return (float(tol), int(max_iter)) + self._args(m, d) + (kept,)

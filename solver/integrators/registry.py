@@ -1,11 +1,10 @@
 """Time integrators behind one interface.
 
-An integrator advances positions ``x`` (n_nodes, 3) m and velocities ``v`` (n_nodes, 3) m/s in
-place by
-``n_steps`` fixed steps of ``dt`` s, with the ``(net, act, ws)`` tuples of
-:mod:`solver.kernels.dynamics`,
-and returns ``(steps_done, status)``; a non-OK status stops it at the step that failed, leaving the
-last good state in ``x`` and ``v``.
+An integrator advances the positions ``d.x`` (n_rows, 3) m and velocities ``d.v`` (n_rows, 3) m/s
+of a model's data in place by ``n_steps`` fixed steps of ``dt`` s, with the model record ``m``,
+its data ``d`` and scratch ``w`` (:mod:`solver.kernels.records`), and returns ``(steps_done,
+status)``; a non-OK status stops it at the step that failed, leaving the last good state in
+``d.x`` and ``d.v``.
 
 Methods (:data:`METHODS`; the scene key ``integrator.method`` or ``--set integrator=NAME`` picks
 one):
@@ -23,24 +22,23 @@ one):
   (:mod:`solver.integrators.implicit`), for stiff scenes: order 2, A-stable, Newton on a banded KKT
   system per step, then projection; fixed steps.
 
-To add a method: in a new file of ``solver/integrators/``, write an ``@jit`` kernel ``_my_run(x,
-v, dt, n_steps, net, act, ws, tol, max_iter,
-kinks)`` with that contract (calling only :func:`solver.kernels.dynamics.accelerations`,
-``project_positions``, ``project_velocities``, ``all_finite`` and
-:func:`solver.kernels.kinks.next_kink`, and passing
-the ``net``/``act``/``ws`` tuples through untouched) and its checked twin (three lines, as
-:func:`solver.integrators.rk4._rk4_checked`: ``keep_state``, the run kernel, then
-``summary.state_summary``: a
-``Simulation.advance`` is then one compiled call), subclass
-:class:`solver.integrators.base.Integrator` (``name``,
-``order``, ``projected``, ``kernel``, ``checked``; override :meth:`Integrator.extra_args` when the
-kernel takes other arguments after ``max_iter``, e.g. scratch arrays from
-:meth:`Integrator.scratch`) and add it to :data:`METHODS`. Keep every array the kernel writes in
-the scratch or in an array attribute: :meth:`Integrator.clone` copies those for a simulation's
-copy (the columns of an array step on threads at once). A method that carries something from one
-call to the next (``rattle`` its accelerations, ``dopri54_projected`` its step size) forgets it in
-:meth:`Integrator.reset` and, where a command invalidates it, in
-:meth:`Integrator.state_changed`.
+To add a method: in a new file of ``solver/integrators/``, write an ``@jit`` kernel ``_my_run(m,
+d, w, dt, n_steps, tol, max_iter, kinks)`` with that contract, calling only
+:func:`solver.kernels.dynamics.accelerations` (the forces of every effect), ``project_positions``,
+``project_velocities``, ``all_finite``, :func:`solver.kernels.kinks.next_kink` and the step
+control of :mod:`solver.kernels.effects` (``start``/``finish`` around the call, and the limits
+its kind of step needs), passing the records through untouched: an integrator never asks which
+effects a scene has (``test_layering`` checks it). Write its checked twin (three lines, as
+:func:`solver.integrators.rk4._rk4_checked`: ``copy_data``, the run kernel, then
+``summary.state_summary``: a ``Simulation.advance`` is then one compiled call), subclass
+:class:`solver.integrators.base.Integrator` (``name``, ``order``, ``projected``, ``kernel``,
+``checked``; override :meth:`Integrator.extra_args` when the kernel takes other arguments after
+``max_iter``, e.g. scratch arrays from :meth:`Integrator.scratch`) and add it to
+:data:`METHODS`. Keep every array the kernel writes in the scratch or in an array attribute:
+:meth:`Integrator.clone` copies those for a simulation's copy (the columns of an array step on
+threads at once). A method that carries something from one call to the next (``rattle`` its
+accelerations, ``dopri54_projected`` its step size) forgets it in :meth:`Integrator.reset` and,
+where a command invalidates it, in :meth:`Integrator.state_changed`.
 """
 from __future__ import annotations
 

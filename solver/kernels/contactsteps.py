@@ -8,7 +8,8 @@ pair touches steps are ``T / steps``, ``T`` the Hertz contact duration ``2.94 d_
 pair's approach speed ``u`` (with the energy it already stores) against the smallest node mass.
 Far from contact nothing changes: the step is returned as given.
 
-The scans keep what they know in the contact state (its layout: ``barcontact.HEAD``): the motion
+The scans keep what they know in the contact state (``ContactState.scan`` of
+:mod:`solver.kernels.records`: ``MET``, ``SLACK``, ``LOOK``, ``MOTION``, then from ``HEAD``): the motion
 summed since the last full scan and each pair's gap at its last exact evaluation, so a pair is
 evaluated again only when it could have closed its gap; the last ``3 n`` entries are the
 positions an integrator call ended at (``barcontact.remember``).
@@ -16,13 +17,14 @@ positions an integrator call ended at (``barcontact.remember``).
 import math
 
 from solver._jit import jit, jit_inline
-from solver.kernels.barcontact import (HEAD, _at_remembered, _level_z, _pair, _point,
-                                      _rel_velocity, bar_energy_bounded, prism_base_energy)
+from solver.kernels.barcontact import (at_remembered, bar_energy_bounded, level_z, pair,
+                                      point, prism_base_energy, rel_velocity)
+from solver.kernels.records import HEAD, LOOK, MOTION, SLACK
 from solver.kernels.contact import hertz_duration
 
 
 @jit_inline
-def _resolve(gap, V, A, u2, h, bpar):
+def _resolve(gap, V, A, u2, h, bc):
     """The step for one contact: ``h`` (unchanged: it cannot touch within ``h``), else the
     conservative approach step or the contact step ``T / steps``, whichever is longer."""
     h_safe = 0.0
@@ -31,8 +33,8 @@ def _resolve(gap, V, A, u2, h, bpar):
             return h
         c = 0.4 * gap                   # 1.25 (V h + A h^2 / 2) = gap / 2
         h_safe = 2.0 * c / (V + math.sqrt(V * V + 2.0 * A * c)) if V + A > 0.0 else h
-    return min(h, max(h_safe, hertz_duration(bpar[3], bpar[1], max(math.sqrt(u2), 1e-9))
-                      / bpar[4]))
+    return min(h, max(h_safe, hertz_duration(bc.m_min, bc.k, max(math.sqrt(u2), 1e-9))
+                      / bc.steps))
 
 
 @jit_inline
@@ -55,11 +57,11 @@ def _prism_slot(pairs, levels, c, j):
 @jit_inline
 def motion_so_far(state):
     """The motion summed since the last :func:`rescan` (0 right after it: NaN there)."""
-    return state[3] if math.isfinite(state[3]) else 0.0
+    return state[MOTION] if math.isfinite(state[MOTION]) else 0.0
 
 
 @jit
-def passed_clear(x0, v0, a0, x1, pairs, levels, bpar, h, state, known):
+def passed_clear(x0, v0, a0, x1, bc, levels, h, state, known):
     """Whether a step of ``h`` from ``x0`` (velocities ``v0``, accelerations ``a0``) to ``x1``
     surely met no contact (a contact shorter than the step may fall between its force
     evaluations): every pair's (and every prism's base) gap is positive at both ends, and either
@@ -73,17 +75,18 @@ def passed_clear(x0, v0, a0, x1, pairs, levels, bpar, h, state, known):
     gap bound (``state``, :func:`contact_step`; ``known`` the motion summed at the step's start)
     exceeds the bound of any relative motion within the step is only
     checked at the end."""
-    D = bpar[0]
+    pairs = bc.pairs
+    D = bc.diameter
     reach = _motion(v0, a0, h)
     for i in range(pairs.shape[0]):
         if state[HEAD + i] - known > reach:
-            s, t, nx, ny, nz = _pair(x1, pairs, i)
+            s, t, nx, ny, nz = pair(x1, pairs, i)
             if nx * nx + ny * ny + nz * nz <= D * D:
                 return False
             continue
-        s, t, nx, ny, nz = _pair(x0, pairs, i)
+        s, t, nx, ny, nz = pair(x0, pairs, i)
         g0 = math.sqrt(nx * nx + ny * ny + nz * nz) - D
-        s, t, nx, ny, nz = _pair(x1, pairs, i)
+        s, t, nx, ny, nz = pair(x1, pairs, i)
         g1 = math.sqrt(nx * nx + ny * ny + nz * nz) - D
         p = pairs[i]
         V, A = _reach(v0, p), _reach(a0, p)
@@ -94,14 +97,14 @@ def passed_clear(x0, v0, a0, x1, pairs, levels, bpar, h, state, known):
             return False
     for c in range(levels.shape[0]):
         for j in range(1, levels.shape[1]):
-            g1 = _level_z(x1, levels, c, j) - _level_z(x1, levels, c, j - 1) - D
+            g1 = level_z(x1, levels, c, j) - level_z(x1, levels, c, j - 1) - D
             if state[_prism_slot(pairs, levels, c, j)] - known > reach:
                 if g1 <= 0.0:
                     return False
                 continue
-            g0 = _level_z(x0, levels, c, j) - _level_z(x0, levels, c, j - 1) - D
-            rate = abs(_level_z(v0, levels, c, j) - _level_z(v0, levels, c, j - 1))
-            accel = abs(_level_z(a0, levels, c, j) - _level_z(a0, levels, c, j - 1))
+            g0 = level_z(x0, levels, c, j) - level_z(x0, levels, c, j - 1) - D
+            rate = abs(level_z(v0, levels, c, j) - level_z(v0, levels, c, j - 1))
+            accel = abs(level_z(a0, levels, c, j) - level_z(a0, levels, c, j - 1))
             if g0 <= 0.0 or g1 <= 0.0:
                 return False
             if (g0 + g1 <= 2.0 * (rate * h + 0.5 * accel * h * h)
@@ -113,7 +116,7 @@ def passed_clear(x0, v0, a0, x1, pairs, levels, bpar, h, state, known):
 @jit_inline
 def _normal(x, pairs, i):
     """The unit vector from bar b's closest point to bar a's, pair ``i``."""
-    s, t, nx, ny, nz = _pair(x, pairs, i)
+    s, t, nx, ny, nz = pair(x, pairs, i)
     r = math.sqrt(nx * nx + ny * ny + nz * nz)
     return nx / r, ny / r, nz / r
 
@@ -126,9 +129,9 @@ def _separation(x, p, nx, ny, nz):
     ``n`` is the normal of closest points inside both bars. Also the largest ``|a_i - b_j|``."""
     low, far = math.inf, 0.0
     for i in (0, 2):
-        ax, ay, az = _point(x, p[i], p[i + 1])
+        ax, ay, az = point(x, p[i], p[i + 1])
         for j in (4, 6):
-            bx, by, bz = _point(x, p[j], p[j + 1])
+            bx, by, bz = point(x, p[j], p[j + 1])
             rx, ry, rz = ax - bx, ay - by, az - bz
             low = min(low, nx * rx + ny * ry + nz * rz)
             far = max(far, math.sqrt(rx * rx + ry * ry + rz * rz))
@@ -172,9 +175,9 @@ def _reach(u, p):
     """Largest relative speed (or acceleration) between an end of bar a and an end of bar b."""
     best = 0.0
     for i in (0, 2):
-        ax, ay, az = _point(u, p[i], p[i + 1])
+        ax, ay, az = point(u, p[i], p[i + 1])
         for j in (4, 6):
-            bx, by, bz = _point(u, p[j], p[j + 1])
+            bx, by, bz = point(u, p[j], p[j + 1])
             r = (ax - bx) ** 2 + (ay - by) ** 2 + (az - bz) ** 2
             if r > best:
                 best = r
@@ -190,13 +193,13 @@ def _mean_reach(x0, v0, x1, p, h):
     best = 0.0
     c = 2.0 / (h * h)
     for i in (0, 2):
-        a1x, a1y, a1z = _point(x1, p[i], p[i + 1])
-        a0x, a0y, a0z = _point(x0, p[i], p[i + 1])
-        avx, avy, avz = _point(v0, p[i], p[i + 1])
+        a1x, a1y, a1z = point(x1, p[i], p[i + 1])
+        a0x, a0y, a0z = point(x0, p[i], p[i + 1])
+        avx, avy, avz = point(v0, p[i], p[i + 1])
         for j in (4, 6):
-            b1x, b1y, b1z = _point(x1, p[j], p[j + 1])
-            b0x, b0y, b0z = _point(x0, p[j], p[j + 1])
-            bvx, bvy, bvz = _point(v0, p[j], p[j + 1])
+            b1x, b1y, b1z = point(x1, p[j], p[j + 1])
+            b0x, b0y, b0z = point(x0, p[j], p[j + 1])
+            bvx, bvy, bvz = point(v0, p[j], p[j + 1])
             rx = (a1x - a0x - avx * h) - (b1x - b0x - bvx * h)
             ry = (a1y - a0y - avy * h) - (b1y - b0y - bvy * h)
             rz = (a1z - a0z - avz * h) - (b1z - b0z - bvz * h)
@@ -215,30 +218,30 @@ def _largest(u):
 
 
 @jit
-def contact_step(x, v, acc, pairs, levels, bpar, h, state, active):
+def contact_step(x, v, acc, bc, levels, h, state, active):
     """:func:`scan_step` where a contact could start within ``h``, else ``h``, cheaply: the
     smallest gap of the last scan, less what every node could have moved since (twice the
     largest node speed and acceleration bound any relative motion; a factor 2 over the Taylor
-    terms covers how fast the accelerations change within a step), is kept in ``state[1]``
+    terms covers how fast the accelerations change within a step), is kept in ``state[SLACK]``
     (negative: scan now; an integrator sets it so when it starts from positions it did not
-    make, :func:`resume`). ``state[2]`` 0 tells the force evaluations of the step that no
+    make, :func:`resume`). ``state[LOOK]`` 0 tells the force evaluations of the step that no
     contact can act (they skip the pairs), 1 that they must look at the listed pairs and the
-    bases, 2 at the listed pairs only. ``state[3]`` sums those bounds of the motion over the
+    bases, 2 at the listed pairs only. ``state[MOTION]`` sums those bounds of the motion over the
     steps since the last :func:`rescan`, and ``state[HEAD + i]`` holds pair ``i``'s gap at its
     last exact evaluation plus the sum then (then each prism's, for its bases): a scan evaluates
     again only the pairs whose gap, less the motion since, could close within the step. The
     last ``3 n`` entries are the positions of :func:`remember`."""
     reach = _motion(v, acc, h)
-    if state[1] > reach:
-        state[1] -= reach
-        state[3] += reach
-        state[2] = 0.0          # no contact force within this step: not evaluated
+    if state[SLACK] > reach:
+        state[SLACK] -= reach
+        state[MOTION] += reach
+        state[LOOK] = 0.0          # no contact force within this step: not evaluated
         return h
-    h_new, g_min, bases = scan_step(x, v, acc, pairs, levels, bpar, h, active, state, reach)
+    h_new, g_min, bases = scan_step(x, v, acc, bc, levels, h, active, state, reach)
     reach = _motion(v, acc, h_new)
-    state[1] = g_min - reach
-    state[3] += reach
-    state[2] = 0.0 if state[1] > 0.0 else (1.0 if bases else 2.0)
+    state[SLACK] = g_min - reach
+    state[MOTION] += reach
+    state[LOOK] = 0.0 if state[SLACK] > 0.0 else (1.0 if bases else 2.0)
     return h_new
 
 
@@ -246,9 +249,9 @@ def contact_step(x, v, acc, pairs, levels, bpar, h, state, active):
 def rescan(state, active):
     """Forget what the scans know (the state was not made by the steps they bounded): the next
     :func:`contact_step` evaluates every pair, the next force evaluation looks at every pair."""
-    state[1] = -1.0
-    state[2] = 1.0
-    state[3] = math.nan
+    state[SLACK] = -1.0
+    state[LOOK] = 1.0
+    state[MOTION] = math.nan
     active[0] = -1
 
 
@@ -259,33 +262,33 @@ def resume(x, state, active):
     which the bounds allow for: they bound the motion of positions, step by step), else
     :func:`rescan`. Until :func:`remember` at its end, a call that stops early leaves nothing to
     resume from."""
-    if not _at_remembered(x, state):
+    if not at_remembered(x, state):
         rescan(state, active)
     state[state.shape[0] - 3 * x.shape[0]] = math.nan
 
 
 @jit
 def add_motion(state, v, acc, h):
-    """Count a step of ``h`` from velocities ``v``, accelerations ``acc`` in ``state[3]`` (the
+    """Count a step of ``h`` from velocities ``v``, accelerations ``acc`` in ``state[MOTION]`` (the
     bound :func:`contact_step` adds) on top of what it counted already, and have the next step
     scan: for a step longer than the one :func:`contact_step` sized."""
-    state[1] = -1.0
-    state[3] += _motion(v, acc, h)
+    state[SLACK] = -1.0
+    state[MOTION] += _motion(v, acc, h)
 
 
 @jit
-def gate(x, v, acc, pairs, levels, bpar, h, state, active):
+def gate(x, v, acc, bc, levels, h, state, active):
     """For a method that does not size its steps around contacts (RATTLE): :func:`contact_step`
     for a step of ``h`` from ``x, v`` (accelerations ``acc``) that is taken whole. The pairs that
     could touch within it are listed in ``active`` for the force evaluations; where a contact
-    could start, they look (``state[2]`` 1) and the next call scans again."""
-    if contact_step(x, v, acc, pairs, levels, bpar, h, state, active) < h:
+    could start, they look (``state[LOOK]`` 1) and the next call scans again."""
+    if contact_step(x, v, acc, bc, levels, h, state, active) < h:
         add_motion(state, v, acc, h)
-        state[2] = 1.0
+        state[LOOK] = 1.0
 
 
 @jit
-def scan_step(x, v, acc, pairs, levels, bpar, h, active, state, reach):
+def scan_step(x, v, acc, bc, levels, h, active, state, reach):
     """The step to take from the state ``x, v`` (accelerations ``acc``) instead of ``h``: ``h``
     when no pair of bars and no two bases can touch within it, otherwise shortened (see the
     module's text).
@@ -301,21 +304,22 @@ def scan_step(x, v, acc, pairs, levels, bpar, h, active, state, reach):
     within ``h``, is left as it is: it neither shortens the step nor gets listed, as its exact
     gap would not either; the same for the two bases of each prism. Returns (the step, the smallest
     gap m, or its lower bound, how many prisms' bases could touch within ``h``)."""
-    D, k, m = bpar[0], bpar[1], bpar[3]
+    pairs = bc.pairs
+    D, k, m = bc.diameter, bc.k, bc.m_min
     h_new = h
     g_min = math.inf
     count = 0
     # after rescan (the motion NaN): every pair evaluated, and the sum restarts from 0
-    fresh = not math.isfinite(state[3])
+    fresh = not math.isfinite(state[MOTION])
     known = motion_so_far(state)
-    state[3] = known
+    state[MOTION] = known
     for i in range(pairs.shape[0]):
         bound = state[HEAD + i] - known
         if not fresh and bound > reach:
             g_min = min(g_min, bound)
             continue
         p = pairs[i]
-        s, t, nx, ny, nz = _pair(x, pairs, i)
+        s, t, nx, ny, nz = pair(x, pairs, i)
         dist = math.sqrt(nx * nx + ny * ny + nz * nz)
         gap = dist - D
         state[HEAD + i] = gap + known
@@ -330,10 +334,10 @@ def scan_step(x, v, acc, pairs, levels, bpar, h, active, state, reach):
             count += 1
             active[count] = i
             d = -gap
-            vx, vy, vz = _rel_velocity(v, p, s, t)
+            vx, vy, vz = rel_velocity(v, p, s, t)
             rate = (nx * vx + ny * vy + nz * vz) / max(dist, 1e-300)
             u2 = rate * rate + 0.8 * k * d * d * math.sqrt(d) / m
-        h_new = _resolve(gap, math.sqrt(u2), A, u2, h_new, bpar)
+        h_new = _resolve(gap, math.sqrt(u2), A, u2, h_new, bc)
     active[0] = count
     bases = 0                           # prisms whose bases could touch within h
     for c in range(levels.shape[0]):
@@ -343,32 +347,33 @@ def scan_step(x, v, acc, pairs, levels, bpar, h, active, state, reach):
             if not fresh and bound > reach:
                 g_min = min(g_min, bound)
                 continue
-            gap = _level_z(x, levels, c, j) - _level_z(x, levels, c, j - 1) - D
+            gap = level_z(x, levels, c, j) - level_z(x, levels, c, j - 1) - D
             state[slot] = gap + known
             g_min = min(g_min, gap)
-            rate = _level_z(v, levels, c, j) - _level_z(v, levels, c, j - 1)
-            accel = _level_z(acc, levels, c, j) - _level_z(acc, levels, c, j - 1)
+            rate = level_z(v, levels, c, j) - level_z(v, levels, c, j - 1)
+            accel = level_z(acc, levels, c, j) - level_z(acc, levels, c, j - 1)
             u2 = rate * rate
             if gap <= 0.0:
                 u2 += 0.8 * k * (-gap) ** 2.5 / m
             if gap <= 2.0 * (abs(rate) * h + 0.5 * abs(accel) * h * h):
                 bases += 1
-            h_new = _resolve(gap, abs(rate), abs(accel), u2, h_new, bpar)
+            h_new = _resolve(gap, abs(rate), abs(accel), u2, h_new, bc)
     return h_new, g_min, bases
 
 
 @jit
-def bounded_contact_energy(x, pairs, levels, bpar, state):
+def bounded_contact_energy(x, bc, levels, per_level, state):
     """Energy J stored in touching bars and bases at positions ``x`` that the scans' bounds cover
     (the start or the end of a step :func:`contact_step` sized): a pair or a prism whose gap
     bound less the motion summed so far (``state``) is positive stores none and is skipped;
     after a :func:`rescan` every pair and prism is evaluated. Times the multiplicities, as
     :func:`~solver.kernels.barcontact.bar_energy` and ``base_energy``."""
-    known = state[3]
+    pairs = bc.pairs
+    known = state[MOTION]
     bounded = math.isfinite(known)
     eb = 0.0
     for c in range(levels.shape[0]):
         for j in range(1, levels.shape[1]):
             if not (bounded and state[_prism_slot(pairs, levels, c, j)] - known > 0.0):
-                eb += prism_base_energy(x, levels, bpar, c, j)
-    return bar_energy_bounded(x, pairs, bpar, state, bounded) + bpar[5] * eb
+                eb += prism_base_energy(x, levels, bc, c, j)
+    return bar_energy_bounded(x, bc, state, bounded) + per_level * eb

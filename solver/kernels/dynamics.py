@@ -1,34 +1,20 @@
 """Numba kernels of the constrained dynamics (docs/physics.md section 1.1).
 
-Two levels, as everywhere in the solver: :func:`pack` (Python) validates and allocates, the
-``@jit`` kernels take arrays and tuples of arrays only and write into ``out`` arrays.
+Two levels, as everywhere in the solver: Python builders (:func:`plain`,
+:func:`solver.models.extras.build`) validate and allocate, the ``@jit`` kernels take arrays and
+the named records of :mod:`solver.kernels.records` (``m`` a :class:`~solver.kernels.records.Model`,
+``d`` its :class:`~solver.kernels.records.Data`, ``w`` its :class:`~solver.kernels.records.Work`)
+and write into ``out`` arrays.
 
-``net`` tuple (read-only model arrays, see :class:`solver.build.network.Network`)::
-
-    (w_diag, partner, w_off, con_tail, con_head, con_length, con_coef, cable_a, cable_b,
-     con_rot, cable_rot, con_coef3, kkt)
-
-The last three serve the symmetric reduction (:mod:`solver.models.sym3d`) and are empty for a plain
-network:
-a member then joins its tail node to the ROTATED IMAGE ``R^r x_head`` of its head node, ``R`` the
-rotation by 2 pi / 3 about z and ``r = con_rot[c]`` (``cable_rot`` for cables) in {0, 1, 2}; the
-force
-on the image is rotated back onto the node. ``con_coef3`` (n_con, bw + 1, 3) replaces ``con_coef``:
-``A[c, c-k] = coef3[c, k] . (b_c^z b_d^z, b_c^x b_d^x + b_c^y b_d^y, b_c^y b_d^x - b_c^x b_d^y)``.
-With empty arrays every kernel takes the plain path (r = 0), so ``full3d`` pays nothing for them.
-``kkt`` is the layout of the mass-matrix system of :mod:`solver.kernels.massmatrix` (massive bars
-that share nodes); its arrays are empty for every other network, and the kernels then take the
-node-local inverse mass path unchanged.
-
-``act`` tuple (actuation, mutable by commands)::
-
-    (cable_rest_length (n_cables,) m, cable_EA (n_cables,) N, f_ext (n_nodes, 3) N, extras)
-
-``extras``: cable damping, strikers and prism stops (:mod:`solver.kernels.contact`); all empty
-(:data:`solver.kernels.contact.NO_EXTRAS`) unless a scene asks for them, and then the kernels take
-the code path they take without them.
-
-``ws`` workspace tuple (scratch, preallocated once): see :func:`workspace`.
+:func:`accelerations` is the one entry that composes the forces of every effect a scene switches
+on (external forces, cables with or without damping, prism stops, strikers, bar and base contact)
+and solves the constraints for the accelerations; the integrators call it and know nothing of
+which effects exist. A member of a ``sym3d`` model joins its tail node to the ROTATED IMAGE
+``R^r x_head`` of its head node (``topo.con_rot``, ``topo.cable_rot``); with those empty every
+kernel takes the plain path, so ``full3d`` pays nothing for them. ``topo.kkt`` is the layout of
+the mass-matrix system of :mod:`solver.kernels.massmatrix` (massive bars that share nodes); its
+arrays are empty for every other network, and the kernels then take the node-local inverse mass
+path unchanged.
 
 Status codes returned by kernels: ``OK``, ``SINGULAR`` (constraint matrix not positive definite:
 dependent or degenerate rigid members), ``NONFINITE`` (NaN or inf appeared), ``NOT_CONVERGED``
@@ -36,69 +22,16 @@ dependent or degenerate rigid members), ``NONFINITE`` (NaN or inf appeared), ``N
 """
 import math
 
-import numpy as np
-
 from solver.kernels import massmatrix as mm
 from solver.kernels.banded import band_ldl_solve
 from solver._jit import jit
 from solver.kernels.barcontact import bar_forces, base_forces
-from solver.kernels.contact import NO_EXTRAS, axial_contacts, cable_forces_damped
+from solver.kernels.contact import axial_contacts, cable_forces_damped
+from solver.kernels.records import LOOK, MET, POWER  # noqa: F401 (POWER: named in the doc)
 from solver.kernels.rotation import (ROT_C, ROT_S, add_constraint_forces_rot,  # noqa: F401
                                      assemble_band_rot, cable_forces_rot, member_vectors_rot,
                                      rel)
 from solver.status import NONFINITE, NOT_CONVERGED, OK, SINGULAR  # noqa: F401
-
-
-NO_ROT = np.zeros(0, dtype=np.int64)
-NO_ROT.setflags(write=False)
-NO_COEF3 = np.zeros((0, 1, 3))
-NO_COEF3.setflags(write=False)
-
-
-def readonly(a):
-    """``a`` as a read-only array (a view when it is writable). The static arrays of the kernels
-    (``net``, ``summ``) are all read-only, wherever they come from (a network's own arrays, or
-    ones padded or computed here): numba compiles a kernel once per combination of writable and
-    read-only arguments, and the first FB kernel alone takes about a minute to compile."""
-    a = np.asarray(a)
-    if not a.flags.writeable:
-        return a
-    view = a.view()
-    view.flags.writeable = False
-    return view
-
-
-def pack(network, cable_rest_length=None, cable_EA=None, f_ext=None):
-    """The ``(net, act)`` tuples of a network; ``act`` arrays are fresh writable copies. A network
-    with rotated members (:class:`solver.models.sym3d.ReducedNetwork`) fills the last three ``net``
-    slots."""
-    net = tuple(readonly(a) for a in (
-        network.w_diag, network.partner, network.w_off, network.con_tail, network.con_head,
-        network.con_length, network.con_coef, network.cable_a, network.cable_b,
-        getattr(network, 'con_rot', NO_ROT), getattr(network, 'cable_rot', NO_ROT),
-        getattr(network, 'con_coef3', NO_COEF3))) + (getattr(network, 'kkt', mm.NO_KKT),)
-    rest = np.array(network.cable_rest_length if cable_rest_length is None else cable_rest_length,
-                    dtype=np.float64)
-    EA = np.array(network.cable_EA if cable_EA is None else cable_EA, dtype=np.float64)
-    f = np.zeros((network.n_nodes, 3)) if f_ext is None else np.array(f_ext, dtype=np.float64)
-    return net, (rest, EA, f, NO_EXTRAS)
-
-
-def workspace(n_nodes, n_con, bandwidth, kkt_dims=None):
-    """Scratch arrays: ``(f, wf, bvec, band, lam, stage arrays..., kws)``; ``kws`` (the last) is
-    the scratch of the mass-matrix system for ``kkt_dims = (n_u, kl, ku)`` (empty when None)."""
-    def z(*shape):
-        return np.zeros(shape)
-    return (z(n_nodes, 3), z(n_nodes, 3), z(n_con, 3), z(n_con, bandwidth + 1), z(n_con),
-            z(n_nodes, 3), z(n_nodes, 3), z(n_nodes, 3), z(n_nodes, 3), z(n_nodes, 3),
-            z(n_nodes, 3), mm.scratch(mm.NO_DIMS if kkt_dims is None else kkt_dims))
-
-
-def workspace_for(network):
-    """:func:`workspace` sized for ``network`` (a :class:`~solver.build.network.Network` or a
-    reduced one), including the scratch of its mass-matrix system."""
-    kkt = getattr(network, 'kkt', mm.NO_KKT)
-    return workspace(network.n_nodes, network.n_constraints, network.bandwidth, kkt[5])
 
 
 @jit
@@ -198,29 +131,33 @@ def _add_forces(lam, bvec, tail, head, rot, f):
 
 
 @jit
-def accelerations(x, v, net, act, ws, out):
-    """Accelerations (n_nodes, 3) m/s^2 of the constrained system into ``out``; multipliers
-    (bar force densities, > 0 in compression) are left in ``ws[4]``. Returns a status code."""
-    w_diag, partner, w_off, tail, head = net[0], net[1], net[2], net[3], net[4]
-    coef, cable_a, cable_b, rot, coef3 = net[6], net[7], net[8], net[9], net[11]
-    rest, EA, f_ext, ex = act[0], act[1], act[2], act[3]
-    f, wf, bvec, band, lam = ws[0], ws[1], ws[2], ws[3], ws[4]
-    f[:, :] = f_ext
-    if ex[0].shape[0] != 0:                 # damped cables (solver.kernels.contact)
-        cable_forces_damped(x, v, cable_a, cable_b, net[10], rest, EA, ex[0], f, ex[10])
-    elif net[10].shape[0] == 0:
-        cable_forces(x, cable_a, cable_b, rest, EA, f)
+def accelerations(x, v, m, d, w, out):
+    """Accelerations (n_rows, 3) m/s^2 of the constrained system at ``x``, ``v`` into ``out``, with
+    the forces of every effect of the model ``m`` (its data ``d``, scratch ``w``); multipliers
+    (bar force densities, > 0 in compression) are left in ``w.lam``, the damping's power in
+    ``d.ledger[POWER]``, the contacts met counted in ``d.contact.scan[MET]``. Returns a status
+    code."""
+    topo = m.topo
+    tail, head, rot, cable_rot = topo.con_tail, topo.con_head, topo.con_rot, topo.cable_rot
+    f, wf, bvec, band, lam = w.f, w.wf, w.bvec, w.band, w.lam
+    f[:, :] = d.f_ext
+    if m.damping.coef.shape[0] != 0:        # damped cables (solver.kernels.contact)
+        cable_forces_damped(x, v, topo.cable_a, topo.cable_b, cable_rot, d.rest, d.EA,
+                            m.damping.coef, f, d.ledger)
+    elif cable_rot.shape[0] == 0:
+        cable_forces(x, topo.cable_a, topo.cable_b, d.rest, d.EA, f)
     else:
-        cable_forces_rot(x, cable_a, cable_b, net[10], rest, EA, f)
-    if ex[2].shape[0] != 0 or ex[3].shape[0] != 0:      # prism stops, strikers
-        axial_contacts(x, ex, f)
-    if ex[6].shape[0] != 0 and ex[8][2] != 0.0:         # bars touching (kernels.barcontact)
-        ex[8][0] += bar_forces(x, ex[6], ex[7], f, ex[11])
-        if ex[8][2] == 1.0:                             # 2: no two bases can touch
-            ex[8][0] += base_forces(x, ex[1], ex[7], f)
-    if net[12][0].shape[0] != 0:        # massive bars sharing nodes: the banded KKT system
-        return mm.accelerations(x, v, f, tail, head, rot, net[12], ws[11], bvec, lam, out)
-    apply_w(f, w_diag, partner, w_off, wf)
+        cable_forces_rot(x, topo.cable_a, topo.cable_b, cable_rot, d.rest, d.EA, f)
+    if m.stops.height.shape[0] != 0 or m.strikers.row.shape[0] != 0:
+        axial_contacts(x, m, f)
+    scan = d.contact.scan
+    if m.bar_contact.pairs.shape[0] != 0 and scan[LOOK] != 0.0:   # kernels.barcontact
+        scan[MET] += bar_forces(x, m.bar_contact, f, d.contact.active)
+        if scan[LOOK] == 1.0:                                       # 2: no two bases can touch
+            scan[MET] += base_forces(x, m.levels, m.bar_contact, f)
+    if topo.kkt.node_u.shape[0] != 0:       # massive bars sharing nodes: the banded KKT system
+        return mm.accelerations(x, v, f, tail, head, rot, topo.kkt, w.kkt, bvec, lam, out)
+    apply_w(f, topo.w_diag, topo.partner, topo.w_off, wf)
     if rot.shape[0] == 0:
         member_vectors(x, tail, head, bvec)
         for c in range(tail.shape[0]):
@@ -231,7 +168,7 @@ def accelerations(x, v, net, act, ws, out):
                 db = v[h, i] - v[t, i]
                 s += bvec[c, i] * (wf[h, i] - wf[t, i]) + db * db
             lam[c] = -s
-        assemble_band(bvec, coef, band)
+        assemble_band(bvec, topo.con_coef, band)
     else:
         member_vectors_rot(x, tail, head, rot, bvec)
         for c in range(tail.shape[0]):
@@ -239,25 +176,26 @@ def accelerations(x, v, net, act, ws, out):
             dx, dy, dz = rel(v, tail[c], head[c], rot, c)
             lam[c] = -(bvec[c, 0] * ax + bvec[c, 1] * ay + bvec[c, 2] * az
                        + dx * dx + dy * dy + dz * dz)
-        assemble_band_rot(bvec, coef3, band)
+        assemble_band_rot(bvec, topo.con_coef3, band)
     status = band_ldl_solve(band, lam)
     if status != OK:
         return status
     _add_forces(lam, bvec, tail, head, rot, f)
-    apply_w(f, w_diag, partner, w_off, out)
+    apply_w(f, topo.w_diag, topo.partner, topo.w_off, out)
     return OK
 
 
 @jit
-def project_positions(x, net, ws, tol, max_iter):
+def project_positions(x, topo, w, tol, max_iter):
     """Mass-weighted Gauss-Newton projection of positions onto the rigid-member manifold:
     ``A dmu = -g``, ``x += W sum_c dmu_c G_c`` until ``|g_c| < tol L_c^2``. Returns a status
     code."""
-    w_diag, partner, w_off, tail, head, length = net[0], net[1], net[2], net[3], net[4], net[5]
-    coef, rot, coef3 = net[6], net[9], net[11]
-    f, wf, bvec, band, lam = ws[0], ws[1], ws[2], ws[3], ws[4]
-    if net[12][0].shape[0] != 0:
-        return mm.project_positions(x, tail, head, rot, length, net[12], ws[11], bvec, tol,
+    w_diag, partner, w_off = topo.w_diag, topo.partner, topo.w_off
+    tail, head, length = topo.con_tail, topo.con_head, topo.con_length
+    coef, rot, coef3 = topo.con_coef, topo.con_rot, topo.con_coef3
+    f, wf, bvec, band, lam = w.f, w.wf, w.bvec, w.band, w.lam
+    if topo.kkt.node_u.shape[0] != 0:
+        return mm.project_positions(x, tail, head, rot, length, topo.kkt, w.kkt, bvec, tol,
                                     max_iter)
     for it in range(max_iter + 1):
         _members(x, tail, head, rot, bvec)
@@ -281,15 +219,16 @@ def project_positions(x, net, ws, tol, max_iter):
 
 
 @jit
-def project_velocities(x, v, net, ws):
+def project_velocities(x, v, topo, w):
     """Mass-weighted projection of velocities onto the constraint tangent space:
     ``A mu = -J v``, ``v += W J^T mu`` (the impulse that removes every velocity violating a rigid
     member while changing momentum least in the mass metric). Returns a status code."""
-    w_diag, partner, w_off, tail, head, rot = net[0], net[1], net[2], net[3], net[4], net[9]
-    coef, coef3 = net[6], net[11]
-    f, wf, bvec, band, lam = ws[0], ws[1], ws[2], ws[3], ws[4]
-    if net[12][0].shape[0] != 0:
-        return mm.project_velocities(x, v, tail, head, rot, net[12], ws[11], bvec)
+    w_diag, partner, w_off = topo.w_diag, topo.partner, topo.w_off
+    tail, head, rot = topo.con_tail, topo.con_head, topo.con_rot
+    coef, coef3 = topo.con_coef, topo.con_coef3
+    f, wf, bvec, band, lam = w.f, w.wf, w.bvec, w.band, w.lam
+    if topo.kkt.node_u.shape[0] != 0:
+        return mm.project_velocities(x, v, tail, head, rot, topo.kkt, w.kkt, bvec)
     _members(x, tail, head, rot, bvec)
     if rot.shape[0] == 0:
         for c in range(tail.shape[0]):

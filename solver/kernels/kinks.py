@@ -1,5 +1,5 @@
-"""Where a step should end: the next cable slack/taut kink or contact kink, and the copy of a
-state to restore when a step fails. Shared by every explicit integrator family."""
+"""Where a step should end: the next cable slack/taut kink or contact kink. Shared by every
+explicit integrator family (through :mod:`solver.kernels.effects`)."""
 import math
 
 from solver._jit import jit
@@ -8,15 +8,15 @@ from solver.kernels.contact import contact_kink, gap_kink
 
 
 @jit
-def next_kink(x, v, acc, net, act, h, ignore):
+def next_kink(x, v, acc, m, d, h, ignore):
     """Earliest time in ``(ignore, h)`` at which a cable is predicted to go slack or taut, from a
     quadratic Taylor model of ``s - L`` (position, velocity, acceleration); ``h`` if none.
 
     The tension-only cable law has a kink at ``s = L``; a Runge-Kutta step whose stages straddle it
     loses its order. Landing steps on kinks restores it (a kink closer than ``ignore`` is taken as
     already crossed)."""
-    cable_a, cable_b, cable_rot = net[7], net[8], net[10]
-    rest = act[0]
+    cable_a, cable_b, cable_rot = m.topo.cable_a, m.topo.cable_b, m.topo.cable_rot
+    rest = d.rest
     t_best = h
     rotated = cable_rot.shape[0] > 0
     for c in range(cable_a.shape[0]):
@@ -56,35 +56,7 @@ def next_kink(x, v, acc, net, act, h, ignore):
         sd = bbd / s
         sdd = (bdbd + bbdd - sd * sd) / s
         t_best = gap_kink(g, sd, sdd, t_best, ignore)
-    ex = act[3]
-    if ex[2].shape[0] != 0 or ex[3].shape[0] != 0:      # stops and strikers (kernels.contact)
-        t_best = contact_kink(x, v, acc, ex, t_best, ignore)
+    if m.stops.height.shape[0] != 0 or m.strikers.row.shape[0] != 0:   # kernels.contact
+        t_best = contact_kink(x, v, acc, m, t_best, ignore)
     return t_best
 
-
-
-# what keep_state saves of the run state besides x, v (``keep[2]``): the energy cable damping
-# took out, the contacts met and the two halving levels of the steps after a contact (the
-# Simulation's ledger and refinement state, which the steps change), and whether the levels exist
-KEPT_SCALARS = 5
-
-
-@jit
-def keep_state(x, v, act, keep):
-    """Copy ``x``, ``v`` into ``keep = (x_keep, v_keep, scalars)`` (the state to restore on
-    failure), and into ``scalars`` (:data:`KEPT_SCALARS`) what the steps change of the run state
-    in ``act``'s extras: the dissipated energy (``act[3][10][1]``, 0 without damping), the
-    contacts met (``act[3][8][0]``, 0 without bar contact), the halving levels
-    (``act[3][20][1:3]``) and 1 where those exist, else 0."""
-    keep[0][:, :] = x
-    keep[1][:, :] = v
-    ks = keep[2]
-    ex = act[3]
-    ks[0] = ex[10][1] if ex[10].shape[0] != 0 else 0.0
-    ks[1] = ex[8][0] if ex[8].shape[0] != 0 else 0.0
-    if ex[20].shape[0] > 2:
-        ks[2] = ex[20][1]
-        ks[3] = ex[20][2]
-        ks[4] = 1.0
-    else:
-        ks[4] = 0.0

@@ -19,21 +19,22 @@ positions, ``x += dx``) and ``[0; -J v]`` (velocities, ``v += dv``). Cost per so
 ``n_u * kl * (2 kl + ku)`` with ``n_u = 3 n_free + n_con`` unknowns: linear in the number of
 prisms; a flexible-base bar chain has ``kl = ku = 4``.
 
-Layout (``kkt`` tuple, read-only, built by :func:`layout`)::
+Layout (the read-only record :class:`KKT`, built by :func:`layout`)::
 
-    (node_u (n_nodes,) int64  offset of a free node's x coordinate, -1 when clamped,
-     con_u (n_con,) int64     offset of each constraint's multiplier,
-     mass_p, mass_q (n_entries,) int64, mass_val (n_entries,) kg: entries M[p, q] between free
-                              nodes (both orders of an off-diagonal pair),
-     dims (3,) int64          (n_u, kl, ku))
+    node_u (n_nodes,) int64   offset of a free node's x coordinate, -1 when clamped
+    con_u (n_con,) int64      offset of each constraint's multiplier
+    mass_p, mass_q (n_entries,) int64, mass_val (n_entries,) kg: entries M[p, q] between free
+                              nodes (both orders of an off-diagonal pair)
+    dims (3,) int64           n_u, kl, ku (:data:`N_U`, :data:`KL`, :data:`KU`)
 
-Scratch (``kws`` tuple, :func:`scratch`): ``(band (n_u, 2 kl + ku + 1), lmul (n_u, kl),
-rhs (n_u,), piv (n_u,) int64)``. ``band[i, j - i + kl]`` holds entry (i, j).
+Scratch (the record :class:`KKTScratch`, :func:`scratch`): ``band (n_u, 2 kl + ku + 1)``, ``lmul
+(n_u, kl)``, ``rhs (n_u,)``, ``piv (n_u,) int64``. ``band[i, j - i + kl]`` holds entry (i, j).
 
 A network whose massive bars are class 1 (no node shared by two massive bars) keeps the
 node-local inverse of :mod:`solver.build.network` and never comes here: ``node_u`` is then empty.
 """
 import math
+from typing import NamedTuple
 
 import numpy as np
 from scipy.sparse import csr_matrix
@@ -50,7 +51,33 @@ EMPTY_F = np.zeros(0)
 EMPTY_F.setflags(write=False)
 NO_DIMS = np.zeros(3, dtype=np.int64)
 NO_DIMS.setflags(write=False)
-NO_KKT = (EMPTY_I, EMPTY_I, EMPTY_I, EMPTY_I, EMPTY_F, NO_DIMS)
+N_U, KL, KU = 0, 1, 2          # the entries of ``KKT.dims``
+
+
+class KKT(NamedTuple):
+    """The layout of the KKT system of massive bars that share nodes (empty arrays: none)."""
+    node_u: np.ndarray
+    con_u: np.ndarray
+    mass_p: np.ndarray
+    mass_q: np.ndarray
+    mass_val: np.ndarray
+    dims: np.ndarray
+
+    @property
+    def active(self):
+        """Whether the network takes this system (massive bars that share nodes)."""
+        return self.node_u.shape[0] != 0
+
+
+class KKTScratch(NamedTuple):
+    """Scratch of the KKT solve."""
+    band: np.ndarray
+    lmul: np.ndarray
+    rhs: np.ndarray
+    piv: np.ndarray
+
+
+NO_KKT = KKT(EMPTY_I, EMPTY_I, EMPTY_I, EMPTY_I, EMPTY_F, NO_DIMS)
 
 
 NO_FORCE = np.zeros((0, 3))
@@ -159,10 +186,10 @@ def layout(n_nodes, clamped, members, mass_p, mass_q, x0):
 
 
 def scratch(dims):
-    """The ``kws`` scratch tuple for KKT dimensions ``dims = (n_u, kl, ku)``."""
+    """The :class:`KKTScratch` for KKT dimensions ``dims = (n_u, kl, ku)``."""
     n_u, kl, ku = (int(d) for d in dims)
-    return (np.zeros((n_u, 2 * kl + ku + 1)), np.zeros((n_u, kl)), np.zeros(n_u),
-            np.zeros(n_u, dtype=np.int64))
+    return KKTScratch(np.zeros((n_u, 2 * kl + ku + 1)), np.zeros((n_u, kl)), np.zeros(n_u),
+                      np.zeros(n_u, dtype=np.int64))
 
 
 @jit
@@ -236,13 +263,14 @@ def _grad_head(bx, by, bz, rot, c):
 
 @jit
 def assemble(x, tail, head, rot, kkt, kws, bvec):
-    """Fill ``kws[0]`` with the KKT matrix at positions ``x`` (member vectors into ``bvec``).
+    """Fill ``kws.band`` with the KKT matrix at positions ``x`` (member vectors into ``bvec``).
     Returns ``OK`` or ``BAD_WORKSPACE``."""
-    node_u, con_u, mass_p, mass_q, mass_val, dims = kkt
-    band = kws[0]
-    n, kl, ku = dims[0], dims[1], dims[2]
-    if band.shape[0] < n or band.shape[1] != 2 * kl + ku + 1 or kws[1].shape[1] != kl \
-            or kws[2].shape[0] < n or bvec.shape[0] < tail.shape[0]:
+    node_u, con_u, mass_p, mass_q, mass_val, dims = (kkt.node_u, kkt.con_u, kkt.mass_p,
+                                                     kkt.mass_q, kkt.mass_val, kkt.dims)
+    band = kws.band
+    n, kl, ku = dims[N_U], dims[KL], dims[KU]
+    if band.shape[0] < n or band.shape[1] != 2 * kl + ku + 1 or kws.lmul.shape[1] != kl \
+            or kws.rhs.shape[0] < n or bvec.shape[0] < tail.shape[0]:
         return BAD_WORKSPACE
     band[:n, :] = 0.0
     for e in range(mass_p.shape[0]):
@@ -274,8 +302,8 @@ def assemble(x, tail, head, rot, kkt, kws, bvec):
 
 @jit
 def _solve(kkt, kws):
-    dims = kkt[5]
-    return band_lu_solve(kws[0], kws[1], kws[3], kws[2], dims[0], dims[1], dims[2])
+    dims = kkt.dims
+    return band_lu_solve(kws.band, kws.lmul, kws.piv, kws.rhs, dims[N_U], dims[KL], dims[KU])
 
 
 @jit_inline
@@ -295,8 +323,8 @@ def _solve_velocity_rows(x, v, f, tail, head, rot, kkt, kws, bvec, projection):
     status = assemble(x, tail, head, rot, kkt, kws, bvec)
     if status != OK:
         return status
-    node_u, con_u = kkt[0], kkt[1]
-    rhs = kws[2]
+    node_u, con_u = kkt.node_u, kkt.con_u
+    rhs = kws.rhs
     _node_rhs(node_u, rhs, f, x.shape[0])
     for c in range(tail.shape[0]):
         dx, dy, dz = rel(v, tail[c], head[c], rot, c)
@@ -313,8 +341,8 @@ def accelerations(x, v, f, tail, head, rot, kkt, kws, bvec, lam, out):
     status = _solve_velocity_rows(x, v, f, tail, head, rot, kkt, kws, bvec, False)
     if status != OK:
         return status
-    node_u, con_u = kkt[0], kkt[1]
-    rhs = kws[2]
+    node_u, con_u = kkt.node_u, kkt.con_u
+    rhs = kws.rhs
     for p in range(x.shape[0]):
         u = node_u[p]
         for i in range(3):
@@ -326,8 +354,8 @@ def accelerations(x, v, f, tail, head, rot, kkt, kws, bvec, lam, out):
 
 @jit
 def _apply_correction(y, kkt, kws):
-    node_u = kkt[0]
-    rhs = kws[2]
+    node_u = kkt.node_u
+    rhs = kws.rhs
     for p in range(y.shape[0]):
         u = node_u[p]
         if u >= 0:
@@ -339,8 +367,8 @@ def _apply_correction(y, kkt, kws):
 def project_positions(x, tail, head, rot, length, kkt, kws, bvec, tol, max_iter):
     """Mass-weighted Gauss-Newton projection of positions with the full mass matrix:
     ``[M -J^T; J 0] [dx; dmu] = [0; -g]``, ``x += dx``, until ``|g_c| < tol L_c^2``."""
-    node_u, con_u = kkt[0], kkt[1]
-    rhs = kws[2]
+    node_u, con_u = kkt.node_u, kkt.con_u
+    rhs = kws.rhs
     for it in range(max_iter + 1):
         worst = constraint_error_arrays(x, tail, head, length, rot)
         if worst < tol:

@@ -2,9 +2,9 @@
 external forces, and the strikers, prism stops and bar contacts of a scene that has them), prism
 heights, constraint error and finiteness in one pass for the divergence check and a frame
 (:func:`state_summary`), the contact-free energy of a step beside a near miss
-(:func:`step_energy`), and cable tensions. The arrays are those of
-:mod:`solver.kernels.dynamics` (``net``, ``act``) and the ``summ`` tuple of
-:func:`summary_arrays`.
+(:func:`step_energy`), and cable tensions. The kernels take the records of
+:mod:`solver.kernels.records` (the model ``m`` with its :class:`~solver.kernels.records.Summary`,
+its data ``d``).
 """
 import math
 
@@ -13,7 +13,8 @@ import numpy as np
 from solver._jit import jit
 from solver.kernels.barcontact import bar_energy_scanned, base_energy
 from solver.kernels.contact import extra_energy
-from solver.kernels.dynamics import all_finite, readonly
+from solver.kernels.dynamics import all_finite
+from solver.kernels.records import Summary, readonly
 from solver.kernels.rotation import constraint_error_arrays, rel
 
 
@@ -57,7 +58,7 @@ def _node_energy(x, v, x0, f_ext, node_mass, clamped, node_mult):
 
 @jit
 def _cable_energy(x, cable_a, cable_b, cable_rot, rest, EA, cable_mult):
-    """``sum mult_c 1/2 EA_c / L_c (s_c - L_c)_+^2`` J (``cable_rot`` as in ``net``)."""
+    """``sum mult_c 1/2 EA_c / L_c (s_c - L_c)_+^2`` J (``cable_rot`` as in the topology)."""
     e = 0.0
     for c in range(cable_a.shape[0]):
         dx, dy, dz = rel(x, cable_a[c], cable_b[c], cable_rot, c)
@@ -92,63 +93,68 @@ def level_heights(x, levels, heights):
 
 def summary_arrays(x0, node_mass, clamped, bar_a, bar_b, bar_mass, levels, n_cables,
                    node_mult=None, cable_mult=None):
-    """The ``summ`` tuple of :func:`state_summary`: the arrays it needs that ``net``/``act`` do
-    not hold. ``levels`` (n_columns, n_levels, k) node indices (a level's height is the mean z of
+    """The :class:`~solver.kernels.records.Summary` of :func:`state_summary`: the arrays it needs
+    that the topology and the data do not hold (read-only). ``levels`` (n_columns, n_levels, k) node indices (a level's height is the mean z of
     its k nodes); ``node_mult``/``cable_mult``: how many nodes or cables of the full network each
     one stands for (default 1)."""
-    return tuple(readonly(a) for a in (
+    return Summary(*(readonly(a) for a in (
         x0, node_mass, clamped, np.ones(len(node_mass)) if node_mult is None else node_mult,
         bar_a, bar_b, bar_mass, np.ones(n_cables) if cable_mult is None else cable_mult,
-        levels))
+        levels)))
+
+
+NO_SUMMARY = Summary(*(readonly(a) for a in (
+    np.zeros((0, 3)), np.zeros(0), np.zeros(0, np.bool_), np.zeros(0), np.zeros(0, np.int64),
+    np.zeros(0, np.int64), np.zeros(0), np.zeros(0), np.zeros((0, 0, 1), np.int64))))
 
 
 @jit
-def _contact_free_energy(x, v, net, act, x0, node_mass, clamped, node_mult, bar_a, bar_b,
-                         bar_mass, cable_mult):
+def _contact_free_energy(x, v, m, d):
     """Kinetic, cable and external-force energy J, and that of strikers and prism stops where a
-    scene has them: :func:`state_summary`'s energy less the bar contact, from the summary's
+    scene has them: :func:`state_summary`'s energy less the bar contact, from the model's summary
     arrays (see there)."""
+    sm, topo = m.summary, m.topo
     # one compiled function per part: written as one loop nest, the same code ran 3x slower
-    e = (_node_energy(x, v, x0, act[2], node_mass, clamped, node_mult)
-         + _bar_kinetic_energy(v, bar_a, bar_b, bar_mass)
-         + _cable_energy(x, net[7], net[8], net[10], act[0], act[1], cable_mult))
-    ex = act[3]
-    if ex[2].shape[0] != 0 or ex[3].shape[0] != 0:      # strikers, prism stops
-        e += extra_energy(x, v, ex)
+    e = (_node_energy(x, v, sm.x0, d.f_ext, sm.node_mass, sm.clamped, sm.node_mult)
+         + _bar_kinetic_energy(v, sm.bar_a, sm.bar_b, sm.bar_mass)
+         + _cable_energy(x, topo.cable_a, topo.cable_b, topo.cable_rot, d.rest, d.EA,
+                         sm.cable_mult))
+    if m.stops.height.shape[0] != 0 or m.strikers.row.shape[0] != 0:     # kernels.contact
+        e += extra_energy(x, v, m)
     return e
 
 
 @jit
-def state_summary(x, v, net, act, summ, heights):
-    """``(finite, energy J, relative constraint error, smallest prism height m)`` of a state, and
-    the prism heights (n_columns, n_prisms) m into ``heights``, in one pass: what the divergence
-    check and a frame need. ``net``, ``act``: the kernel tuples; ``summ``: the tuple of
-    :func:`summary_arrays`. The energy is kinetic (lumped node masses, bar masses ``m_b / 6
-    (|v_a|^2 + v_a.v_b + |v_b|^2)``) plus cable strain energy ``1/2 EA / L (s - L)_+^2``, minus
-    the work ``f_ext . (x - x0)`` of constant external forces; each node and cable term counts
-    ``node_mult``/``cable_mult`` times (a reduced network). The smallest height is NaN when a
-    height is."""
-    x0, node_mass, clamped, node_mult, bar_a, bar_b, bar_mass, cable_mult, levels = summ
-    e = _contact_free_energy(x, v, net, act, x0, node_mass, clamped, node_mult, bar_a, bar_b,
-                             bar_mass, cable_mult)
-    ex = act[3]
-    if ex[6].shape[0] != 0:
-        e += bar_energy_scanned(x, ex[6], ex[7], ex[8]) + base_energy(x, ex[1], ex[7])
+def state_summary(x, v, m, d, heights):
+    """``(finite, energy J, relative constraint error, smallest prism height m)`` of a state of
+    the model ``m`` (data ``d``: rest lengths, EA, external forces, the contact scans), and the
+    prism heights (n_columns, n_prisms) m into ``heights``, in one pass: what the divergence check
+    and a frame need, from the model's :class:`~solver.kernels.records.Summary`. The energy is
+    kinetic (lumped node masses, bar masses ``m_b / 6 (|v_a|^2 + v_a.v_b + |v_b|^2)``) plus cable
+    strain energy ``1/2 EA / L (s - L)_+^2``, minus the work ``f_ext . (x - x0)`` of constant
+    external forces; each node and cable term counts ``node_mult``/``cable_mult`` times (a reduced
+    network); plus the strikers, stops and bar contacts of the scene. The smallest height is NaN
+    when a height is."""
+    e = _contact_free_energy(x, v, m, d)
+    bc = m.bar_contact
+    if bc.pairs.shape[0] != 0:
+        e += (bar_energy_scanned(x, bc, d.contact.scan)
+              + base_energy(x, m.levels, bc, m.per_level))
+    topo = m.topo
     return (all_finite(x) and all_finite(v), e,
-            constraint_error_arrays(x, net[3], net[4], net[5], net[9]),
-            level_heights(x, levels, heights))
+            constraint_error_arrays(x, topo.con_tail, topo.con_head, topo.con_length,
+                                    topo.con_rot),
+            level_heights(x, m.summary.levels, heights))
 
 
 @jit
-def step_energy(x, v, net, act):
+def step_energy(x, v, m, d):
     """Energy J of a state in which no contact acts (kinetic, cable, external forces, and strikers
-    and prism stops where a scene has them), from the state summary's arrays the extras carry
-    (``act[3][12:20]``, :func:`solver.models.extras.energy_slots`); NaN when they are empty."""
-    ex = act[3]
-    if ex[13].shape[0] == 0:
+    and prism stops where a scene has them), from the model's summary arrays; NaN when the model
+    has none (a ``sym3d`` run that is not exact)."""
+    if m.summary.node_mass.shape[0] == 0:
         return math.nan
-    return _contact_free_energy(x, v, net, act, ex[12], ex[13], ex[14], ex[15], ex[16], ex[17],
-                                ex[18], ex[19])
+    return _contact_free_energy(x, v, m, d)
 
 
 @jit

@@ -40,13 +40,14 @@ of 3D impacts coincide here).
 """
 from __future__ import annotations
 
+import copy
 import math
 
 import numpy as np
 
 from solver.kernels import dynamics as dyn
 from solver._jit import jit
-from solver.models.base import Model
+from solver.models.base import SelfIntegrating
 from solver.models.prism_law import (PrismLaw, poly_eval, cross_length, prism_energy, rigid_force,
                         table_law, twist)
 
@@ -191,13 +192,16 @@ def _chain_run(u, w, dt, n_steps, n_sub, h0, inv_m, f_ext, kind, rigid, lo, dh, 
     return n_steps, dyn.OK
 
 
-class Chain1D(Model):
+class Chain1D(SelfIntegrating):
     """The 1D chain as a model of one column (see the module doc). State ``u``, ``w``
     (n_levels,)."""
     name = 'chain1d'
-    integrates_itself = True
+    has_bars = False
 
-    def __init__(self, network, f_ext=None):
+    def __init__(self, network, f_ext=None, effects=None, striker_state=None):
+        if effects is not None and effects.active:
+            raise ValueError('model chain1d: has no strikers, prism stops or cable damping; use '
+                             'model full3d or sym3d')
         meta = network.meta
         if meta.get('builder') != 'column' or network.n_columns != 1:
             raise ValueError('model chain1d: needs a single column built by the column builder')
@@ -238,11 +242,9 @@ class Chain1D(Model):
             self.substep = min(self.substep, OMEGA_SUBSTEP / omega)
         self.u = np.zeros(len(lev))
         self.w = np.zeros(len(lev))
-        self.x, self.v = self.u, self.w          # the state, as Simulation keeps and restores it
         self._acc = np.zeros(len(lev))
         self._rest = np.array(network.cable_rest_length)
         self._EA = np.array(network.cable_EA)
-        self.act = (self._rest.copy(), self._EA.copy(), self.f_ext)
         c = network.x0[lev]
         self._center = c[:, :, :2].mean(axis=1)
         self._z0 = c[:, :, 2].mean(axis=1)
@@ -250,10 +252,16 @@ class Chain1D(Model):
         self._theta0 = math.atan2(d[1], d[0])
 
     def copy(self):
-        new = super().copy()            # x, v: copies of u, w; the kernel advances u, w
-        new.u, new.w, new._acc = new.x, new.v, self._acc.copy()
+        new = copy.copy(self)
+        new.u, new.w, new._acc = self.u.copy(), self.w.copy(), self._acc.copy()
         new._rest, new._EA = self._rest.copy(), self._EA.copy()
         return new
+
+    def keep(self):
+        return self.u.copy(), self.w.copy()
+
+    def restore(self, kept):
+        self.u[:], self.w[:] = kept
 
     def _prism_cables(self, i):
         """Cross cables (k, L) of prism i, and the base cables (weight, k, L) it carries (half of
@@ -317,12 +325,6 @@ class Chain1D(Model):
                                    self.inv_m, self.f_ext, law.kind, law.rigid, law.lo, law.dh,
                                    fcoef, self._acc)
         return int(steps), int(status)
-
-    def snapshot(self):
-        return self.u.copy(), self.w.copy()
-
-    def restore(self, snap):
-        self.u[:], self.w[:] = snap
 
     def positions(self):
         """Full (n_nodes, 3) m: levels moved by u and turned/scaled by the quasi-static twist and

@@ -1,20 +1,17 @@
-"""What a scene switches on of :mod:`solver.kernels.contact` (cable damping, prism stops,
-strikers), and how it is loaded into a model: the extras tuple (``act[3]``), the strikers' rows of
-the state, the padded ``net``/``ws``/``summ`` tuples."""
+"""What a scene switches on of the effects (cable damping, prism stops, strikers, bar contact:
+:mod:`solver.kernels.contact`, :mod:`solver.kernels.barcontact`), as :class:`Effects`, and the
+one builder of a model's records (:func:`build`, :mod:`solver.kernels.records`): the effects join
+the model record when it is built, the strikers' rows join the state, topology, forces and
+summary."""
 import math
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from solver.kernels import barcontact
-from solver.kernels import dynamics as dyn
-from solver.kernels.contact import NO_EXTRAS
+from solver.kernels import records as rec
+from solver.kernels.summary import NO_SUMMARY
 from solver.build import memo
-
-
-def active_spec(spec):
-    """Whether a :func:`scene_extras` dict switches anything on."""
-    return (spec['damp'] is not None or spec['stop_h'] is not None or spec['strikers']
-            or spec.get('pairs') is not None)
 
 
 def bar_pairs(network):
@@ -51,23 +48,22 @@ def _read_only(a):
 
 
 def _bar_contact(scene, network):
-    """``(pairs, bpar)`` of the scene's bar contact (:mod:`solver.kernels.barcontact`), or
-    ``(None, None)`` with ``contact.bars: none`` or no prisms."""
+    """``(pairs, diameter m, Hertz k, smallest node mass kg, steps per contact)`` of the scene's
+    bar contact (:mod:`solver.kernels.barcontact`), or ``(None, ...)`` with ``contact.bars:
+    none`` or no prisms."""
     pairs = None
     if scene.contact.bars != 'none':         # one search per topology inside a batch
         pairs = memo.lookup('bar-pairs', (network.levels, network.bar_a, network.bar_b),
                             lambda: _read_only(bar_pairs(network)))
     if pairs is None:
-        return None, None
+        return None, 0.0, 0.0, 0.0, 0.0
     mat = scene.materials
     mass = np.asarray(network.node_mass)[~np.asarray(network.clamped, bool)]
     mass = mass[mass > 0]
     m_min = float(mass.min()) if mass.size else float(network.total_mass) / network.n_nodes
-    bpar = np.array([2.0 * mat.bar_radius,
-                     barcontact.hertz_constant(mat.bar_radius, mat.bar_E, mat.bar_poisson),
-                     1.0, m_min, float(scene.contact.resolution),
-                     float(network.levels.shape[2])])
-    return pairs, bpar
+    return (pairs, 2.0 * mat.bar_radius,
+            barcontact.hertz_constant(mat.bar_radius, mat.bar_E, mat.bar_poisson), m_min,
+            float(scene.contact.resolution))
 
 
 def _model_pairs(pairs, reduced):
@@ -136,9 +132,51 @@ def stop_heights(network, tolerance):
     return np.full((network.n_columns, network.n_prisms), stop)
 
 
-def scene_extras(scene, network):
-    """What a scene switches on, for :func:`attach`: a dict with ``damp`` (full (n_cables,) or
-    None), ``stop_h`` ((n_columns, n_prisms) or None), ``strikers`` (bool), ``par`` (8,)."""
+@dataclass(frozen=True)
+class Effects:
+    """What a scene switches on of the effects (:mod:`solver.kernels.contact`,
+    :mod:`solver.kernels.barcontact`), on the full network, for :func:`build`: ``damp`` (n_cables,)
+    N s/m or None, ``stop_h`` (n_columns, n_prisms) m or None and ``k_stop`` N/m, ``strikers``
+    (one per column) with their contact law (``striker_k``, ``striker_expo``), ``striker_mass``
+    kg, the scene's ``gravity`` m/s^2, ``steps`` per contact and ``m_eff`` kg; ``pairs`` (full
+    node indices (n, 4), :func:`bar_pairs`) or None with the bars' ``diameter`` m, Hertz ``k``,
+    ``m_min`` kg and ``resolution``; the ledger's ``energy_rate`` per second and whether steps after
+    a contact are checked against it (``refine``)."""
+    damp: np.ndarray | None = None
+    stop_h: np.ndarray | None = None
+    k_stop: float = 0.0
+    strikers: bool = False
+    striker_k: float = 0.0
+    striker_expo: float = 1.0
+    striker_mass: float = 0.0
+    gravity: float = 0.0
+    steps: float = 0.0
+    m_eff: float = 0.0
+    pairs: np.ndarray | None = None
+    diameter: float = 0.0
+    k: float = 0.0
+    m_min: float = 0.0
+    resolution: float = 0.0
+    energy_rate: float = 0.0
+    refine: bool = False
+
+    @property
+    def active(self):
+        """Whether anything is switched on."""
+        return (self.damp is not None or self.stop_h is not None or self.strikers
+                or self.pairs is not None)
+
+    def without(self, *names):
+        """A copy with the effects ``names`` (``'pairs'``, ``'strikers'``) switched off."""
+        off = {'pairs': None, 'strikers': False}
+        return replace(self, **{name: off[name] for name in names})
+
+
+NONE = Effects()
+
+
+def scene_effects(scene, network):
+    """The :class:`Effects` a scene switches on for ``network``."""
     imp = scene.loading.impact
     lock = scene.contact.lock != 'none'
     strikers = imp.mode == 'striker'
@@ -149,158 +187,144 @@ def scene_extras(scene, network):
     if strikers:            # the striker against the lumped masses of its column's end level
         m_end = np.asarray(network.node_mass)[np.asarray(network.levels)[:, -1]].sum(axis=1)
         m_eff = 1.0 / (1.0 / imp.striker_mass + 1.0 / float(m_end.min()))
-    par = np.array([scene.contact.stiffness, imp.contact_stiffness,
-                    1.0 if imp.contact == 'linear' else 1.5,
-                    float(network.levels.shape[2]) if network.levels.size else 3.0,
-                    imp.striker_mass, scene.loading.gravity, float(scene.contact.resolution),
-                    m_eff])
-    pairs, bpar = _bar_contact(scene, network)
-    return {'damp': cable_damping(scene, network),
-            'stop_h': stop_heights(network, scene.contact.tolerance) if lock else None,
-            'strikers': strikers, 'par': par, 'pairs': pairs, 'bpar': bpar,
-            'energy_rate': float(scene.divergence.energy_error),
-            'refine': scene.contact.refine == 'ledger'}
+    pairs, diameter, k, m_min, resolution = _bar_contact(scene, network)
+    return Effects(
+        damp=cable_damping(scene, network),
+        stop_h=stop_heights(network, scene.contact.tolerance) if lock else None,
+        k_stop=float(scene.contact.stiffness), strikers=strikers,
+        striker_k=float(imp.contact_stiffness),
+        striker_expo=1.0 if imp.contact == 'linear' else 1.5,
+        striker_mass=float(imp.striker_mass), gravity=float(scene.loading.gravity),
+        steps=float(scene.contact.resolution), m_eff=float(m_eff),
+        pairs=pairs, diameter=float(diameter), k=float(k), m_min=float(m_min),
+        resolution=float(resolution), energy_rate=float(scene.divergence.energy_error),
+        refine=scene.contact.refine == 'ledger')
 
 
-def _pair_slots(spec, reduced, n_rows, levels):
-    """The four bar-contact slots of the extras tuple for a model (``reduced`` or None) whose
-    state has ``n_rows`` rows and whose prisms are given by ``levels`` (the extras' slot)."""
-    if spec.get('pairs') is None:
-        return NO_EXTRAS[6:10]
-    rows, mult = _model_pairs(spec['pairs'], reduced)
-    bpar = spec['bpar'].copy()
-    bpar[2] = mult
-    # contacts met, slack, look, motion since the last rescan (barcontact.HEAD entries), each
-    # pair's and each prism's gap bound (kernels.contactsteps.contact_step), the positions the
-    # last call ended at (resume); the motion NaN: the first scan evaluates every pair
-    prisms = levels.shape[0] * max(levels.shape[1] - 1, 0) if levels.size else 0
-    state = np.concatenate(([0.0, -1.0, 1.0, np.nan], np.zeros(len(rows) + prisms),
-                            np.full(3 * n_rows, np.nan)))
-    return rows, bpar, state, np.zeros((2, n_rows, 3))
+def _f(shape, dtype=np.float64):
+    return rec.readonly(np.zeros(shape, dtype=dtype))
 
 
-def _active_slot(spec):
-    """The extras slot listing the pairs the force evaluations look at (-1: all)."""
-    if spec.get('pairs') is None:
-        return NO_EXTRAS[11]
-    return np.full(len(spec['pairs']) + 1, -1, dtype=np.int64)
+def _levels_of(levels_full, reduced):
+    """The levels of the model's state: the full network's, or one representative per level."""
+    if not levels_full.size:
+        return np.zeros((0, 0, 1), dtype=np.int64)
+    if reduced is None:
+        return np.ascontiguousarray(levels_full, dtype=np.int64)
+    return np.ascontiguousarray(np.asarray(reduced.node_rep)[levels_full[:, :, :1]],
+                                dtype=np.int64)
 
 
-def _dissipation_slot(spec):
-    """The extras slot of the cable damping's power and dissipated energy (its own per model)."""
-    return NO_EXTRAS[10] if spec['damp'] is None else np.zeros(2)
+def _striker_rows(network, ns, striker_state):
+    """Start positions and velocities (ns, 3) of the strikers' contact faces: at the centre of
+    each column's free end, touching it and at rest, or at ``striker_state`` ((ns, 2) z, v_z);
+    and the rest positions."""
+    x_full = np.asarray(network.x0)
+    levels = np.asarray(network.levels)
+    x_extra = np.zeros((ns, 3))
+    for c in range(ns):
+        end = x_full[levels[c, -1]]
+        x_extra[c] = (end[:, 0].mean(), end[:, 1].mean(), end[:, 2].mean())
+    x_rest = x_extra.copy()
+    v_extra = np.zeros((ns, 3))
+    if striker_state is not None:
+        x_extra[:, 2] = striker_state[:, 0]
+        v_extra[:, 2] = striker_state[:, 1]
+    return x_extra, v_extra, x_rest
 
 
-def network_extras(spec, network):
-    """The extras tuple of ``spec`` for the full ``network`` without strikers (cable damping and
-    prism stops only): the member forces of a full state, as the base force needs them."""
-    if spec is None or not active_spec(spec):
-        return NO_EXTRAS
-    damp = NO_EXTRAS[0] if spec['damp'] is None else np.array(spec['damp'], dtype=np.float64)
-    stop_h = NO_EXTRAS[2] if spec['stop_h'] is None else np.array(spec['stop_h'], np.float64)
-    # writable like NO_EXTRAS's (one compiled type; never written)
-    levels = np.array(network.levels, dtype=np.int64) if network.levels.size else NO_EXTRAS[1]
-    return (damp, levels, stop_h, NO_EXTRAS[3], NO_EXTRAS[4], spec['par'].copy(),
-            *_pair_slots(spec, None, network.n_nodes, levels), _dissipation_slot(spec),
-            _active_slot(spec), *NO_EXTRAS[12:])
-
-
-def energy_slots(model, spec):
-    """The last extras slots: copies of the model's state summary arrays (``x0``, node mass,
-    clamped, node multiplicity, massive bars, cable multiplicity) and ``divergence.energy_error``
-    as a rate per second, followed by the two halving levels of the steps after a contact
-    (``contact.refine: ledger``; without them the steps are never refined), for
-    :func:`solver.kernels.summary.step_energy`, which the RK4 kernels use to check a whole step
-    beside a near miss of bar contact and every step after a contact; empty without bar contact or
-    without a summary (a ``sym3d`` model that is not exact). Writable copies, like
-    :data:`NO_EXTRAS`' (one compiled type)."""
-    s = model.summ
-    if spec.get('pairs') is None or s is None:
-        return NO_EXTRAS[12:]
-    return (np.array(s[0], dtype=np.float64).reshape(-1, 3), np.array(s[1], dtype=np.float64),
-            np.array(s[2], dtype=np.bool_), np.array(s[3], dtype=np.float64),
-            np.array(s[4], dtype=np.int64), np.array(s[5], dtype=np.int64),
-            np.array(s[6], dtype=np.float64), np.array(s[7], dtype=np.float64),
-            np.array([spec.get('energy_rate', 0.0)] + [0.0, 0.0] * spec.get('refine', True),
-                     dtype=np.float64))
-
-
-def attach(model, spec, striker_state=None):
-    """Load the extras ``spec`` (:func:`scene_extras`) into a ``full3d`` or ``sym3d`` model: its
-    ``act`` gets the extras tuple; with strikers its state arrays get one row per column at the
-    end (the striker's contact face at ``(x, y, z_s)``: x, y stay at the column's centre), and its
-    ``net``, ``ws``, ``summ`` are padded to match. ``striker_state`` ((n_columns, 2) z, v_z):
-    where the strikers start (default: touching the free end, at rest). Sets
-    ``model.n_strikers``."""
-    net_full = model.network
-    reduced = model.reduced
-    if spec is not None and np.shape(spec['par']) != NO_EXTRAS[5].shape:
-        raise ValueError(f'extras: par has {np.size(spec["par"])} entries, the kernels read '
-                         f'{NO_EXTRAS[5].size} (solver.kernels.contact)')
-    if spec is None or not active_spec(spec):
-        model.n_strikers = 0
-        return model
-    levels_full = np.asarray(spec.get('levels', net_full.levels))     # (n_columns, n_levels, k)
-    if reduced is None:                  # a writable copy, like NO_EXTRAS's (one compiled type)
-        levels = np.array(levels_full, dtype=np.int64)
-    else:
-        levels = np.ascontiguousarray(np.asarray(reduced.node_rep)[levels_full[:, :, :1]],
-                                      dtype=np.int64)
-    damp = NO_EXTRAS[0]
-    if spec['damp'] is not None:
+def build(network, topo, x, rest, EA, f_ext, summary, effects=NONE, reduced=None,
+          striker_state=None):
+    """The records ``(Model, Data, Work)`` of a model (:mod:`solver.kernels.records`): its
+    topology ``topo``, state ``x`` (the model's rows, at rest), cables ``rest`` and ``EA``,
+    external forces ``f_ext`` and state summary (``summary_arrays`` of its own state, or None when
+    it has none), with the ``effects`` of its scene (:class:`Effects`, on the full ``network``;
+    ``reduced``: the reduced network of ``sym3d``, or None). Strikers add one row per column to
+    the state (the striker's contact face at ``(x, y, z_s)``: x, y stay at the column's centre),
+    padded into the topology, forces and summary; ``striker_state`` ((n_columns, 2) z, v_z): where
+    they start (default: touching the free end, at rest)."""
+    levels = _levels_of(np.asarray(network.levels), reduced)
+    n = x.shape[0]
+    ns = network.levels.shape[0] if effects.strikers else 0
+    v = np.zeros((n, 3))
+    f_ext = np.array(f_ext, dtype=np.float64)
+    if ns:
+        if topo.kkt.node_u.shape[0]:
+            raise ValueError('loading.impact.mode: striker is not available with massive bars '
+                             'that share nodes (materials.bar_mass_fraction, '
+                             'materials.bar_mass): the striker is not part of their mass-matrix '
+                             'system; use mode impulse or energy, or massless bars')
+        x_extra, v_extra, x_rest = _striker_rows(network, ns, striker_state)
+        x = np.concatenate([x, x_extra])
+        v = np.concatenate([v, v_extra])
+        # no mass term: the striker's inverse mass goes into w_diag (its force is along z only)
+        topo = topo._replace(
+            w_diag=rec.readonly(np.concatenate([topo.w_diag,
+                                                np.full(ns, 1.0 / effects.striker_mass)])),
+            partner=rec.readonly(np.concatenate([topo.partner, -np.ones(ns, np.int64)])),
+            w_off=rec.readonly(np.concatenate([topo.w_off, np.zeros(ns)])))
+        f_ext = np.concatenate([f_ext, np.zeros((ns, 3))])
+        f_ext[n:, 2] = -effects.striker_mass * effects.gravity
+        if summary is not None:
+            summary = summary._replace(**{k: rec.readonly(a) for k, a in (
+                ('x0', np.concatenate([summary.x0, x_rest])),
+                ('node_mass', np.concatenate([summary.node_mass, np.zeros(ns)])),
+                ('clamped', np.concatenate([summary.clamped, np.zeros(ns, bool)])),
+                ('node_mult', np.concatenate([summary.node_mult, np.zeros(ns)])))})
+    rows = n + ns
+    damp = _f(0)
+    if effects.damp is not None:
         if reduced is None:
-            damp = np.array(spec['damp'], dtype=np.float64)
+            damp = np.array(effects.damp, dtype=np.float64)
         else:
             damp = np.zeros(len(reduced.cable_a))
-            damp[reduced.cable_map] = spec['damp']
-    stop_h = NO_EXTRAS[2] if spec['stop_h'] is None else np.array(spec['stop_h'], np.float64)
-    n = model.x.shape[0]
-    ns = levels_full.shape[0] if spec['strikers'] else 0
-    rows = np.arange(n, n + ns, dtype=np.int64)
-    if not levels.size:
-        levels = NO_EXTRAS[1]
-    ex = (damp, levels, stop_h, rows, np.arange(ns, dtype=np.int64), spec['par'].copy(),
-          *_pair_slots(spec, reduced, n + ns, levels), _dissipation_slot(spec),
-          _active_slot(spec))
-    if ns and len(model.net) > 12 and np.asarray(model.net[12][0]).shape[0]:
-        raise ValueError('loading.impact.mode: striker is not available with massive bars that '
-                         'share nodes (materials.bar_mass_fraction, materials.bar_mass): the '
-                         'striker is not part of their mass-matrix system; use mode impulse or '
-                         'energy, or massless bars')
-    if ns:
-        x_full = np.asarray(net_full.x0)
-        x_extra = np.zeros((ns, 3))
-        for c in range(ns):
-            end = x_full[levels_full[c, -1]]
-            x_extra[c] = (end[:, 0].mean(), end[:, 1].mean(), end[:, 2].mean())
-        x_extra0 = x_extra.copy()
-        v_extra = np.zeros((ns, 3))
-        if striker_state is not None:
-            x_extra[:, 2] = striker_state[:, 0]
-            v_extra[:, 2] = striker_state[:, 1]
-        model.x = np.concatenate([model.x, x_extra])
-        model.v = np.concatenate([model.v, v_extra])
-        net = model.net
-        pad = (np.concatenate([net[0], np.zeros(ns)]),          # no mass term: the striker's
-               np.concatenate([net[1], -np.ones(ns, np.int64)]),  # acceleration is set below
-               np.concatenate([net[2], np.zeros(ns)]))
-        # the striker's inverse mass goes into w_diag: its force is along z only
-        pad[0][n:] = 1.0 / spec['par'][4]
-        model.net = tuple(dyn.readonly(a) for a in pad) + tuple(net[3:])
-        f_ext = np.concatenate([model.act[2], np.zeros((ns, 3))])
-        f_ext[n:, 2] = -spec['par'][4] * spec['par'][5]
-        model.act = (model.act[0], model.act[1], f_ext, ex)
-        n_con = len(net[3])
-        model.ws = dyn.workspace(n + ns, n_con, model.ws[3].shape[1] - 1)
-        if model.summ is not None:
-            s = model.summ
-            model.summ = tuple(dyn.readonly(a) for a in (
-                np.concatenate([s[0], x_extra0]), np.concatenate([s[1], np.zeros(ns)]),
-                np.concatenate([s[2], np.zeros(ns, bool)]),
-                np.concatenate([s[3], np.zeros(ns)]))) + tuple(s[4:])
-    model.act = (model.act[0], model.act[1], model.act[2], ex + energy_slots(model, spec))
-    model.n_strikers = ns
-    return model
+            damp[reduced.cable_map] = effects.damp
+    pairs, mult = _f((0, 8), np.int64), 1.0
+    if effects.pairs is not None:
+        pairs, mult = _model_pairs(effects.pairs, reduced)
+    prisms = levels.shape[0] * max(levels.shape[1] - 1, 0) if levels.size else 0
+    if effects.pairs is not None:
+        # contacts met, slack, look, motion since the last rescan (records.HEAD entries), each
+        # pair's and each prism's gap bound (kernels.contactsteps.contact_step), the positions
+        # the last call ended at (resume); the motion NaN: the first scan evaluates every pair
+        scan = np.concatenate(([0.0, -1.0, 1.0, np.nan], np.zeros(len(pairs) + prisms),
+                               np.full(3 * rows, np.nan)))
+        active = np.full(len(pairs) + 1, -1, dtype=np.int64)
+    else:
+        scan, active = np.zeros(rec.HEAD), np.full(1, -1, dtype=np.int64)
+    has_summary = summary is not None
+    model = rec.Model(
+        topo=topo, levels=rec.readonly(levels),
+        per_level=float(network.levels.shape[2]) if network.levels.size else 3.0,
+        damping=rec.Damping(rec.readonly(damp)),
+        stops=rec.Stops(_f((0, 0)) if effects.stop_h is None
+                        else rec.readonly(np.array(effects.stop_h, np.float64)),
+                        float(effects.k_stop)),
+        strikers=rec.Strikers(rec.readonly(np.arange(n, rows, dtype=np.int64)),
+                              rec.readonly(np.arange(ns, dtype=np.int64)),
+                              float(effects.striker_k), float(effects.striker_expo),
+                              float(effects.striker_mass), float(effects.gravity),
+                              float(effects.steps), float(effects.m_eff)),
+        bar_contact=rec.BarContact(rec.readonly(pairs), float(effects.diameter),
+                                   float(effects.k), float(mult), float(effects.m_min),
+                                   float(effects.resolution)),
+        summary=summary if has_summary else NO_SUMMARY,
+        ledger=rec.LedgerRule(float(effects.energy_rate),
+                              bool(effects.refine and effects.pairs is not None and has_summary)))
+    data = rec.Data(np.ascontiguousarray(x, dtype=np.float64), v,
+                    np.array(rest, dtype=np.float64), np.array(EA, dtype=np.float64), f_ext,
+                    np.zeros(2), rec.ContactState(scan, active), np.zeros(2))
+    work = rec.work_for(topo, rows)
+    return model, data, work
+
+
+def full_effects(effects, network):
+    """The records of ``network`` (a full one, at rest) with the cable damping, prism stops and
+    bar contact of ``effects`` (no strikers): the member forces of a full state, as the base force
+    needs them (every pair and every prism's bases looked at)."""
+    return build(network, network.topology(), np.array(network.x0),
+                 network.cable_rest_length, network.cable_EA, np.zeros((network.n_nodes, 3)),
+                 None, effects.without('strikers'))
 
 
 def striker_state(model):

@@ -12,8 +12,8 @@ likewise.
 The reduced system is the full one restricted to the symmetric subspace (Lagrangian divided by 3),
 so node masses, multipliers and cable tensions are those of the full model and its trajectories are
 the full model's, to round-off. The kernels of :mod:`solver.kernels.dynamics` and
-:mod:`solver.integrators.registry` run it unchanged through the rotation slots of the ``net``
-tuple.
+:mod:`solver.integrators.registry` run it unchanged through the rotated members of its
+:class:`~solver.kernels.records.Topology` (``con_rot``, ``cable_rot``, ``con_coef3``).
 
 :func:`reduce_network` finds the symmetry (or raises :class:`NotSymmetric`);
 :class:`Sym3D` is the model (same interface as :class:`solver.models.family.Full3D`).
@@ -26,11 +26,12 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from solver.kernels import dynamics as dyn
+from solver.kernels import records
 from solver.kernels import summary
 from solver._jit import jit
 from solver.build import memo
-from solver.models.base import Model
+from solver.models import extras
+from solver.models.base import RecordModel
 from solver.kernels.rotation import ROT_C, ROT_S
 from solver.kernels import massmatrix
 from solver.build.network import (NetworkError, _band_order, _diagonal_inverse_mass,
@@ -93,6 +94,13 @@ class ReducedNetwork:
 
     n_nodes = length_of('x0')
     n_constraints = length_of('con_tail')
+
+    def topology(self):
+        """The kernels' :class:`~solver.kernels.records.Topology`: members to rotated images."""
+        return records.Topology(
+            self.w_diag, self.partner, self.w_off, self.con_tail, self.con_head, self.con_length,
+            self.con_coef, self.cable_a, self.cable_b, self.con_rot, self.cable_rot,
+            self.con_coef3, self.kkt)
 
 
 def _node_map(x0, tol):
@@ -279,7 +287,9 @@ def _reduce_network(network, tol):
     if class_k:
         node_u, con_u, dims = massmatrix.layout(len(reps), clamped, members[:, :2], mass[0],
                                                 mass[1], x_red)
-        kkt = tuple(_ro(a, a.dtype) for a in (node_u, con_u, mass[0], mass[1], mass[2], dims))
+        mass_p, mass_q, mass_val = mass
+        kkt = massmatrix.KKT(*(_ro(a, a.dtype) for a in (node_u, con_u, mass_p, mass_q, mass_val,
+                                                          dims)))
     return ReducedNetwork(
         x0=_ro(x_red, np.float64), node_mass=_ro(node_mass, np.float64),
         clamped=_ro(clamped, bool), w_diag=_ro(w_diag, np.float64), partner=_ro(partner, np.int64),
@@ -295,7 +305,7 @@ def _reduce_network(network, tol):
         bar_mass=_ro(bmass, np.float64))
 
 
-class Sym3D(Model):
+class Sym3D(RecordModel):
     """One node per orbit of three (docs/physics.md section 6); state ``x``, ``v`` (n_orbits, 3).
 
     ``positions()``/``velocities()`` expand to the full network; :meth:`set_state` and
@@ -304,28 +314,26 @@ class Sym3D(Model):
     expand the run to ``full3d``."""
     name = 'sym3d'
 
-    def __init__(self, network, f_ext=None, reduced=None):
+    def __init__(self, network, f_ext=None, effects=extras.NONE, striker_state=None,
+                 reduced=None):
         self.network = network
+        self.effects = effects
         self.reduced = red = reduced if reduced is not None else reduce_network(network)
         self._cos = ROT_C[red.node_rot]            # full node p is R(angle_p) x[node_rep[p]]
         self._sin = ROT_S[red.node_rot]
         self._rep = np.ascontiguousarray(red.node_rep, dtype=np.int64)
         f_full = np.zeros((network.n_nodes, 3)) if f_ext is None else np.asarray(f_ext, float)
         f_red = self._reduce(f_full, 'external forces')
-        self.net, self.act = dyn.pack(red, f_ext=f_red)
-        self.ws = dyn.workspace_for(red)
-        self.x = np.array(red.x0)
-        self.v = np.zeros_like(self.x)
         # state summary on the reduced state: each reduced node and cable stands for as many
         # full ones as map to it, a level's height is that of one of its nodes (rotations about
         # z keep z). A massive bar joins two representatives without rotation (reduce_network
         # refuses any other), so its kinetic energy is that of each of the three bars it stands
-        # for. Exact only with every level one orbit; otherwise summ is None.
+        # for. Exact only with every level one orbit; otherwise there is none.
         levels = network.levels
-        self.summ = None
+        summ = None
         if not levels.size or np.all(red.node_rep[levels] == red.node_rep[levels[:, :, :1]]):
             massive = np.asarray(red.bar_mass) != 0
-            self.summ = summary.summary_arrays(
+            summ = summary.summary_arrays(
                 red.x0, red.node_mass, red.clamped,
                 np.ascontiguousarray(red.bar_a[massive]), np.ascontiguousarray(red.bar_b[massive]),
                 3.0 * np.asarray(red.bar_mass)[massive],
@@ -334,6 +342,10 @@ class Sym3D(Model):
                 node_mult=np.bincount(red.node_rep, minlength=red.n_nodes).astype(np.float64),
                 cable_mult=np.bincount(red.cable_map,
                                        minlength=len(red.cable_a)).astype(np.float64))
+        self.rec, self.data, self.work = extras.build(
+            network, red.topology(), np.array(red.x0), red.cable_rest_length, red.cable_EA,
+            f_red, summ, effects, red, striker_state)
+        self.exact = summ is not None
 
     def _expand(self, a):
         """Full (n_nodes, 3) array of a reduced one (a new array; rotations about z only)."""
@@ -364,29 +376,29 @@ class Sym3D(Model):
         """Load full positions and velocities (n_nodes, 3); :class:`NotSymmetric` if asymmetric."""
         xr = self._reduce(x, 'positions')
         vr = self._reduce(v, 'velocities')
-        self.x[:len(xr)] = xr          # rows beyond the orbits: strikers (solver.kernels.contact)
-        self.v[:len(vr)] = vr
+        self.data.x[:len(xr)] = xr     # rows beyond the orbits: strikers (solver.kernels.contact)
+        self.data.v[:len(vr)] = vr
 
     @property
     def cable_rest_length(self):
         """Full (n_cables,) rest lengths, m (a new array)."""
-        return self.act[0][self.reduced.cable_map]
+        return self.data.rest[self.reduced.cable_map]
 
     @property
     def cable_EA(self):
-        return self.act[1][self.reduced.cable_map]
+        return self.data.EA[self.reduced.cable_map]
 
     def set_cables(self, rest, EA):
         """Load full (n_cables,) rest lengths m and EA N; :class:`NotSymmetric` if asymmetric."""
         cmap = self.reduced.cable_map
         rest = np.asarray(rest, dtype=np.float64)
         EA = np.asarray(EA, dtype=np.float64)
-        r_red = np.zeros(len(self.act[0]))
-        e_red = np.zeros(len(self.act[1]))
+        r_red = np.zeros(len(self.data.rest))
+        e_red = np.zeros(len(self.data.EA))
         r_red[cmap] = rest
         e_red[cmap] = EA
         for full, red, what in ((rest, r_red, 'cable rest lengths'), (EA, e_red, 'cable EA')):
             if np.max(np.abs(red[cmap] - full), initial=0.0) > 1e-12 * np.max(np.abs(full)):
                 raise NotSymmetric(f'{what} are not 3-fold symmetric')
-        self.act[0][:] = r_red
-        self.act[1][:] = e_red
+        self.data.rest[:] = r_red
+        self.data.EA[:] = e_red

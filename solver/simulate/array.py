@@ -28,10 +28,10 @@ import numpy as np
 
 from solver.build.scene import Scene
 from solver.build.structures import build_network
-from solver.models.base import Model
+from solver.models.base import ModelView
 from solver.simulate import parallel
 from solver.simulate.loading import prestrain_values, rest_length_values
-from solver.simulate.simulation import Frame, Simulation, SimulationDiverged
+from solver.simulate.simulation import Frame, FrameFigures, Simulation, SimulationDiverged
 
 
 def simulation_for(scene, network=None, **options):
@@ -50,7 +50,7 @@ def wants_array(scene):
     return s.builder == 'column' and s.n_columns > 1 and scene.model in ('auto', 'sym3d')
 
 
-class _ArrayModel(Model):
+class _ArrayModel(ModelView):
     """The model view of an array (what callers read of ``sim.model``): full arrays assembled
     from the columns' models; ``name`` the columns' model (``sym3d``, ``full3d`` or both joined
     by ``+``)."""
@@ -76,13 +76,6 @@ class _ArrayModel(Model):
     @property
     def cable_EA(self):
         return self._a._assemble_cables(lambda s: s.model.cable_EA)
-
-    @property
-    def act(self):
-        """(rest lengths, EA, external forces) of the full array (new arrays)."""
-        a = self._a
-        return (self.cable_rest_length, self.cable_EA,
-                a._assemble_nodes(lambda s: s.f_ext, offset=False))
 
     def set_state(self, x, v):
         self._a._load(x, v)
@@ -408,10 +401,10 @@ class ArraySimulation(Simulation):
         return max(v for _, v in results)
 
     def frame_figures(self):
-        """``(t, strain, energy, constraint error, energy balance error)`` of the whole array,
-        as ``Simulation.frame_figures`` (from :meth:`frame`)."""
+        """The :class:`~solver.simulate.simulation.FrameFigures` of the whole array, as
+        ``Simulation.frame_figures`` (from :meth:`frame`)."""
         f = self.frame()
-        return f.t, f.strain, f.energy, f.constraint_error, f.energy_balance_error
+        return FrameFigures(f.t, f.strain, f.energy, f.constraint_error, f.energy_balance_error)
 
     def frame(self):
         """A copied :class:`~solver.simulate.simulation.Frame` of the whole array."""

@@ -5,6 +5,7 @@ state kept to restore, and the search for the first failing step that names it i
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -22,32 +23,41 @@ class SimulationDiverged(RuntimeError):
                          f'{detail}; {hint}')
 
 
+@dataclass(frozen=True)
+class Kept:
+    """The state :meth:`Checks._restore` goes back to: the model's ``data`` and the
+    ``integrator``'s state, the prestrain and its ramp, the energy reference and scale, the prism
+    twists last accepted."""
+    data: object
+    integrator: object
+    prestrain: object
+    ramp: object
+    energy_ref: float
+    energy_scale: float
+    twist_ref: object
+
+
 class Checks:
     """The divergence checks of a :class:`~solver.simulate.simulation.Simulation` (which
     provides the state, the cached summary and the clock)."""
 
     def _keep(self):
-        m = self.model
-        return self._kept(m.x.copy(), m.v.copy(), m.act[0].copy(), self.integrator.get_state(),
-                          self.energy_dissipated(), self._refinement())
+        return self._kept(self.model.keep(), self.integrator.get_state())
 
-    def _kept(self, x, v, rest, integ_state, dissipated, refinement):
-        """What :meth:`_restore` takes: the state ``x``, ``v``, the rest lengths, the
-        integrator's and the run's state kept before an interval (the rest is unchanged by the
-        steps, read now)."""
-        return (x, v, rest, self._prestrain, self._ramp, self._energy_ref, integ_state,
-                self._energy_scale, dissipated, self._twist_ref, refinement)
+    def _kept(self, data, integ_state):
+        """What :meth:`_restore` takes: the model's data kept before an interval (``data``: what
+        :meth:`~solver.models.base.Model.keep` returns), the integrator's state and the run's
+        (read now: the steps do not change them)."""
+        return Kept(data, integ_state, self._prestrain, self._ramp, self._energy_ref,
+                    self._energy_scale, self._twist_ref)
 
     def _restore(self, keep):
-        m = self.model
-        m.x[:], m.v[:], m.act[0][:] = keep[:3]
-        self._prestrain, self._ramp, self._energy_ref = keep[3:6]
-        self.integrator.set_state(keep[6])
+        self.model.restore(keep.data)
+        self._prestrain, self._ramp, self._energy_ref = keep.prestrain, keep.ramp, keep.energy_ref
+        self.integrator.set_state(keep.integrator)
         self.integrator.state_changed()
-        self._energy_scale = keep[7]
-        self._set_dissipated(keep[8])
-        self._twist_ref = keep[9]
-        self._set_refinement(keep[10])
+        self._energy_scale = keep.energy_scale
+        self._twist_ref = keep.twist_ref
         self._changed()
 
     def _check(self, status):
@@ -65,7 +75,7 @@ class Checks:
         err = self._balance(e)
         if not (err <= self.div.energy_error
                 and (err >= -self.div.energy_error
-                     or (self._extras['damp'] is not None and not self._books_dissipation))):
+                     or (self.effects.damp is not None and not self._books_dissipation))):
             return ('energy balance', f'{"gained" if err > 0 else "lost"} {abs(err):.3g} of the '
                                       f'energy scale (limit {self.div.energy_error:g})',
                     codes.HINT_ENERGY)
@@ -85,7 +95,7 @@ class Checks:
                 locked = ~(twist * ref > 0.0) & ~(np.abs(twist) + np.abs(ref) <= math.pi)
                 if np.any(locked):
                     c, i = np.argwhere(locked)[0]
-                    hint = (codes.HINT_LOCK_CONTACT if self._extras['stop_h'] is not None
+                    hint = (codes.HINT_LOCK_CONTACT if self.effects.stop_h is not None
                             else codes.HINT_LOCK_BARS if not self.bar_contact.startswith('none')
                             else codes.HINT_LOCK)
                     return ('prism twist', f'prism {i} of column {c} twisted through 180 deg '
@@ -98,7 +108,7 @@ class Checks:
         checked (``divergence.bar_crossing``), else None."""
         if not (self._check_twist and self.network.levels.size):
             return None
-        return observables.prism_twists(self._full_state()[0], self.network.levels)
+        return observables.prism_twists(self._full_state().x, self.network.levels)
 
     def _locate(self, n, keep, problem):
         """The :class:`SimulationDiverged` of an interval of ``n`` steps that failed with

@@ -15,6 +15,7 @@ from solver.analysis import observables
 from solver.build import structures
 from solver.build.scene import RANGES
 from solver.kernels import dynamics as dyn
+from solver.kernels import records
 from solver.models import extras
 
 PRESTRAIN_RANGE = RANGES['prestrain']     # (lower, upper, lower inclusive): 0 < p <= 0.5
@@ -84,9 +85,8 @@ class Loading:
         for c, vc in zip(cols, v0):
             kick[net.levels[c, -1], 2] = -vc
         ke_target = observables.kinetic_energy(kick, net)
-        net_t, _ = dyn.pack(net)
-        ws = dyn.workspace_for(net)
-        status = dyn.project_velocities(x, kick, net_t, ws)
+        topo = net.topology()
+        status = dyn.project_velocities(x, kick, topo, records.work_for(topo, net.n_nodes))
         if status != dyn.OK:
             raise ValueError(f'impact: {codes.text(status)}')
         if mode == 'energy':
@@ -98,7 +98,7 @@ class Loading:
     def _end_heights(self):
         """Mean height m of each column's free-end level (n_columns,)."""
         lev = self.network.levels
-        return np.asarray(self._full_state()[0])[lev[:, -1], 2].mean(axis=1)
+        return np.asarray(self._full_state().x)[lev[:, -1], 2].mean(axis=1)
 
     def striker(self):
         """(n_columns, 2) striker face height m and axial velocity m/s, or None without

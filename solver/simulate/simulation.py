@@ -16,15 +16,16 @@ from __future__ import annotations
 import copy
 import math
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
 from solver import status as codes
 from solver._jit import compiled_overload
 from solver.kernels import dynamics as dyn
+from solver.kernels import records
 from solver.kernels import summary
 from solver.kernels import contact
-from solver.kernels.kinks import KEPT_SCALARS
 from solver.build import memo
 from solver.models import extras
 from solver.integrators import registry as integrators
@@ -57,6 +58,53 @@ class Frame:
     energy_balance_error: float = 0.0
 
 
+class StateSummary(NamedTuple):
+    """What the divergence check and a frame read of a state, from one pass: whether it is
+    finite, its energy J, the prism heights (n_columns, n_prisms) m, the relative constraint
+    error and the smallest prism height m."""
+    finite: bool
+    energy: float
+    heights: np.ndarray
+    constraint_error: float
+    h_min: float
+
+
+class FrameFigures(NamedTuple):
+    """The figures of a :class:`Frame` a run's summary reads: ``t`` s, ``strain`` (n_columns,
+    n_prisms), ``energy`` J, ``constraint_error`` and ``energy_balance_error`` (relative)."""
+    t: float
+    strain: np.ndarray
+    energy: float
+    constraint_error: float
+    energy_balance_error: float
+
+
+class FullState(NamedTuple):
+    """Full (n_nodes, 3) positions m and velocities m/s of a state (shared, read only)."""
+    x: np.ndarray
+    v: np.ndarray
+
+
+class BaseForceOf(NamedTuple):
+    """The base force of a model: ``force`` reads the model's own state (``own``) or a full
+    one."""
+    model: object
+    force: object
+    own: bool
+
+
+@dataclass
+class CheckedCall:
+    """The one compiled call of :meth:`Simulation.advance` for a model and an integrator: the
+    data record the call keeps its start in (``kept``), its arguments after ``max_iter``
+    (``fixed``) and, after the first call, the compiled entry point (``entry``)."""
+    model: object
+    integrator: object
+    kept: records.Data
+    fixed: tuple
+    entry: object = None
+
+
 class Simulation(Loading, Checks):
     def __init__(self, scene: Scene, network=None):
         # the model's choice and the model reduce the network alike: once, within one memo
@@ -76,15 +124,12 @@ class Simulation(Loading, Checks):
         self.f_ext = f_ext
         self._f_ext_or_none = f_ext if np.any(f_ext) else None
         self._model_cls = models.choose(scene.model, self.network, scene)
-        self._extras = extras.scene_extras(scene, self.network)
-        self.bar_contact = scene.contact.bars if self._extras['pairs'] is not None else 'none'
-        if self._model_cls is models.Chain1D and self._extras['pairs'] is not None:
-            self._extras['pairs'] = None        # the chain's prisms are a force law, not bars
-            self.bar_contact = 'none (chain1d has no bars)'
-        if self._model_cls is models.Chain1D and extras.active_spec(self._extras):
-            raise ValueError('model chain1d: has no strikers, prism stops or cable damping; use '
-                             'model full3d or sym3d')
-        self.model = extras.attach(self._model_cls(self.network, f_ext=f_ext), self._extras)
+        self.effects = extras.scene_effects(scene, self.network)
+        self.bar_contact = scene.contact.bars if self.effects.pairs is not None else 'none'
+        if not self._model_cls.has_bars and self.effects.pairs is not None:
+            self.effects = self.effects.without('pairs')  # its prisms are a force law, not bars
+            self.bar_contact = f'none ({self._model_cls.name} has no bars)'
+        self.model = self._model_cls(self.network, f_ext=f_ext, effects=self.effects)
         self.expanded = None            # why a sym3d run was expanded to full3d, if it was
         it = scene.integrator
         self.integrator = integrators.get(it.method, rtol=it.rtol, atol=it.atol)
@@ -96,14 +141,15 @@ class Simulation(Loading, Checks):
         rigid = getattr(scene.structure, 'bases', None) == 'rigid'
         self._check_twist = self.div.bar_crossing == 'all' or (
             self.div.bar_crossing == 'rigid' and rigid)
+        self._base_force = None
         self.reset()
 
     # -- state ----------------------------------------------------------------------------------
     def reset(self):
         """Back to the reference geometry at rest, t = 0, rest lengths of the scene."""
         net = self.network
-        if not isinstance(self.model, self._model_cls):     # undo an expansion to full3d
-            self.model = extras.attach(self._model_cls(net, f_ext=self.f_ext), self._extras)
+        if self.expanded is not None:                       # undo an expansion to full3d
+            self.model = self._model_cls(net, f_ext=self.f_ext, effects=self.effects)
             self.expanded = None
         self.model.set_state(net.x0, np.zeros((net.n_nodes, 3)))
         ns = self.model.n_strikers
@@ -111,12 +157,10 @@ class Simulation(Loading, Checks):
             self.model.x[-ns:, 2] = np.asarray(net.x0)[net.levels[:, -1], 2].mean(axis=1)
             self.model.v[-ns:] = 0.0
         self.model.set_cables(net.cable_rest_length, net.cable_EA)
-        if self.contacts_met:
-            self.model.act[3][8][0] = 0.0
-        self._set_refinement((0.0, 0.0, 0.0))
-        self._set_dissipated(0.0)
+        self.model.set_refinement((0.0, 0.0, 0.0))      # contacts met, halving levels
+        self.model.set_dissipated(0.0)
         self._cache = {}
-        self._plan = (None,) * 7
+        self._call = None
         self.t = 0.0
         self.step = 0
         self.steps_taken = 0
@@ -138,7 +182,7 @@ class Simulation(Loading, Checks):
         new.model = self.model.copy()
         new.integrator = self.integrator.clone()
         new._cache = {}
-        new._plan = (None,) * 7
+        new._call = None
         new._prestrain = None if self._prestrain is None else self._prestrain.copy()
         new._ramp = None if self._ramp is None else tuple(
             np.array(r) if isinstance(r, np.ndarray) else r for r in self._ramp)
@@ -157,9 +201,8 @@ class Simulation(Loading, Checks):
         return c[key]
 
     def _summary(self):
-        """``(finite, energy J, prism heights (n_columns, n_prisms) m, relative constraint error,
-        smallest prism height m)`` of the current state, from one compiled call (made by
-        :meth:`advance` itself, inside the integrator call, when the model has ``summ``)."""
+        """The :class:`StateSummary` of the current state, from one compiled call (made by
+        :meth:`advance` itself, inside the integrator call, when the model is exact)."""
         c = self._cache.get('summary')
         if c is None:
             c = self._cache['summary'] = self._compute_summary()
@@ -167,28 +210,25 @@ class Simulation(Loading, Checks):
 
     def _compute_summary(self):
         m, net = self.model, self.network
-        summ = m.summ
-        if summ is not None:                    # on the model's own (maybe reduced) state
+        if m.exact:                             # on the model's own (maybe reduced) state
             h = np.empty(self._heights_shape)
-            finite, e, cerr, h_min = summary.state_summary(m.x, m.v, m.net, m.act, summ, h)
-            return finite, e, h, cerr, h_min
+            finite, e, cerr, h_min = summary.state_summary(m.x, m.v, m.rec, m.data, h)
+            return StateSummary(finite, e, h, cerr, h_min)
         x, v = self._full_state()
-        if len(m.act) > 3 and contact.active(m.act[3]):     # striker, contact energies
-            finite, e, h, cerr = observables.state_summary(x, v, net, m.cable_rest_length,
-                                                           m.cable_EA, self._f_ext_or_none)
-            e += contact.extra_energy(m.x, m.v, m.act[3])
-            finite = finite and dyn.all_finite(m.x) and dyn.all_finite(m.v)
-        elif m.integrates_itself:                 # chain1d: its own energy
+        if m.integrates_itself:                   # chain1d: its own energy
             finite, e, h, cerr = (dyn.all_finite(x) and dyn.all_finite(v), m.energy(),
                                   observables.prism_heights(x, net.levels), m.constraint_error())
         else:
             finite, e, h, cerr = observables.state_summary(x, v, net, m.cable_rest_length,
                                                            m.cable_EA, self._f_ext_or_none)
-        return finite, e, h, cerr, (float(h.min()) if h.size else math.inf)
+            if self.effects.active:             # striker, contact energies
+                e += contact.extra_energy(m.x, m.v, m.rec)
+                finite = finite and dyn.all_finite(m.x) and dyn.all_finite(m.v)
+        return StateSummary(finite, e, h, cerr, float(h.min()) if h.size else math.inf)
 
     def energy(self):
         """Total energy of the current state, J."""
-        return self._summary()[1]
+        return self._summary().energy
 
     def _balance(self, e):
         scale = max(abs(self._energy_ref), abs(e), self._energy_scale, 1e-300)
@@ -197,28 +237,13 @@ class Simulation(Loading, Checks):
     def energy_dissipated(self):
         """Energy J the cable damping took out since the reset (the ledger's ``D``; booked by
         ``rk4``, ``rk4_projected`` and ``dopri54_projected``, 0 otherwise)."""
-        act = getattr(self.model, 'act', ())
-        return float(act[3][10][1]) if len(act) > 3 and act[3][10].shape[0] else 0.0
+        return self.model.dissipated()
 
     def _refinement(self):
         """What the steps of ``rk4`` after a contact depend on besides the state
         (:data:`solver.integrators.rk4.REFINE_SHARE`): the contacts met since the reset and the
-        two halving levels (``act[3][8][0]``, ``act[3][20][1:3]``), or None where the model has
-        no bar contact."""
-        act = getattr(self.model, 'act', ())
-        if len(act) > 3 and act[3][20].shape[0] > 2:
-            return float(act[3][8][0]), float(act[3][20][1]), float(act[3][20][2])
-        return None
-
-    def _set_refinement(self, kept):
-        act = getattr(self.model, 'act', ())
-        if kept is not None and len(act) > 3 and act[3][20].shape[0] > 2:
-            act[3][8][0], act[3][20][1], act[3][20][2] = kept
-
-    def _set_dissipated(self, value):
-        act = getattr(self.model, 'act', ())
-        if len(act) > 3 and act[3][10].shape[0]:
-            act[3][10][1] = value
+        two halving levels, or None where the model never refines them."""
+        return self.model.refinement()
 
     @property
     def _books_dissipation(self):
@@ -239,10 +264,7 @@ class Simulation(Loading, Checks):
     def contacts_met(self):
         """How many force evaluations met a touching pair of bars or two touching bases since
         the reset (0 without bar contact): whether contact acted in a run."""
-        act = getattr(self.model, 'act', ())
-        if len(act) < 4 or not act[3][6].shape[0]:
-            return 0
-        return int(act[3][8][0])
+        return self.model.contacts_met
 
     def energy_work(self):
         """Work J put in by commands since the reset (the ledger's ``W``)."""
@@ -257,25 +279,26 @@ class Simulation(Loading, Checks):
 
     def constraint_error(self):
         """Relative constraint error of the current state."""
-        return self._summary()[3]
+        return self._summary().constraint_error
 
     def _full_state(self):
         """Full (n_nodes, 3) positions and velocities of the current state (shared, read only)."""
-        return self._cached('full', lambda: (self.model.positions(), self.model.velocities()))
+        return self._cached('full', lambda: FullState(self.model.positions(),
+                                                      self.model.velocities()))
 
     def _heights(self):
         """Prism heights (n_columns, n_prisms) m of the current state (shared, read only)."""
-        return self._summary()[2]
+        return self._summary().heights
 
     def expand_to_full3d(self, reason):
         """Continue a ``sym3d`` run with ``full3d`` from the same (expanded) state: no jump."""
-        if isinstance(self.model, models.Sym3D):
+        if self.model.reduced is not None:
             strikers = extras.striker_state(self.model)
             dissipated, kept = self.energy_dissipated(), self._refinement()
-            self.model = extras.attach(models.expand(self.model, f_ext=self.f_ext),
-                                        self._extras, strikers if len(strikers) else None)
-            self._set_dissipated(dissipated)
-            self._set_refinement(kept)          # contacts met and the halvings go on
+            self.model = models.expand(self.model, self.f_ext,
+                                       strikers if len(strikers) else None)
+            self.model.set_dissipated(dissipated)
+            self.model.set_refinement(kept)     # contacts met and the halvings go on
             self.integrator.reset()                 # forget step-size history of sym3d
             self.expanded = reason
             self._changed()
@@ -323,7 +346,7 @@ class Simulation(Loading, Checks):
         while done < n and self._ramp is not None:
             self._ramp_to(self.t + done * self.dt)
             m = self.model
-            steps, status = self.integrator.run(m.x, m.v, self.dt, 1, m.net, m.act, m.ws, self.tol,
+            steps, status = self.integrator.run(m.rec, m.data, m.work, self.dt, 1, self.tol,
                                                 self.max_iter, self.kinks)
             self._changed()
             total += steps
@@ -331,7 +354,7 @@ class Simulation(Loading, Checks):
             if status != dyn.OK:
                 return total, status
         if done < n:
-            steps, status = self.integrator.run(m.x, m.v, self.dt, n - done, m.net, m.act, m.ws,
+            steps, status = self.integrator.run(m.rec, m.data, m.work, self.dt, n - done,
                                                 self.tol, self.max_iter, self.kinks)
             self._changed()
             total += steps
@@ -344,45 +367,39 @@ class Simulation(Loading, Checks):
         """Advance by ``duration`` s in whole steps of ``dt`` (the last one shortened to land on
         ``t + duration``). Raises :class:`SimulationDiverged` and restores the state on failure.
 
-        Without a prestrain ramp, on a model with ``summ``, this is one compiled call: the
-        integrator keeps the start state, runs, and summarises the end state for the check."""
+        Without a prestrain ramp, on an exact model, this is one compiled call: the integrator
+        keeps the start data, runs, and summarises the end state for the check."""
         n = max(int(round(duration / self.dt)), 0)
         if n == 0:
             return 0
         m = self.model
-        summ = m.summ
-        if summ is None or self._ramp is not None:
+        if not m.exact or self._ramp is not None:
             keep = self._keep()
             steps, status = self._integrate(n)
         else:
-            integ, plan = self.integrator, self._plan
-            if plan[0] is not m or plan[1] is not integ or plan[4] is not m.x or (
-                    plan[5] is not m.v):            # arrays of the checked call
-                kb = (np.empty_like(m.x), np.empty_like(m.v), np.zeros(KEPT_SCALARS))
-                plan = self._plan = (m, integ, kb, integ.checked_args(
-                    m.x, m.net, m.act, m.ws, self.tol, self.max_iter, self.kinks, kb, summ),
-                    m.x, m.v, None)
+            integ, call = self.integrator, self._call
+            if call is None or call.model is not m or call.integrator is not integ:
+                kept = records.clone_data(m.data)       # where the call keeps the start data
+                call = self._call = CheckedCall(m, integ, kept, integ.checked_args(
+                    m.rec, m.data, m.work, self.tol, self.max_iter, self.kinks, kept))
             integ_state = integ.get_state()
             h = np.empty(self._heights_shape)
-            args = (m.x, m.v, float(self.dt), n, *plan[3], h)
-            if plan[6] is None:     # through numba's dispatch, then its compiled overload
+            args = (m.rec, m.data, m.work, float(self.dt), n, *call.fixed, h)
+            if call.entry is None:  # through numba's dispatch, then its compiled overload
                 out = integ.checked(*args)
-                self._plan = plan[:6] + (compiled_overload(integ.checked, args)
-                                         or integ.checked,)
+                call.entry = compiled_overload(integ.checked, args) or integ.checked
             else:
-                out = plan[6](*args)
+                out = call.entry(*args)
             steps, status, finite, e, cerr, h_min = out
-            self._cache = {'summary': (finite, e, h, cerr, h_min)}
+            self._cache = {'summary': StateSummary(finite, e, h, cerr, h_min)}
             keep = None
         problem = self._check(status)
         if problem is not None:
-            if keep is None:        # the call kept x, v and the run state it changes (kb[2])
-                kx, kv, ks = plan[2]
-                keep = self._kept(kx, kv, m.act[0], integ_state, float(ks[0]),
-                                  (float(ks[1]), float(ks[2]), float(ks[3])) if ks[4] else None)
+            if keep is None:        # the call kept the data it started from
+                keep = self._kept(call.kept, integ_state)
             self._restore(keep)
             raise self._locate(n, keep, problem)
-        self._energy_scale = max(self._energy_scale, abs(self._summary()[1]))
+        self._energy_scale = max(self._energy_scale, abs(self._summary().energy))
         self.t += n * self.dt
         self.step += n
         self.steps_taken += steps
@@ -413,40 +430,39 @@ class Simulation(Loading, Checks):
             net, m = self.network, self.model
             if not net.levels.size or m.integrates_itself:       # chain1d: none
                 return np.zeros(net.n_columns)
-            kept = getattr(self, '_base_force', None)       # (model, force, of the model's state)
-            if kept is None or kept[0] is not m:
+            kept = self._base_force        # the force of this model, and whether it reads
+            if kept is None or kept.model is not m:     # the model's own state
                 from solver.analysis.support import BaseForce, ModelBaseForce
                 own = ModelBaseForce.applies(m)
-                kept = self._base_force = (m, ModelBaseForce(m) if own
-                                           else BaseForce(net, self._extras), own)
-            if kept[2]:
-                return kept[1](m)
+                kept = self._base_force = BaseForceOf(
+                    m, ModelBaseForce(m) if own else BaseForce(net, self.effects), own)
+            if kept.own:
+                return kept.force(m)
             x, v = self._full_state()
-            return kept[1](x, v, m.cable_rest_length, m.cable_EA, self.f_ext)
+            return kept.force(x, v, m.cable_rest_length, m.cable_EA, self.f_ext)
         return self._cached('base_force', compute)
 
     def frame_figures(self):
-        """``(t, strain, energy, constraint error, energy balance error)`` of the current state:
-        the figures of :meth:`frame` a run's summary reads, without copying positions or
-        computing tensions."""
+        """The :class:`FrameFigures` of the current state: the figures of :meth:`frame` a run's
+        summary reads, without copying positions or computing tensions."""
         net = self.network
         if net.levels.size:
             h = self._heights()
             strain = (h - net.h0) / h          # observables.prism_strains, from the shared heights
         else:
             strain = np.zeros((0, 0))
-        return (self.t, strain, self.energy(), self.constraint_error(),
-                float(self.energy_error()))
+        return FrameFigures(self.t, strain, self.energy(), self.constraint_error(),
+                            float(self.energy_error()))
 
     def frame(self):
         """A copied :class:`Frame` of the current state."""
-        x = np.array(self._full_state()[0])
+        x = np.array(self._full_state().x)
         net = self.network
-        t, strain, energy, cerr, balance = self.frame_figures()
-        return Frame(t=t, step=self.step, positions=x, strain=strain,
+        f = self.frame_figures()
+        return Frame(t=f.t, step=self.step, positions=x, strain=f.strain,
                      tension=observables.cable_tensions(x, net, self.model.cable_rest_length,
                                                         self.model.cable_EA),
-                     energy=energy, constraint_error=cerr,
+                     energy=f.energy, constraint_error=f.constraint_error,
                      base_force=np.array(self.base_force()), striker=self.striker(),
-                     energy_balance_error=balance)
+                     energy_balance_error=f.energy_balance_error)
 
