@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from solver.integrators import registry as integrators
+from solver.kernels import records
 
 from solver.models import family as models
 from solver.analysis.observables import track_pulse
@@ -68,15 +69,15 @@ def integrator_only(overrides, t_end):
     sim = simulation_for(fb_scene(overrides))
     sim.apply_impact(V0)
     m = sim.model
-    x, v = m.x.copy(), m.v.copy()
+    d = records.clone_data(m.data)          # the runs step a copy of the data
     n = int(round(t_end / sim.dt))
-    sim.integrator.run(x, v, sim.dt, 1, m.net, m.act, m.ws, sim.tol, sim.max_iter, sim.kinks)
+    sim.integrator.run(m.rec, d, m.work, sim.dt, 1, sim.tol, sim.max_iter, sim.kinks)
     best = math.inf
     for _ in range(3):
-        x[:], v[:] = m.x, m.v
+        records.copy_data(m.data, d)
         sim.integrator.reset()
         t0 = time.thread_time()
-        steps, status = sim.integrator.run(x, v, sim.dt, n, m.net, m.act, m.ws, sim.tol,
+        steps, status = sim.integrator.run(m.rec, d, m.work, sim.dt, n, sim.tol,
                                            sim.max_iter, sim.kinks)
         best = min(best, (time.thread_time() - t0) / max(steps, 1))
     return best, steps

@@ -14,40 +14,43 @@ import time
 import numpy as np
 
 from solver.kernels import dynamics as dyn
-from solver._jit import jit
-from solver.kernels.contactsteps import gate
+from solver.kernels import records
+from solver.compiled import jit
+from solver.kernels.effects import gate
 from solver.kernels.kinks import next_kink
+from solver.kernels.records import SLACK
+from solver.models.base import RecordModel
 
 
 @jit
-def _loop_acc(x, v, net, act, ws, out, n):
+def _loop_acc(x, v, m, d, w, out, n):
     bad = 0
     for _ in range(n):
-        bad += dyn.accelerations(x, v, net, act, ws, out)
+        bad += dyn.accelerations(x, v, m, d, w, out)
     return bad
 
 
 @jit
-def _loop_gate(x, v, acc, ex, state, active, h, n):
+def _loop_gate(x, v, acc, m, d, h, n):
     for _ in range(n):
-        gate(x, v, acc, ex[6], ex[1], ex[7], h, state, active)
-    return state[1]
+        gate(x, v, acc, m, d, h)
+    return d.contact.scan[SLACK]
 
 
 @jit
-def _loop_kink(x, v, acc, net, act, h, n):
+def _loop_kink(x, v, acc, m, d, h, n):
     s = 0.0
     for _ in range(n):
-        s += next_kink(x, v, acc, net, act, h, 1e-3 * h)
+        s += next_kink(x, v, acc, m, d, h, 1e-3 * h)
     return s
 
 
 @jit
-def _loop_project_positions(x_off, xs, net, ws, tol, max_iter, n):
+def _loop_project_positions(x_off, xs, topo, w, tol, max_iter, n):
     bad = 0
     for _ in range(n):
         xs[:, :] = x_off
-        bad += dyn.project_positions(xs, net, ws, tol, max_iter)
+        bad += dyn.project_positions(xs, topo, w, tol, max_iter)
     return bad
 
 
@@ -59,11 +62,11 @@ def _loop_copy(x_off, xs, n):
 
 
 @jit
-def _loop_project_velocities(x, v_off, vs, net, ws, n):
+def _loop_project_velocities(x, v_off, vs, topo, w, n):
     bad = 0
     for _ in range(n):
         vs[:, :] = v_off
-        bad += dyn.project_velocities(x, vs, net, ws)
+        bad += dyn.project_velocities(x, vs, topo, w)
     return bad
 
 
@@ -87,23 +90,25 @@ def profile(model, dt, n=2000, tol=1e-12, max_iter=3):
     contact state, which the evaluation then uses). The
     projections are timed from a state pushed off the constraint manifold by one explicit Euler
     step of ``dt`` (what they see after a Runge-Kutta step); the copy that restores it is
-    subtracted. Raises ``TypeError`` for a model without the ``(net, act, ws)`` kernel tuples."""
-    for attr in ('x', 'v', 'net', 'act', 'ws'):
-        if not hasattr(model, attr):
-            raise TypeError(f'model {model.name!r} has no {attr!r}: cannot time its kernels')
-    x, v, net, act, ws = (np.array(model.x), np.array(model.v), model.net, model.act, model.ws)
+    subtracted. Raises ``TypeError`` for a model not stepped on records (``chain1d``)."""
+    if not isinstance(model, RecordModel):
+        raise TypeError(f'model {model.name!r} has no kernel records: cannot time its kernels')
+    x, v = np.array(model.x), np.array(model.v)
+    m, ws = model.rec, model.work
+    net = m.topo
+    # copies of the data: the timed loops change the contact state and the ledger
+    d = model.data._replace(contact=records.ContactState(model.data.contact.scan.copy(),
+                                                         model.data.contact.active.copy()),
+                            ledger=model.data.ledger.copy())
     acc = np.zeros_like(x)
     out = {}
-    ex = act[3]
-    if ex[6].shape[0]:      # bar contact: one scan per step, as the step makes it
-        state, active = ex[8].copy(), ex[11].copy()
-        dyn.accelerations(x, v, net, act, ws, acc)
-        out['contact_scan'] = _timed(_loop_gate, x, v, acc, ex, state, active, dt, n=n)
-        # the force evaluation looks at the pairs the scan listed
-        act = (*act[:3], (*ex[:8], state, *ex[9:11], active, *ex[12:]))
-    t_acc = _timed(_loop_acc, x, v, net, act, ws, acc, n=n)
-    dyn.accelerations(x, v, net, act, ws, acc)
-    t_kink = _timed(_loop_kink, x, v, acc, net, act, dt, n=n)
+    if m.bar_contact.pairs.shape[0]:      # bar contact: one scan per step, as the step makes it
+        dyn.accelerations(x, v, m, d, ws, acc)
+        # the force evaluation then looks at the pairs the scan listed
+        out['contact_scan'] = _timed(_loop_gate, x, v, acc, m, d, dt, n=n)
+    t_acc = _timed(_loop_acc, x, v, m, d, ws, acc, n=n)
+    dyn.accelerations(x, v, m, d, ws, acc)
+    t_kink = _timed(_loop_kink, x, v, acc, m, d, dt, n=n)
     x_off = x + dt * v + 0.5 * dt * dt * acc
     v_off = v + dt * acc
     xs = np.zeros_like(x)

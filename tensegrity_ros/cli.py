@@ -70,11 +70,11 @@ def cmd_replay(args):
 def cmd_paper(args):
     """``tensegrity paper``: the paper's table under every modelling variant
     (solver.studies.paper)."""
-    from solver.studies import paper
+    from solver import paper
     models = ('sym3d',) if args.no_chain or args.set else ('sym3d', 'chain1d')
     sets = list(args.set or [])
     if sets:                 # checked on the FB scene before anything runs
-        from solver.build.scene import Scene
+        from solver import Scene
         Scene.load(paper.SCENES / 'fb_column.yaml').with_overrides(sets)
     v0s = paper.V0S[:1] if args.quick else paper.V0S
     update, close = progress_bar(paper.n_runs(v0s, models), 'paper', unit='frame', leave=False)
@@ -93,8 +93,8 @@ def cmd_paper(args):
 def cmd_lens(args):
     """``tensegrity lens SCENE --focus X,Z --medium-speed C``: the focusing design and its
     check (solver.studies.lens), the field in the medium (solver.analysis.field)."""
-    from solver.build.scene import Scene
-    from solver.studies import lens
+    from solver import Scene
+    from solver import lens
     from tensegrity_ros.studies import lens_report
     if not (args.medium_speed > 0 and args.medium_speed < float('inf')):
         raise UserError(f'--medium-speed: must be a positive number of m/s, got '
@@ -121,7 +121,7 @@ def cmd_lens(args):
         result['plot'] = str(lens_field(result, out_dir / 'lens_field.png'))
     result.pop('_field')
     if args.json:
-        from solver.simulate.runner import json_safe
+        from solver import json_safe
         print(json.dumps(json_safe(result), allow_nan=False))
     else:
         for line in lens_report.format_lines(result):
@@ -143,7 +143,7 @@ def cmd_demo(args):
     on every core, saying so, so that the node starts at once and keeps its real-time pace."""
     domain = args.domain_id if args.domain_id is not None else (
         int(os.environ['ROS_DOMAIN_ID']) if os.environ.get('ROS_DOMAIN_ID') else None)
-    from solver.simulate.precompile import compile_all
+    from solver import compile_all
     try:
         compile_all()
     except RuntimeError as exc:
@@ -182,7 +182,7 @@ FOCUS_SCENE = 'config/scenes/lens_focus.yaml'
 
 
 def _demo_focus(args, domain):
-    from solver.studies import lens
+    from solver import lens
 
     from tensegrity_ros.node.demo import format_focus_summary, run_focus_demo
     focus = lens.parse_focus(args.focus)
@@ -390,7 +390,7 @@ def build_parser():
 
 
 def cmd_compile(args):
-    from solver.simulate.precompile import compile_all
+    from solver import compile_all
     if args.processes is not None and args.processes < 1:
         raise UserError(f'--processes: must be at least 1, got {args.processes}')
     try:
@@ -403,9 +403,9 @@ def cmd_compile(args):
 
 
 def main(argv=None):
-    from solver.build.network import NetworkError
-    from solver.build.scene import SceneError
-    from solver.simulate.simulation import SimulationDiverged
+    from solver import NetworkError
+    from solver import SceneError
+    from solver import SimulationDiverged
 
     parser = build_parser()
     argv = sys.argv[1:] if argv is None else list(argv)

@@ -11,6 +11,7 @@ import pytest
 
 from solver.build.scene import Scene
 from solver.kernels import barcontact as bc
+from solver.kernels.records import HEAD, MET, MOTION
 from solver.kernels import contactsteps as cs
 from solver.simulate.array import simulation_for
 from solver.simulate.runner import simulate
@@ -59,22 +60,22 @@ def test_closest_points_of_segments_match_a_brute_force_search():
 
 def _overlapping_prism():
     """A full3d FB column of 2 prisms, the first pressed flat so that its bars and bases
-    overlap: (x, pairs, levels, bpar)."""
+    overlap: (x, the bar-contact record, levels, nodes per level)."""
     sim = simulation_for(_scene('fb_column', 'structure.n_prisms=2', 'model=full3d'))
-    ex = sim.model.act[3]
+    rec = sim.model.rec
     x = np.array(sim.model.x)
     x[3:6, 2] *= 0.03           # the middle level almost down on the bottom one
-    return x, ex[6], ex[1], ex[7]
+    return x, rec.bar_contact, rec.levels, rec.per_level
 
 
 def test_contact_forces_are_minus_the_gradient_of_the_contact_energy():
-    x, pairs, levels, bpar = _overlapping_prism()
+    x, bars, levels, per_level = _overlapping_prism()
     f = np.zeros_like(x)
-    n_touch = bc.bar_forces(x, pairs, bpar, f, ALL) + bc.base_forces(x, levels, bpar, f)
+    n_touch = bc.bar_forces(x, bars, f, ALL) + bc.base_forces(x, levels, bars, f)
     assert n_touch >= 4                     # three pairs of bars and the two bases
 
     def energy(y):
-        return bc.bar_energy(y, pairs, bpar) + bc.base_energy(y, levels, bpar)
+        return bc.bar_energy(y, bars) + bc.base_energy(y, levels, bars, per_level)
 
     grad = np.zeros_like(x)
     eps = 1e-9
@@ -102,24 +103,26 @@ def test_reduced_contact_forces_and_energy_equal_the_full_ones():
     sym = simulation_for(_scene('fb_column', 'structure.n_prisms=12'))
     full = simulation_for(_scene('fb_column', 'structure.n_prisms=12', 'model=full3d'))
     assert sym.model.name == 'sym3d' and full.model.name == 'full3d'
-    reduced, ex_r, ex_f = sym.model.reduced, sym.model.act[3], full.model.act[3]
-    assert len(ex_f[6]) == 3 * len(ex_r[6])
+    reduced, ex_r, ex_f = sym.model.reduced, sym.model.rec, full.model.rec
+    assert len(ex_f.bar_contact.pairs) == 3 * len(ex_r.bar_contact.pairs)
     x_f = np.array(sym.network.x0)
     top = x_f[:, 2] > 8.5 * 0.0062                 # the last four prisms pressed nearly flat
     x_f[top, 2] = 8.5 * 0.0062 + (x_f[top, 2] - 8.5 * 0.0062) * 0.03
     sym.model.set_state(x_f, np.zeros_like(x_f))
     x_r = np.array(sym.model.x)
     f_r, f_f = np.zeros_like(x_r), np.zeros_like(x_f)
-    n_r = (bc.bar_forces(x_r, ex_r[6], ex_r[7], f_r, ALL)
-           + bc.base_forces(x_r, ex_r[1], ex_r[7], f_r))
-    n_f = (bc.bar_forces(x_f, ex_f[6], ex_f[7], f_f, ALL)
-           + bc.base_forces(x_f, ex_f[1], ex_f[7], f_f))
+    n_r = (bc.bar_forces(x_r, ex_r.bar_contact, f_r, ALL)
+           + bc.base_forces(x_r, ex_r.levels, ex_r.bar_contact, f_r))
+    n_f = (bc.bar_forces(x_f, ex_f.bar_contact, f_f, ALL)
+           + bc.base_forces(x_f, ex_f.levels, ex_f.bar_contact, f_f))
     assert n_r > 0 and n_f > n_r
     reps = np.asarray(reduced.reps)
     scale = np.max(np.abs(f_f))
     np.testing.assert_allclose(f_r, f_f[reps], atol=1e-12 * scale)
-    e_r = bc.bar_energy(x_r, ex_r[6], ex_r[7]) + bc.base_energy(x_r, ex_r[1], ex_r[7])
-    e_f = bc.bar_energy(x_f, ex_f[6], ex_f[7]) + bc.base_energy(x_f, ex_f[1], ex_f[7])
+    e_r = (bc.bar_energy(x_r, ex_r.bar_contact)
+           + bc.base_energy(x_r, ex_r.levels, ex_r.bar_contact, ex_r.per_level))
+    e_f = (bc.bar_energy(x_f, ex_f.bar_contact)
+           + bc.base_energy(x_f, ex_f.levels, ex_f.bar_contact, ex_f.per_level))
     assert e_f > 0 and math.isclose(e_r, e_f, rel_tol=1e-12)
 
 
@@ -221,7 +224,7 @@ def test_fb_figures_at_1_m_s_converge_once_the_steps_resolve_the_contacts():
 def _raw_steps(sim, n):
     """``n`` steps of the integrator kernel on the model's arrays, no Simulation checks."""
     m = sim.model
-    steps, status = sim.integrator.run(m.x, m.v, sim.dt, n, m.net, m.act, m.ws, sim.tol,
+    steps, status = sim.integrator.run(m.rec, m.data, m.work, sim.dt, n, sim.tol,
                                        sim.max_iter, sim.kinks)
     assert status == 0
     return m.x.copy(), m.v.copy()
@@ -242,13 +245,14 @@ def test_a_call_from_positions_the_scans_did_not_see_scans_again(method):
     x, v = hot.model.x.copy(), hot.model.v.copy()
     met = hot.contacts_met
     twin = hot.clone()                 # carries the cascade's bounds
-    twin.model.act[3][20][1:] = 0.0    # the levels a call from unknown positions starts at
+    twin.model.data.refine[:] = 0.0    # the levels a call from unknown positions starts at
     x1, v1 = _raw_steps(twin, 20)
     assert twin.contacts_met > met     # the 20 steps do meet contacts
     cold = simulation_for(_scene('rb_column', *sets))
     cold.advance(0.01)                 # at rest: its bounds say nothing can touch
     cold.model.x[:], cold.model.v[:] = x, v
-    cold.model.act[3][8][0] = met      # contacts met: rk4_projected refines as in the cascade
+    cold.model.data.contact.scan[MET] = met    # contacts met: rk4_projected refines as in the
+    #                                            cascade
     # the same step-size history (an adaptive method's proposed step): only the scans differ
     cold.integrator.set_state(hot.integrator.get_state())
     x2, v2 = _raw_steps(cold, 20)
@@ -261,11 +265,11 @@ def _pairs_known_apart(sim):
     """How many pairs the scans' bounds keep apart at the current positions (0 when the bounds
     do not hold there: see barcontact.bar_energy_scanned)."""
     m = sim.model
-    state, pairs = m.act[3][8], m.act[3][6]
+    state, pairs = m.data.contact.scan, m.rec.bar_contact.pairs
     k = state.shape[0] - m.x.size
-    if not (np.isfinite(state[3]) and np.array_equal(state[k:], m.x.ravel())):
+    if not (np.isfinite(state[MOTION]) and np.array_equal(state[k:], m.x.ravel())):
         return 0
-    return int(np.sum(state[bc.HEAD:bc.HEAD + pairs.shape[0]] - state[3] > 0.0))
+    return int(np.sum(state[HEAD:HEAD + pairs.shape[0]] - state[MOTION] > 0.0))
 
 
 @pytest.mark.parametrize('name, method, v0', [('fb_column', 'rk4_projected', 1.0),
@@ -281,13 +285,14 @@ def test_the_contact_energy_skips_only_pairs_that_store_none(name, method, v0):
         sets.append('divergence.energy_error=0.01')
     sim = simulation_for(_scene(name, *sets))
     sim.apply_impact(v0)
-    pairs, bpar = sim.model.act[3][6], sim.model.act[3][7]
+    bars = sim.model.rec.bar_contact
+    pairs = bars.pairs
     touching, skipped, snap = 0, 0, None
     for _ in range(150):
         sim.advance(0.001)
         m = sim.model
-        e_all = bc.bar_energy(m.x, pairs, bpar)
-        assert bc.bar_energy_scanned(m.x, pairs, bpar, m.act[3][8]) == e_all
+        e_all = bc.bar_energy(m.x, bars)
+        assert bc.bar_energy_scanned(m.x, bars, m.data.contact.scan) == e_all
         if e_all > 0.0:
             touching += 1
             snap = m.x.copy()
@@ -301,8 +306,8 @@ def test_the_contact_energy_skips_only_pairs_that_store_none(name, method, v0):
     other.advance(0.005)
     other.model.x[:] = snap
     assert _pairs_known_apart(other) == 0
-    e = bc.bar_energy(snap, pairs, bpar)
-    assert e > 0.0 and bc.bar_energy_scanned(snap, pairs, bpar, other.model.act[3][8]) == e
+    e = bc.bar_energy(snap, bars)
+    assert e > 0.0 and bc.bar_energy_scanned(snap, bars, other.model.data.contact.scan) == e
 
 
 def _min_distance_over_step(x0, v, acc, h, n=201):
@@ -327,7 +332,7 @@ def _min_distance_over_step(x0, v, acc, h, n=201):
 
 
 def _axis_distance(x, pairs):
-    s, t, nx, ny, nz = bc._pair(x, pairs, 0)
+    s, t, nx, ny, nz = bc.pair(x, pairs, 0)
     return math.sqrt(nx * nx + ny * ny + nz * nz)
 
 
@@ -404,7 +409,7 @@ def test_the_step_energy_is_the_state_summary_energy_where_no_contact_acts(name,
         m = sim.model
         if sim.contacts_met:
             break
-        e = summary.step_energy(m.x, m.v, m.net, m.act)
+        e = summary.step_energy(m.x, m.v, m.rec, m.data)
         assert e == pytest.approx(sim.energy(), rel=1e-12, abs=1e-15)
         checked += 1
     assert checked >= 3
@@ -440,4 +445,4 @@ def test_near_misses_at_a_long_step_keep_the_line_bar_steps():
     assert with_bars.sim.contacts_met == 0
     assert line.sim.steps_taken == 300
     assert with_bars.sim.steps_taken <= 1.01 * line.sim.steps_taken
-    assert with_bars.sim.model.act[3][7][0] == pytest.approx(2e-4)      # bars 0.2 mm thick
+    assert with_bars.sim.model.rec.bar_contact.diameter == pytest.approx(2e-4)  # 0.2 mm bars

@@ -37,10 +37,9 @@ def test_striker_on_a_free_mass_is_the_two_mass_collision(ratio):
     m, k, v0 = 0.0083, 1.0e4, 0.1
     m_s = ratio * m
     net = structures.explicit([[0.0, 0.0, 0.0]], [], [], m, 1.0, cable_rest_length=[])
-    model = models.Full3D(net)
-    spec = {'damp': None, 'stop_h': None, 'strikers': True, 'levels': np.array([[[0]]]),
-            'par': np.array([0.0, k, 1.0, 1.0, m_s, 0.0, 40.0, m * m_s / (m + m_s)])}
-    extras.attach(model, spec)
+    effects = extras.Effects(strikers=True, striker_k=k, striker_expo=1.0, striker_mass=m_s,
+                             steps=40.0, m_eff=m * m_s / (m + m_s), levels=np.array([[[0]]]))
+    model = models.Full3D(net, effects=effects)
     model.v[1, 2] = -v0                     # the striker (row 1) moves down onto the mass
     mu = m * m_s / (m + m_s)
     duration = math.pi * math.sqrt(mu / k)
@@ -48,7 +47,7 @@ def test_striker_on_a_free_mass_is_the_two_mass_collision(ratio):
     integ = integrators.get('rk4_projected')
     t, d_prev, t_end_contact = 0.0, 0.0, None
     for _ in range(800):
-        steps, status = integ.run(model.x, model.v, dt, 1, model.net, model.act, model.ws)
+        steps, status = integ.run(model.rec, model.data, model.work, dt, 1)
         assert status == 0
         t += dt
         d = model.x[0, 2] - model.x[1, 2]           # overlap of mass and striker face
@@ -58,7 +57,7 @@ def test_striker_on_a_free_mass_is_the_two_mass_collision(ratio):
         d_prev = d
     assert t_end_contact == pytest.approx(duration, rel=1e-5)
     for _ in range(5):                               # out of contact: free flight
-        integ.run(model.x, model.v, dt, 1, model.net, model.act, model.ws)
+        integ.run(model.rec, model.data, model.work, dt, 1)
     v_s = -(m_s - m) / (m_s + m) * v0
     v_m = -2.0 * m_s / (m_s + m) * v0
     assert model.v[1, 2] == pytest.approx(v_s, abs=1e-7 * v0)

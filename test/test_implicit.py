@@ -98,7 +98,7 @@ def test_linear_oscillator_follows_the_discrete_midpoint_rotation(omega_h):
     v0 = 0.05                           # amplitude v0 / w = 0.8 mm < static stretch 2.4 mm: taut
     m.v[1, 2] = v0
     h, n = omega_h / w, 40
-    steps, status = sim.integrator.run(m.x, m.v, h, n, m.net, m.act, m.ws)
+    steps, status = sim.integrator.run(m.rec, m.data, m.work, h, n)
     assert (steps, status) == (n, 0)
     theta = 2.0 * math.atan(omega_h / 2.0)
     amp = v0 / w
@@ -116,7 +116,7 @@ def test_order_two_against_the_exact_oscillation():
         m = sim.model
         z_eq = float(m.x[1, 2])
         m.v[1, 2] = 0.05
-        sim.integrator.run(m.x, m.v, T / n, n, m.net, m.act, m.ws)
+        sim.integrator.run(m.rec, m.data, m.work, T / n, n)
         errors.append(abs(m.x[1, 2] - z_eq - 0.05 / w * math.sin(w * T)))
     slopes = [math.log2(errors[i] / errors[i + 1]) for i in range(2)]
     assert all(abs(s - 2.0) < 0.1 for s in slopes), (errors, slopes)
@@ -174,7 +174,7 @@ def test_energy_conserved_exactly_for_a_linear_spring_at_a_large_step():
         return (0.5 * 0.0083 * m.v[1, 2] ** 2 + 0.5 * k * (s - 0.01) ** 2
                 + 0.0083 * 9.81 * m.x[1, 2])
     e0 = energy()
-    sim.integrator.run(m.x, m.v, 3.0 / w, 200, m.net, m.act, m.ws)
+    sim.integrator.run(m.rec, m.data, m.work, 3.0 / w, 200)
     assert abs(energy() - e0) < 1e-11 * 0.5 * 0.0083 * 0.05 ** 2
 
 

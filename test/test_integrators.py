@@ -293,12 +293,12 @@ def test_advance_calls_the_compiled_overload_as_the_dispatcher_would(method, mon
     for _ in range(20):
         direct.advance(0.005)
     checked = direct.integrator.checked
-    assert direct._plan[6] is not None and direct._plan[6] is not checked
+    assert direct._call.entry is not None and direct._call.entry is not checked
     monkeypatch.setattr(simulation_module, 'compiled_overload', lambda *a: None)
     dispatched = _sim(COLUMN, sets, 0.1)
     for _ in range(20):
         dispatched.advance(0.005)
-    assert dispatched._plan[6] is checked
+    assert dispatched._call.entry is checked
     np.testing.assert_array_equal(direct.model.x, dispatched.model.x)
     np.testing.assert_array_equal(direct.model.v, dispatched.model.v)
     assert direct.energy() == dispatched.energy()

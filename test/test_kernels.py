@@ -5,6 +5,7 @@ import pytest
 
 import twins
 from solver.kernels import dynamics as dyn
+from solver.kernels import records
 from solver.kernels import summary
 from solver.kernels import banded
 from solver.build import structures
@@ -54,14 +55,13 @@ def test_cable_forces_match_twin(name):
 @pytest.mark.parametrize('name', sorted(NETWORKS))
 def test_accelerations_and_multipliers_match_dense_kkt(name):
     net = NETWORKS[name]
-    net_t, act = dyn.pack(net)
-    ws = dyn.workspace(net.n_nodes, net.n_constraints, net.bandwidth)
+    mr, dr, ws = records.plain(net)
     for seed in range(3):
         x, v = _state(net, seed)
         a = np.zeros_like(x)
-        assert dyn.accelerations(x, v, net_t, act, ws, a) == dyn.OK
-        lam = dict(zip(zip(net.con_tail, net.con_head), ws[4]))
-        a_ref, lam_ref, members = twins.accelerations(x, v, net, act[0], act[1])
+        assert dyn.accelerations(x, v, mr, dr, ws, a) == dyn.OK
+        lam = dict(zip(zip(net.con_tail, net.con_head), ws.lam))
+        a_ref, lam_ref, members = twins.accelerations(x, v, net, dr.rest, dr.EA)
         assert _relclose(a, a_ref, 1e-8)
         lam_fast = np.array([lam[(t, h)] for t, h in members])
         assert _relclose(lam_fast, lam_ref, 1e-8)
@@ -94,11 +94,10 @@ def test_band_solver_reports_singular_matrix():
 @pytest.mark.parametrize('name', sorted(NETWORKS))
 def test_velocity_projection_matches_twin(name):
     net = NETWORKS[name]
-    net_t, _ = dyn.pack(net)
-    ws = dyn.workspace(net.n_nodes, net.n_constraints, net.bandwidth)
+    mr, dr, ws = records.plain(net)
     x, v = _state(net, 7)
     ref = twins.project_velocities(x, v, net)
-    assert dyn.project_velocities(x, v, net_t, ws) == dyn.OK
+    assert dyn.project_velocities(x, v, mr.topo, ws) == dyn.OK
     assert _relclose(v, ref, 1e-9)
     # the projected velocity does not stretch any rigid member
     b = x[net.con_head] - x[net.con_tail]
@@ -109,14 +108,13 @@ def test_velocity_projection_matches_twin(name):
 @pytest.mark.parametrize('name', sorted(NETWORKS))
 def test_position_projection_matches_twin(name):
     net = NETWORKS[name]
-    net_t, _ = dyn.pack(net)
-    ws = dyn.workspace(net.n_nodes, net.n_constraints, net.bandwidth)
+    mr, dr, ws = records.plain(net)
     x, _ = _state(net, 3, amp=1e-5)
     ref = twins.project_positions(x, net, iterations=1)
     one = x.copy()
-    assert dyn.project_positions(one, net_t, ws, 1e-300, 1) == dyn.NOT_CONVERGED
+    assert dyn.project_positions(one, mr.topo, ws, 1e-300, 1) == dyn.NOT_CONVERGED
     assert np.max(np.abs(one - ref)) < 1e-15 + 1e-9 * np.max(np.abs(ref - x))
-    assert dyn.project_positions(x, net_t, ws, 1e-12, 5) == dyn.OK
+    assert dyn.project_positions(x, mr.topo, ws, 1e-12, 5) == dyn.OK
     b = x[net.con_head] - x[net.con_tail]
     rel = np.abs(np.linalg.norm(b, axis=1) / net.con_length - 1)
     assert rel.max() < 1e-12
@@ -134,9 +132,8 @@ def test_state_summary_matches_twin(name):
     f_ext = np.random.default_rng(3).standard_normal(x.shape)
     f_ext[net.clamped] = 0.0
     h = np.empty((net.levels.shape[0], net.levels.shape[1] - 1))
-    net_t, act = dyn.pack(net, rest, EA, f_ext)
-    summ = full_summary_arrays(net)
-    finite, e, cerr, h_min = summary.state_summary(x, v, net_t, act, summ, h)
+    mr, dr, ws = records.plain(net, rest, EA, f_ext, summary=full_summary_arrays(net))
+    finite, e, cerr, h_min = summary.state_summary(x, v, mr, dr, h)
     d = np.linalg.norm(x[net.cable_b] - x[net.cable_a], axis=1)
     pe_ref = np.sum(0.5 * EA / rest * np.clip(d - rest, 0, None) ** 2)
     e_ref = twins.kinetic_energy(v, net) + pe_ref - np.sum(f_ext * (x - net.x0))
@@ -148,9 +145,9 @@ def test_state_summary_matches_twin(name):
          for a, b in twins.rigid_members(net)]
     assert cerr == pytest.approx(max(g), rel=1e-9)
     x[5, 1] = np.nan
-    assert not summary.state_summary(x, v, net_t, act, summ, h)[0]
+    assert not summary.state_summary(x, v, mr, dr, h)[0]
     x[net.levels[0, 1, 0], 2] = np.nan
-    assert np.isnan(summary.state_summary(x, v, net_t, act, summ, h)[3])
+    assert np.isnan(summary.state_summary(x, v, mr, dr, h)[3])
 
 
 @pytest.mark.parametrize('shape', [(7, 3), (8, 3), (5, 1), (4, 2), (0, 3)])

@@ -15,7 +15,7 @@ ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ('solver', 'tensegrity_ros')
 # rooms, lowest first; rooms of one rank are siblings and never import each other
 RANKS = [
-    {'solver._jit', 'solver.status'},
+    {'solver.compiled', 'solver.status'},
     {'solver.kernels'},
     {'solver.build', 'solver.integrators'},
     {'solver.models'},

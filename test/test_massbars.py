@@ -9,6 +9,7 @@ import pytest
 
 import twins
 from solver.kernels import dynamics as dyn
+from solver.kernels import records
 from solver.kernels import summary
 from solver.kernels import massmatrix as mm
 from solver.build import structures
@@ -56,7 +57,7 @@ def _relclose(a, b, rtol):
 @pytest.mark.parametrize('name', sorted(NETWORKS))
 def test_kkt_path_is_taken_and_banded(name):
     net = NETWORKS[name]
-    n_u, kl, ku = net.kkt[5]
+    n_u, kl, ku = net.kkt.dims
     assert n_u == 3 * int(np.sum(~net.clamped)) + net.n_constraints
     # the band does not grow with the column: at most two levels of unknowns
     per_level = 3 * 3 * net.n_columns + 6
@@ -67,14 +68,13 @@ def test_kkt_path_is_taken_and_banded(name):
 @pytest.mark.parametrize('name', sorted(NETWORKS))
 def test_accelerations_and_multipliers_match_dense_kkt(name):
     net = NETWORKS[name]
-    net_t, act = dyn.pack(net)
-    ws = dyn.workspace_for(net)
+    mr, dr, ws = records.plain(net)
     for seed in range(3):
         x, v = _state(net, seed)
         a = np.zeros_like(x)
-        assert dyn.accelerations(x, v, net_t, act, ws, a) == dyn.OK
-        lam = dict(zip(zip(net.con_tail, net.con_head), ws[4]))
-        a_ref, lam_ref, members = twins.accelerations(x, v, net, act[0], act[1])
+        assert dyn.accelerations(x, v, mr, dr, ws, a) == dyn.OK
+        lam = dict(zip(zip(net.con_tail, net.con_head), ws.lam))
+        a_ref, lam_ref, members = twins.accelerations(x, v, net, dr.rest, dr.EA)
         assert _relclose(a, a_ref, 1e-9)
         assert _relclose(np.array([lam[(t, h)] for t, h in members]), lam_ref, 1e-9)
 
@@ -82,11 +82,10 @@ def test_accelerations_and_multipliers_match_dense_kkt(name):
 @pytest.mark.parametrize('name', sorted(NETWORKS))
 def test_projections_match_dense_twins(name):
     net = NETWORKS[name]
-    net_t, _ = dyn.pack(net)
-    ws = dyn.workspace_for(net)
+    mr, dr, ws = records.plain(net)
     x, v = _state(net, 7)
     ref = twins.project_velocities(x, v, net)
-    assert dyn.project_velocities(x, v, net_t, ws) == dyn.OK
+    assert dyn.project_velocities(x, v, mr.topo, ws) == dyn.OK
     assert _relclose(v, ref, 1e-9)
     b = x[net.con_head] - x[net.con_tail]
     bd = v[net.con_head] - v[net.con_tail]
@@ -94,19 +93,19 @@ def test_projections_match_dense_twins(name):
     x, _ = _state(net, 3, amp=1e-5)
     ref = twins.project_positions(x, net, iterations=1)
     one = x.copy()
-    assert dyn.project_positions(one, net_t, ws, 1e-300, 1) == dyn.NOT_CONVERGED
+    assert dyn.project_positions(one, mr.topo, ws, 1e-300, 1) == dyn.NOT_CONVERGED
     assert np.max(np.abs(one - ref)) < 1e-15 + 1e-9 * np.max(np.abs(ref - x))
-    assert dyn.project_positions(x, net_t, ws, 1e-12, 5) == dyn.OK
+    assert dyn.project_positions(x, mr.topo, ws, 1e-12, 5) == dyn.OK
     b = x[net.con_head] - x[net.con_tail]
     assert np.max(np.abs(np.linalg.norm(b, axis=1) / net.con_length - 1)) < 1e-12
 
 
 def test_small_workspace_is_reported_not_overrun():
     net = NETWORKS['fb_3']
-    net_t, act = dyn.pack(net)
-    ws = dyn.workspace(net.n_nodes, net.n_constraints, net.bandwidth)     # no KKT scratch
+    mr, dr, ws = records.plain(net)
+    ws = ws._replace(kkt=mm.scratch(mm.NO_DIMS))                          # no KKT scratch
     a = np.zeros((net.n_nodes, 3))
-    assert dyn.accelerations(np.array(net.x0), a.copy(), net_t, act, ws, a) == mm.BAD_WORKSPACE
+    assert dyn.accelerations(np.array(net.x0), a.copy(), mr, dr, ws, a) == mm.BAD_WORKSPACE
 
 
 @pytest.mark.parametrize('n,kl,ku', [(30, 2, 3), (40, 4, 4), (25, 6, 1)])
@@ -193,19 +192,18 @@ def test_single_massive_bar_against_rigid_body_mechanics(m_i, m_j, m_b):
     np.testing.assert_allclose(M @ a_ref, f + lam_ref * G, rtol=1e-9, atol=1e-15)
 
     net = Network.build(x, [m_i, m_j], [(0, 1)], np.zeros((0, 2)), [], [], bar_mass=m_b)
-    assert net.kkt[0].size == 0                     # class 1: the node-local inverse
-    net_t, act = dyn.pack(net, f_ext=f)
-    ws = dyn.workspace_for(net)
+    assert net.kkt.node_u.size == 0                     # class 1: the node-local inverse
+    mr, dr, ws = records.plain(net, f_ext=f)
     a = np.zeros((2, 3))
-    assert dyn.accelerations(x, v, net_t, act, ws, a) == dyn.OK
+    assert dyn.accelerations(x, v, mr, dr, ws, a) == dyn.OK
     np.testing.assert_allclose(a, a_ref, rtol=1e-9, atol=1e-12 * np.abs(a_ref).max())
-    assert ws[4][0] == pytest.approx(lam_ref, rel=1e-9)
+    assert ws.lam[0] == pytest.approx(lam_ref, rel=1e-9)
 
     mp, mq, mv, _ = mm.mass_entries(np.array([m_i, m_j]), np.zeros(2, bool), [(0, 1)], [m_b])
     node_u, con_u, dims = mm.layout(2, np.zeros(2, bool), np.array([[0, 1]]), mp, mq, x)
-    kkt = (node_u, con_u, mp, mq, mv, dims)
+    kkt = mm.KKT(node_u, con_u, mp, mq, mv, dims)
     a2, lam2 = np.zeros((2, 3)), np.zeros(1)
-    assert mm.accelerations(x, v, f, np.array([0]), np.array([1]), dyn.NO_ROT, kkt,
+    assert mm.accelerations(x, v, f, np.array([0]), np.array([1]), records.NO_ROT, kkt,
                             mm.scratch(dims), np.zeros((1, 3)), lam2, a2) == dyn.OK
     np.testing.assert_allclose(a2, a_ref, rtol=1e-9, atol=1e-12 * np.abs(a_ref).max())
     assert lam2[0] == pytest.approx(lam_ref, rel=1e-9)
@@ -245,7 +243,7 @@ def test_total_and_level_masses(placement, fraction, end_mass):
 def test_default_masses_are_one_unit_per_level_lumped():
     net = structures.column(n_prisms=4)
     assert np.all(np.asarray(net.node_mass) == UNIT / 3.0)
-    assert not np.any(net.bar_mass) and net.kkt[0].size == 0
+    assert not np.any(net.bar_mass) and net.kkt.node_u.size == 0
 
 
 @pytest.mark.parametrize('kw', [
@@ -255,15 +253,14 @@ def test_default_masses_are_one_unit_per_level_lumped():
     dict(bar_mass_fraction=0.3, bases='rigid', rigid_bases_as='stiff_cables')])
 def test_column_with_massive_bars_is_at_rest(kw):
     net = structures.column(**kw)
-    net_t, act = dyn.pack(net)
-    ws = dyn.workspace_for(net)
+    mr, dr, ws = records.plain(net)
     a = np.zeros((net.n_nodes, 3))
-    assert dyn.accelerations(np.array(net.x0), np.zeros_like(a), net_t, act, ws, a) == dyn.OK
+    assert dyn.accelerations(np.array(net.x0), np.zeros_like(a), mr, dr, ws, a) == dyn.OK
     assert np.max(np.abs(a)) < 1e-10
     if kw.get('n_columns', 1) == 1:
         model = Sym3D(net)
         ar = np.zeros_like(model.x)
-        assert dyn.accelerations(model.x, model.v, model.net, model.act, model.ws, ar) == dyn.OK
+        assert dyn.accelerations(model.x, model.v, model.rec, model.data, model.work, ar) == dyn.OK
         assert np.max(np.abs(ar)) < 1e-10
 
 
@@ -274,21 +271,21 @@ def test_sym3d_reduced_mass_matrix_matches_the_full_dense_kkt(bases):
     net = structures.column(n_prisms=4, bases=bases, bar_mass_fraction=0.4,
                             mass_placement='unit_bases')
     model = Sym3D(net)
-    assert model.reduced.kkt[0].size and model.summ is not None
+    assert model.reduced.kkt.node_u.size and model.exact
     rng = np.random.default_rng(5)
     xr = np.array(model.reduced.x0) + 2e-4 * rng.standard_normal(model.x.shape)
     vr = 0.05 * rng.standard_normal(model.x.shape)
     xr[model.reduced.clamped] = model.reduced.x0[model.reduced.clamped]
     vr[model.reduced.clamped] = 0.0
     a = np.zeros_like(xr)
-    assert dyn.accelerations(xr, vr, model.net, model.act, model.ws, a) == dyn.OK
+    assert dyn.accelerations(xr, vr, model.rec, model.data, model.work, a) == dyn.OK
     x, v = model._expand(xr), model._expand(vr)
     a_ref, _, _ = twins.accelerations(x, v, net, np.array(net.cable_rest_length),
                                       np.array(net.cable_EA))
     assert _relclose(model._expand(a), a_ref, 1e-9)
     # and the reduced energy summary equals the full kinetic energy
     h = np.empty((1, 4))
-    e = summary.state_summary(xr, vr, model.net, model.act, model.summ, h)[1]
+    e = summary.state_summary(xr, vr, model.rec, model.data, h)[1]
     d = np.linalg.norm(x[net.cable_b] - x[net.cable_a], axis=1)
     rest = np.array(net.cable_rest_length)
     pe = np.sum(0.5 * np.array(net.cable_EA) / rest * np.clip(d - rest, 0, None) ** 2)

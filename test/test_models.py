@@ -309,7 +309,7 @@ def test_sym3d_reduced_summary_equals_the_expanded_state(sets):
     sim.advance(0.05)
     m = sim.model
     h = np.empty((sim.network.levels.shape[0], sim.network.levels.shape[1] - 1))
-    finite, e, cerr, h_min = summary.state_summary(m.x, m.v, m.net, m.act, m.summ, h)
+    finite, e, cerr, h_min = summary.state_summary(m.x, m.v, m.rec, m.data, h)
     assert h_min == h.min()
     f_ext = sim.f_ext if np.any(sim.f_ext) else None
     finite_ref, e_ref, h_ref, cerr_ref = state_summary(m.positions(), m.velocities(), sim.network,
@@ -326,14 +326,14 @@ def test_sym3d_reduced_summary_equals_the_expanded_state(sets):
                                   ('model=full3d', 'loading.impact.mode=striker'),
                                   ('contact.bars=none', 'contact.lock=penalty')])
 def test_the_kernels_static_arrays_have_one_type_whatever_the_scene(sets):
-    """numba compiles a kernel once per combination of read-only and writable arguments (the
-    first FB kernel takes about a minute): every model hands the kernels read-only ``net`` and
-    ``summ`` arrays, and writable extras, like the empty extras of a scene without them, so that
-    one compiled kernel serves every scene."""
-    from solver.kernels.contact import NO_EXTRAS
-    model = simulation_for(_scene('fb_column', *sets)).model
-    assert all(not np.asarray(a).flags.writeable for a in model.net[:12])
-    assert all(not np.asarray(a).flags.writeable for a in model.summ)
-    ex = model.act[3]
-    assert [np.asarray(a).flags.writeable for a in ex] == \
-        [np.asarray(a).flags.writeable for a in NO_EXTRAS]
+    """numba compiles a kernel once per type of its arguments (the first FB kernel takes about a
+    minute): every scene's records have one numba type, the model's arrays read-only, the
+    data's and workspace's writable, whatever the scene switches on, so that one compiled kernel
+    serves every scene."""
+    from numba import typeof
+    from solver.kernels.records import plain
+    sim = simulation_for(_scene('fb_column', *sets))
+    model = sim.model
+    m, d, w = plain(sim.network)
+    assert typeof(model.rec) == typeof(m)
+    assert typeof(model.data) == typeof(d) and typeof(model.work) == typeof(w)

@@ -198,7 +198,7 @@ def test_pulse_momenta_of_the_fb_column_from_strains_and_from_velocities_agree()
 
         def on_frame(frame):
             if round(frame.t, 6) in (0.3, 0.4, 0.5, 0.6, 0.7):
-                kept[round(frame.t, 6)] = ob.level_momenta(sim._full_state()[1],
+                kept[round(frame.t, 6)] = ob.level_momenta(sim._full_state().v,
                                                            sim.network.levels, masses)[0]
         return on_frame, None, None
     pt = simulate(ROOT_SCENES / 'fb_column.yaml', [('loading.impact.v0', v0),

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from solver.kernels import dynamics as dyn
+from solver.kernels import records
 from solver.build import structures
 from solver.simulate.runner import json_safe
 from solver.build.scene import Scene
@@ -44,7 +45,7 @@ def test_scipy_rhs_equals_solver_accelerations():
     for _ in range(5):
         x, v = random_state(net, rng)
         ours = np.zeros_like(x)
-        assert dyn.accelerations(x, v, m.net, m.act, m.ws, ours) == dyn.OK
+        assert dyn.accelerations(x, v, m.rec, m.data, m.work, ours) == dyn.OK
         theirs = sc.accelerations(x, v)
         assert np.max(np.abs(theirs - ours)) <= 1e-9 * np.max(np.abs(ours))
         # the state-vector form round-trips and its derivative is (v, a) on free nodes
@@ -138,9 +139,8 @@ def test_mujoco_tendon_is_tension_only_spring():
         assert acc[1] == pytest.approx(a_y, rel=1e-6, abs=1e-12)
         assert abs(acc[0]) < 1e-9 and abs(acc[2]) < 1e-12
         ours = np.zeros((3, 3))
-        sim_net, act = dyn.pack(net)
-        ws = dyn.workspace(net.n_nodes, net.n_constraints, net.bandwidth)
-        assert dyn.accelerations(np.array(net.x0), np.zeros((3, 3)), sim_net, act, ws,
+        mr, dr, ws = records.plain(net)
+        assert dyn.accelerations(np.array(net.x0), np.zeros((3, 3)), mr, dr, ws,
                                  ours) == dyn.OK
         assert np.allclose(acc, ours[1], rtol=1e-6, atol=1e-12)
 

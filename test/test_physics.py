@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from solver.kernels import dynamics as dyn
+from solver.kernels import records
 from solver.build import structures
 from solver.analysis.observables import kinetic_energy, prism_strains
 from solver.simulate.runner import run
@@ -19,11 +20,10 @@ SCENES = 'config/scenes'
 
 
 def _at_rest_accelerations(net):
-    net_t, act = dyn.pack(net)
-    ws = dyn.workspace(net.n_nodes, net.n_constraints, net.bandwidth)
+    mr, dr, ws = records.plain(net)
     a = np.zeros((net.n_nodes, 3))
-    assert dyn.accelerations(np.array(net.x0), np.zeros_like(a), net_t, act, ws, a) == dyn.OK
-    return a, ws[4].copy()
+    assert dyn.accelerations(np.array(net.x0), np.zeros_like(a), mr, dr, ws, a) == dyn.OK
+    return a, ws.lam.copy()
 
 
 # -- check 1: equilibrium at t = 0 -------------------------------------------------------------

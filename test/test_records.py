@@ -178,7 +178,7 @@ def test_tensegrity_ros_uses_the_solvers_public_face_only():
                             if a.name not in solver.__all__]
             elif isinstance(n, ast.Import):
                 bad += [f'{path.name}: import {a.name}' for a in n.names
-                        if a.name.startswith('solver')]
+                        if a.name.startswith('solver.')]
     assert not bad, bad
 
 

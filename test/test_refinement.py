@@ -9,6 +9,7 @@ import pytest
 
 from solver.build.scene import Scene
 from solver.integrators import rk4
+from solver.kernels.records import MET
 from solver.simulate.array import simulation_for
 from solver.simulate.runner import simulate
 from solver.simulate.simulation import SimulationDiverged
@@ -41,7 +42,7 @@ def _interval(sim, keep, t0, dt, refine):
     sim._restore(keep)
     sim.t = t0
     if not refine:
-        sim.model.act[3][8][0] = 0.0
+        sim.model.data.contact.scan[MET] = 0.0
     sim.dt, dt0 = dt, sim.dt
     e0 = sim.energy()
     try:

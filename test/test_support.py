@@ -147,8 +147,8 @@ def test_the_base_force_of_the_model_state_equals_the_full_state_one(name, sets)
     sim = _sim(name, *sets)
     models = [g.sim.model for g in sim.groups] if hasattr(sim, 'groups') else [sim.model]
     assert all(ModelBaseForce.applies(m) for m in models)    # an array: each group's own
-    from solver.models.extras import scene_extras
-    full = BaseForce(sim.network, scene_extras(sim.scene, sim.network))
+    from solver.models.extras import scene_effects
+    full = BaseForce(sim.network, scene_effects(sim.scene, sim.network))
     sim.apply_impact(0.3)
     worst = scale = 0.0
     for _ in range(60):

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from solver import status as codes
-from solver._jit import jit
+from solver.compiled import jit
 from solver.kernels import dynamics as dyn
 from solver.kernels import records
 

@@ -49,10 +49,13 @@ class NetworkError(ValueError):
     """A network description that cannot be simulated (bad index, zero mass, degenerate member)."""
 
 
-def _ro(a, dtype):
+def read_only_copy(a, dtype):
     a = np.array(a, dtype=dtype, copy=True)
     a.setflags(write=False)
     return a
+
+
+_ro = read_only_copy
 
 
 def length_of(array):
@@ -181,7 +184,7 @@ class Network:
         return float(np.sum(self.node_mass) + np.sum(self.bar_mass))
 
 
-def _inverse_mass(node_mass, clamped, bars, bar_mass):
+def inverse_mass(node_mass, clamped, bars, bar_mass):
     """Inverse of the mass matrix ``diag(m) + sum_bars rod blocks``, restricted to free nodes.
 
     A massive bar adds the rod block ``[[m/3, m/6], [m/6, m/3]]`` on its two nodes, so a node may
@@ -221,7 +224,7 @@ def _inverse_mass(node_mass, clamped, bars, bar_mass):
     return w_diag, partner, w_off
 
 
-def _diagonal_inverse_mass(node_mass, clamped, bars, bar_mass):
+def diagonal_inverse_mass(node_mass, clamped, bars, bar_mass):
     """For networks on the mass-matrix path: ``1 / M_pp`` on free nodes (no partners) and the
     entries of M restricted to free nodes (:func:`solver.kernels.massmatrix.mass_entries`)."""
     mp, mq, mv, diag = massmatrix.mass_entries(node_mass, clamped, bars, bar_mass)
@@ -265,7 +268,7 @@ def _bandwidth(adj, order):
     return int(np.max(np.abs(pos[coo.row] - pos[coo.col])))
 
 
-def _band_order(members, partner):
+def band_order(members, partner):
     """Order constraints for a narrow band: the builder's order, level by level (sorted by lowest
     node), or reverse Cuthill-McKee, whichever is narrowest."""
     m = len(members)
@@ -307,10 +310,10 @@ def _constraints(x0, node_mass, is_clamped, bars, bar_mass, edges):
     inside a batch)."""
     class_k = massmatrix.needs_kkt(bars, bar_mass)
     if class_k:
-        w_diag, partner, w_off, mass = _diagonal_inverse_mass(node_mass, is_clamped, bars,
+        w_diag, partner, w_off, mass = diagonal_inverse_mass(node_mass, is_clamped, bars,
                                                               bar_mass)
     else:
-        w_diag, partner, w_off = _inverse_mass(node_mass, is_clamped, bars, bar_mass)
+        w_diag, partner, w_off = inverse_mass(node_mass, is_clamped, bars, bar_mass)
 
     members = np.concatenate([bars, edges]) if len(edges) else bars
     length = np.linalg.norm(x0[members[:, 1]] - x0[members[:, 0]], axis=1)
@@ -318,7 +321,7 @@ def _constraints(x0, node_mass, is_clamped, bars, bar_mass, edges):
         raise NetworkError('a rigid member has zero length')
     free = ~(is_clamped[members[:, 0]] & is_clamped[members[:, 1]])
     members, length = members[free], length[free]
-    order, bw = _band_order(members, partner)
+    order, bw = band_order(members, partner)
     members, length = members[order], length[order]
     coef = _coupling(members, w_diag, partner, w_off, bw)
     if len(members) and np.any(coef[:, 0] <= 0):

@@ -22,7 +22,7 @@ import numpy as np
 from solver.kernels import dynamics as dyn
 from solver.kernels import effects
 from solver.kernels import summary
-from solver._jit import jit
+from solver.compiled import jit
 from solver.integrators.base import Integrator
 from solver.kernels.kinks import next_kink
 from solver.kernels.records import copy_data

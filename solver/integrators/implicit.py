@@ -48,7 +48,7 @@ import numpy as np
 
 from solver.kernels import dynamics as dyn
 from solver.kernels import summary
-from solver._jit import jit, jit_inline
+from solver.compiled import jit, jit_inline
 from solver.integrators.base import Integrator
 from solver.kernels.banded import band_ldl_apply, band_ldl_factor
 from solver.kernels.records import copy_data

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 
-from solver._jit import jit
+from solver.compiled import jit
 from solver.integrators.base import Integrator
 from solver.kernels import dynamics as dyn
 from solver.kernels import effects
@@ -95,7 +95,7 @@ def _rk4_run(m, d, w, dt, n_steps, tol, max_iter, kinks, project):
     call. Returns (RK4 steps taken, status)."""
     x, v, a1, topo = d.x, d.v, w.a1, m.topo
     effects.start(x, m, d)
-    level, clevel = effects.levels(m, d)        # halvings of dt, of the contact step
+    level, clevel = effects.halvings(m, d)        # halvings of dt, of the contact step
     total = n_steps * dt
     t = 0.0
     steps = 0
@@ -130,7 +130,7 @@ def _rk4_run(m, d, w, dt, n_steps, tol, max_iter, kinks, project):
         if refine:
             e1 = effects.ledger_energy(x, v, m, d)
             err = abs(e1 + (effects.dissipated(d) - d0) - e0)
-            budget = REFINE_SHARE * m.ledger.rate * h * abs(e0)
+            budget = REFINE_SHARE * effects.rate(m) * h * abs(e0)
             limited = h < h_free        # shortened by a contact: its step is halved, else dt
             if err > budget and (clevel if limited else level) < REFINE_LEVELS:
                 effects.back_to(x, v, d, w, at)

@@ -5,7 +5,7 @@ off the diagonal and ``1 / d_i`` on it (one division per row keeps the dependenc
 """
 import math
 
-from solver._jit import jit
+from solver.compiled import jit
 from solver.status import OK, SINGULAR
 
 

@@ -29,7 +29,7 @@ base as one more crossed-rod contact, ``F = k d^1.5`` per node at overlap ``d = 
 """
 import math
 
-from solver._jit import jit, jit_inline
+from solver.compiled import jit, jit_inline
 from solver.kernels.records import HEAD, MET, MOTION  # noqa: F401 (MET: named in the doc)
 from solver.kernels.rotation import ROT_C, ROT_S
 

@@ -26,7 +26,7 @@ of one full node).
 """
 import math
 
-from solver._jit import jit, jit_inline
+from solver.compiled import jit, jit_inline
 from solver.kernels.records import POWER
 from solver.kernels.rotation import add_pair_force, cable_chord, image_chord
 

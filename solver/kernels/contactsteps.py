@@ -9,14 +9,15 @@ pair's approach speed ``u`` (with the energy it already stores) against the smal
 Far from contact nothing changes: the step is returned as given.
 
 The scans keep what they know in the contact state (``ContactState.scan`` of
-:mod:`solver.kernels.records`: ``MET``, ``SLACK``, ``LOOK``, ``MOTION``, then from ``HEAD``): the motion
+:mod:`solver.kernels.records`: ``MET``, ``SLACK``, ``LOOK``, ``MOTION``, then from ``HEAD``): the
+motion
 summed since the last full scan and each pair's gap at its last exact evaluation, so a pair is
 evaluated again only when it could have closed its gap; the last ``3 n`` entries are the
 positions an integrator call ended at (``barcontact.remember``).
 """
 import math
 
-from solver._jit import jit, jit_inline
+from solver.compiled import jit, jit_inline
 from solver.kernels.barcontact import (at_remembered, bar_energy_bounded, level_z, pair,
                                       point, prism_base_energy, rel_velocity)
 from solver.kernels.records import HEAD, LOOK, MOTION, SLACK

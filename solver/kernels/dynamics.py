@@ -24,7 +24,7 @@ import math
 
 from solver.kernels import massmatrix as mm
 from solver.kernels.banded import band_ldl_solve
-from solver._jit import jit
+from solver.compiled import jit
 from solver.kernels.barcontact import bar_forces, base_forces
 from solver.kernels.contact import axial_contacts, cable_forces_damped
 from solver.kernels.records import LOOK, MET, POWER  # noqa: F401 (POWER: named in the doc)

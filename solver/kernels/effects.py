@@ -14,11 +14,12 @@ effects it serves are off, so a scene without contact takes the plain path.
 - :func:`plan`, :func:`begin_trial`, :func:`trial_kept`, :func:`undo_trial`: a step that may be
   tried whole beside a near miss and kept only when it surely passed clear of every contact and
   kept the energy balance (docs/physics.md section 7.1).
-- :func:`refining`, :func:`ledger_energy`, :func:`mark`, :func:`back_to`, :func:`levels`,
-  :func:`keep_levels`: the steps after a contact checked against the energy ledger and taken
+- :func:`refining`, :func:`ledger_energy`, :func:`mark`, :func:`back_to`, :func:`halvings`,
+  :func:`keep_levels`, :func:`rate`: the steps after a contact checked against the energy
+  ledger and taken
   again at half their length when they used more than their share.
 """
-from solver._jit import jit
+from solver.compiled import jit
 from solver.kernels.barcontact import remember
 from solver.kernels.contact import striker_step
 from solver.kernels.contactsteps import (add_motion, bounded_contact_energy, contact_step,
@@ -64,7 +65,8 @@ def scan_limit(x, v, acc, m, d, h):
 
 @jit
 def gate(x, v, acc, m, d, h):
-    """For a method whose step of ``h`` is taken whole (:func:`solver.kernels.contactsteps.gate`)."""
+    """For a method whose step of ``h`` is taken whole
+    (:func:`solver.kernels.contactsteps.gate`)."""
     if m.bar_contact.pairs.shape[0] != 0:
         contact_gate(x, v, acc, m.bar_contact, m.levels, h, d.contact.scan, d.contact.active)
 
@@ -165,12 +167,18 @@ def refining(m, d):
 
 
 @jit
-def levels(m, d):
+def halvings(m, d):
     """The halvings of the step and of the contact step the last call ended with (0, 0 where the
     steps are never refined)."""
     if m.ledger.refine:
         return int(d.refine[STEP_LEVEL]), int(d.refine[CONTACT_LEVEL])
     return 0, 0
+
+
+@jit
+def rate(m):
+    """The energy balance a step may spend, relative, per second (``divergence.energy_error``)."""
+    return m.ledger.rate
 
 
 @jit

@@ -2,7 +2,7 @@
 explicit integrator family (through :mod:`solver.kernels.effects`)."""
 import math
 
-from solver._jit import jit
+from solver.compiled import jit
 from solver.kernels import dynamics as dyn
 from solver.kernels.contact import contact_kink, gap_kink
 

@@ -40,7 +40,7 @@ import numpy as np
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 
-from solver._jit import jit, jit_inline
+from solver.compiled import jit, jit_inline
 from solver.kernels.rotation import ROT_C, ROT_S, constraint_error_arrays, rel
 
 from solver.status import BAD_WORKSPACE, NONFINITE, NOT_CONVERGED, OK, SINGULAR  # noqa: F401

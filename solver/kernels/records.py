@@ -25,7 +25,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from solver._jit import jit
+from solver.compiled import jit
 from solver.kernels.massmatrix import KKT, KKTScratch, scratch
 
 
@@ -232,6 +232,29 @@ def data_of(x, v, rest, EA, f_ext, contact=None):
     if contact is None:
         contact = ContactState(np.zeros(HEAD), np.full(1, -1, dtype=np.int64))
     return Data(x, v, rest, EA, f_ext, np.zeros(2), contact, np.zeros(2))
+
+
+NO_SUMMARY = Summary(_empty((0, 3)), _empty(0), _empty(0, np.bool_), _empty(0),
+                     _empty(0, np.int64), _empty(0, np.int64), _empty(0), _empty(0),
+                     _empty((0, 0, 1), np.int64))
+
+
+def plain(network, rest=None, EA=None, f_ext=None, summary=NO_SUMMARY, levels=None):
+    """``(Model, Data, Work)`` of a network (full or reduced: anything with ``topology()``) at
+    rest with every effect off: rest lengths, EA and external forces fresh copies of the given
+    ones (default: the network's, zero forces); ``levels`` those of the model's state."""
+    topo = network.topology()
+    n = len(network.x0)
+    levels = np.zeros((0, 0, 1)) if levels is None else np.asarray(levels)
+    if not levels.size:
+        levels = np.zeros((0, 0, 1), dtype=np.int64)
+    m = bare_model(topo, summary, np.ascontiguousarray(levels, dtype=np.int64),
+                   float(levels.shape[2]) if levels.size else 3.0)
+    d = data_of(np.array(network.x0, dtype=np.float64), np.zeros((n, 3)),
+                np.array(network.cable_rest_length if rest is None else rest, dtype=np.float64),
+                np.array(network.cable_EA if EA is None else EA, dtype=np.float64),
+                np.zeros((n, 3)) if f_ext is None else np.array(f_ext, dtype=np.float64))
+    return m, d, work_for(topo, n)
 
 
 def work_for(topo, n_rows):

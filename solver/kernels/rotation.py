@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 
-from solver._jit import jit, jit_inline
+from solver.compiled import jit, jit_inline
 
 # R^r = [[C[r], -S[r], 0], [S[r], C[r], 0], [0, 0, 1]]: rotation by 2 pi r / 3 about z
 ROT_C = np.array([1.0, -0.5, -0.5])

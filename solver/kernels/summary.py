@@ -10,11 +10,11 @@ import math
 
 import numpy as np
 
-from solver._jit import jit
+from solver.compiled import jit
 from solver.kernels.barcontact import bar_energy_scanned, base_energy
 from solver.kernels.contact import extra_energy
 from solver.kernels.dynamics import all_finite
-from solver.kernels.records import Summary, readonly
+from solver.kernels.records import NO_SUMMARY, Summary, readonly  # noqa: F401
 from solver.kernels.rotation import constraint_error_arrays, rel
 
 
@@ -94,7 +94,8 @@ def level_heights(x, levels, heights):
 def summary_arrays(x0, node_mass, clamped, bar_a, bar_b, bar_mass, levels, n_cables,
                    node_mult=None, cable_mult=None):
     """The :class:`~solver.kernels.records.Summary` of :func:`state_summary`: the arrays it needs
-    that the topology and the data do not hold (read-only). ``levels`` (n_columns, n_levels, k) node indices (a level's height is the mean z of
+    that the topology and the data do not hold (read-only). ``levels`` (n_columns, n_levels, k)
+    node indices (a level's height is the mean z of
     its k nodes); ``node_mult``/``cable_mult``: how many nodes or cables of the full network each
     one stands for (default 1)."""
     return Summary(*(readonly(a) for a in (
@@ -102,10 +103,6 @@ def summary_arrays(x0, node_mass, clamped, bar_a, bar_b, bar_mass, levels, n_cab
         bar_a, bar_b, bar_mass, np.ones(n_cables) if cable_mult is None else cable_mult,
         levels)))
 
-
-NO_SUMMARY = Summary(*(readonly(a) for a in (
-    np.zeros((0, 3)), np.zeros(0), np.zeros(0, np.bool_), np.zeros(0), np.zeros(0, np.int64),
-    np.zeros(0, np.int64), np.zeros(0), np.zeros(0), np.zeros((0, 0, 1), np.int64))))
 
 
 @jit

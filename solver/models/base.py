@@ -152,7 +152,7 @@ class RecordModel(Model):
 
     def restore(self, kept):
         """Copy ``kept`` back into the data. The contact scans start over (the next call
-        rescans): what they knew held for positions the steps no longer start from."""
+        rescans): what they knew held for the positions the failed steps reached."""
         records.copy_data(kept, self.data)
         scan = self.data.contact.scan
         if self.rec.bar_contact.pairs.shape[0]:

@@ -46,7 +46,7 @@ import math
 import numpy as np
 
 from solver.kernels import dynamics as dyn
-from solver._jit import jit
+from solver.compiled import jit
 from solver.models.base import SelfIntegrating
 from solver.models.prism_law import (PrismLaw, poly_eval, cross_length, prism_energy, rigid_force,
                         table_law, twist)

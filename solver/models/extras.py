@@ -10,7 +10,6 @@ import numpy as np
 
 from solver.kernels import barcontact
 from solver.kernels import records as rec
-from solver.kernels.summary import NO_SUMMARY
 from solver.build import memo
 
 
@@ -140,7 +139,8 @@ class Effects:
     (one per column) with their contact law (``striker_k``, ``striker_expo``), ``striker_mass``
     kg, the scene's ``gravity`` m/s^2, ``steps`` per contact and ``m_eff`` kg; ``pairs`` (full
     node indices (n, 4), :func:`bar_pairs`) or None with the bars' ``diameter`` m, Hertz ``k``,
-    ``m_min`` kg and ``resolution``; the ledger's ``energy_rate`` per second and whether steps after
+    ``m_min`` kg and ``resolution``; the ledger's ``energy_rate`` per second and whether steps
+    after
     a contact are checked against it (``refine``)."""
     damp: np.ndarray | None = None
     stop_h: np.ndarray | None = None
@@ -159,6 +159,8 @@ class Effects:
     resolution: float = 0.0
     energy_rate: float = 0.0
     refine: bool = False
+    levels: np.ndarray | None = None        # the levels the effects act on (default: the
+    #                                         network's; a network without columns may name some)
 
     @property
     def active(self):
@@ -215,12 +217,12 @@ def _levels_of(levels_full, reduced):
                                 dtype=np.int64)
 
 
-def _striker_rows(network, ns, striker_state):
-    """Start positions and velocities (ns, 3) of the strikers' contact faces: at the centre of
-    each column's free end, touching it and at rest, or at ``striker_state`` ((ns, 2) z, v_z);
-    and the rest positions."""
-    x_full = np.asarray(network.x0)
-    levels = np.asarray(network.levels)
+def _striker_rows(x0, levels, striker_state):
+    """Start positions and velocities (ns, 3) of the strikers' contact faces (one per column of
+    ``levels``): at the centre of each column's free end, touching it and at rest, or at
+    ``striker_state`` ((ns, 2) z, v_z); and the rest positions."""
+    x_full = np.asarray(x0)
+    ns = levels.shape[0]
     x_extra = np.zeros((ns, 3))
     for c in range(ns):
         end = x_full[levels[c, -1]]
@@ -243,9 +245,10 @@ def build(network, topo, x, rest, EA, f_ext, summary, effects=NONE, reduced=None
     the state (the striker's contact face at ``(x, y, z_s)``: x, y stay at the column's centre),
     padded into the topology, forces and summary; ``striker_state`` ((n_columns, 2) z, v_z): where
     they start (default: touching the free end, at rest)."""
-    levels = _levels_of(np.asarray(network.levels), reduced)
+    levels_full = np.asarray(network.levels if effects.levels is None else effects.levels)
+    levels = _levels_of(levels_full, reduced)
     n = x.shape[0]
-    ns = network.levels.shape[0] if effects.strikers else 0
+    ns = levels_full.shape[0] if effects.strikers else 0
     v = np.zeros((n, 3))
     f_ext = np.array(f_ext, dtype=np.float64)
     if ns:
@@ -254,7 +257,7 @@ def build(network, topo, x, rest, EA, f_ext, summary, effects=NONE, reduced=None
                              'that share nodes (materials.bar_mass_fraction, '
                              'materials.bar_mass): the striker is not part of their mass-matrix '
                              'system; use mode impulse or energy, or massless bars')
-        x_extra, v_extra, x_rest = _striker_rows(network, ns, striker_state)
+        x_extra, v_extra, x_rest = _striker_rows(network.x0, levels_full, striker_state)
         x = np.concatenate([x, x_extra])
         v = np.concatenate([v, v_extra])
         # no mass term: the striker's inverse mass goes into w_diag (its force is along z only)
@@ -295,7 +298,7 @@ def build(network, topo, x, rest, EA, f_ext, summary, effects=NONE, reduced=None
     has_summary = summary is not None
     model = rec.Model(
         topo=topo, levels=rec.readonly(levels),
-        per_level=float(network.levels.shape[2]) if network.levels.size else 3.0,
+        per_level=float(levels_full.shape[2]) if levels_full.size else 3.0,
         damping=rec.Damping(rec.readonly(damp)),
         stops=rec.Stops(_f((0, 0)) if effects.stop_h is None
                         else rec.readonly(np.array(effects.stop_h, np.float64)),
@@ -308,7 +311,7 @@ def build(network, topo, x, rest, EA, f_ext, summary, effects=NONE, reduced=None
         bar_contact=rec.BarContact(rec.readonly(pairs), float(effects.diameter),
                                    float(effects.k), float(mult), float(effects.m_min),
                                    float(effects.resolution)),
-        summary=summary if has_summary else NO_SUMMARY,
+        summary=summary if has_summary else rec.NO_SUMMARY,
         ledger=rec.LedgerRule(float(effects.energy_rate),
                               bool(effects.refine and effects.pairs is not None and has_summary)))
     data = rec.Data(np.ascontiguousarray(x, dtype=np.float64), v,

@@ -28,14 +28,15 @@ from scipy.spatial import cKDTree
 
 from solver.kernels import records
 from solver.kernels import summary
-from solver._jit import jit
+from solver.compiled import jit
 from solver.build import memo
 from solver.models import extras
 from solver.models.base import RecordModel
 from solver.kernels.rotation import ROT_C, ROT_S
 from solver.kernels import massmatrix
-from solver.build.network import (NetworkError, _band_order, _diagonal_inverse_mass,
-                                   _inverse_mass, _ro, length_of)
+from solver.build.network import (NetworkError, band_order, diagonal_inverse_mass,
+                                   inverse_mass, length_of)
+from solver.build.network import read_only_copy as _ro
 
 R3 = np.array([[-0.5, -math.sqrt(3.0) / 2.0, 0.0], [math.sqrt(3.0) / 2.0, -0.5, 0.0],
                [0.0, 0.0, 1.0]])
@@ -264,10 +265,10 @@ def _reduce_network(network, tol):
     # bars (every massive bar has r = 0, so a block couples x_a and x_b, not a rotated image)
     class_k = massmatrix.needs_kkt(rbars[:, :2], bmass)
     if class_k:
-        w_diag, partner, w_off, mass = _diagonal_inverse_mass(node_mass, clamped, rbars[:, :2],
+        w_diag, partner, w_off, mass = diagonal_inverse_mass(node_mass, clamped, rbars[:, :2],
                                                               bmass)
     else:
-        w_diag, partner, w_off = _inverse_mass(node_mass, clamped, rbars[:, :2], bmass)
+        w_diag, partner, w_off = inverse_mass(node_mass, clamped, rbars[:, :2], bmass)
 
     members = np.concatenate([rbars, redges]) if len(redges) else rbars
     x_red = x0[reps]
@@ -276,7 +277,7 @@ def _reduce_network(network, tol):
     length = np.linalg.norm(b, axis=1)
     free = ~(clamped[members[:, 0]] & clamped[members[:, 1]])
     members, length = members[free], length[free]
-    order, bw = _band_order(members[:, :2], partner)
+    order, bw = band_order(members[:, :2], partner)
     members, length = members[order], length[order]
     coef3 = _coupling3(members, w_diag, partner, w_off, bw)
     # no rotated rigid member (flexible bases: bars only): the plain constraint kernels apply

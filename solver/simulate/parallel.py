@@ -1,5 +1,6 @@
 """Independent simulations stepped on threads: the compiled kernels release the GIL
-(``nogil=True``, :mod:`solver._jit`), so simulations that share nothing advance on every core at
+(``nogil=True``, :mod:`solver.compiled`), so simulations that share nothing advance on every
+core at
 once from one process. Used by :mod:`solver.simulate.batch` and
 :class:`~solver.simulate.array.ArraySimulation`.
 """

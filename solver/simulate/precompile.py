@@ -1,6 +1,6 @@
 """Compile every kernel into numba's on-disk cache before it is needed, on all cores.
 
-A fresh install (or any edit of ``solver/``, which starts a fresh cache: :mod:`solver._jit`)
+A fresh install (or any edit of ``solver/``, which starts a fresh cache: :mod:`solver.compiled`)
 compiles its kernels at their first call, one after the other, in whatever process calls them
 first: a few minutes of one core. :func:`compile_all` instead runs short simulations that reach
 every kernel the solver calls (each integrator's checked and run kernels, the chain model, the
@@ -58,7 +58,7 @@ def _exercise(method):
 
 
 def _marker():
-    from solver._jit import CACHE_DIR
+    from solver.compiled import CACHE_DIR
     return Path(CACHE_DIR) / MARKER
 
 

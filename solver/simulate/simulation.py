@@ -21,7 +21,7 @@ from typing import NamedTuple
 import numpy as np
 
 from solver import status as codes
-from solver._jit import compiled_overload
+from solver.compiled import compiled_overload
 from solver.kernels import dynamics as dyn
 from solver.kernels import records
 from solver.kernels import summary
@@ -138,7 +138,7 @@ class Simulation(Loading, Checks):
         self.max_iter = it.projection_max_iter
         self.kinks = it.land_on_kinks
         self.div = scene.divergence
-        rigid = getattr(scene.structure, 'bases', None) == 'rigid'
+        rigid = scene.structure.builder == 'column' and scene.structure.bases == 'rigid'
         self._check_twist = self.div.bar_crossing == 'all' or (
             self.div.bar_crossing == 'rigid' and rigid)
         self._base_force = None

@@ -327,9 +327,7 @@ def format_table(result, markdown=False):
             t = r.status.split('t = ')[1].split(' s')[0] if 't = ' in r.status else '?'
             figures = [f'stopped at t = {t} s: {why}'] + [''] * 4
         else:
-            note = getattr(r, 'speed_note', None)
-            if note is None:                    # a row made without the check
-                note = speed_note(r.speed_m_s, getattr(r, 'speed_points', 0))
+            note = r.speed_note
             speed = f'({note})' if note else _f(r.speed_m_s, '.3f')
             figures = [_f(r.amplitude, '.4f'), _f(r.amplitude_median, '.4f'), speed,
                        str(r.width_prisms), _f(r.arrival_time_s, '.3f')]

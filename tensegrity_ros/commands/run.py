@@ -16,7 +16,7 @@ def _open_mcap(stack, sinks, scene, sim, path):
     closed by ``stack``, also on SIGTERM.
     Logs each impact as the command the node would receive and as an event (the text the Rerun
     recording shows, :func:`_impact_text`), then every output frame."""
-    from solver.simulate.runner import run_frame
+    from solver import run_frame
     from tensegrity_ros.io.mcap_frames import FrameLog, marker_every, network_metadata
     from tensegrity_ros.io.mcap_writer import McapRecorder, signals_as_interrupt
     stack.enter_context(signals_as_interrupt())
@@ -55,7 +55,7 @@ def _impact_text(i, entry, scene, sim):
     """The event text of impact ``i`` of a run (``entry`` as ``ImpactTrain.applied`` lists it):
     the first starts with ``impact`` (the Rerun heat map starts there), the later ones of a train
     with ``train impact``."""
-    from solver.simulate.runner import ImpactTrain
+    from solver import ImpactTrain
     n, columns = len(ImpactTrain(scene.loading.impact, sim.dt)), scene.loading.impact.columns
     where = 'all columns' if columns is None else f'columns {list(columns)}'
     text = f'v0 = {entry["v0_m_s"]:g} m/s on {where}'
@@ -88,9 +88,9 @@ def _refined_run(args):
         return None
     import threading
     from concurrent.futures import ThreadPoolExecutor
-    from solver.build.scene import Scene
-    from solver.simulate import convergence
-    from solver.simulate.runner import simulate
+    from solver import Scene
+    from solver import convergence
+    from solver import simulate_scene as simulate
     if args.convergence is None:
         args.convergence = convergence.TOLERANCE
     convergence.check_tolerance(args.convergence)
@@ -118,7 +118,7 @@ def _pulse_line(p, t_end):
     """The summary's line on the leading pulse ``p`` (the JSON's ``pulse``), or None without
     one. The amplitude is read at ``T_REF``; a run that ends before it, or whose pulse reaches
     the clamped end first, still reports the speed and median amplitude of the window."""
-    from solver.simulate.runner import T_REF
+    from solver import T_REF
     if not p:
         return None
     speed = 'n/a' if p['speed_m_s'] is None else f"{p['speed_m_s']:.3f} m/s"
@@ -139,7 +139,7 @@ def _front_line(p, n_prisms):
     """The summary's line on the front (``front_*`` of the JSON's ``pulse``), or None where the
     front did not reach both stations (:func:`~solver.analysis.front.front_stations` of a
     column of ``n_prisms``)."""
-    from solver.analysis.front import FRONT_LEVEL, front_stations
+    from solver import FRONT_LEVEL, front_stations
     stations = front_stations(n_prisms)
     if not p or p.get('front_speed_m_s') is None or stations is None:
         return None
@@ -153,8 +153,8 @@ def _front_line(p, n_prisms):
 def _convergence(args, result, refined_run, tolerance):
     """Add the check of ``--convergence`` to ``result``; the one line of a failure, or None.
     A failed check also runs the sensitivity twin (:func:`_sensitivity`)."""
-    from solver.simulate import convergence
-    from solver.simulate.simulation import SimulationDiverged
+    from solver import convergence
+    from solver import SimulationDiverged
     refined, future, _ = refined_run
     try:
         point = future.result()
@@ -179,9 +179,9 @@ def _sensitivity(args, check, refined, point):
     either (:func:`solver.simulate.convergence.sensitivity`); None when the run has no impact
     velocity to change or a twin diverges."""
     from concurrent.futures import ThreadPoolExecutor
-    from solver.simulate import convergence
-    from solver.simulate.runner import frame_count, simulate
-    from solver.simulate.simulation import SimulationDiverged
+    from solver import convergence
+    from solver import frame_count, simulate_scene as simulate
+    from solver import SimulationDiverged
     rel = convergence.PERTURBATION
     perturbed = [convergence.perturbed_overrides(point.scene, r) for r in (rel, -rel)]
     if perturbed[0] is None:
@@ -221,7 +221,7 @@ def cmd_run(args):
 
 
 def _run(args, refined_run):
-    from solver.simulate.runner import frame_count, simulate
+    from solver import frame_count, simulate_scene as simulate
 
     if args.rerun or args.rerun_connect:
         from tensegrity_ros.io import rerun_sink  # noqa: F401  (imported before gc.freeze below)
@@ -289,10 +289,10 @@ def _run(args, refined_run):
                 print(line)
         check = result.get('convergence')
         if check is not None and 'changes' in check:
-            from solver.simulate.convergence import describe
+            from solver import describe
             moved = _changes(check) or 'no pulse figures to compare'
             verdict = {True: 'converged', False: 'NOT converged', None: 'nothing to check'}
-            from solver.simulate.convergence import FIGURES
+            from solver import FIGURES
             judged = ('' if len(check.get('figures') or FIGURES) == len(FIGURES)
                       else f"; judged on {', '.join(check['figures'])}")
             print(f"  convergence ({describe(check['refined'].items())}): {moved}: "

@@ -20,7 +20,7 @@ import math
 
 import numpy as np
 
-from solver.build.scene import RANGES
+from solver import RANGES
 
 IMPACT_RANGE = RANGES['loading.impact.v0'][:2]       # [-10, 10] m/s, inclusive
 PRESTRAIN_RANGE = RANGES['prestrain'][:2]            # (0, 0.5]

@@ -125,7 +125,7 @@ def stamped_strain(clouds, strains, levels, h0, tol=STRAIN_MATCH_TOL):
     points) agrees within ``tol``; a message that matches none (its cloud was dropped) is left
     out. Returns (times (n,), strain (n, n_columns, n_prisms)): the figures come from the float64
     values, the float32 points only give each its stamp."""
-    from solver.analysis import observables
+    from solver import observables
     s32 = [observables.prism_strains(x, levels, h0) for _, x in clouds]
     times, got = [], []
     j0 = 0
@@ -202,9 +202,9 @@ def run_demo(scene_file='config/scenes/fb_column.yaml', v0=(0.1,), duration_s=1.
     ``out_dir/summary.json``)."""
     import json
 
-    from solver.analysis import observables
-    from solver.build.scene import Scene
-    from solver.build.structures import build_network
+    from solver import observables
+    from solver import Scene
+    from solver import build_network
 
     from tensegrity_ros.node.params import find_config
 
@@ -320,10 +320,10 @@ def run_focus_demo(focus, scene_file='config/scenes/lens_focus.yaml', speed=1.5,
     ``out_dir/summary.json``)."""
     import json
 
-    from solver.analysis import field
+    from solver import field
 
-    from solver.studies import lens
-    from solver.build.scene import Scene
+    from solver import lens
+    from solver import Scene
 
     from tensegrity_ros.node.params import find_config
 

@@ -39,7 +39,7 @@ class Focus:
     def check(self, msg):
         """Validate a ``~/cmd/focus`` point (x along the array, z the depth below the bases, m)
         and plan it; returns the ``apply()`` that starts the ramp (raises CommandError)."""
-        from solver.studies import lens
+        from solver import lens
         node, sim = self.node, self.node.sim
         x, z = float(msg.point.x), float(msg.point.z)
         if not (math.isfinite(x) and math.isfinite(z) and math.isfinite(msg.point.y)):
@@ -105,7 +105,7 @@ class Focus:
         """After an impact of an array: record its base forces for the scene's ``run.t_end``
         (always for a focus, whose arrivals /diagnostics report; for another impact only while
         ``field_rate_hz`` > 0 and someone listens to ``~/field`` or records)."""
-        from solver.studies.lens_record import ImpactRecord, is_array
+        from solver import ImpactRecord, is_array
         node = self.node
         self.record = None
         if not is_array(node.sim.scene) or (focus is None and (

@@ -32,7 +32,7 @@ from rclpy.signals import SignalHandlerOptions
 from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import SetBool, Trigger
 
-from solver.simulate.simulation import SimulationDiverged
+from solver import SimulationDiverged
 from tensegrity_ros.io.sinks import FanOut, McapSink, RerunSink
 from tensegrity_ros.msgs import messages, style
 from tensegrity_ros.node.focus import FIELD_TOPIC, Focus
@@ -93,8 +93,8 @@ class TensegritySim(LifecycleNode):
     # each transition logs one line: INFO when it succeeds, ERROR for a failure or an error
     def on_configure(self, state):
         if self.sim is None:
-            from solver.build.network import NetworkError
-            from solver.build.scene import SceneError
+            from solver import NetworkError
+            from solver import SceneError
             try:
                 self._setup()
             except (ParameterError, SceneError, NetworkError, ValueError) as exc:
@@ -249,7 +249,7 @@ class TensegritySim(LifecycleNode):
                             pub.qos_profile if pub is not None else QOS)
             self.add_sink(McapSink(rec))
         if self.params['record_rerun']:
-            from solver.studies.lens_record import grid_extent, image_grid, is_array
+            from solver import grid_extent, image_grid, is_array
             from tensegrity_ros.io.rerun_sink import RerunRecorder
             grid = grid_extent(*image_grid(self.sim.scene)) if is_array(self.sim.scene) else None
             self.add_sink(RerunSink(RerunRecorder(self.sim.network, self.params['record_rerun'],
@@ -428,8 +428,8 @@ def _stop_on_signals():
 def main(args=None):
     """Console script ``tensegrity_node``: spin the node until Ctrl-C / SIGTERM (the current tick
     finishes first); exit 2 with one line on stderr for a bad parameter or scene."""
-    from solver.build.network import NetworkError
-    from solver.build.scene import SceneError
+    from solver import NetworkError
+    from solver import SceneError
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     stop = _stop_on_signals()
     node = None

@@ -8,9 +8,9 @@ import sys
 import time
 from pathlib import Path
 
-from solver.build.scene import Scene
-from solver.simulate.simulation import SimulationDiverged
-from solver.simulate.array import simulation_for
+from solver import Scene
+from solver import SimulationDiverged
+from solver import simulation_for
 
 # Defaults of every parameter (config/node.yaml repeats them; a test keeps the two equal).
 DEFAULTS = {

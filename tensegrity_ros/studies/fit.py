@@ -152,7 +152,7 @@ class Objective:
         """:meth:`evaluate` of every point of ``xs``: their cases run as one batch
         (:func:`solver.simulate.batch.simulate_batch` on ``threads`` threads; each case's summary
         is that of its single run)."""
-        from solver.simulate.batch import simulate_batch
+        from solver import simulate_batch
         p = self.problem
         values = [p.values(x) for x in xs]
         items = [(p.scene, list(p.overrides(case, v).items())) for v in values for case in p.cases]
@@ -212,7 +212,7 @@ class RecordingMap:
 
 def build(scene_path, target, free, choices, t_end=None):
     """A validated :class:`Problem` (raises :class:`SweepError` / ``SceneError``; nothing run)."""
-    from solver.build.scene import Scene, SceneError
+    from solver import Scene, SceneError
     scene = Scene.load(scene_path)
     if not free and not choices:
         raise SweepError('fit: give at least one --free KEY=LO:HI or --choice KEY=A,B')
@@ -332,8 +332,8 @@ def check_convergence(problem, result, tolerance, threads=None):
     ``{'tolerance', 'converged', 'worst': {'case', 'figure', 'change', 'refined'}, 'cases':
     [{'refined', 'status', 'changes', 'converged'}]}``; a case whose refined run (or whose own
     run) does not end ok fails the check."""
-    from solver.simulate import convergence
-    from solver.simulate.batch import simulate_batch
+    from solver import convergence
+    from solver import simulate_batch
     items, refined = [], []
     for case in problem.cases:
         overrides = list(problem.overrides(case, result['best']).items())
@@ -441,7 +441,7 @@ def main(args):
         raise SweepError(f'--write-scene {args.write_scene}: directory does not exist')
     tol = getattr(args, 'convergence', None)
     if tol is not None:
-        from solver.simulate.convergence import check_tolerance
+        from solver import check_tolerance
         check_tolerance(tol, error=SweepError)
     problem = build(args.scene, args.target, args.free, args.choice, t_end=args.t_end)
     cluster = None
@@ -465,7 +465,7 @@ def main(args):
         result['scene_file'] = write_scene(problem, result['best'], args.write_scene,
                                            args.target)
     if args.json:
-        from solver.simulate.runner import json_safe
+        from solver import json_safe
         print(json.dumps(json_safe(result), allow_nan=False))
     else:
         for line in format_result(result):

@@ -132,8 +132,8 @@ def code_version():
 
 def source_hash(directory):
     """sha256 (12 hex digits) of every ``*.py`` file below ``directory`` (sub-packages too)."""
-    from solver import _jit
-    return _jit.source_hash(directory)[:12]
+    from solver import source_hash as solver_hash
+    return solver_hash(directory)[:12]
 
 
 def point_id(scene_data, overrides, code=None):

@@ -8,10 +8,10 @@ import numpy as np
 
 def recorder(scene, path):
     """A Rerun recorder of the lens array with the field grid of :func:`field_grid`."""
-    from solver.studies import lens
-    from solver.build.structures import build_network
+    from solver import lens
+    from solver import build_network
 
-    from solver.studies.lens_record import grid_extent
+    from solver import grid_extent
     from tensegrity_ros.io.rerun_sink import RerunRecorder
     xs, zs = field_grid(lens.base_x(scene))
     return RerunRecorder(build_network(scene), path, field_grid=grid_extent(xs, zs))
@@ -19,9 +19,9 @@ def recorder(scene, path):
 
 def field_grid(base_x):
     """The grid of the field images: that of the node's ``~/field`` (lens_record.IMAGE_SHAPE)."""
-    from solver.analysis import field
+    from solver import field
 
-    from solver.studies.lens_record import IMAGE_SHAPE
+    from solver import IMAGE_SHAPE
     return field.image_grid(base_x, n_x=IMAGE_SHAPE[1], n_z=IMAGE_SHAPE[0])
 
 
@@ -29,9 +29,9 @@ def result(scene, focus, speed, v0, dims=2, recorder=None):
     """The plan, its check, the field's figures at the focus (solver.analysis.field.focus_report)
     and the focal gain of a focus, the maps for the plot (a dict). ``recorder``: a RerunRecorder of
     the array (:func:`recorder`) that gets the check run's frames and the field over time."""
-    from solver.analysis import field
+    from solver import field
 
-    from solver.studies import lens
+    from solver import lens
     plan = lens.design(scene, focus, speed, v0)
     frame_dt = scene.run.output_dt
     t, b = lens.check(scene, plan, None if recorder is None else recorder.frame, frame_dt)
@@ -75,7 +75,7 @@ def record_field(recorder, t, b, base_x, speed, dims, frame_dt):
     then (solver.analysis.field.PeakMap on the recorded base forces) and the pressure then, and
     once more when the record's end has passed the whole grid, all over the largest peak
     pressure."""
-    from solver.analysis import field
+    from solver import field
     xs, zs = field_grid(base_x)
     X, Z = np.meshgrid(xs, zs)
     pts = np.stack([X.ravel(), Z.ravel()], axis=1)

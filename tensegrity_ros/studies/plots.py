@@ -55,7 +55,7 @@ def _mark_front(ax, times, strain):
     stations of the front figures (solver.analysis.front.front_stations, at
     FRONT_LEVEL), joined by a line labelled with its time-of-flight speed in prisms per second;
     nothing where it does not reach both."""
-    from solver.analysis.front import FRONT_LEVEL, front_arrivals
+    from solver import FRONT_LEVEL, front_arrivals
     n = strain.shape[1]
     front = front_arrivals(times, np.asarray(strain)[:, ::-1])
     if front is None:

@@ -34,8 +34,8 @@ def run_point(scene, overrides, pid=None):
     value}``, applied in order) run by :func:`solver.simulate.runner.simulate`. Never raises for a
     failed run: the row's ``status`` is ``ok``, ``diverged`` or ``error`` with a one-line
     ``reason``."""
-    from solver.simulate.runner import simulate
-    from solver.simulate.simulation import SimulationDiverged
+    from solver import simulate_scene as simulate
+    from solver import SimulationDiverged
     wall0, cpu0 = time.perf_counter(), time.process_time()
     row = {'point_id': pid, **{k: canonical(v) for k, v in overrides.items()}}
     row.update(empty_figures())
@@ -80,7 +80,7 @@ class Sweep:
         """The overrides of the refined twin of a point (``overrides``, as :meth:`overrides`
         gives them): every step control of the point's scene refined
         (:func:`solver.simulate.convergence.refined_overrides`)."""
-        from solver.simulate.convergence import refined_overrides
+        from solver import refined_overrides
         scene = self.scene.with_overrides(list(overrides.items()))
         return {**overrides, **dict(refined_overrides(scene))}
 
@@ -89,7 +89,7 @@ class Sweep:
         :meth:`overrides` gives them): its refined twin with every impact velocity changed by
         ``1 +- PERTURBATION`` (:func:`solver.simulate.convergence.perturbed_overrides`); none
         for a point without an impact velocity."""
-        from solver.simulate.convergence import PERTURBATION, perturbed_overrides
+        from solver import PERTURBATION, perturbed_overrides
         refined = self.refined(overrides)
         scene = self.scene.with_overrides(list(refined.items()))
         out = []
@@ -160,8 +160,8 @@ def validate_points(scene, sweep_points, extra, convergence=None):
     """Apply every point's overrides to ``scene`` once (no run): an unknown key or a value out of
     range stops the sweep before anything runs, with the scene's message; with ``convergence``
     the overrides of each point's refined twin as well."""
-    from solver.build.scene import SceneError
-    from solver.simulate.convergence import refined_overrides
+    from solver import SceneError
+    from solver import refined_overrides
     for p in sweep_points:
         overrides = list({**p, **extra}.items())
         try:
@@ -205,7 +205,7 @@ def run_points(scene, items, threads=1, on_row=None):
     set-up, and its steps, records and summary on its thread; the base force, which a row does
     not hold, is not recorded). ``on_row(row)`` is called as each point finishes. Never raises
     for a failed point."""
-    from solver.simulate.batch import simulate_batch
+    from solver import simulate_batch
     rows = [None] * len(items)
 
     def done(k, bp):
@@ -356,7 +356,7 @@ def _run_all(sweep, todo, cluster, task, chunk, threads, finish):
             for pid, o in todo:
                 finish(task(sweep.scene, o, pid))
         else:
-            from solver.simulate.batch import default_threads
+            from solver import default_threads
             n = threads or default_threads()
             for b in cut(None, seconds=BATCH_SECONDS * n):
                 run_points(sweep.scene, b, threads=n, on_row=finish)
@@ -397,15 +397,15 @@ def build(scene_path, grids, samples=None, seed=0, out=None, t_end=None, converg
     :class:`solver.build.scene.SceneError`, nothing run). ``convergence_figures`` (names, or one
     comma-separated string) implies ``convergence`` 0.01 when it is None."""
     if convergence_figures is not None:
-        from solver.simulate.convergence import check_figures
+        from solver import check_figures
         convergence_figures = check_figures(convergence_figures, error=SweepError)
         if convergence is None:
-            from solver.simulate.convergence import TOLERANCE
+            from solver import TOLERANCE
             convergence = TOLERANCE
     if convergence is not None:
-        from solver.simulate.convergence import check_tolerance
+        from solver import check_tolerance
         check_tolerance(convergence, error=SweepError)
-    from solver.build.scene import Scene
+    from solver import Scene
     scene = Scene.load(scene_path)
     if not grids:
         raise SweepError('sweep: give at least one --grid KEY=...')

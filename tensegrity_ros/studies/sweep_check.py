@@ -17,20 +17,20 @@ SENSITIVE = 'convergence.sensitive'
 
 def _parts():
     """``1 part in 10^7``: the change of the impact velocities of the sensitivity twins."""
-    from solver.simulate.convergence import PERTURBATION
+    from solver import PERTURBATION
     return f'1 part in 10^{round(-math.log10(PERTURBATION))}'
 
 
 def _pulse_summary(row):
     """A row's first pulse as the summary's ``pulse`` (what the convergence module compares)."""
-    from solver.simulate.convergence import FIGURES
+    from solver import FIGURES
     return {'pulse': {k: row.get(f'pulse.{k}') for k in FIGURES}}
 
 
 def check(row, twin, tolerance, figures=None):
     """:func:`solver.simulate.convergence.compare` of a point's ``row`` and its refined
     ``twin`` (rows), or None when either did not run ok."""
-    from solver.simulate.convergence import compare
+    from solver import compare
     if row is None or twin is None or row.get('status') != 'ok' or twin.get('status') != 'ok':
         return None
     return compare(_pulse_summary(row), _pulse_summary(twin), tolerance, figures)
@@ -62,7 +62,7 @@ def convergence_columns(row, twin, tolerance, refined, figures=None, twins=None)
     :data:`~solver.simulate.convergence.PERTURBATION` (comma-separated; empty when none does:
     finer steps settle the failure), None where the check passed, was not made, or a twin did
     not run ok."""
-    from solver.simulate import convergence
+    from solver import convergence
     out = {'converged': None, 'convergence.worst': None, 'convergence.change': None,
            **{f'convergence.{k}': None for k in convergence.FIGURES},
            'convergence.refined': None, SENSITIVE: None}
