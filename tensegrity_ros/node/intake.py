@@ -149,6 +149,8 @@ class Intake:
         the subscriptions' QoS history keeps, the last 10 per topic by default."""
         for sub, handler in self.subscriptions:
             for _ in range(MAX_TAKE):
+                # rclpy has no public take of a subscription's message outside the executor
+                # (its executor's own take goes through this handle): the tick takes them here
                 with sub.handle:
                     got = sub.handle.take_message(sub.msg_type, sub.raw)
                 if got is None:

@@ -91,14 +91,13 @@ class TensegritySim(LifecycleNode):
                 if trigger() != TransitionCallbackReturn.SUCCESS:
                     raise RuntimeError(f'{messages.NODE_NAME}: {name} failed (see the log)')
 
+    # every path of set_parameters goes through this private hook of rclpy, which has no public
+    # one before its own message (that lists no valid names): unknown names refused by name
     def _check_undeclared_parameters(self, parameter_list):
-        """rclpy's check of a change, the unknown names refused by name (every path of
-        set_parameters goes through this private hook; rclpy has no public one before its own
-        message, which lists no valid names)."""
         from tensegrity_ros.node.params import refuse_undeclared
         names = [p.name for p in parameter_list]
         refuse_undeclared(names, [n for n in names if self.has_parameter(n)])
-        super()._check_undeclared_parameters(parameter_list)
+        super()._check_undeclared_parameters(parameter_list)     # (the hook's own check)
 
     # -- lifecycle (each transition logs one line: INFO when it succeeds, ERROR else) ----------
     def on_configure(self, state):

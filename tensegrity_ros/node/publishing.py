@@ -106,7 +106,7 @@ class Publishing:
             'running': str(node.running).lower(),
             'real_time_factor_target': float(node.params['real_time_factor']),
             'real_time_factor_achieved': float(-1.0 if rtf is None else rtf),
-            'real_time_window_s': float(node.realtime.window_s),
+            'real_time_window_s': float(node.realtime.span_s),
             'publish_rate_hz_achieved': float(self.achieved_rate_hz),
             'tick_max_ms': 1e3 * float(self.tick_max_s),
             'energy_J': float(sim.energy()),

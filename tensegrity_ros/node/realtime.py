@@ -27,6 +27,7 @@ class RealTime:
         self.rest_step_cost, self.n_columns, self.n_nodes = rest_step_cost, n_columns, n_nodes
         self.window_s = window_s
         self.samples = deque()
+        self.span_s = 0.0                # wall seconds the last factor was measured over
         self.behind_since = None
         self._last_log = -math.inf
 
@@ -53,6 +54,7 @@ class RealTime:
         if len(self.samples) < 2:
             return None
         (w0, t0), (w1, t1) = self.samples[0], self.samples[-1]
+        self.span_s = w1 - w0
         return (t1 - t0) / (w1 - w0) if w1 - w0 >= MIN_SPAN_S else None
 
     def reason(self, target, dt, step_cost, publish_cost):
@@ -78,7 +80,7 @@ class RealTime:
         if not running or target <= 0 or f is None or f >= BEHIND * target:
             self.behind_since = None
             return None, None
-        message = (f'behind real time: {f:.3g}x achieved over the last {self.window_s:g} s, '
+        message = (f'behind real time: {f:.3g}x achieved over the last {self.span_s:.2g} s, '
                    f'target {target:g}x; {self.reason(target, dt, step_cost, publish_cost)}')
         log = None
         if self.behind_since is None or now - self._last_log >= LOG_EVERY_S:
