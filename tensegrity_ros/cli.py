@@ -402,6 +402,19 @@ def cmd_compile(args):
     return 0
 
 
+def _installed_data(args):
+    """A scene or target named as in the docs (``config/scenes/fb_column.yaml``) that the working
+    directory does not hold is taken from the package's data: the checkout, a colcon or a pip
+    install (:func:`tensegrity_ros.io.share.find_data`); anything else is left as given."""
+    from tensegrity_ros.io.share import find_data
+    for name in ('scene', 'target'):
+        value = getattr(args, name, None)
+        if isinstance(value, str) and value and not os.path.exists(value):
+            found = find_data(value)
+            if found is not None:
+                setattr(args, name, str(found))
+
+
 def main(argv=None):
     from solver.build.network import NetworkError
     from solver.build.scene import SceneError
@@ -413,6 +426,7 @@ def main(argv=None):
         args = argparse.Namespace(func=cmd_bench, args=argv[1:])
     else:
         args = parser.parse_args(argv)
+    _installed_data(args)
     try:
         return args.func(args)
     except SimulationDiverged as exc:

@@ -42,7 +42,8 @@ from tensegrity_ros.node.focus import Focus
 from tensegrity_ros.node.intake import Intake
 from tensegrity_ros.node.pacing import Pacer
 from tensegrity_ros.node.params import (DEFAULTS, LOG_THROTTLE_S, ParameterError, ThrottledLog,
-                                        check_parameters, descriptor, load_simulation,
+                                        check_parameters, descriptor, find_config,
+                                        load_simulation,
                                         measure_step_cost, unknown_parameters)
 from tensegrity_ros.node.publishing import Publishing
 from tensegrity_ros.node.realtime import RealTime
@@ -168,9 +169,9 @@ class TensegritySim(LifecycleNode):
         sim = self._given_sim
         if sim is None:
             self.get_logger().info(
-                f'{self.params["scene_file"]}: loading the scene and compiling the solver '
-                f'(from the numba cache if compiled before; a first start after an install or '
-                f'a change of solver/ compiles for a minute or more)')
+                f'{find_config(self.params["scene_file"])}: loading the scene and compiling the '
+                f'solver (from the numba cache if compiled before; a first start after an '
+                f'install or a change of solver/ compiles for a minute or more)')
             sim = load_simulation(self.params)
             step_cost = measure_step_cost(sim)
         else:                      # a caller's simulation, in its state: start cautiously
