@@ -20,7 +20,7 @@ ROOT = Path(__file__).resolve().parents[1]
 DOMAIN = 10 + (os.getpid() + 17) % 20
 PREFIX = Path(tempfile.gettempdir()) / 'tensegrity_ros-install-test'
 SHARE = PREFIX / 'share' / 'tensegrity_ros'
-SITE = PREFIX / 'lib' / f'python{sys.version_info.major}.{sys.version_info.minor}' / 'site-packages'
+SITE = PREFIX / 'lib' / f'python{sys.version_info[0]}.{sys.version_info[1]}' / 'site-packages'
 # what the docs use from config/ and launch/, and the ament index entry
 DATA = ['config/node.yaml', 'config/tensegrity.rviz', 'config/tensegrity.foxglove.json',
         'config/paper/fb_target.yaml', 'launch/tensegrity.launch.py', 'package.xml']

@@ -51,18 +51,21 @@ def test_real_time_factor_over_the_window_and_the_reason():
         rt.sample(0.01 * i, 0.0025 * i)
     assert rt.factor() == pytest.approx(0.25, rel=1e-9)
     assert 1.99 <= rt.span_s <= 2.0
-    msg, log = rt.status(3.0, 1.0, True, 6.25e-4, 4e-3, 1e-4)
+    costs = (6.25e-4, 4e-3, 1e-4, 200.0)          # dt, step, frame, publish rate
+    msg, log = rt.status(3.0, 1.0, True, *costs)
     assert msg.startswith('behind real time: 0.25x') and 'target 1x' in msg
     assert 'contact sub-steps' in msg and log is not None
-    assert rt.status(4.0, 1.0, True, 6.25e-4, 4e-3, 1e-4)[1] is None          # throttled
-    assert rt.status(4.0 + LOG_EVERY_S, 1.0, True, 6.25e-4, 4e-3, 1e-4)[1] is not None
-    assert rt.status(3.0, 0.25 / BEHIND, True, 6.25e-4, 4e-3, 1e-4) == (None, None)   # at 0.9
-    assert rt.status(3.0, 0.0, True, 6.25e-4, 4e-3, 1e-4) == (None, None)     # as fast as can
-    assert rt.status(3.0, 1.0, False, 6.25e-4, 4e-3, 1e-4) == (None, None)    # paused
+    assert rt.status(4.0, 1.0, True, *costs)[1] is None          # throttled
+    assert rt.status(4.0 + LOG_EVERY_S, 1.0, True, *costs)[1] is not None
+    assert rt.status(3.0, 0.25 / BEHIND, True, *costs) == (None, None)   # at 0.9
+    assert rt.status(3.0, 0.0, True, *costs) == (None, None)     # as fast as can
+    assert rt.status(3.0, 1.0, False, *costs) == (None, None)    # paused
     big = RealTime(rest_step_cost=3e-3, n_columns=5, n_nodes=765)
-    assert big.reason(1.0, 6.25e-4, 3.5e-3, 1e-4).startswith('array size: 5 columns of 765')
+    assert big.reason(1.0, 6.25e-4, 3.5e-3, 1e-4, 200.0).startswith('array size: 5 columns of 765')
     calm = RealTime(rest_step_cost=1e-5, n_columns=1, n_nodes=153)
-    assert calm.reason(1.0, 6.25e-4, 1.2e-5, 5e-3).startswith('publishing')
+    assert calm.reason(1.0, 6.25e-4, 1.2e-5, 5e-3, 200.0).startswith('publishing')
+    assert calm.reason(1.0, 6.25e-4, 1.2e-5, 1e-4, 200.0).startswith('CPU time: stepping and '
+                                                                     'publishing need 4 %')
     rt.restart()
     assert rt.factor() is None
 

@@ -84,7 +84,7 @@ class Publishing:
             node.sinks.message(node.topics[key], msg, stamp_ns)
         node.sinks.frame(frame)
         node.counts['frames'] += 1
-        if node.running:
+        if node.running and node.timer is not None:     # (from the first tick on)
             node.realtime.sample(now, frame.t)
         wall, t_sim, frames = self._window
         if now - wall >= 1.0:
@@ -145,7 +145,8 @@ class Publishing:
                        f'{div["text"]}')
         pacer = node.pacer
         behind, log = node.realtime.status(now, node.params['real_time_factor'], node.running,
-                                           node.sim.dt, pacer.step_cost, pacer.publish_cost)
+                                           node.sim.dt, pacer.step_cost, pacer.publish_cost,
+                                           node.params['publish_rate_hz'])
         if log:
             node.log('real time', 'warning', log)
         if behind:

@@ -32,7 +32,8 @@ class RealTime:
         self._last_log = -math.inf
 
     def restart(self):
-        """Measure from the next sample on (activation, resume, reset)."""
+        """Measure from the next sample on (activation, resume, reset; the node's first sample
+        after an activation is its first tick's frame)."""
         self.samples.clear()
         self.behind_since = None
 
@@ -57,11 +58,13 @@ class RealTime:
         self.span_s = w1 - w0
         return (t1 - t0) / (w1 - w0) if w1 - w0 >= MIN_SPAN_S else None
 
-    def reason(self, target, dt, step_cost, publish_cost):
+    def reason(self, target, dt, step_cost, publish_cost, rate_hz):
         """Why the node is behind: a step's wall cost now against its cost at rest and against
-        the wall time real time allows it (``dt / target``)."""
+        the wall time real time allows it (``dt / target``), and the share of the wall time the
+        steps and ``rate_hz`` frames need at the target."""
         allowed = dt / target
         cost = f'a step of {dt * 1e3:.3g} ms costs {step_cost * 1e3:.3g} ms of wall time'
+        need = step_cost / allowed + publish_cost * rate_hz
         if step_cost > CONTACT_COST * self.rest_step_cost and step_cost > allowed * BEHIND:
             return (f'contact sub-steps: {cost}, {step_cost / self.rest_step_cost:.3g}x its '
                     f'cost at rest')
@@ -69,10 +72,14 @@ class RealTime:
             return (f'array size: {self.n_columns} column{"s" if self.n_columns > 1 else ""} of '
                     f'{self.n_nodes} nodes in all; {cost} at rest, {allowed * 1e3:.3g} ms '
                     f'allowed')
-        return (f'publishing: {cost}, {publish_cost * 1e3:.3g} ms per frame to publish, '
-                f'{allowed * 1e3:.3g} ms of wall time per step allowed')
+        if need <= BEHIND:
+            return (f'CPU time: stepping and publishing need {100 * need:.0f} % of the wall '
+                    f'time at this pace, and the node got less (other processes, or a long '
+                    f'callback)')
+        return (f'publishing: {cost}, {publish_cost * 1e3:.3g} ms per frame to publish at '
+                f'{rate_hz:g} Hz')
 
-    def status(self, now, target, running, dt, step_cost, publish_cost):
+    def status(self, now, target, running, dt, step_cost, publish_cost, rate_hz):
         """``(message, log_line)`` while running below :data:`BEHIND` of a target > 0 (the log
         line None when one went out less than :data:`LOG_EVERY_S` ago in the same spell), else
         ``(None, None)``."""
@@ -81,7 +88,8 @@ class RealTime:
             self.behind_since = None
             return None, None
         message = (f'behind real time: {f:.3g}x achieved over the last {self.span_s:.2g} s, '
-                   f'target {target:g}x; {self.reason(target, dt, step_cost, publish_cost)}')
+                   f'target {target:g}x; '
+                   f'{self.reason(target, dt, step_cost, publish_cost, rate_hz)}')
         log = None
         if self.behind_since is None or now - self._last_log >= LOG_EVERY_S:
             self._last_log = now
