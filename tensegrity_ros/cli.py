@@ -143,11 +143,14 @@ def cmd_demo(args):
     on every core, saying so, so that the node starts at once and keeps its real-time pace."""
     domain = args.domain_id if args.domain_id is not None else (
         int(os.environ['ROS_DOMAIN_ID']) if os.environ.get('ROS_DOMAIN_ID') else None)
-    from solver.simulate.precompile import compile_all
-    try:
-        compile_all()
-    except RuntimeError as exc:
-        raise UserError(f'demo: {exc}') from None
+    from solver.simulate import precompile
+    # from a checkout, every kernel on every core first; an install has not the scenes beside
+    # the solver that this needs, and the node compiles what it uses at its start (and says so)
+    if (Path(precompile.__file__).resolve().parents[2] / 'config' / 'scenes').is_dir():
+        try:
+            precompile.compile_all()
+        except RuntimeError as exc:
+            raise UserError(f'demo: {exc}') from None
     if args.focus is not None:
         return _demo_focus(args, domain)
     from tensegrity_ros.node.demo import format_summary, run_demo

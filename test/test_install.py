@@ -36,10 +36,14 @@ def _tracked(pattern):
 def prefix():
     import shutil
     shutil.rmtree(PREFIX, ignore_errors=True)
+    scripts = sorted(Path(sys.executable).parent.glob('tensegrity*'))
+    # --ignore-installed: the environment's own install (editable) stays as it is
     r = subprocess.run([sys.executable, '-m', 'pip', 'install', '--quiet', '--no-deps',
+                        '--ignore-installed',
                         '--no-build-isolation', '--prefix', str(PREFIX), str(ROOT)],
                        capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr[-2000:]
+    assert sorted(Path(sys.executable).parent.glob('tensegrity*')) == scripts   # env untouched
     return PREFIX
 
 
