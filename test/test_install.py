@@ -33,14 +33,18 @@ def _tracked(pattern):
 
 
 @pytest.fixture(scope='module')
-def prefix():
+def prefix(tmp_path_factory):
     import shutil
     shutil.rmtree(PREFIX, ignore_errors=True)
+    src = tmp_path_factory.mktemp('src')             # the tracked files: no build/ in the checkout
+    for rel in _tracked('*'):
+        (src / rel).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy2(ROOT / rel, src / rel)
     scripts = sorted(Path(sys.executable).parent.glob('tensegrity*'))
     # --ignore-installed: the environment's own install (editable) stays as it is
     r = subprocess.run([sys.executable, '-m', 'pip', 'install', '--quiet', '--no-deps',
                         '--ignore-installed',
-                        '--no-build-isolation', '--prefix', str(PREFIX), str(ROOT)],
+                        '--no-build-isolation', '--prefix', str(PREFIX), str(src)],
                        capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr[-2000:]
     assert sorted(Path(sys.executable).parent.glob('tensegrity*')) == scripts   # env untouched
