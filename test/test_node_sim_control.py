@@ -97,6 +97,36 @@ def test_frames_per_wall_second_with_and_without_sim_time(tmp_path):
     assert rates[1] > 0 and 0.5 < rates[1] / rates[0] < 2.0, rates
 
 
+def test_the_console_node_with_use_sim_time_publishes(tmp_path):
+    """``tensegrity_node --ros-args -p use_sim_time:=true`` in a second process, as a launch
+    setup starts it: strain frames, /clock and /diagnostics arrive."""
+    import os
+
+    from rclpy.executors import SingleThreadedExecutor
+
+    from tensegrity_ros.node.demo import Commander, node_process, spin_until, stop_process
+    domain = 10 + (os.getpid() + 5) % 20
+    proc = node_process({'use_sim_time': True, 'scene_file': 'config/scenes/prism.yaml'}, domain)
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=domain)
+    cmd = Commander(context=ctx)
+    clocks = []
+    cmd.create_subscription(Clock, '/clock', clocks.append, DEEP)
+    ex = SingleThreadedExecutor(context=ctx)
+    ex.add_node(cmd)
+    try:
+        assert spin_until(ex, lambda: cmd.connected() or proc.poll() is not None, 120)
+        n = len(cmd.strain)
+        assert spin_until(ex, lambda: len(cmd.strain) > n + 50 and len(clocks) > 50
+                          and len(cmd.diagnostics) > 0, 60), (len(cmd.strain), len(clocks))
+    finally:
+        code, out = stop_process(proc)
+        ex.shutdown()
+        cmd.destroy_node()
+        rclpy.shutdown(context=ctx)
+    assert code == 0 and 'Traceback' not in out, out[-2000:]
+
+
 @pytest.fixture
 def paused(tmp_path):
     ros = Ros(tmp_path)
