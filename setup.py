@@ -42,8 +42,13 @@ setup(
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
-        ('share/' + package_name + '/config', glob('config/*.yaml')),
-        ('share/' + package_name + '/config/scenes', glob('config/scenes/*.yaml')),
+        # everything the docs use from a checkout, so that an install finds it too: the node's
+        # parameters, the RViz and Foxglove views, the scenes, the paper's targets, the launch file
+        ('share/' + package_name + '/config', sorted(glob('config/*.yaml') + glob('config/*.rviz')
+                                                     + glob('config/*.json'))),
+        ('share/' + package_name + '/config/scenes', sorted(glob('config/scenes/*.yaml'))),
+        ('share/' + package_name + '/config/paper', sorted(glob('config/paper/*.yaml'))),
+        ('share/' + package_name + '/launch', sorted(glob('launch/*.launch.py'))),
     ],
     install_requires=CORE,
     extras_require={

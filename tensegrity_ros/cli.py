@@ -143,11 +143,15 @@ def cmd_demo(args):
     on every core, saying so, so that the node starts at once and keeps its real-time pace."""
     domain = args.domain_id if args.domain_id is not None else (
         int(os.environ['ROS_DOMAIN_ID']) if os.environ.get('ROS_DOMAIN_ID') else None)
+    import solver
     from solver import compile_all
-    try:
-        compile_all()
-    except RuntimeError as exc:
-        raise UserError(f'demo: {exc}') from None
+    # from a checkout, every kernel on every core first; an install has not the scenes beside
+    # the solver that this needs, and the node compiles what it uses at its start (and says so)
+    if (Path(solver.__file__).resolve().parents[1] / 'config' / 'scenes').is_dir():
+        try:
+            compile_all()
+        except RuntimeError as exc:
+            raise UserError(f'demo: {exc}') from None
     if args.focus is not None:
         return _demo_focus(args, domain)
     from tensegrity_ros.node.demo import format_summary, run_demo
@@ -402,6 +406,19 @@ def cmd_compile(args):
     return 0
 
 
+def _installed_data(args):
+    """A scene or target named as in the docs (``config/scenes/fb_column.yaml``) that the working
+    directory does not hold is taken from the package's data: the checkout, a colcon or a pip
+    install (:func:`tensegrity_ros.io.share.find_data`); anything else is left as given."""
+    from tensegrity_ros.io.share import find_data
+    for name in ('scene', 'target'):
+        value = getattr(args, name, None)
+        if isinstance(value, str) and value and not os.path.exists(value):
+            found = find_data(value)
+            if found is not None:
+                setattr(args, name, str(found))
+
+
 def main(argv=None):
     from solver import NetworkError
     from solver import SceneError
@@ -413,6 +430,7 @@ def main(argv=None):
         args = argparse.Namespace(func=cmd_bench, args=argv[1:])
     else:
         args = parser.parse_args(argv)
+    _installed_data(args)
     try:
         return args.func(args)
     except SimulationDiverged as exc:

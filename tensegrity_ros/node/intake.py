@@ -10,6 +10,7 @@ stack up unseen until the clock starts.
 from __future__ import annotations
 
 import math
+import re
 import time
 
 from rclpy.callback_groups import CallbackGroup
@@ -41,6 +42,42 @@ class TakenByTick(CallbackGroup):
         pass
 
 
+class RejectionTally:
+    """The log of rejected commands: the first of a quiet second at once, then, once a second,
+    one line with the count of each reason since (a reason: its text with the numbers masked,
+    shown by its last example), so that a burst is reported whole and never only by its
+    first command. ``logger()``: the logger to write to (looked up at each line)."""
+
+    NUMBER = re.compile(r'[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?')
+
+    def __init__(self, logger, interval_s=LOG_THROTTLE_S):
+        self.logger, self.interval_s = logger, interval_s
+        self.last = -math.inf                  # wall time of the last line
+        self.counts, self.examples = {}, {}
+
+    def add(self, text, now):
+        """A command rejected at wall time ``now`` because of ``text``."""
+        if not self.counts and now - self.last >= self.interval_s:
+            self.last = now
+            self.logger().warning(f'rejected {text}')
+            return
+        key = self.NUMBER.sub('#', text)
+        self.counts[key] = self.counts.get(key, 0) + 1
+        self.examples[key] = text
+
+    def flush(self, now):
+        """The line of the rejections since the last one, when a second has passed."""
+        if not self.counts or now - self.last < self.interval_s:
+            return
+        total = sum(self.counts.values())
+        parts = [f'{n} x {self.examples[k]}' for k, n in
+                 sorted(self.counts.items(), key=lambda kv: -kv[1])]
+        self.logger().warning(f'rejected {total} more command{"s" if total > 1 else ""} in the '
+                              f'last {now - self.last:.1f} s: ' + '; '.join(parts))
+        self.last = now
+        self.counts, self.examples = {}, {}
+
+
 class Intake:
     """Commands of node ``node``. ``counts``: accepted (applied), superseded (valid, replaced by a
     later one of the same topic before the next tick), rejected (malformed, or refused when
@@ -59,6 +96,7 @@ class Intake:
         self.cmd_wall = 0.0
         self.rejected_since = 0                # rejections not yet reported on /diagnostics
         self._last_reject_event = -math.inf
+        self.tally = RejectionTally(lambda: node.log.logger)
         self.handlers = {'~/cmd/impact': self.impact, '~/cmd/prestrain': self.prestrain,
                          '~/cmd/focus': self.focus}
 
@@ -100,9 +138,8 @@ class Intake:
         self.counts['rejected'] += 1
         self.rejected_since += 1
         self.last_command = (key, 'rejected', text)
-        node.log('paused command' if isinstance(exc, Paused) else 'rejected', 'warning',
-                 f'rejected {text}')
         now = time.monotonic()
+        self.tally.add(text, now)
         if now - self._last_reject_event >= LOG_THROTTLE_S:       # events: throttled as well
             self._last_reject_event = now
             node.event(f'rejected {text}')
@@ -112,6 +149,8 @@ class Intake:
         the subscriptions' QoS history keeps, the last 10 per topic by default."""
         for sub, handler in self.subscriptions:
             for _ in range(MAX_TAKE):
+                # rclpy has no public take of a subscription's message outside the executor
+                # (its executor's own take goes through this handle): the tick takes them here
                 with sub.handle:
                     got = sub.handle.take_message(sub.msg_type, sub.raw)
                 if got is None:

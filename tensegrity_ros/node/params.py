@@ -4,9 +4,7 @@ tests and tools without a ROS context."""
 from __future__ import annotations
 
 import math
-import sys
 import time
-from pathlib import Path
 
 from solver import Scene
 from solver import SimulationDiverged
@@ -114,17 +112,15 @@ class ParameterError(ValueError):
     """A parameter value that cannot be used; the message names it."""
 
 
-def find_config(path):
-    """A config file given absolute, relative to the working directory, to the source checkout or
-    to the installed share directory."""
-    p = Path(path)
-    candidates = [p] if p.is_absolute() else [
-        Path.cwd() / p, Path(__file__).resolve().parents[2] / p,
-        Path(sys.prefix) / 'share' / 'tensegrity_ros' / p]
-    for c in candidates:
-        if c.is_file():
-            return c
-    raise ParameterError(f'scene_file: {path!r} not found')
+def find_config(path, name='scene_file'):
+    """A config file given absolute, relative to the working directory, or to the package's data
+    (the checkout, a colcon install, a pip install: :func:`tensegrity_ros.io.share.find_data`);
+    ParameterError naming ``name`` and the places searched if none holds it."""
+    from tensegrity_ros.io.share import find_data, searched
+    found = find_data(path)
+    if found is None:
+        raise ParameterError(f'{name}: {str(path)!r} not found (looked in {searched()})')
+    return found
 
 
 def check_parameters(values):

@@ -20,13 +20,14 @@ STRUCTURE_TOPIC = '~/structure'
 
 
 class Publishing:
-    """The publishing part of node ``node``; ``achieved_rtf`` and ``achieved_rate_hz`` are
-    measured over windows of at least 1 s, ``tick_max_s`` over a diagnostics period."""
+    """The publishing part of node ``node``; ``achieved_rate_hz`` is measured over windows of at
+    least 1 s, ``tick_max_s`` over a diagnostics period (the real-time factor: the node's
+    :class:`~tensegrity_ros.node.realtime.RealTime`)."""
 
     def __init__(self, node):
         self.node = node
         self.last_marker = self.last_diag = -math.inf
-        self.achieved_rtf = self.achieved_rate_hz = self.tick_max_s = 0.0
+        self.achieved_rate_hz = self.tick_max_s = 0.0
         self.restart_window(time.monotonic())
 
     def restart_window(self, now):
@@ -38,6 +39,7 @@ class Publishing:
         the publish rate and counts the simulated time done before the jump."""
         wall, t_sim, frames = self._window
         self._window = (wall, t_sim + t_after - t_before, frames)
+        self.node.realtime.shift(t_after - t_before)
 
     def markers_due(self, now):
         """Markers are due at ``marker_rate_hz``, and only built when someone listens (a
@@ -82,9 +84,10 @@ class Publishing:
             node.sinks.message(node.topics[key], msg, stamp_ns)
         node.sinks.frame(frame)
         node.counts['frames'] += 1
+        if node.running and node.timer is not None:     # (from the first tick on)
+            node.realtime.sample(now, frame.t)
         wall, t_sim, frames = self._window
         if now - wall >= 1.0:
-            self.achieved_rtf = (frame.t - t_sim) / (now - wall)
             self.achieved_rate_hz = (node.counts['frames'] - frames) / (now - wall)
             self._window = (now, frame.t, node.counts['frames'])
         node.pacer.published(time.perf_counter() - t0, markers)
@@ -96,12 +99,14 @@ class Publishing:
         topic, verdict, detail = intake.last_command
         div = node.last_divergence
         counts = node.counts
+        rtf = node.realtime.factor()
         return {
             'sim_time_s': float(node.clock_time()), 'episode': node.episode,
             'episode_time_s': float(sim.t), 'steps': int(sim.step),
             'running': str(node.running).lower(),
             'real_time_factor_target': float(node.params['real_time_factor']),
-            'real_time_factor_achieved': float(self.achieved_rtf),
+            'real_time_factor_achieved': float(-1.0 if rtf is None else rtf),
+            'real_time_window_s': float(node.realtime.span_s),
             'publish_rate_hz_achieved': float(self.achieved_rate_hz),
             'tick_max_ms': 1e3 * float(self.tick_max_s),
             'energy_J': float(sim.energy()),
@@ -124,7 +129,8 @@ class Publishing:
     def status(self, now):
         """``(level, message)`` of ``/diagnostics``: ERROR with the reason while paused by a
         problem, and once right at a divergence the node reset after; WARN naming the last
-        divergence for ``DIVERGENCE_HOLD_S`` after it, else WARN after rejected commands; else
+        divergence for ``DIVERGENCE_HOLD_S`` after it, else WARN while behind real time (with
+        the reason; one throttled log line says so), else WARN after rejected commands; else
         OK."""
         node, intake = self.node, self.node.intake
         div = node.last_divergence
@@ -137,6 +143,14 @@ class Publishing:
         if div is not None and now - div['wall'] < DIVERGENCE_HOLD_S:
             return 1, (f'last divergence {now - div["wall"]:.0f} s ago ({div["action"]}): '
                        f'{div["text"]}')
+        pacer = node.pacer
+        behind, log = node.realtime.status(now, node.params['real_time_factor'], node.running,
+                                           node.sim.dt, pacer.step_cost, pacer.publish_cost,
+                                           node.params['publish_rate_hz'])
+        if log:
+            node.log('real time', 'warning', log)
+        if behind:
+            return 1, behind
         if intake.rejected_since:
             return 1, f'rejected {intake.last_command[2]}'
         return 0, 'running' if node.running else 'paused'
