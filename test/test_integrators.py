@@ -149,8 +149,8 @@ def test_rattle_keeps_energy_bounded_over_long_runs():
     """20 s of a prism: RATTLE's energy error oscillates without growing and scales as dt^2; the
     adaptive non-symplectic method drifts over the same run (contrast)."""
     def energy_errors(method, dt, extra=()):
-        sim = _sim(PRISM, [f'integrator.method={method}', f'integrator.dt={dt}', 'run.output_dt=0.01',
-                           'divergence.energy_error=10', *extra], 2e-4)
+        sim = _sim(PRISM, [f'integrator.method={method}', f'integrator.dt={dt}',
+                           'run.output_dt=0.01', 'divergence.energy_error=10', *extra], 2e-4)
         e0 = sim.energy()
         errs = []
         for _ in range(2000):
@@ -230,7 +230,8 @@ def test_energy_balance_error_is_divergence():
 
 
 def test_constraint_error_is_divergence():
-    over = ['structure.n_prisms=5', 'integrator.method=rk4', 'integrator.dt=0.02', 'run.output_dt=0.1']
+    over = ['structure.n_prisms=5', 'integrator.method=rk4', 'integrator.dt=0.02',
+            'run.output_dt=0.1']
     exc = _expect_divergence(_sim(COLUMN, over, 0.1), 1.0, {'constraint error'})
     assert 'projected' in exc.hint
     _first_failing_step_is_named(over, COLUMN, 0.1, exc)

@@ -4,8 +4,6 @@ or it is refused with one message whose hint names only methods that run all fou
 import re
 from pathlib import Path
 
-import pytest
-
 from solver.build.scene import SceneError
 from solver.integrators.registry import METHODS
 from solver.simulate.runner import simulate
