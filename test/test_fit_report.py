@@ -58,3 +58,27 @@ def test_a_value_on_a_bound_is_flagged_in_one_line():
     assert 'b = 0 on its lower bound' in note and 'widen' in note
     # one-sided differences at the bound: f = a (1 + b) at b = 0 has d ln f / d ln a = 1
     assert got[0]['elasticity'] == pytest.approx(1.0, rel=1e-6)
+
+
+def test_a_fit_that_ends_on_a_bound_says_so_in_one_line_and_in_its_json():
+    """The paper's FB figures (p = 0.002 in the paper's reading) fitted with prestrain confined to
+    0.0005..0.001: the best value is one of the two ends given on the command line."""
+    import json
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+    root = Path(__file__).resolve().parents[1]
+    res = subprocess.run(
+        [sys.executable, '-m', 'tensegrity_ros.cli', 'fit', 'config/scenes/fb_column.yaml',
+         '--target', 'config/paper/fb_target.yaml', '--free', 'prestrain=0.0005:0.001',
+         '--t-end', '0.55', '--popsize', '2', '--maxiter', '2', '--workers', '1', '--json'],
+        cwd=root, env=dict(os.environ, PYTHONPATH=str(root)), capture_output=True, text=True,
+        timeout=600)
+    assert res.returncode == 0, res.stderr
+    (line,) = res.stderr.strip().splitlines()
+    (entry,) = json.loads(res.stdout)['free']
+    end = {'lower': 0.0005, 'upper': 0.001}[entry['at_bound']]
+    assert entry['value'] == pytest.approx(end, abs=1e-3 * 0.0005)
+    assert line.startswith('tensegrity: the fit ended on a bound: prestrain = ')
+    assert f"on its {entry['at_bound']} bound" in line and 'widen' in line

@@ -408,9 +408,9 @@ def format_result(result):
             lines.append(f"  convergence, case {i + 1} ({case['refined']}): {moved}: "
                          f"{'converged' if case['converged'] else 'NOT converged'} (limit "
                          f"{100 * check['tolerance']:g} %)")
+    ranges = 2 * len(result.get('free') or [])
     lines.append(f"  {result['runs']} runs ({result['evaluations']} points"
-                 f"{' + ' + str(2 * len(result.get('free') or [])) if result.get('free') else ''}"
-                 f" x "
+                 f"{f' + {ranges} for the ranges' if ranges else ''} x "
                  f"{len(result['cases'])} cases), {result['generations']} generations, "
                  f"seed {result['seed']}: {result['message']}")
     return lines

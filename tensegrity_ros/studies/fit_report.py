@@ -55,6 +55,7 @@ def _figure(summaries, k, name):
 
 
 def _entry(key, value, lo, hi, slopes):
+    value, lo, hi = float(value), float(lo), float(hi)
     span = hi - lo
     bound = ('lower' if value - lo <= AT_BOUND * span else
              'upper' if hi - value <= AT_BOUND * span else None)
@@ -64,6 +65,7 @@ def _entry(key, value, lo, hi, slopes):
     if not slopes:
         return entry
     figure, slope = max(slopes.items(), key=lambda kv: abs(kv[1]))
+    slope = float(slope)
     entry['pinned_by'] = figure
     entry['elasticity'] = slope * value          # d ln f / d ln x of that figure
     if slope == 0:
@@ -72,7 +74,7 @@ def _entry(key, value, lo, hi, slopes):
     w = TOLERANCE / abs(slope)
     entry['range'] = [max(lo, value - w), min(hi, value + w)]
     entry['half_width_rel'] = w / abs(value) if value else None
-    entry['determined'] = value - w > lo or value + w < hi
+    entry['determined'] = bool(value - w > lo or value + w < hi)
     return entry
 
 
