@@ -208,7 +208,7 @@ STRAIN_NOTE = 0.5       # |strain| from which the summary says what the strain m
 
 def _strain_line(strain):
     """The summary's line on the strain measure where the run's largest |strain| reaches
-    :data:`STRAIN_NOTE` (a figure beyond 1 no longer reads as a fraction of the height), or
+    :data:`STRAIN_NOTE` (a figure beyond 1 does not read as a fraction of the height), or
     None. Strain is (h - h0) / h (negative in compression): h / h0 = 1 / (1 - strain)."""
     import numpy as np
     strain = np.asarray(strain)
