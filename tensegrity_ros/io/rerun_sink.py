@@ -391,8 +391,8 @@ class RerunRecorder:
         self.stream.flush()
 
     def close(self):
-        """Send what is buffered and the heat map at the last frame, then finish the file / disconnect: the
-        file is complete when this returns. Idempotent."""
+        """Send what is buffered and the heat map at the last frame, then finish the file /
+        disconnect: the file is complete when this returns. Idempotent."""
         if self._closed:
             return
         try:
