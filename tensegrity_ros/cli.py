@@ -14,6 +14,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+from tensegrity_ros.commands.inputs import check_out, check_params_files, demo_values
 from tensegrity_ros.commands.run import cmd_run
 from tensegrity_ros.io.progress import progress_bar
 
@@ -28,40 +29,6 @@ class OneLineParser(argparse.ArgumentParser):
 
     def error(self, message):
         self.exit(2, f'tensegrity: {message} (see: {self.prog} --help)\n')
-
-
-def check_out(path, option='--out'):
-    """Raise :class:`UserError` unless ``path`` can be an output directory: it and every part of
-    it that exists are directories (nothing is created here)."""
-    p = Path(path)
-    for part in (p, *p.parents):
-        if part.exists():
-            if not part.is_dir():
-                what = 'is a file' if part == p else f'{part} is a file'
-                raise UserError(f'{option} {path}: {what}, not a directory')
-            return
-
-
-def check_params_files(ros_args):
-    """Raise :class:`UserError` for a ``--params-file`` of ``ros_args`` that cannot be read or is
-    not a YAML mapping (rcl would stop with its parser's dump)."""
-    import yaml
-    args = list(ros_args or [])
-    for flag, value in zip(args, args[1:] + [None]):
-        if flag != '--params-file':
-            continue
-        if value is None:
-            raise UserError('--params-file: give a file')
-        try:
-            data = yaml.safe_load(Path(value).read_text())
-        except OSError as exc:
-            raise UserError(f'--params-file {value}: cannot read ({exc.strerror})') from None
-        except yaml.YAMLError as exc:
-            raise UserError(f'--params-file {value}: not valid YAML '
-                            f'({getattr(exc, "problem", None) or exc})') from None
-        if not isinstance(data, dict):
-            raise UserError(f'--params-file {value}: expected a mapping (NODE: '
-                            f'ros__parameters: {{NAME: VALUE}}), got {type(data).__name__}')
 
 
 def cmd_bench(args):
@@ -183,7 +150,7 @@ def cmd_demo(args):
     domain = args.domain_id if args.domain_id is not None else (
         int(os.environ['ROS_DOMAIN_ID']) if os.environ.get('ROS_DOMAIN_ID') else None)
     if args.focus is None:
-        v0, prestrain = _demo_values(args)
+        v0, prestrain = demo_values(args)
     from solver.simulate.precompile import compile_all
     try:
         compile_all()
@@ -196,23 +163,6 @@ def cmd_demo(args):
     return _demo_report(lambda: run_demo(
         args.scene or DEMO_SCENE, v0=v0, duration_s=args.duration, rtf=args.rtf, out_dir=out,
         domain_id=domain, record=not args.no_record, prestrain=prestrain), format_summary, out)
-
-
-def _demo_values(args):
-    """``(v0 list, prestrain list or None)`` of ``demo --v0 --prestrain``, checked."""
-    try:
-        v0 = [float(v) for v in args.v0.split(',')]
-        prestrain = None if args.prestrain is None else [float(p) for p in
-                                                         args.prestrain.split(',')]
-    except ValueError:
-        raise UserError('--v0 and --prestrain take numbers separated by commas') from None
-    bad = [v for v in v0 if not (-10.0 <= v <= 10.0)]
-    if bad:
-        raise UserError(f'--v0: {bad[0]!r} m/s is not a number within [-10, 10]')
-    bad = [p for p in prestrain or () if not (0.0 <= p <= 0.5)]
-    if bad:
-        raise UserError(f'--prestrain: {bad[0]!r} is not a number within [0, 0.5]')
-    return v0, prestrain
 
 
 def _demo_report(run, format_lines, out):

@@ -52,7 +52,9 @@ def test_out_naming_an_existing_file_is_one_line(tmp_path, argv):
 @pytest.mark.parametrize('content, words', [
     (None, ('missing.yaml', 'cannot read')),
     ('a: [b\n', ('params.yaml', 'not valid YAML')),
-    ('- 1\n- 2\n', ('params.yaml', 'expected a mapping')),
+    ('- 1\n- 2\n', ('params.yaml', 'expected NODE: {ros__parameters:', 'got list')),
+    ('tensegrity_sim:\n  ros__parameters:\n    - 1\n',
+     ('params.yaml', 'tensegrity_sim/ros__parameters holds list')),
 ])
 def test_a_missing_or_broken_params_file_is_one_line(tmp_path, content, words):
     name = 'missing.yaml' if content is None else 'params.yaml'
@@ -111,3 +113,9 @@ def test_the_text_summary_prints_the_ledger_and_explains_large_strain(tmp_path):
 
     quiet = _cli('run', FB, '--t-end', '0.3', cwd=tmp_path)       # 0.1 m/s: a few per cent
     assert quiet.returncode == 0 and 'strain is (h - h0)/h' not in quiet.stdout
+
+
+def test_the_shipped_parameters_file_passes_the_check():
+    """config/node.yaml (a wildcard namespace, the node, its ros__parameters) is not refused."""
+    from tensegrity_ros.commands.inputs import check_params_files
+    check_params_files(['-p', 'dt:=0.001', '--params-file', str(ROOT / 'config' / 'node.yaml')])
