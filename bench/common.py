@@ -41,7 +41,7 @@ def scene(column, model, method, dt, output_dt, t_end, prestrain=0.002, v0=0.1, 
     """The scene of one benchmark run (overrides of the shipped column scene). ``bars``: the
     integrator benches compare methods on the paper's line bars by default (``implicit_midpoint``
     refuses bar contact); the stability map's contact half passes ``hertz``."""
-    over = [f'contact.bars={bars}', f'model={model}', f'integrator={method}',
+    over = [f'contact.bars={bars}', f'model={model}', f'integrator.method={method}',
             f'integrator.dt={dt!r}',
             f'run.output_dt={output_dt!r}', f'run.t_end={t_end!r}', f'prestrain={prestrain!r}',
             f'loading.impact.v0={v0!r}', f'integrator.land_on_kinks={str(kinks).lower()}']

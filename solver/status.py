@@ -39,9 +39,9 @@ def text(status):
 # What failed and what to try, per status code (``Simulation`` adds them to the message of
 # :class:`~solver.simulate.simulation.SimulationDiverged`), and the hints of its own checks.
 HINT_STEP = 'try a smaller integrator.dt or another method (e.g. integrator=dopri54_projected)'
-HINT_CONSTRAINT = ('use a projected method (rk4_projected, rattle, dopri54_projected) or a '
+HINT_CONSTRAINT = ('use a projected method (rk4_projected, dopri54_projected) or a '
                    'smaller integrator.dt')
-HINT_ENERGY = 'try a smaller integrator.dt or another method (rattle, dopri54_projected)'
+HINT_ENERGY = 'try a smaller integrator.dt or another method (rk4_projected, dopri54_projected)'
 HINT_SLACK = ('cables went slack and the prism collapsed: raise the prestrain or lower the impact '
               'velocity')
 HINT_LOCK = ('the bars of the prism crossed at the rigid-base lock: lower the impact velocity, or '

@@ -14,6 +14,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+from tensegrity_ros.commands.inputs import check_out, check_params_files, demo_values
 from tensegrity_ros.commands.run import cmd_run
 from tensegrity_ros.io.progress import progress_bar
 
@@ -131,9 +132,14 @@ def cmd_lens(args):
 
 def cmd_node(args):
     """``tensegrity node [--ros-args ...]``: the ROS 2 node, as ``tensegrity_node``."""
+    check_params_files(args.ros_args)
+    from rclpy._rclpy_pybind11 import RCLError   # rclpy exports it nowhere else
     from tensegrity_ros.node.node import main as node_main
     ros_args = ['--ros-args', *args.ros_args] if args.ros_args else []
-    return node_main(['tensegrity_node', *ros_args])
+    try:
+        return node_main(['tensegrity_node', *ros_args])
+    except RCLError as exc:           # rcl refused the arguments (a parameter file's layout)
+        raise UserError('node: ' + str(exc).split(', at /')[0].replace('\n', ' ')) from None
 
 
 def cmd_demo(args):
@@ -143,6 +149,8 @@ def cmd_demo(args):
     on every core, saying so, so that the node starts at once and keeps its real-time pace."""
     domain = args.domain_id if args.domain_id is not None else (
         int(os.environ['ROS_DOMAIN_ID']) if os.environ.get('ROS_DOMAIN_ID') else None)
+    if args.focus is None:
+        v0, prestrain = demo_values(args)
     import solver
     from solver import compile_all
     # from a checkout, every kernel on every core first; an install has not the scenes beside
@@ -155,12 +163,6 @@ def cmd_demo(args):
     if args.focus is not None:
         return _demo_focus(args, domain)
     from tensegrity_ros.node.demo import format_summary, run_demo
-    try:
-        v0 = [float(v) for v in args.v0.split(',')]
-        prestrain = None if args.prestrain is None else [float(p) for p in
-                                                         args.prestrain.split(',')]
-    except ValueError:
-        raise UserError('--v0 and --prestrain take numbers separated by commas') from None
     out = args.out or 'runs/demo'
     return _demo_report(lambda: run_demo(
         args.scene or DEMO_SCENE, v0=v0, duration_s=args.duration, rtf=args.rtf, out_dir=out,
@@ -432,6 +434,8 @@ def main(argv=None):
         args = parser.parse_args(argv)
     _installed_data(args)
     try:
+        if getattr(args, 'out', None):
+            check_out(args.out)
         return args.func(args)
     except SimulationDiverged as exc:
         print(f'tensegrity: {exc}', file=sys.stderr)

@@ -71,13 +71,19 @@ def strips_at(ent, t):
             for strip in rows[0]['LineStrips3D:strips'].flatten().to_pylist()]
 
 
-def tensor(ent, row=None):
-    """(shape, float64 values) of the Tensor logged in row ``row``; by default the static one
-    (the whole wave, written when the recording closes)."""
-    data = (ent['static'] if row is None else ent['rows'][row][1])['Tensor:data'] \
-        .flatten().to_pylist()
+def tensor(ent, row=-1):
+    """(shape, float64 values) of the Tensor logged in row ``row``; by default the last one (the
+    heat map at the last frame: the whole wave)."""
+    data = ent['rows'][row][1]['Tensor:data'].flatten().to_pylist()
     assert len(data) == 1
     return tuple(data[0]['shape']), np.array(data[0]['buffer'], dtype=np.float64)
+
+
+def symlog(strain):
+    """The recorder's symmetric-log scale of strain, written out: sign(s) log10(1 + |s| / 0.01)
+    (linear within 1 % strain)."""
+    s = np.asarray(strain, dtype=np.float64)
+    return np.sign(s) * np.log10(1.0 + np.abs(s) / 0.01)
 
 
 def blueprint_views(path):

@@ -285,7 +285,7 @@ def test_the_ledger_books_what_cable_damping_takes_out(method):
     ledger books that loss (the integral of the damping's power, with the method's own weights),
     so the balance stays within 1e-6 in both directions."""
     sim = simulation_for(_scene('fb_column', 'materials.cable_damping_ratio=0.05',
-                                f'integrator={method}'))
+                                f'integrator.method={method}'))
     sim.apply_impact(0.1)
     e0 = sim.energy()
     worst = 0.0

@@ -193,7 +193,7 @@ def test_full_and_reduced_models_agree():
 def _survives(method, dt, t_end=0.16):
     # stability, not accuracy (near its limit RK4 damps: 12 % of the energy gone in 4 ms at
     # 0.2 ms): only an energy that doubles or vanishes counts
-    sim = simulation_for(RB.with_overrides(STIFF + ['model=sym3d', f'integrator={method}',
+    sim = simulation_for(RB.with_overrides(STIFF + ['model=sym3d', f'integrator.method={method}',
                                                 f'integrator.dt={dt}',
                                                 'divergence.energy_error=1.0']))
     sim.apply_impact(0.1)

@@ -91,7 +91,7 @@ def test_observed_order_matches_nominal_order(method):
         counts = (32, 64, 128, 256)
     finals = []
     for n in counts:
-        sim = _sim(PRISM, over + [f'integrator={method}', f'integrator.dt={T / n}'], 2e-4)
+        sim = _sim(PRISM, over + [f'integrator.method={method}', f'integrator.dt={T / n}'], 2e-4)
         sim.advance(T)
         assert np.all(sim.frame().tension > 0), 'a cable went slack: the problem is not smooth'
         if method == 'dopri54_projected':
@@ -149,8 +149,8 @@ def test_rattle_keeps_energy_bounded_over_long_runs():
     """20 s of a prism: RATTLE's energy error oscillates without growing and scales as dt^2; the
     adaptive non-symplectic method drifts over the same run (contrast)."""
     def energy_errors(method, dt, extra=()):
-        sim = _sim(PRISM, [f'integrator={method}', f'integrator.dt={dt}', 'run.output_dt=0.01',
-                           'divergence.energy_error=10', *extra], 2e-4)
+        sim = _sim(PRISM, [f'integrator.method={method}', f'integrator.dt={dt}',
+                           'run.output_dt=0.01', 'divergence.energy_error=10', *extra], 2e-4)
         e0 = sim.energy()
         errs = []
         for _ in range(2000):
@@ -173,7 +173,7 @@ def test_rk4_without_projection_drifts_and_projection_removes_it():
     over = ['structure.n_prisms=5', 'divergence.constraint_error=1.0', 'integrator.dt=5e-4']
     drift = {}
     for method in ('rk4', 'rk4_projected'):
-        sim = _sim(COLUMN, over + [f'integrator={method}'], 0.1)
+        sim = _sim(COLUMN, over + [f'integrator.method={method}'], 0.1)
         errs = []
         for _ in range(3):
             sim.advance(0.15)
@@ -222,7 +222,7 @@ def _first_failing_step_is_named(scene_overrides, scene, v0, exc):
 
 
 def test_energy_balance_error_is_divergence():
-    over = ['structure.n_prisms=5', 'integrator=rattle', 'integrator.dt=0.02',
+    over = ['structure.n_prisms=5', 'integrator.method=rattle', 'integrator.dt=0.02',
             'run.output_dt=0.02']
     exc = _expect_divergence(_sim(COLUMN, over, 0.1), 1.0, {'energy balance'})
     assert 'dt' in exc.hint
@@ -230,7 +230,8 @@ def test_energy_balance_error_is_divergence():
 
 
 def test_constraint_error_is_divergence():
-    over = ['structure.n_prisms=5', 'integrator=rk4', 'integrator.dt=0.02', 'run.output_dt=0.1']
+    over = ['structure.n_prisms=5', 'integrator.method=rk4', 'integrator.dt=0.02',
+            'run.output_dt=0.1']
     exc = _expect_divergence(_sim(COLUMN, over, 0.1), 1.0, {'constraint error'})
     assert 'projected' in exc.hint
     _first_failing_step_is_named(over, COLUMN, 0.1, exc)
@@ -248,7 +249,7 @@ def test_non_finite_state_is_divergence():
 @pytest.mark.parametrize('method', METHODS)
 def test_slack_cables_collapse_is_divergence(method):
     """Almost no prestrain: the cables go slack and the impacted prism folds through itself."""
-    over = ['structure.n_prisms=5', 'prestrain=1e-5', f'integrator={method}',
+    over = ['structure.n_prisms=5', 'prestrain=1e-5', f'integrator.method={method}',
             'contact.bars=none',         # line bars: nothing stops the collapse
             'divergence.energy_error=1e-2']  # rattle's error passes 1e-4 first
     _expect_divergence(_sim(COLUMN, over, 0.3), 0.3, {'prism height'}, chunk=0.005)
@@ -257,7 +258,7 @@ def test_slack_cables_collapse_is_divergence(method):
 @pytest.mark.parametrize('method', METHODS)
 def test_rigid_base_lock_is_divergence(method):
     """A fast impact drives a rigid-base prism through its lock (twist 180 deg, bars crossing)."""
-    over = ['structure.bases=rigid', f'integrator={method}', 'contact.bars=none']
+    over = ['structure.bases=rigid', f'integrator.method={method}', 'contact.bars=none']
     _expect_divergence(_sim(PRISM, over, 1.0), 0.1, {'prism twist'}, chunk=0.005)
 
 

@@ -20,7 +20,7 @@ from tensegrity_ros.io.rerun_sink import RerunRecorder  # noqa: E402
 from tensegrity_ros.msgs.style import reference_tension_scale  # noqa: E402
 
 from rerun_helpers import (FB, ROOT, at, blueprint_views, field_images, flat, read,  # noqa: E402
-                           small_run, strips_at, tensor)
+                           small_run, strips_at, symlog, tensor)
 
 
 # -- fixtures ----------------------------------------------------------------------------------
@@ -97,14 +97,22 @@ def test_topology_is_static_and_matches_the_network(recorded):
     np.testing.assert_array_equal(flat(topo['static']['levels']).reshape(shape), net.levels)
 
 
-def test_wave_image_is_the_strain_of_every_frame(recorded):
+def test_heat_map_follows_the_time_cursor_with_the_wave_so_far(recorded):
+    """The heat map is logged on sim_time (nothing static: a static map would show at every
+    time cursor): every 10th frame (wave_every) and the last, each the symmetric-log strain of
+    every frame up to its time, across the batches of 7 frames."""
     sim, frames, data, _ = recorded
     wave = data['/wave/column_0']
-    assert 'Tensor:data' in wave['static']      # the whole wave, at every time
-    shape, values = tensor(wave)
-    assert shape == (sim.network.n_prisms, len(frames))
-    np.testing.assert_array_equal(values.reshape(shape),
-                                  np.stack([f.strain[0] for f in frames], axis=1))
+    assert wave['static'] == {}
+    times = [t for t, _ in wave['rows']]
+    assert times == [round(frames[k].t * 1e9) for k in (9, 19, 20)]
+    for row, t in enumerate(times):
+        upto = [f for f in frames if round(f.t * 1e9) <= t]
+        shape, values = tensor(wave, row)
+        assert shape == (sim.network.n_prisms, len(upto))
+        np.testing.assert_allclose(values.reshape(shape),
+                                   symlog(np.stack([f.strain[0] for f in upto], axis=1)),
+                                   rtol=1e-6, atol=1e-7)          # float32
 
 
 def test_commands_are_text_events_and_a_blueprint_is_stored(recorded):
@@ -184,8 +192,9 @@ def test_two_columns_record_one_strain_series_and_wave_per_column(tmp_path):
         for f in frames[::3]:
             np.testing.assert_array_equal(at(ent, f.t, 'Scalars:scalars'), f.strain[c])
         shape, values = tensor(data[f'/wave/column_{c}'])
-        np.testing.assert_array_equal(values.reshape(shape),
-                                      np.stack([f.strain[c] for f in frames], axis=1))
+        np.testing.assert_allclose(values.reshape(shape),
+                                   symlog(np.stack([f.strain[c] for f in frames], axis=1)),
+                                   rtol=1e-6, atol=1e-7)
     assert np.abs(frames[-1].strain[1]).max() > np.abs(frames[-1].strain[0]).max()
 
 
@@ -204,6 +213,7 @@ def test_the_stored_blueprint_holds_the_paper_style_views(recorded):
     _, _, _, path = recorded
     assert blueprint_views(path) == {
         ('3D', 'world'), ('TextDocument', 'legend'), ('BarChart', 'strain_profile/column_0'),
+        ('BarChart', 'strain_profile_log/column_0'),
         ('Tensor', 'wave/column_0'), ('Tensor', 'wave_scale/column_0'),
         ('TimeSeries', 'base_force'), ('TimeSeries', 'energy'),
         ('TimeSeries', 'energy_balance_error'), ('TimeSeries', 'constraint_error'),
@@ -224,6 +234,15 @@ def test_bar_chart_is_the_strain_per_prism_of_each_frame(recorded):
                ['BarChart:values'].flatten().to_pylist()]
     all_strain = np.stack([f.strain[0] for f in frames])
     assert list(bars) == [all_strain.min(), all_strain.max()]
+    # the symmetric-log chart: the same strain on the scale written out in rerun_helpers.symlog
+    log = data['/strain_profile_log/column_0']
+    for f in (frames[3], frames[-1]):
+        (row,), = [r['BarChart:values'].flatten().to_pylist() for t, r in log['rows']
+                   if t == round(f.t * 1e9)]
+        np.testing.assert_allclose(row['buffer'], symlog(f.strain[0]), rtol=1e-12)
+    (bars,) = [t['buffer'] for t in data['/strain_profile_log/column_0/range']['static']
+               ['BarChart:values'].flatten().to_pylist()]
+    np.testing.assert_allclose(bars, symlog([all_strain.min(), all_strain.max()]), rtol=1e-12)
 
 
 def test_heat_map_starts_at_the_impact_on_a_sim_time_axis(tmp_path):
@@ -247,18 +266,28 @@ def test_heat_map_starts_at_the_impact_on_a_sim_time_axis(tmp_path):
     assert len(after) < len(frames)
     shape, values = tensor(data['/wave/column_0'])
     assert shape == (6, len(after))                        # n_prisms rows, frames from impact
-    np.testing.assert_array_equal(values.reshape(shape),
-                                  np.stack([f.strain[0] for f in after], axis=1))
-    names = data['/wave/column_0']['static']['Tensor:data'].flatten().to_pylist()[0]['names']
+    np.testing.assert_allclose(values.reshape(shape),
+                               symlog(np.stack([f.strain[0] for f in after], axis=1)),
+                               rtol=1e-6, atol=1e-7)
+    names = data['/wave/column_0']['rows'][-1][1]['Tensor:data'].flatten().to_pylist()[0][
+        'names']
     assert names[0].startswith('prism')
     assert names[1] == (f'sim_time {after[0].t:.3f} to {after[-1].t:.3f} s, '
                         f'{1e3 * (after[1].t - after[0].t):.3g} ms per column')
     # the colour scale: the heat map's symmetric range as a gradient strip
-    lo, hi = flat(data['/wave_scale/column_0']['static']['Tensor:value_range'])
+    lo, hi = flat(data['/wave_scale/column_0']['rows'][-1][1]['Tensor:value_range'])
     lim = np.abs(values).max()
     assert (lo, hi) == (-lim, lim)
     _, scale = tensor(data['/wave_scale/column_0'])
     assert scale[0] == -lim and scale[-1] == lim and np.all(np.diff(scale) > 0)
+    # its axis names the strain at 0, 1/4, 1/2, 3/4 and 1 of the width: the symmetric-log
+    # scale inverted by hand, s = sign(y) 0.01 (10^|y| - 1)
+    label = data['/wave_scale/column_0']['rows'][-1][1]['Tensor:data'].flatten().to_pylist()[0][
+        'names'][1]
+    ticks = [float(v) for v in label.rsplit(': ', 1)[1].split(', ')]
+    big = np.abs(np.stack([f.strain[0] for f in after])).max()
+    half = 0.01 * (10.0 ** (np.log10(1.0 + big / 0.01) / 2) - 1.0)
+    assert ticks == pytest.approx([-big, -half, 0.0, half, big], rel=5e-3)
 
 
 def test_heat_map_grid_resamples_uneven_frames_on_time():

@@ -293,7 +293,8 @@ def test_fit_recovers_known_values_with_a_continuous_and_a_discrete_key(cluster,
     assert best['prestrain'] == pytest.approx(0.003, rel=0.02)
     assert [c['choice']['structure.stacking'] for c in result['combinations']] == \
         ['parallel', 'shared']
-    assert result['runs'] == 2 * result['evaluations']
+    # two cases per point, and per free key two runs of each case for its range
+    assert result['runs'] == 2 * (result['evaluations'] + 2 * len(result['free']))
     out = tmp_path / 'best.yaml'
     fit.write_scene(problem, best, out)
     from solver.build.scene import Scene

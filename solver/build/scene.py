@@ -2,7 +2,9 @@
 
 Every default lives in :data:`DEFAULTS`; the type of a default is the type a value must have. A
 scene file gives only what differs. ``--set KEY=VALUE`` overrides use dotted keys
-(``integrator.dt=2e-4``); ``integrator=NAME`` is short for ``integrator.method=NAME``.
+(``integrator.dt=2e-4``); ``integrator=NAME`` is short for ``integrator.method=NAME``, and picks
+the method as a user does: with its own step where the scene's is too large for it, refused where
+it cannot run the scene (:data:`METHOD_STEPS`, :data:`METHOD_REFUSALS`).
 """
 from __future__ import annotations
 
@@ -144,6 +146,23 @@ RANGES = {
 }
 
 SHORTCUTS = {'integrator': 'integrator.method'}
+
+# What ``integrator=NAME`` does beyond ``integrator.method=NAME`` (docs/integrators.md, "Methods
+# on the default columns"; test/test_method_matrix.py runs the matrix). The largest step of a
+# method where the scenes' steps are too large for it: the shorthand lowers a larger
+# integrator.dt to it, unless the same overrides set integrator.dt. rk4 (no projection) at the
+# scenes' own steps drifts past divergence.constraint_error at 1 m/s (fb_column at t = 0.85 s,
+# rb_column at 0.06 s); at 1.25e-4 s it runs both columns at 0.1 and 1 m/s to 1.2 s.
+METHOD_STEPS = {'rk4': 1.25e-4}
+# Methods the shorthand refuses, with the condition on the scene's data and the reason. rattle's
+# fixed steps cannot follow the bars' Hertz contact of a strong impact: at 1 m/s it diverges at
+# about 7 ms on both default columns, where the struck prisms are crushed until their bars
+# touch, even at an eighth of their steps (with line bars those prisms collapse at 8 ms).
+METHOD_REFUSALS = {
+    'rattle': (lambda data: data['contact']['bars'] != 'none',
+               'its fixed steps cannot follow the bars\' Hertz contact (contact.bars: hertz) of '
+               'a strong impact; use integrator=rk4_projected or integrator=dopri54_projected'),
+}
 
 
 def _type_name(value):
@@ -384,6 +403,7 @@ class Scene:
         """A new scene with ``KEY=VALUE`` strings (or (key, value) pairs) applied; values are
         parsed as YAML scalars."""
         data = self.data
+        picked, step_given = None, False
         for item in assignments:
             if isinstance(item, str):
                 if '=' not in item:
@@ -396,7 +416,9 @@ class Scene:
             else:
                 key, value = item
             key = key.strip()
-            key = SHORTCUTS.get(key, key) if not isinstance(value, dict) else key
+            if key in SHORTCUTS and not isinstance(value, dict):
+                key, picked = SHORTCUTS[key], value
+            step_given = step_given or key == 'integrator.dt'
             parts = key.split('.')
             node = data
             for part in parts[:-1]:
@@ -406,4 +428,20 @@ class Scene:
             if not isinstance(node, dict) or parts[-1] not in node:
                 raise SceneError(_unknown(key, node))
             node[parts[-1]] = value
+        if picked is not None:
+            _picked_method(data, picked, step_given)
         return Scene(data, source=self.source)
+
+
+def _picked_method(data, name, step_given):
+    """What ``integrator=NAME`` adds to ``integrator.method=NAME`` (in place on ``data``): the
+    method's own step (:data:`METHOD_STEPS`) unless ``step_given``; a refusal
+    (:data:`METHOD_REFUSALS`) where the scene is one the method cannot run."""
+    refusal = METHOD_REFUSALS.get(name)
+    if refusal is not None and isinstance(data.get('contact'), dict) and refusal[0](data):
+        raise SceneError(f'integrator={name}: refused on this scene: {refusal[1]}')
+    step = METHOD_STEPS.get(name)
+    if step is not None and not step_given and isinstance(data.get('integrator'), dict):
+        dt = data['integrator'].get('dt')
+        if isinstance(dt, (int, float)) and dt > step:
+            data['integrator']['dt'] = step

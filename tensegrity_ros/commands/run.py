@@ -203,6 +203,30 @@ def _sensitivity(args, check, refined, point):
     return convergence.sensitivity(check, point.summary, *summaries)
 
 
+STRAIN_NOTE = 0.5       # |strain| from which the summary says what the strain measure means
+
+
+def _strain_line(strain):
+    """The summary's line on the strain measure where the run's largest |strain| reaches
+    :data:`STRAIN_NOTE` (a figure beyond 1 does not read as a fraction of the height), or
+    None. Strain is (h - h0) / h (negative in compression): h / h0 = 1 / (1 - strain)."""
+    import numpy as np
+    strain = np.asarray(strain)
+    if not strain.size or not np.abs(strain).max() >= STRAIN_NOTE:
+        return None
+    lo, hi = float(strain.min()), float(strain.max())
+    parts = []
+    if lo <= -STRAIN_NOTE:
+        parts.append(f'the largest compression {lo:.3g} is a prism at h_min/h0 = '
+                     f'{1.0 / (1.0 - lo):.3g}')
+    if hi >= STRAIN_NOTE:
+        parts.append(f'the largest extension {hi:+.3g} a prism at h_max/h0 = '
+                     f'{1.0 / (1.0 - hi):.3g}' if hi < 1.0 else
+                     f'the largest extension {hi:+.3g}')
+    return ('  strain is (h - h0)/h (h: prism height, h0: at rest; negative in compression, '
+            'unbounded as h -> 0): ' + ', '.join(parts))
+
+
 def _changes(part):
     """``amplitude 1.2 %, speed_m_s found in one run only``: the changes of a check (or of its
     sensitivity) in the JSON's form (:func:`solver.simulate.convergence.jsonable`)."""
@@ -275,16 +299,16 @@ def _run(args, refined_run):
               f"dt = {result['dt']:g} s,"
               f" t_end = {result['t_end']:g} s, {result['steps_taken']} steps in "
               f"{result['wall_time_s']:.2f} s ({result['real_time_factor'] or 0:.1f}x real time)")
-        print(f"  energy drift {result['energy_drift_rel']:.2e} /s, constraint error "
+        print(f"  energy ledger: balance error {result['energy_balance_error']:.2e} (largest; "
+              f"limit {scene.divergence.energy_error:g}), work {result['energy_work_J']:.3e} J "
+              f"in {len(result['impacts'])} impact(s); constraint error "
               f"{result['constraint_error_rel']:.2e}")
-        print(f"  energy balance error {result['energy_balance_error']:.2e} (largest), work "
-              f"{result['energy_work_J']:.3e} J in {len(result['impacts'])} impact(s)")
         if result['contacts_met'] and result.get('convergence') is None:
             print(f"  contact: bars touched in {result['contacts_met']} force evaluations; "
                   f"figures read after a contact can depend on the steps (--convergence "
                   f"checks them)")
         for line in (_pulse_line(p, result['t_end']),
-                     _front_line(p, point.sim.network.n_prisms)):
+                     _front_line(p, point.sim.network.n_prisms), _strain_line(rec.strain)):
             if line:
                 print(line)
         check = result.get('convergence')

@@ -13,6 +13,23 @@ import rerun as rr
 from tensegrity_ros.msgs.style import tension_colors
 
 
+LINEAR_STRAIN = 0.01      # the symmetric-log scale of strain is linear within +-1 % strain
+
+
+def symlog(strain, s0=LINEAR_STRAIN):
+    """Strain on the symmetric-log scale of the heat map and the log bar chart:
+    ``sign(s) log10(1 + |s| / s0)``: linear around 0 (within ``s0``), logarithmic beyond, so a
+    0.15 pulse keeps a third of the range of a -31.5 crush."""
+    s = np.asarray(strain, dtype=np.float64)
+    return np.sign(s) * np.log10(1.0 + np.abs(s) / s0)
+
+
+def symlog_inverse(y, s0=LINEAR_STRAIN):
+    """The strain of a symmetric-log value ``y`` (:func:`symlog`)."""
+    y = np.asarray(y, dtype=np.float64)
+    return np.sign(y) * s0 * (10.0 ** np.abs(y) - 1.0)
+
+
 def packed_colors(tension, scale):
     """Packed RGBA (``0xRRGGBBAA``, uint32) of the marker colours
     (:func:`~tensegrity_ros.msgs.style.tension_colors`)."""

@@ -14,8 +14,10 @@ def legend_markdown(tension_scale):
     """The text of the ``legend`` entity: what the colours of the 3D view mean."""
     return (f'**Cables**: tension T from blue (0 N) to red (T >= {tension_scale:.3g} N, twice '
             f'the largest prestress tension); slack cables grey and translucent. '
-            f'**Bars** light grey, **nodes** orange. Heat map and bar chart: axial strain, '
-            f'negative in compression.')
+            f'**Bars** light grey, **nodes** orange. Heat map and bar charts: axial strain '
+            f'(h - h0) / h, negative in compression; the heat map and the right bar chart on a '
+            f'symmetric-log scale, sign(s) log10(1 + |s| / 0.01), so that a pulse of 0.1 shows '
+            f'beside a crushed prism at -30.')
 
 
 def blueprint(n_columns=1, field_grid=None, y_ranges=None):
@@ -23,7 +25,9 @@ def blueprint(n_columns=1, field_grid=None, y_ranges=None):
     legend and the command log (with a ``field_grid``, the field in the medium under the 3D
     view); on the right the strain per prism at the time cursor, the prism-by-``sim_time`` heat
     map (the clamped end at the bottom, as in the 3D view) and its scale, base force, energy,
-    energy balance error and constraint error side by side. Several columns: one tab per column
+    energy balance error and constraint error side by side. The heat map and a second bar chart
+    show strain on a symmetric-log scale (:func:`~tensegrity_ros.io.rerun_columns.symlog`).
+    Several columns: one tab per column
     for the bar chart and the heat map. ``y_ranges``: ``{time series origin: (lo, hi)}``, fixed
     y ranges (the recorder gives them for series that stay constant, which the viewer would
     draw on an axis of +-1 around them)."""
@@ -37,14 +41,19 @@ def blueprint(n_columns=1, field_grid=None, y_ranges=None):
     def one_or_tabs(views):
         return views[0] if len(views) == 1 else rrb.Tabs(*views)
     mapping = rrb.archetypes.TensorScalarMapping(colormap=COLORMAP)
-    bars = [rrb.BarChartView(origin=f'strain_profile/column_{c}',
-                             name=f'strain per prism at the time cursor, column {c} '
-                                  f'(prism 0: clamped end)',
-                             plot_legend=rrb.archetypes.PlotLegend(visible=False))
-            for c in range(n_columns)]
+    bars = [rrb.Horizontal(
+        rrb.BarChartView(origin=f'strain_profile/column_{c}',
+                         name=f'strain per prism at the time cursor, column {c} '
+                              f'(prism 0: clamped end)',
+                         plot_legend=rrb.archetypes.PlotLegend(visible=False)),
+        rrb.BarChartView(origin=f'strain_profile_log/column_{c}',
+                         name='the same, symmetric log: sign(s) log10(1 + |s| / 0.01)',
+                         plot_legend=rrb.archetypes.PlotLegend(visible=False)),
+        name=f'column {c}') for c in range(n_columns)]
     waves = [rrb.Vertical(
         rrb.TensorView(origin=f'wave/column_{c}',
-                       name=f'strain, prism x sim_time from the impact, column {c}',
+                       name=f'strain (symmetric log), prism x sim_time from the impact to the '
+                            f'time cursor, column {c}',
                        slice_selection=rrb.archetypes.TensorSliceSelection(
                            width=rr.TensorDimensionSelection(1),
                            height=rr.TensorDimensionSelection(0, invert=True)),

@@ -15,10 +15,13 @@ own threads encode and write. Entities:
   points per member, float32 m); cables coloured by tension as the ROS markers
   (:func:`tensegrity_ros.msgs.style.tension_colors`), slack cables grey and translucent.
 - ``strain/column_c`` Scalars (one series per prism), ``strain_profile/column_c`` BarChart (the
-  strain per prism at each time), ``base_force/column_c`` Scalars N (positive compressive).
-- ``wave/column_c`` Tensor (prism x time from the last impact: the last ``wave_window`` frames)
-  and ``wave_scale/column_c`` (its colour scale), every ``wave_period_s`` wall seconds and, static,
-  when the recording closes.
+  strain per prism at each time), ``strain_profile_log/column_c`` BarChart (the same on the
+  symmetric-log scale :func:`~tensegrity_ros.io.rerun_columns.symlog`), ``base_force/column_c``
+  Scalars N (positive compressive).
+- ``wave/column_c`` Tensor (prism x time from the last impact: the last ``wave_window`` frames,
+  strain on the symmetric-log scale) and ``wave_scale/column_c`` (its colour scale), at the time
+  of every ``wave_every``-th frame (more apart as the map grows: at most a tenth of its frames)
+  and of the last: at every time cursor the map of the wave so far.
 - ``energy`` J, ``constraint_error`` and ``energy_balance_error`` (of the frames that carry
   it) Scalars; ``episode`` Scalars (0, then one more after each reset of the node: the frame's
   ``episode``, or for frames without one the number of times the clock went back);
@@ -37,8 +40,9 @@ from pathlib import Path
 import numpy as np
 import rerun as rr
 
-from tensegrity_ros.io.rerun_columns import (constant_ranges, duration_ns, heat_map_grid,
-                                             packed_colors, segments, tensor_rows)
+from tensegrity_ros.io.rerun_columns import (LINEAR_STRAIN, constant_ranges, duration_ns,
+                                             heat_map_grid, packed_colors, segments, symlog,
+                                             symlog_inverse, tensor_rows)
 from tensegrity_ros.io.rerun_layout import TIMELINE, blueprint, legend_markdown
 from tensegrity_ros.msgs.style import reference_tension_scale
 
@@ -83,7 +87,7 @@ class RerunRecorder:
     ``path`` are removed when it starts."""
 
     def __init__(self, network, path=None, *, connect=None, tension_scale=None, flush_every=50,
-                 max_latency_s=0.5, wave_window=1000, wave_period_s=2.0,
+                 max_latency_s=0.5, wave_window=1000, wave_every=10,
                  application_id='tensegrity_ros', recording_id=None, send_blueprint=True,
                  field_grid=None, split_frames=SPLIT_FRAMES):
         if path is None and not connect:
@@ -94,8 +98,9 @@ class RerunRecorder:
         if split_frames is not None and int(split_frames) < 1:
             raise ValueError(f'rerun: split_frames must be at least 1 (or None), got '
                              f'{split_frames}')
-        if int(flush_every) < 1 or int(wave_window) < 1 or not max_latency_s > 0:
-            raise ValueError('rerun: flush_every and wave_window must be at least 1, '
+        if min(int(flush_every), int(wave_window), int(wave_every)) < 1 or \
+                not max_latency_s > 0:
+            raise ValueError('rerun: flush_every, wave_window and wave_every must be at least 1, '
                              'max_latency_s positive')
         if field_grid is not None:
             field_grid = tuple(float(v) for v in field_grid)
@@ -117,7 +122,7 @@ class RerunRecorder:
         self.tension_scale = (reference_tension_scale(network) if tension_scale is None
                               else float(tension_scale))
         self.flush_every, self.max_latency_s = int(flush_every), float(max_latency_s)
-        self.wave_window, self.wave_period_s = int(wave_window), float(wave_period_s)
+        self.wave_window, self.wave_every = int(wave_window), int(wave_every)
         n_col = network.n_columns if network.n_prisms else 0
         self._shapes = ((network.n_nodes, 3), (network.levels.shape[0], network.n_prisms),
                         (network.n_cables,))
@@ -131,13 +136,13 @@ class RerunRecorder:
         self._ranges = {}                       # time series view -> [lo, hi] of its values
         self._wave = np.empty((n_col, network.n_prisms, self.wave_window))
         self._wave_t = np.empty(self.wave_window)
-        self._n = self._wave_n = 0
+        self._n = self._wave_n = self._wave_at = 0     # frames: buffered, in the map, at its last
         self._lo = np.full(n_col, np.inf)             # strain extremes per column so far
         self._hi = np.full(n_col, -np.inf)
         self._impact_t = None
         self._commands = []                           # (t s, text, level) not yet sent
         self._last_t = self._episode = None
-        self._last_flush = self._last_wave = time.monotonic()
+        self._last_flush = time.monotonic()
         self.n_frames = self.n_commands = self.n_restarts = self.n_fields = 0
         self._closed = False
         self._in_file = 0                             # frames sent to the current file
@@ -220,7 +225,7 @@ class RerunRecorder:
         if (self._last_t is not None and t <= self._last_t) or (
                 episode is not None and self._episode is not None and episode != self._episode):
             self.flush()                                          # a reset: a new episode
-            self._wave_n = 0
+            self._wave_n = self._wave_at = 0
             self.n_restarts += 1
         self._episode = episode
         i = self._n
@@ -280,9 +285,8 @@ class RerunRecorder:
         self.n_fields += 1
 
     # -- batches --------------------------------------------------------------------------------
-    def flush(self, wave=False):
-        """Send the buffered frames as columns; the heat map too if ``wave`` or when
-        ``wave_period_s`` of wall time passed since it was last sent."""
+    def flush(self):
+        """Send the buffered frames as columns (with the heat maps that fall among them)."""
         self._open()
         n, self._n = self._n, 0
         self._last_flush = time.monotonic()
@@ -297,8 +301,6 @@ class RerunRecorder:
             rr.send_columns('commands', [rr.TimeColumn(TIMELINE, duration=duration_ns(times))],
                             rr.TextLog.columns(text=list(texts), level=list(levels)),
                             recording=self.stream)
-        if self._wave_n and (wave or self._last_flush - self._last_wave >= self.wave_period_s):
-            self._log_wave()
 
     def _send(self, n):
         net = self.net
@@ -323,6 +325,7 @@ class RerunRecorder:
             s = self._s[:n, c].copy()
             put(f'strain/column_{c}', rr.Scalars.columns(scalars=s.ravel()).partition([n_p] * n))
             put(f'strain_profile/column_{c}', [tensor_rows(s)])
+            put(f'strain_profile_log/column_{c}', [tensor_rows(symlog(s))])
             self._lo[c], self._hi[c] = min(self._lo[c], s.min()), max(self._hi[c], s.max())
         for c in range(self._n_base):
             put(f'base_force/column_{c}', rr.Scalars.columns(scalars=self._base[:n, c].copy()))
@@ -340,35 +343,47 @@ class RerunRecorder:
             rr.send_columns('energy_balance_error', [rr.TimeColumn(TIMELINE, duration=duration_ns(
                 t[has]))], rr.Scalars.columns(scalars=self._scalars[:n, 3][has]),
                 recording=self.stream)
-        if self._wave.shape[0]:                        # the heat map's ring of frames
-            w = self.wave_window
-            keep = slice(max(0, n - w), n)
-            at = (self._wave_n + keep.start + np.arange(keep.stop - keep.start)) % w
-            self._wave[:, :, at] = self._s[keep].transpose(1, 2, 0)
-            self._wave_t[at] = t[keep]
-            self._wave_n += n
+        j = 0
+        while self._wave.shape[0] and j < n:          # the heat map's ring, a map when due
+            m = min(n - j, max(1, self._wave_due() - (self._wave_n - self._wave_at)))
+            self._ring(t[j:j + m], self._s[j:j + m])
+            j += m
+            if self._wave_n - self._wave_at >= self._wave_due():
+                self._log_wave()
 
-    def _log_wave(self, static=False):
-        """The heat map and its colour scale of every column: at the time of the last frame, or
-        (``static``, on close) for every time, so the whole wave shows wherever the cursor is."""
-        self._last_wave = time.monotonic()
+    def _wave_due(self):
+        """Frames between two heat maps: ``wave_every``, or a tenth of the frames the map
+        holds, whichever is more (the bytes of the maps stay within those of the frames)."""
+        return max(self.wave_every, min(self._wave_n, self.wave_window) // 10)
+
+    def _ring(self, t, s):
+        """Put the frames of times ``t`` and strains ``s`` (n, n_col, n_prisms) in the ring."""
+        w, n = self.wave_window, len(t)
+        keep = slice(max(0, n - w), n)
+        at = (self._wave_n + keep.start + np.arange(keep.stop - keep.start)) % w
+        self._wave[:, :, at] = s[keep].transpose(1, 2, 0)
+        self._wave_t[at] = t[keep]
+        self._wave_n += n
+
+    def _log_wave(self):
+        """The heat map and its colour scale of every column at the time of the last frame in
+        the ring: the wave from the impact to that time, strain on the symmetric-log scale."""
+        self._wave_at = self._wave_n
         n, w = self._wave_n, self.wave_window
         order = np.arange(n) if n <= w else np.r_[n % w:w, 0:n % w]       # oldest first
         times = self._wave_t[order]
         grid, pick = heat_map_grid(times, self._impact_t)
         label = (f'sim_time {grid[0]:.3f} to {grid[-1]:.3f} s' + (
             f', {1e3 * (grid[1] - grid[0]):.3g} ms per column' if len(grid) > 1 else ''))
-        if not static:
-            self.stream.set_time(TIMELINE, duration=duration_ns(times[-1]))
+        self.stream.set_time(TIMELINE, duration=duration_ns(times[-1]))
         for c in range(self._wave.shape[0]):
-            image = self._wave[c][:, order[pick]]
-            lim = float(max(image.max(initial=0.0), -image.min(initial=0.0))) or 1.0
+            image = symlog(self._wave[c][:, order[pick]]).astype(np.float32)
+            lim = float(np.abs(image).max(initial=0.0)) or 1.0
             self.stream.log(f'wave/column_{c}', rr.Tensor(
-                image, dim_names=(PRISM_AXIS, label), value_range=(-lim, lim)), static=static)
+                image, dim_names=(PRISM_AXIS, label), value_range=(-lim, lim)))
             self.stream.log(f'wave_scale/column_{c}', rr.Tensor(
-                np.linspace(-lim, lim, SCALE_STEPS)[None, :],
-                dim_names=('', f'strain {-lim:+.3g} (left) to {lim:+.3g} (right)'),
-                value_range=(-lim, lim)), static=static)
+                np.linspace(-lim, lim, SCALE_STEPS, dtype=np.float32)[None, :],
+                dim_names=('', scale_label(lim)), value_range=(-lim, lim)))
 
     def sync(self):
         """Send everything buffered and wait until Rerun has written it."""
@@ -376,19 +391,21 @@ class RerunRecorder:
         self.stream.flush()
 
     def close(self):
-        """Send what is buffered and the whole heat map, then finish the file / disconnect: the
-        file is complete when this returns. Idempotent."""
+        """Send what is buffered and the heat map at the last frame, then finish the file /
+        disconnect: the file is complete when this returns. Idempotent."""
         if self._closed:
             return
         try:
             self.flush()
-            if self._wave_n:
-                self._log_wave(static=True)
+            if self._wave_n > self._wave_at:
+                self._log_wave()
             for c in range(len(self._lo) if self.n_frames else 0):
                 # two invisible bars at the run's strain extremes: the chart keeps its y range
-                self.stream.log(f'strain_profile/column_{c}/range', rr.BarChart(
-                    [float(self._lo[c]), float(self._hi[c])], abscissa=[0.0, 0.0],
-                    widths=[0.0, 0.0], color=(0, 0, 0, 0)), static=True)
+                for path, ends in (('strain_profile', (self._lo[c], self._hi[c])),
+                                   ('strain_profile_log', symlog([self._lo[c], self._hi[c]]))):
+                    self.stream.log(f'{path}/column_{c}/range', rr.BarChart(
+                        [float(v) for v in ends], abscissa=[0.0, 0.0], widths=[0.0, 0.0],
+                        color=(0, 0, 0, 0)), static=True)
             flat = constant_ranges(self._ranges)
             if flat and self._layout is not None:
                 self.stream.send_blueprint(blueprint(*self._layout, y_ranges=flat),
@@ -411,6 +428,14 @@ class RerunRecorder:
     def __exit__(self, *exc):
         self.close()
         return False
+
+
+def scale_label(lim):
+    """The name of the colour scale's axis for a heat map of symmetric-log range ``lim``: the
+    strain at its ends, at half and at the linear threshold."""
+    ticks = ', '.join(f'{symlog_inverse(v):+.3g}' for v in (-lim, -lim / 2, 0.0, lim / 2, lim))
+    return (f'strain, symmetric log (linear within +-{LINEAR_STRAIN:g}): at 0, 1/4, 1/2, 3/4, 1 '
+            f'of the width: {ticks}')
 
 
 def _writable(path):

@@ -297,7 +297,9 @@ def fit(problem, cluster=None, seed=0, popsize=8, maxiter=20, tol=1e-3, refine=T
     if refine:
         best_x = polish(obj, best_x, mapper)
     err, _, figs, status = obj.evaluate(best_x)
-    n_runs = (len(mapper.history) + 1) * len(problem.cases)
+    from tensegrity_ros.studies.fit_report import determination
+    free = determination(obj, best_x, figs, threads=threads)
+    n_runs = (len(mapper.history) + 1 + 2 * len(free)) * len(problem.cases)
     combos = {}                   # choice values -> (best error, its point, points evaluated)
     for x, y in mapper.history:
         c = problem.combo(x)
@@ -313,7 +315,7 @@ def fit(problem, cluster=None, seed=0, popsize=8, maxiter=20, tol=1e-3, refine=T
                           'rel_error': None if got is None else (got - target) / target}
         cases.append({'set': case.set, 'status': st, 'figures': rows})
     return {
-        'best': problem.values(best_x), 'error': err, 'cases': cases,
+        'best': problem.values(best_x), 'error': err, 'cases': cases, 'free': free,
         'combinations': [{'choice': dict(zip([k for k, _ in problem.choices], c)),
                           'best': problem.values(x), 'error': y, 'evaluations': n}
                          for c, (y, x, n) in ranking],
@@ -388,6 +390,8 @@ def format_result(result):
             sim = 'n/a' if r['simulated'] is None else f"{r['simulated']:.6g}"
             rel = 'n/a' if r['rel_error'] is None else f"{100 * r['rel_error']:+.2f} %"
             lines.append(f"    {name:<28} {r['target']:>12.6g} {sim:>12} {rel:>11}")
+    from tensegrity_ros.studies.fit_report import format_lines
+    lines += format_lines(result.get('free') or [])
     if result['combinations'] and result['combinations'][0]['choice']:
         lines.append('  best evaluated point of each choice, best first:')
         for c in result['combinations']:
@@ -404,7 +408,9 @@ def format_result(result):
             lines.append(f"  convergence, case {i + 1} ({case['refined']}): {moved}: "
                          f"{'converged' if case['converged'] else 'NOT converged'} (limit "
                          f"{100 * check['tolerance']:g} %)")
-    lines.append(f"  {result['runs']} runs ({result['evaluations']} points x "
+    ranges = 2 * len(result.get('free') or [])
+    lines.append(f"  {result['runs']} runs ({result['evaluations']} points"
+                 f"{f' + {ranges} for the ranges' if ranges else ''} x "
                  f"{len(result['cases'])} cases), {result['generations']} generations, "
                  f"seed {result['seed']}: {result['message']}")
     return lines
@@ -472,6 +478,10 @@ def main(args):
             print(line)
         if args.write_scene:
             print(f"  scene: {result['scene_file']}")
+    from tensegrity_ros.studies.fit_report import bound_note
+    note = bound_note(result['free'])
+    if note is not None:
+        print(f'tensegrity: {note}', file=sys.stderr)
     if problem_line is not None:
         print(f'tensegrity: {problem_line}', file=sys.stderr)
         return 1

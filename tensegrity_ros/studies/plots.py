@@ -4,9 +4,16 @@ from __future__ import annotations
 import numpy as np
 
 
+LINEAR_STRAIN = 0.01   # symmetric-log scales are linear within +-1 % strain (as in Rerun)
+SYMLOG_FROM = 1.0      # a run whose |strain| reaches this is drawn on symmetric-log scales
+
+
 def strain_wave(rec, path, title='', column=0, snapshots=(0.1, 0.3, 0.5, 0.7, 0.9)):
     """Two panels: strain against prism index at several times (like the paper's figures) and a
-    prism-by-time heat map of the whole wave. Writes a PNG to ``path``; returns ``path``."""
+    prism-by-time heat map of the whole wave. Writes a PNG to ``path``; returns ``path``.
+    Where |strain| reaches :data:`SYMLOG_FROM` (a crushing impact, a train piling up) both
+    panels use a symmetric-log scale, linear within :data:`LINEAR_STRAIN`, so that a leading
+    pulse of 0.1 stays visible beside a crushed prism."""
     import matplotlib.pyplot as plt
     fig = strain_wave_figure(rec, title, column, snapshots)
     fig.savefig(path, dpi=110)
@@ -37,9 +44,19 @@ def strain_wave_figure(rec, title='', column=0, snapshots=(0.1, 0.3, 0.5, 0.7, 0
     ax1.legend(fontsize=8)
     ax1.grid(alpha=0.3)
     lim = float(np.max(np.abs(strain))) or 1.0
-    im = ax2.imshow(strain.T, aspect='auto', origin='lower', cmap='RdBu', vmin=-lim, vmax=lim,
+    log = lim >= SYMLOG_FROM
+    if log:
+        from matplotlib.colors import SymLogNorm
+        ax1.set_yscale('symlog', linthresh=LINEAR_STRAIN)
+        ax1.set_ylabel(f'axial strain (h - h0) / h, symmetric log (linear within '
+                       f'+-{LINEAR_STRAIN:g})')
+        norm = SymLogNorm(LINEAR_STRAIN, vmin=-lim, vmax=lim, base=10)
+    else:
+        from matplotlib.colors import Normalize
+        norm = Normalize(-lim, lim)
+    im = ax2.imshow(strain.T, aspect='auto', origin='lower', cmap='RdBu', norm=norm,
                     extent=(rec.times[0], rec.times[-1], 0.5, n_prisms + 0.5))
-    fig.colorbar(im, ax=ax2, label='strain')
+    fig.colorbar(im, ax=ax2, label='strain, symmetric log' if log else 'strain')
     ax2.set_xlabel('time (s)')
     ax2.set_ylabel('prism')
     ax2.yaxis.set_major_locator(MaxNLocator(integer=True))
