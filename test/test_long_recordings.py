@@ -6,7 +6,6 @@ missing footer: the warning is an error here; the MCAP summary is read) and ever
 The Rerun recorder buffers ``flush_every`` frames (50 by default) and sends them as columns;
 every test here fills and sends that buffer many times (30x or more).
 """
-from types import SimpleNamespace
 import os
 import subprocess
 import sys
@@ -24,6 +23,7 @@ from rerun.chunk import RrdReader  # noqa: E402
 
 from tensegrity_ros.io.mcap_reader import McapLog  # noqa: E402
 from tensegrity_ros.io.rerun_sink import RerunRecorder  # noqa: E402
+from tensegrity_ros.io.sinks import Sink
 
 FB = ROOT / 'config' / 'scenes' / 'fb_column.yaml'
 DEFAULT_HELD = 50                # frames the recorder buffers by default (flush_every)
@@ -144,7 +144,7 @@ def test_node_records_every_published_frame_to_both_files(tmp_path):
         node = TensegritySim(sim=sim, context=ctx, parameter_overrides=[
             Parameter('real_time_factor', value=0.0), Parameter('publish_rate_hz', value=500.0),
             Parameter('record_mcap', value=str(mcap)), Parameter('record_rerun', value=str(rrd))])
-        node.add_sink(SimpleNamespace(frame=lambda f: stamps.append(round(f.t * 1e9))))
+        node.add_sink(Sink(frame=lambda f: stamps.append(round(f.t * 1e9))))
         ex = SingleThreadedExecutor(context=ctx)
         ex.add_node(node)
         assert within(180, spin_until, ex, lambda: len(stamps) >= 500, 120)

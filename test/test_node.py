@@ -1,4 +1,3 @@
-from types import SimpleNamespace
 """The node tensegrity_sim in a real rclpy context (own domain id): commands in over topics,
 messages out, services, malformed commands, divergence, pacing logic and parameters."""
 import dataclasses
@@ -21,6 +20,7 @@ from tensegrity_ros.node.node import (DEFAULTS, ParameterError, TensegritySim,  
                                       check_parameters)
 from tensegrity_ros.node.pacing import (FAST_WORK_FRACTION, MIN_STEP_FRACTION,  # noqa: E402
                                         MIN_WORK_FRACTION, WORK_FRACTION)
+from tensegrity_ros.io.sinks import Sink  # noqa: E402
 
 DOMAIN = 10 + os.getpid() % 20
 N_PRISMS = 10
@@ -40,7 +40,7 @@ class Ros:
         overrides = [Parameter(k, value=v) for k, v in values.items()]
         self.node = TensegritySim(sim=sim, context=self.ctx, parameter_overrides=overrides)
         self.sunk = []
-        self.node.add_sink(SimpleNamespace(
+        self.node.add_sink(Sink(
             message=lambda topic, msg, ns: self.sunk.append((topic, msg, ns))))
         self.cmd = Commander(context=self.ctx)
         self.ex = SingleThreadedExecutor(context=self.ctx)

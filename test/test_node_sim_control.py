@@ -21,6 +21,7 @@ from std_srvs.srv import SetBool  # noqa: E402
 from test_node import Ros  # noqa: E402
 
 from tensegrity_ros.node.stepping import MAX_STEPS  # noqa: E402
+from tensegrity_ros.io.sinks import Sink
 
 DEEP = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
 
@@ -131,7 +132,7 @@ def test_the_console_node_with_use_sim_time_publishes(tmp_path):
 def paused(tmp_path):
     ros = Ros(tmp_path)
     frames = []
-    ros.node.add_sink(type('Frames', (), {'frame': lambda self, f: frames.append(f.t)})())
+    ros.node.add_sink(Sink(frame=lambda f: frames.append(f.t)))
     ros.frames = frames
     ros.seen = Listen(ros)
     assert ros.spin(lambda: len(ros.seen.clock) > 0, 20)      # /clock matched before the pause

@@ -56,9 +56,9 @@ def test_graded_prestrain_keeps_reference_equilibrium(scene, sets):
 
 def test_builder_rest_lengths_reproduced():
     sim = make()
-    before = np.array(sim.model.data.rest)
+    before = np.array(sim.model.cable_rest_length)
     sim.apply_prestrain(sim.network.meta['prestrain'])
-    assert np.allclose(sim.model.data.rest, before, rtol=1e-13, atol=0)
+    assert np.allclose(sim.model.cable_rest_length, before, rtol=1e-13, atol=0)
 
 
 def test_ramp_at_rest_stays_at_rest_and_reaches_target():
@@ -102,10 +102,11 @@ def test_bad_prestrain_changes_nothing(bad):
     sim = make()
     sim.apply_impact(0.1)
     sim.advance(0.01)
-    rest, p, x = np.array(sim.model.data.rest), sim.prestrain, np.array(sim.model.positions())
+    rest, p = np.array(sim.model.cable_rest_length), sim.prestrain
+    x = np.array(sim.model.positions())
     with pytest.raises(ValueError, match='prestrain'):
         sim.apply_prestrain(bad, ramp_s=0.01)
-    assert np.array_equal(rest, sim.model.data.rest) and np.array_equal(p, sim.prestrain)
+    assert np.array_equal(rest, sim.model.cable_rest_length) and np.array_equal(p, sim.prestrain)
     assert np.array_equal(x, sim.model.positions()) and sim._ramp is None
 
 

@@ -4,7 +4,6 @@ The node runs in a real rclpy context (own domain id, localhost only) as fast as
 published ``~/strain`` and ``~/nodes`` messages (captured through its sink hook) are compared with
 the recording read back by rerun's reader, across an impact command and a reset.
 """
-from types import SimpleNamespace
 import os
 
 import numpy as np
@@ -23,6 +22,7 @@ from tensegrity_ros.node.demo import spin_until  # noqa: E402
 from tensegrity_ros.node.node import TensegritySim  # noqa: E402
 
 from rerun_helpers import FB, at, flat, read  # noqa: E402
+from tensegrity_ros.io.sinks import Sink
 
 DOMAIN = 60 + os.getpid() % 20
 
@@ -39,7 +39,7 @@ def test_node_records_what_it_publishes(tmp_path):
         node = TensegritySim(context=ctx, parameter_overrides=[
             Parameter(k, value=v) for k, v in params.items()])
         sunk = []
-        node.add_sink(SimpleNamespace(
+        node.add_sink(Sink(
             message=lambda topic, msg, ns: sunk.append((topic, msg, ns))))
         ex = SingleThreadedExecutor(context=ctx)
         ex.add_node(node)

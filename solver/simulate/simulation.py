@@ -45,7 +45,8 @@ class Frame:
     reaction at each column's clamped base, positive compressive (:mod:`solver.analysis.support`;
     empty when not given); ``striker`` (n_columns, 2): each column's striker face height m
     and axial velocity m/s (``loading.impact.mode: striker``), else None;
-    ``energy_balance_error``: :meth:`Simulation.energy_error` of the state."""
+    ``energy_balance_error``: :meth:`Simulation.energy_error` of the state; ``episode``: the
+    node's episode it belongs to (None in a headless run)."""
     t: float
     step: int
     positions: np.ndarray
@@ -56,6 +57,7 @@ class Frame:
     base_force: np.ndarray = field(default_factory=lambda: np.zeros(0))
     striker: np.ndarray | None = None
     energy_balance_error: float = 0.0
+    episode: int | None = None      # the node's episode (a reset starts a new one); None headless
 
 
 class StateSummary(NamedTuple):

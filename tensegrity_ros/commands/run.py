@@ -9,11 +9,19 @@ import sys
 from pathlib import Path
 
 from tensegrity_ros.io.progress import progress_bar
+from tensegrity_ros.io.sinks import FanOut, Sink
+
+
+def _raise(sink, exc):
+    """A recorder of ``tensegrity run`` that fails stops the run (its output would be wrong)."""
+    raise exc
 
 
 def _open_mcap(stack, sinks, scene, sim, path):
-    """Record the run to the bag folder ``path`` (MCAP, the node's topics, ``metadata.yaml``);
-    closed by ``stack``, also on SIGTERM.
+    """Record the run to the bag folder ``path`` (MCAP, the node's topics, ``metadata.yaml``): a
+    :class:`~tensegrity_ros.io.sinks.Sink` added to ``sinks`` (the run's
+    :class:`~tensegrity_ros.io.sinks.FanOut`, as the node's); closed by ``stack``, also on
+    SIGTERM.
     Logs each impact as the command the node would receive and as an event (the text the Rerun
     recording shows, :func:`_impact_text`), then every output frame."""
     from solver import run_frame
@@ -32,22 +40,21 @@ def _open_mcap(stack, sinks, scene, sim, path):
         log.command('~/cmd/impact', values, 'all' if columns is None else 'column', run_frame(sim),
                     f'impact v0 = {v0:g} m/s (scene {scene.name})')
         log.event(entry['t_s'], _impact_text(i, entry, scene, sim))
-    sinks['impact'].append(impact)
-    sinks['frame'].append(log.frame)
+    sinks.add(Sink(frame=log.frame, impact=impact))
     return str(recorder.folder)
 
 
 def _open_rerun(stack, sinks, scene, sim, path=None, url=None):
-    """Record the run to a Rerun ``.rrd`` at ``path`` and/or stream it to the viewer at ``url``;
-    closed by ``stack``. Logs each impact as a command event: the first starts with ``impact``
-    (the heat map starts there), the later ones of a train with ``train impact``."""
+    """Record the run to a Rerun ``.rrd`` at ``path`` and/or stream it to the viewer at ``url``
+    (a :class:`~tensegrity_ros.io.sinks.Sink` added to ``sinks``); closed by ``stack``. Logs
+    each impact as a command event: the first starts with ``impact`` (the heat map starts
+    there), the later ones of a train with ``train impact``."""
     from tensegrity_ros.io.rerun_sink import RerunRecorder
     recorder = stack.enter_context(RerunRecorder(sim.network, path, connect=url))
 
     def impact(i, entry):
         recorder.command(entry['t_s'], _impact_text(i, entry, scene, sim))
-    sinks['impact'].append(impact)
-    sinks['frame'].append(recorder.frame)
+    sinks.add(Sink(frame=recorder.frame, impact=impact))
     return str(path) if path is not None else url
 
 
@@ -262,7 +269,7 @@ def _run(args, refined_run):
         update, close = progress_bar(frame_count(t_end, output_dt) - 1, scene.name,
                                      unit='frame', leave=False)
         stack.callback(close)
-        sinks = {'frame': [], 'impact': []}
+        sinks = FanOut(on_error=_raise)      # a recorder that fails stops the run
         if args.mcap:
             from tensegrity_ros.io import mcap_frames as mcap_run, mcap_writer as recording  # noqa: F401
         # The objects of the imports and the set-up (some 160 000) are moved out of the garbage
@@ -275,8 +282,7 @@ def _run(args, refined_run):
             outputs['rerun'] = _open_rerun(stack, sinks, scene, sim,
                                            out_dir / 'run.rrd' if args.rerun else None,
                                            args.rerun_connect)
-        return (lambda f: [sink(f) for sink in sinks['frame']]), update, \
-            (lambda i, e: [sink(i, e) for sink in sinks['impact']])
+        return sinks.frame, update, sinks.impact
 
     point = simulate(args.scene, run_overrides(args), setup=setup)
     scene, rec, out_dir = point.scene, point.record, ctx['out_dir']

@@ -114,7 +114,7 @@ class FrameLog:
         ``energy_balance_error`` when the frame carries it (every
         :class:`~solver.simulate.simulation.Frame` does)."""
         topic, verdict, detail = self.last_command
-        balance = getattr(frame, 'energy_balance_error', None)
+        balance = frame.energy_balance_error
         return {'sim_time_s': float(frame.t), 'episode': 0, 'episode_time_s': float(frame.t),
                 'steps': int(frame.step), 'running': 'true',
                 'energy_J': float(frame.energy),

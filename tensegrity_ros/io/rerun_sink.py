@@ -210,8 +210,8 @@ class RerunRecorder:
             raise ValueError(f'rerun: frame at t = {t:g} s does not match the network '
                              f'(positions {np.shape(x)}, strain {np.shape(strain)}, '
                              f'tension {np.shape(tension)}); not recorded')
-        base = np.asarray(getattr(frame, 'base_force', ()), dtype=np.float64)
-        balance = getattr(frame, 'energy_balance_error', None)
+        base = np.asarray(frame.base_force, dtype=np.float64)
+        balance = frame.energy_balance_error
         values = (('time', t), ('energy', frame.energy),
                   ('constraint error', frame.constraint_error), ('positions', x),
                   ('strain', strain), ('tension', tension), ('base force', base),
@@ -221,7 +221,7 @@ class RerunRecorder:
             if not (np.isfinite(a).all() and (a <= F32_MAX).all()):
                 raise ValueError(f'rerun: frame at t = {t:g} s has non-finite {name} (or beyond '
                                  f'float32); not recorded')
-        episode = getattr(frame, 'episode', None)
+        episode = frame.episode
         if (self._last_t is not None and t <= self._last_t) or (
                 episode is not None and self._episode is not None and episode != self._episode):
             self.flush()                                          # a reset: a new episode

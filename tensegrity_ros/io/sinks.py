@@ -1,20 +1,40 @@
-"""One interface for everything that records a run: MCAP logs, Rerun recordings, test probes.
+"""One interface for everything that records a run, the node's and ``tensegrity run``'s alike:
+MCAP logs, Rerun recordings, test probes.
 
-A sink is any object with some of these methods (the others are simply not called):
+A sink is a :class:`Sink`: it takes some of these calls (the attributes it sets to a callable;
+the others stay None and are not called):
 
 - ``message(topic, msg, stamp_ns)``: a published or received message, full topic name; with
   ``takes_bytes = True`` a frame's messages come as the CDR bytes that were published;
 - ``frame(frame)``: a published :class:`solver.simulate.simulation.Frame`;
 - ``event(t, text)``: a command or event at simulation time ``t`` s;
+- ``impact(index, entry)``: impact ``index`` of a headless run's train, applied (``entry``:
+  ``{'t_s', 'v0_m_s', 'work_J'}``);
 - ``field(t, peak, pressure)``: the field maps of an array in its host medium;
 - ``close()``: at shutdown.
 
-:class:`FanOut` hands each call to every sink that has the method; a sink that raises is dropped
+:class:`FanOut` hands each call to every sink that takes it; a sink that raises is dropped
 (and reported), so a broken recorder never stops the simulation.
 """
 from __future__ import annotations
 
-KINDS = ('message', 'frame', 'event', 'field', 'close')
+KINDS = ('message', 'frame', 'event', 'impact', 'field', 'close')
+
+
+class Sink:
+    """A recorder's calls (:data:`KINDS`): ``Sink(frame=f, close=c)``, or a subclass that sets
+    them; ``takes_bytes``: messages as CDR bytes."""
+    message = frame = event = impact = field = close = None
+    takes_bytes = False
+
+    def __init__(self, takes_bytes=None, **calls):
+        unknown = set(calls) - set(KINDS)
+        if unknown:
+            raise TypeError(f'Sink: unknown calls {sorted(unknown)}; a sink takes {KINDS}')
+        for kind, fn in calls.items():
+            setattr(self, kind, fn)
+        if takes_bytes is not None:
+            self.takes_bytes = bool(takes_bytes)
 
 
 class FanOut:
@@ -29,11 +49,12 @@ class FanOut:
 
     def _index(self):
         self._by_kind = {kind: tuple((s, getattr(s, kind)) for s in self.sinks
-                                     if callable(getattr(s, kind, None))) for kind in KINDS}
-        self.wants_objects = any(not getattr(s, 'takes_bytes', False)
-                                 for s, _ in self._by_kind['message'])
+                                     if getattr(s, kind) is not None) for kind in KINDS}
+        self.wants_objects = any(not s.takes_bytes for s, _ in self._by_kind['message'])
 
     def add(self, sink):
+        if not isinstance(sink, Sink):
+            raise TypeError(f'a sink is a tensegrity_ros.io.sinks.Sink, not {type(sink).__name__}')
         self.sinks.append(sink)
         self._index()
         return sink
@@ -65,6 +86,9 @@ class FanOut:
     def event(self, t, text):
         self._call('event', t, text)
 
+    def impact(self, index, entry):
+        self._call('impact', index, entry)
+
     def field(self, t, peak, pressure):
         self._call('field', t, peak, pressure)
 
@@ -81,7 +105,7 @@ class FanOut:
                     self.on_error(sink, exc)
 
 
-class McapSink:
+class McapSink(Sink):
     """An :class:`~tensegrity_ros.io.mcap_writer.McapRecorder` as a sink (it takes CDR bytes)."""
     takes_bytes = True
 
@@ -89,7 +113,7 @@ class McapSink:
         self.message, self.close = recorder.write, recorder.close
 
 
-class RerunSink:
+class RerunSink(Sink):
     """A :class:`~tensegrity_ros.io.rerun_sink.RerunRecorder` as a sink (frames, events and, when
     it has a field grid, the field maps)."""
 

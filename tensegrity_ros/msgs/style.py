@@ -116,7 +116,7 @@ def reference_tension_scale(network):
 def energy_values(frame):
     """(3,) float64: the frame's energy J, constraint error and energy balance error (0 when the
     frame carries none)."""
-    balance = getattr(frame, 'energy_balance_error', None)
+    balance = frame.energy_balance_error
     return np.array([frame.energy, frame.constraint_error, 0.0 if balance is None else balance],
                     dtype=np.float64)
 
@@ -125,7 +125,7 @@ def check_finite(frame):
     """``ValueError`` if a frame holds a non-finite value (nothing NaN is ever published)."""
     for name in ('positions', 'strain', 'tension', 'base_force', 'striker', 'energy',
                  'constraint_error', 'energy_balance_error'):
-        value = getattr(frame, name, None)
+        value = getattr(frame, name)
         if value is not None and not np.all(np.isfinite(value)):
             raise ValueError(f'frame at t = {frame.t:.6g} s: {name} is not finite')
 
@@ -151,10 +151,10 @@ def frame_topics(frame, network, build, stamp=None, markers=True, clock=False, t
         '~/cable_tension': multi(frame.tension, ('cable',)),
         '~/energy': multi(energy_values(frame), (ENERGY_LABEL,)),
     }
-    base = np.asarray(getattr(frame, 'base_force', ()))
+    base = np.asarray(frame.base_force)
     if base.shape == (network.n_columns,) and base.size:
         out['~/base_force'] = multi(base, ('column',))
-    if getattr(frame, 'striker', None) is not None:
+    if frame.striker is not None:
         out['~/striker'] = multi(np.ascontiguousarray(frame.striker), ('column', 'state'))
     if markers:
         out['~/markers'] = build.markers(frame, network, stamp, t_max)
