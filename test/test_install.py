@@ -3,9 +3,10 @@ as colcon's ament_python build does with setup.py's data_files) holds every data
 use, and its node, started from ``/`` with default parameters, finds its scene in the prefix's
 share directory and runs; the CLI finds the paper's targets there too.
 
-The prefix is a fixed folder under the temporary directory, installed afresh by each run, so that
-numba's cache (keyed by the source file's path) serves a second run; a first run compiles the
-kernels for that path (a minute or two)."""
+The prefix is a fixed folder under the temporary directory, installed afresh when the tracked
+files changed since it was installed (a hash of them is kept beside it), so that numba's cache in
+the install (keyed by the source file's path and time) serves a later run; a first run compiles
+the kernels for that path (a minute or two)."""
 import os
 import signal
 import subprocess
@@ -32,9 +33,22 @@ def _tracked(pattern):
     return out
 
 
+def _sources_hash():
+    """sha256 of the paths and contents of every tracked file (what the install is made of)."""
+    import hashlib
+    digest = hashlib.sha256()
+    for rel in _tracked('*'):
+        digest.update(rel.encode() + b'\0' + (ROOT / rel).read_bytes() + b'\0')
+    return digest.hexdigest()
+
+
 @pytest.fixture(scope='module')
 def prefix(tmp_path_factory):
     import shutil
+    stamp = PREFIX / '.sources-sha256'
+    want = _sources_hash()
+    if stamp.is_file() and stamp.read_text() == want and (PREFIX / 'bin').is_dir():
+        return PREFIX                                   # the same sources: installed already
     shutil.rmtree(PREFIX, ignore_errors=True)
     src = tmp_path_factory.mktemp('src')             # the tracked files: no build/ in the checkout
     for rel in _tracked('*'):
@@ -48,6 +62,7 @@ def prefix(tmp_path_factory):
                        capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr[-2000:]
     assert sorted(Path(sys.executable).parent.glob('tensegrity*')) == scripts   # env untouched
+    stamp.write_text(want)
     return PREFIX
 
 
