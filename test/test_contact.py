@@ -38,7 +38,7 @@ def test_striker_on_a_free_mass_is_the_two_mass_collision(ratio):
     m_s = ratio * m
     net = structures.explicit([[0.0, 0.0, 0.0]], [], [], m, 1.0, cable_rest_length=[])
     effects = extras.Effects(strikers=True, striker_k=k, striker_expo=1.0, striker_mass=m_s,
-                             steps=40.0, m_eff=m * m_s / (m + m_s), levels=np.array([[[0]]]))
+                             resolution=40.0, m_eff=m * m_s / (m + m_s), levels=np.array([[[0]]]))
     model = models.Full3D(net, effects=effects)
     model.v[1, 2] = -v0                     # the striker (row 1) moves down onto the mass
     mu = m * m_s / (m + m_s)

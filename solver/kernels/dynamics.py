@@ -27,7 +27,7 @@ from solver.kernels.banded import band_ldl_solve
 from solver.compiled import jit
 from solver.kernels.barcontact import bar_forces, base_forces
 from solver.kernels.contact import axial_contacts, cable_forces_damped
-from solver.kernels.records import LOOK, MET, POWER  # noqa: F401 (POWER: named in the doc)
+from solver.kernels.records import LOOK, MET
 from solver.kernels.rotation import (ROT_C, ROT_S, add_constraint_forces_rot,  # noqa: F401
                                      assemble_band_rot, cable_forces_rot, member_vectors_rot,
                                      rel)

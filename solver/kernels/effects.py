@@ -99,11 +99,9 @@ def begin_trial(x, v, d, w):
     """Before a step tried whole: keep its start in ``w.saved`` and what the steps change of the
     run state (returned, for :func:`trial_kept` and :func:`undo_trial`); the forces of the step
     look for every contact."""
-    saved = w.saved
-    saved[SAVED_X, :, :] = x
-    saved[SAVED_V, :, :] = v
+    save_start(x, v, w)
     scan = d.contact.scan
-    trial = (scan[MET], d.ledger[POWER], d.ledger[DISSIPATED], scan[LOOK])
+    trial = mark(d) + (scan[LOOK],)
     scan[LOOK] = 1.0
     return trial
 
@@ -145,14 +143,8 @@ def trial_kept(x, v, acc, m, d, w, h, known, trial):
 def undo_trial(x, v, d, w, trial):
     """Back to the start of a step tried whole that was not kept."""
     before, power, dissipated, flag = trial
-    saved = w.saved
-    x[:, :] = saved[SAVED_X]
-    v[:, :] = saved[SAVED_V]
-    scan = d.contact.scan
-    scan[MET] = before
-    d.ledger[POWER] = power
-    d.ledger[DISSIPATED] = dissipated
-    scan[LOOK] = flag
+    _back_to_start(x, v, d, w, before, power, dissipated)
+    d.contact.scan[LOOK] = flag
 
 
 # -- the steps after a contact, checked against the ledger ---------------------------------------
@@ -229,12 +221,18 @@ def back_to(x, v, d, w, at):
     """Undo a step: ``x``, ``v`` from ``w.saved``, the run state from :func:`mark`'s ``at``; the
     contact scans start over."""
     met, power, dis = at
+    _back_to_start(x, v, d, w, met, power, dis)
+    rescan(d.contact.scan, d.contact.active)
+
+
+@jit
+def _back_to_start(x, v, d, w, met, pw, dis):
+    """``x``, ``v`` from ``w.saved``; the contacts met and the ledger to the given values."""
     x[:, :] = w.saved[SAVED_X]
     v[:, :] = w.saved[SAVED_V]
-    d.ledger[POWER] = power
+    d.ledger[POWER] = pw
     d.ledger[DISSIPATED] = dis
     d.contact.scan[MET] = met
-    rescan(d.contact.scan, d.contact.active)
 
 
 @jit

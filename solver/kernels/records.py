@@ -183,14 +183,15 @@ HEAD = 4                                    # ContactState.scan: the gap bounds 
 SAVED_X, SAVED_V = 0, 1                     # Work.saved
 
 
-def _empty(shape, dtype=np.float64):
+def empty(shape, dtype=np.float64):
+    """A read-only empty (or zero) array: what switches a record's array off."""
     a = np.zeros(shape, dtype=dtype)
     a.setflags(write=False)
     return a
 
 
-NO_ROT = _empty(0, np.int64)                 # Topology.con_rot, cable_rot of a plain network
-NO_COEF3 = _empty((0, 1, 3))                 # Topology.con_coef3 of a plain network
+NO_ROT = empty(0, np.int64)                 # Topology.con_rot, cable_rot of a plain network
+NO_COEF3 = empty((0, 1, 3))                 # Topology.con_coef3 of a plain network
 
 
 def readonly(a):
@@ -218,11 +219,11 @@ def workspace(n_rows, n_con, bandwidth, kkt_scratch):
 def bare_model(topo, summary, levels, per_level=3.0, rate=0.0):
     """A :class:`Model` of ``topo`` with every effect off (its ``summary``, ``levels`` and
     ``per_level`` as in :class:`Model`; ``rate`` of its :class:`LedgerRule`)."""
-    return Model(topo, readonly(levels), float(per_level), Damping(_empty(0)),
-                 Stops(_empty((0, 0)), 0.0),
-                 Strikers(_empty(0, np.int64), _empty(0, np.int64), 0.0, 1.0, 0.0, 0.0, 0.0,
+    return Model(topo, readonly(levels), float(per_level), Damping(empty(0)),
+                 Stops(empty((0, 0)), 0.0),
+                 Strikers(empty(0, np.int64), empty(0, np.int64), 0.0, 1.0, 0.0, 0.0, 0.0,
                           0.0),
-                 BarContact(_empty((0, 8), np.int64), 0.0, 0.0, 1.0, 0.0, 0.0), summary,
+                 BarContact(empty((0, 8), np.int64), 0.0, 0.0, 1.0, 0.0, 0.0), summary,
                  LedgerRule(float(rate), False))
 
 
@@ -234,9 +235,9 @@ def data_of(x, v, rest, EA, f_ext, contact=None):
     return Data(x, v, rest, EA, f_ext, np.zeros(2), contact, np.zeros(2))
 
 
-NO_SUMMARY = Summary(_empty((0, 3)), _empty(0), _empty(0, np.bool_), _empty(0),
-                     _empty(0, np.int64), _empty(0, np.int64), _empty(0), _empty(0),
-                     _empty((0, 0, 1), np.int64))
+NO_SUMMARY = Summary(empty((0, 3)), empty(0), empty(0, np.bool_), empty(0),
+                     empty(0, np.int64), empty(0, np.int64), empty(0), empty(0),
+                     empty((0, 0, 1), np.int64))
 
 
 def plain(network, rest=None, EA=None, f_ext=None, summary=NO_SUMMARY, levels=None):

@@ -14,7 +14,7 @@ from solver.compiled import jit
 from solver.kernels.barcontact import bar_energy_scanned, base_energy
 from solver.kernels.contact import extra_energy
 from solver.kernels.dynamics import all_finite
-from solver.kernels.records import NO_SUMMARY, Summary, readonly  # noqa: F401
+from solver.kernels.records import Summary, readonly
 from solver.kernels.rotation import constraint_error_arrays, rel
 
 

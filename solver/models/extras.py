@@ -47,22 +47,21 @@ def _read_only(a):
 
 
 def _bar_contact(scene, network):
-    """``(pairs, diameter m, Hertz k, smallest node mass kg, steps per contact)`` of the scene's
-    bar contact (:mod:`solver.kernels.barcontact`), or ``(None, ...)`` with ``contact.bars:
-    none`` or no prisms."""
+    """``(pairs, diameter m, Hertz k, smallest node mass kg)`` of the scene's bar contact
+    (:mod:`solver.kernels.barcontact`), or ``(None, 0, 0, 0)`` with ``contact.bars: none`` or no
+    prisms."""
     pairs = None
     if scene.contact.bars != 'none':         # one search per topology inside a batch
         pairs = memo.lookup('bar-pairs', (network.levels, network.bar_a, network.bar_b),
                             lambda: _read_only(bar_pairs(network)))
     if pairs is None:
-        return None, 0.0, 0.0, 0.0, 0.0
+        return None, 0.0, 0.0, 0.0
     mat = scene.materials
     mass = np.asarray(network.node_mass)[~np.asarray(network.clamped, bool)]
     mass = mass[mass > 0]
     m_min = float(mass.min()) if mass.size else float(network.total_mass) / network.n_nodes
     return (pairs, 2.0 * mat.bar_radius,
-            barcontact.hertz_constant(mat.bar_radius, mat.bar_E, mat.bar_poisson), m_min,
-            float(scene.contact.resolution))
+            barcontact.hertz_constant(mat.bar_radius, mat.bar_E, mat.bar_poisson), m_min)
 
 
 def _model_pairs(pairs, reduced):
@@ -137,11 +136,11 @@ class Effects:
     :mod:`solver.kernels.barcontact`), on the full network, for :func:`build`: ``damp`` (n_cables,)
     N s/m or None, ``stop_h`` (n_columns, n_prisms) m or None and ``k_stop`` N/m, ``strikers``
     (one per column) with their contact law (``striker_k``, ``striker_expo``), ``striker_mass``
-    kg, the scene's ``gravity`` m/s^2, ``steps`` per contact and ``m_eff`` kg; ``pairs`` (full
+    kg, the scene's ``gravity`` m/s^2 and ``m_eff`` kg; ``pairs`` (full
     node indices (n, 4), :func:`bar_pairs`) or None with the bars' ``diameter`` m, Hertz ``k``,
-    ``m_min`` kg and ``resolution``; the ledger's ``energy_rate`` per second and whether steps
-    after
-    a contact are checked against it (``refine``)."""
+    ``m_min`` kg; ``resolution``, the steps per contact duration of strikers and bars alike; the
+    ledger's ``energy_rate`` per second and whether steps after a contact are checked against it
+    (``refine``)."""
     damp: np.ndarray | None = None
     stop_h: np.ndarray | None = None
     k_stop: float = 0.0
@@ -150,7 +149,6 @@ class Effects:
     striker_expo: float = 1.0
     striker_mass: float = 0.0
     gravity: float = 0.0
-    steps: float = 0.0
     m_eff: float = 0.0
     pairs: np.ndarray | None = None
     diameter: float = 0.0
@@ -189,7 +187,7 @@ def scene_effects(scene, network):
     if strikers:            # the striker against the lumped masses of its column's end level
         m_end = np.asarray(network.node_mass)[np.asarray(network.levels)[:, -1]].sum(axis=1)
         m_eff = 1.0 / (1.0 / imp.striker_mass + 1.0 / float(m_end.min()))
-    pairs, diameter, k, m_min, resolution = _bar_contact(scene, network)
+    pairs, diameter, k, m_min = _bar_contact(scene, network)
     return Effects(
         damp=cable_damping(scene, network),
         stop_h=stop_heights(network, scene.contact.tolerance) if lock else None,
@@ -197,14 +195,9 @@ def scene_effects(scene, network):
         striker_k=float(imp.contact_stiffness),
         striker_expo=1.0 if imp.contact == 'linear' else 1.5,
         striker_mass=float(imp.striker_mass), gravity=float(scene.loading.gravity),
-        steps=float(scene.contact.resolution), m_eff=float(m_eff),
-        pairs=pairs, diameter=float(diameter), k=float(k), m_min=float(m_min),
-        resolution=float(resolution), energy_rate=float(scene.divergence.energy_error),
-        refine=scene.contact.refine == 'ledger')
-
-
-def _f(shape, dtype=np.float64):
-    return rec.readonly(np.zeros(shape, dtype=dtype))
+        m_eff=float(m_eff), pairs=pairs, diameter=float(diameter), k=float(k),
+        m_min=float(m_min), resolution=float(scene.contact.resolution),
+        energy_rate=float(scene.divergence.energy_error), refine=scene.contact.refine == 'ledger')
 
 
 def _levels_of(levels_full, reduced):
@@ -275,39 +268,37 @@ def build(network, topo, x, rest, EA, f_ext, summary, effects=NONE, reduced=None
                 ('clamped', np.concatenate([summary.clamped, np.zeros(ns, bool)])),
                 ('node_mult', np.concatenate([summary.node_mult, np.zeros(ns)])))})
     rows = n + ns
-    damp = _f(0)
+    damp = rec.empty(0)
     if effects.damp is not None:
         if reduced is None:
             damp = np.array(effects.damp, dtype=np.float64)
         else:
             damp = np.zeros(len(reduced.cable_a))
             damp[reduced.cable_map] = effects.damp
-    pairs, mult = _f((0, 8), np.int64), 1.0
+    pairs, mult = rec.empty((0, 8), np.int64), 1.0
+    scan, active = np.zeros(rec.HEAD), np.full(1, -1, dtype=np.int64)
     if effects.pairs is not None:
         pairs, mult = _model_pairs(effects.pairs, reduced)
-    prisms = levels.shape[0] * max(levels.shape[1] - 1, 0) if levels.size else 0
-    if effects.pairs is not None:
+        prisms = levels.shape[0] * max(levels.shape[1] - 1, 0) if levels.size else 0
         # contacts met, slack, look, motion since the last rescan (records.HEAD entries), each
         # pair's and each prism's gap bound (kernels.contactsteps.contact_step), the positions
         # the last call ended at (resume); the motion NaN: the first scan evaluates every pair
         scan = np.concatenate(([0.0, -1.0, 1.0, np.nan], np.zeros(len(pairs) + prisms),
                                np.full(3 * rows, np.nan)))
         active = np.full(len(pairs) + 1, -1, dtype=np.int64)
-    else:
-        scan, active = np.zeros(rec.HEAD), np.full(1, -1, dtype=np.int64)
     has_summary = summary is not None
     model = rec.Model(
         topo=topo, levels=rec.readonly(levels),
         per_level=float(levels_full.shape[2]) if levels_full.size else 3.0,
         damping=rec.Damping(rec.readonly(damp)),
-        stops=rec.Stops(_f((0, 0)) if effects.stop_h is None
+        stops=rec.Stops(rec.empty((0, 0)) if effects.stop_h is None
                         else rec.readonly(np.array(effects.stop_h, np.float64)),
                         float(effects.k_stop)),
         strikers=rec.Strikers(rec.readonly(np.arange(n, rows, dtype=np.int64)),
                               rec.readonly(np.arange(ns, dtype=np.int64)),
                               float(effects.striker_k), float(effects.striker_expo),
                               float(effects.striker_mass), float(effects.gravity),
-                              float(effects.steps), float(effects.m_eff)),
+                              float(effects.resolution), float(effects.m_eff)),
         bar_contact=rec.BarContact(rec.readonly(pairs), float(effects.diameter),
                                    float(effects.k), float(mult), float(effects.m_min),
                                    float(effects.resolution)),
