@@ -56,13 +56,23 @@ def _cache_dir():
 CACHE_DIR = _cache_dir()
 numba.config.CACHE_DIR = str(CACHE_DIR)
 
-jit = numba.njit(cache=True, nogil=True)
+# Kernels run without numba's reference counting (``_nrt=False``): with it, every compiled function
+# increments the count of every array it receives on entry and decrements it on every exit, and a
+# kernel that receives the named records (solver.kernels.records: about 60 arrays) pays 120 atomic
+# operations per call, which LLVM's pruning cannot remove across the kernels' loops. Measured
+# (perf, a sym3d column stepped with RK4): 40 % of the integrator's time went to those counts.
+# A kernel of ``jit`` therefore allocates nothing (no ``np.empty``, no array copies, no
+# ``a[:] = b`` of arrays: :func:`solver.kernels.records.copy_into` copies by loops); it only
+# reads and writes arrays its caller owns, so no count is needed. A kernel that must allocate
+# uses ``jit_alloc``, with counting.
+jit = numba.njit(cache=True, nogil=True, _nrt=False)
+jit_alloc = numba.njit(cache=True, nogil=True)
 
 # Small helpers called inside member loops (``kernels.rotation.rel``): inlined by numba. LLVM
 # declines to inline a helper that reads module-level arrays (``ROT_C``/``ROT_S``), and the call
 # then costs ten times the loop body (constraint_error_arrays: 2.4 us instead of 0.27 us for 50
 # members).
-jit_inline = numba.njit(cache=True, nogil=True, inline='always')
+jit_inline = numba.njit(cache=True, nogil=True, inline='always', _nrt=False)
 
 
 # -- calling a compiled kernel without numba's dispatch ------------------------------------------

@@ -237,7 +237,7 @@ def test_a_worker_killed_while_it_runs_a_batch_loses_no_row(cluster, tmp_path):
     import signal
     import threading
     grid = ['loading.impact.v0=0.08,0.1,0.12,0.14']
-    sweep = sw.build(FB, grid, out=tmp_path / 'cluster', t_end=1.0)
+    sweep = sw.build(FB, grid, out=tmp_path / 'cluster', t_end=3.0)  # killed mid-batch
     result = {}
     runner = threading.Thread(target=lambda: result.update(
         out=sw.execute(sweep, cluster, chunk=2)))
@@ -257,7 +257,7 @@ def test_a_worker_killed_while_it_runs_a_batch_loses_no_row(cluster, tmp_path):
     rows, n = result['out']
     assert n == 4 and [r['status'] for r in rows] == ['ok'] * 4, [r['reason'] for r in rows]
     assert victim not in {r['worker_pid'] for r in rows}
-    local, _ = sw.execute(sw.build(FB, grid, out=tmp_path / 'local', t_end=1.0))
+    local, _ = sw.execute(sw.build(FB, grid, out=tmp_path / 'local', t_end=3.0))
     for a, b in zip(rows, local):
         assert {k: v for k, v in a.items() if k not in TIMING} == \
             {k: v for k, v in b.items() if k not in TIMING}

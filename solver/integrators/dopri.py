@@ -25,7 +25,7 @@ from solver.kernels import summary
 from solver.compiled import jit
 from solver.integrators.base import Integrator
 from solver.kernels.kinks import next_kink
-from solver.kernels.records import copy_data
+from solver.kernels.records import copy_data, copy_into
 from solver.status import STEP_TOO_SMALL
 
 H_MIN_FRACTION = 1e-9      # smallest step, as a fraction of dt, before giving up
@@ -69,7 +69,7 @@ def _stages(x, v, h, A, m, d, w, kx, kv, xs, vs, pw):
         if status != dyn.OK:
             return status
         pw[s] = effects.power(d)
-        kx[s, :, :] = vs
+        copy_into(kx[s], vs)
     return dyn.OK
 
 
@@ -93,21 +93,20 @@ def _error_norm(x, v, xs, vs, h, E, kx, kv, rtol, atol):
 
 @jit
 def dopri_run(m, d, w, dt, n_steps, tol, max_iter, kinks, rtol, atol, A, E, kx, kv, xs, vs,
-              hstate):
+              hstate, pw):
     """Advance ``d.x``, ``d.v`` by ``n_steps * dt`` adaptively. ``hstate``: [proposed step,
-    accepted, rejected, force evaluations], carried between calls. Returns (accepted steps,
-    status)."""
+    accepted, rejected, force evaluations], carried between calls; ``pw`` (7,) scratch: the power
+    the forces dissipate at each stage. Returns (accepted steps, status)."""
     x, v, topo = d.x, d.v, m.topo
     total = n_steps * dt
     t = 0.0
     accepted = 0
     h_prop = hstate[0] if 0.0 < hstate[0] <= dt else dt
     need_k1 = True
-    pw = np.zeros(7)                    # the dissipated power at the stages
     effects.start(x, m, d)
     while total - t > 1e-9 * dt:
         if need_k1:
-            kx[0, :, :] = v
+            copy_into(kx[0], v)
             status = dyn.accelerations(x, v, m, d, w, kv[0])
             pw[0] = effects.power(d)
             hstate[3] += 1
@@ -122,8 +121,8 @@ def dopri_run(m, d, w, dt, n_steps, tol, max_iter, kinks, rtol, atol, A, E, kx, 
         hstate[3] += 6
         err = _error_norm(x, v, xs, vs, h, E, kx, kv, rtol, atol) if status == dyn.OK else np.inf
         if err <= 1.0:
-            x[:, :] = xs
-            v[:, :] = vs
+            copy_into(x, xs)
+            copy_into(v, vs)
             for s in range(6):          # the dissipated energy, with the 5th-order weights
                 effects.dissipate(d, h * A[6, s] * pw[s])
             status = dyn.project_positions(x, topo, w, tol, max_iter)
@@ -152,12 +151,12 @@ def dopri_run(m, d, w, dt, n_steps, tol, max_iter, kinks, rtol, atol, A, E, kx, 
 
 @jit
 def dopri_checked(m, d, w, dt, n_steps, tol, max_iter, kinks, rtol, atol, A, E, kx, kv, xs, vs,
-                  hstate, kept, heights):
+                  hstate, pw, kept, heights):
     """:func:`dopri_run` between ``copy_data`` and ``summary.state_summary`` (see
     ``Integrator.checked_args``)."""
     copy_data(d, kept)
     out = dopri_run(m, d, w, dt, n_steps, tol, max_iter, kinks, rtol, atol, A, E, kx, kv, xs, vs,
-                    hstate)
+                    hstate, pw)
     return out + summary.state_summary(d.x, d.v, m, d, heights)
 
 
@@ -197,4 +196,5 @@ class DOPRI54Projected(Integrator):
         n = x.shape[0]
         return (bool(kinks), self.rtol, self.atol, A, E,
                 self.scratch('kx', (7, n, 3)), self.scratch('kv', (7, n, 3)),
-                self.scratch('xs', (n, 3)), self.scratch('vs', (n, 3)), self.hstate)
+                self.scratch('xs', (n, 3)), self.scratch('vs', (n, 3)), self.hstate,
+                self.scratch('pw', (7,)))

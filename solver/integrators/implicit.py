@@ -48,10 +48,10 @@ import numpy as np
 
 from solver.kernels import dynamics as dyn
 from solver.kernels import summary
-from solver.compiled import jit, jit_inline
+from solver.compiled import jit_alloc, jit_inline
 from solver.integrators.base import Integrator
 from solver.kernels.banded import band_ldl_apply, band_ldl_factor
-from solver.kernels.records import copy_data
+from solver.kernels.records import copy_data, copy_into
 from solver.kernels.rotation import ROT_C, ROT_S, rel
 
 from solver.status import NEWTON_FAILED  # noqa: E402
@@ -113,7 +113,7 @@ def layout(topo):
     return node_pos, con_pos, 3 * n + len(tail), bw
 
 
-@jit
+@jit_alloc
 def _rot(rot, c):
     if rot.shape[0] == 0:
         return 1.0, 0.0
@@ -121,7 +121,7 @@ def _rot(rot, c):
 
 
 # -- discrete-gradient cable forces -------------------------------------------------------------
-@jit
+@jit_alloc
 def dg_density(s0, s1, L, k):
     """Discrete-gradient force density of a tension-only cable, ``V(s) = k/2 (s - L)_+^2``, from
     length ``s0`` to ``s1``: ``gbar = (V(s1) - V(s0)) / ((s1^2 - s0^2) / 2)`` (its limit when
@@ -150,14 +150,14 @@ def _chords(x0, x1, a, b, cable_rot, c):
             math.sqrt(bx * bx + by * by + bz * bz))
 
 
-@jit
+@jit_alloc
 def dg_forces(x0, x1, m, d, f):
     """``f`` = external forces + discrete-gradient cable forces ``gbar (d0 + d1) / 2`` between
     the configurations ``x0`` and ``x1`` (their work over the step equals the change of the
     cable energy exactly)."""
     cable_a, cable_b, cable_rot = m.topo.cable_a, m.topo.cable_b, m.topo.cable_rot
     rest, EA, f_ext = d.rest, d.EA, d.f_ext
-    f[:, :] = f_ext
+    copy_into(f, f_ext)
     for c in range(cable_a.shape[0]):
         a = cable_a[c]
         b = cable_b[c]
@@ -178,7 +178,7 @@ def dg_forces(x0, x1, m, d, f):
 
 
 # -- assembly -------------------------------------------------------------------------------------
-@jit
+@jit_alloc
 def _add(band, i, j, value):
     """Add ``value`` to the symmetric entry (i, j) (stored once, in the lower band)."""
     if i >= j:
@@ -187,7 +187,7 @@ def _add(band, i, j, value):
         band[j, j - i] += value
 
 
-@jit
+@jit_alloc
 def _add_pair(band, pa, pb, fa, fb, K, cr, sr, same):
     """Add the stiffness of a two-node element with 3x3 tangent ``K`` acting on ``d = R x_b -
     x_a`` (``R`` the rotation by (cr, sr) about z): blocks ``K`` (a, a), ``-K R`` (a, b),
@@ -221,7 +221,7 @@ def _add_pair(band, pa, pb, fa, fb, K, cr, sr, same):
                 _add(band, pa + i, pb + j, -KR[i, j])
 
 
-@jit
+@jit_alloc
 def assemble_kkt(x0, x1, xm, h, nu, m, d, node_pos, con_pos, band):
     """The KKT matrix of the step from ``x0`` at the iterate ``x1`` (midpoint ``xm``) into
     ``band`` (see the module doc): the cable blocks are the symmetric part of the derivative of
@@ -285,7 +285,7 @@ def assemble_kkt(x0, x1, xm, h, nu, m, d, node_pos, con_pos, band):
                 _add(band, q, node_pos[hd] + i, gh[i])
 
 
-@jit
+@jit_alloc
 def _residual(x, x0, v0, h, f, xm, nu, topo, node_pos, con_pos, rhs):
     """``rhs = -(r, g(x1))``: ``r = M (x1 - x0 - h v0) - h^2/2 f + G(xm)^T nu`` with the step's
     forces ``f`` (:func:`dg_forces`); g at ``x1 = x``."""
@@ -322,7 +322,7 @@ def _residual(x, x0, v0, h, f, xm, nu, topo, node_pos, con_pos, rhs):
         rhs[con_pos[c]] = -0.5 * (ex * ex + ey * ey + ez * ez - length[c] * length[c])
 
 
-@jit
+@jit_alloc
 def _midpoint_step(x, v, h, m, d, w, node_pos, con_pos, band, rhs, nu, x0, v0, xm, f, acc,
                    scale, nstate):
     """One step (Newton until ``max |dx| <= NEWTON_TOL * scale``); the new positions are left in
@@ -330,8 +330,8 @@ def _midpoint_step(x, v, h, m, d, w, node_pos, con_pos, band, rhs, nu, x0, v0, x
     code."""
     n = x.shape[0]
     w_diag = m.topo.w_diag
-    x0[:, :] = x
-    v0[:, :] = v
+    copy_into(x0, x)
+    copy_into(v0, v)
     status = dyn.accelerations(x0, v0, m, d, w, acc)
     nstate[3] += 1
     if status != dyn.OK:
@@ -378,7 +378,7 @@ def _midpoint_step(x, v, h, m, d, w, node_pos, con_pos, band, rhs, nu, x0, v0, x
     return NEWTON_FAILED
 
 
-@jit
+@jit_alloc
 def midpoint_run(m, d, w, dt, n_steps, tol, max_iter, node_pos, con_pos, band, rhs, nu, x0, v0,
                  xm, f, acc, nstate):
     """``n_steps`` implicit midpoint steps of ``dt`` with projection after each; ``nstate``:
@@ -403,14 +403,14 @@ def midpoint_run(m, d, w, dt, n_steps, tol, max_iter, node_pos, con_pos, band, r
         if status == dyn.OK and not (dyn.all_finite(x) and dyn.all_finite(v)):
             status = dyn.NONFINITE
         if status != dyn.OK:
-            x[:, :] = x0                      # the last good state
-            v[:, :] = v0
+            copy_into(x, x0)                  # the last good state
+            copy_into(v, v0)
             return step, status
         nstate[2] += 1
     return n_steps, dyn.OK
 
 
-@jit
+@jit_alloc
 def midpoint_checked(m, d, w, dt, n_steps, tol, max_iter, node_pos, con_pos, band, rhs, nu, x0,
                      v0, xm, f, acc, nstate, kept, heights):
     """:func:`midpoint_run` between ``copy_data`` and ``summary.state_summary``."""

@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import math
 
-from solver.compiled import jit
+from solver.compiled import jit, jit_inline
 from solver.integrators.base import Integrator
 from solver.kernels import dynamics as dyn
 from solver.kernels import effects
 from solver.kernels import summary
 from solver.kernels.kinks import next_kink
-from solver.kernels.records import copy_data
+from solver.kernels.records import copy_data, copy_into
 
 
 @jit
@@ -21,8 +21,8 @@ def _rk4_step(x, v, h, a1, m, d, w):
     xs, vs, acc, xacc, vacc = w.xs, w.vs, w.acc, w.xacc, w.vacc
     n = x.shape[0]
     work = effects.power(d)
-    xacc[:, :] = v
-    vacc[:, :] = a1
+    copy_into(xacc, v)
+    copy_into(vacc, a1)
     for p in range(n):
         for i in range(3):
             xs[p, i] = x[p, i] + 0.5 * h * v[p, i]
@@ -49,7 +49,7 @@ def _rk4_step(x, v, h, a1, m, d, w):
     return dyn.OK
 
 
-@jit
+@jit_inline
 def _controlled_step(x, v, h, a1, m, d, w, met, scale):
     """One RK4 step from a state whose accelerations ``a1`` were just evaluated (``met``: the
     run state's contact count before that evaluation) under the step control of the effects

@@ -27,7 +27,7 @@ from solver.kernels.banded import band_ldl_solve
 from solver.compiled import jit
 from solver.kernels.barcontact import bar_forces, base_forces
 from solver.kernels.contact import axial_contacts, cable_forces_damped
-from solver.kernels.records import LOOK, MET
+from solver.kernels.records import LOOK, MET, copy_into
 from solver.kernels.rotation import (ROT_C, ROT_S, add_constraint_forces_rot,  # noqa: F401
                                      assemble_band_rot, cable_forces_rot, member_vectors_rot,
                                      rel)
@@ -140,7 +140,7 @@ def accelerations(x, v, m, d, w, out):
     topo = m.topo
     tail, head, rot, cable_rot = topo.con_tail, topo.con_head, topo.con_rot, topo.cable_rot
     f, wf, bvec, band, lam = w.f, w.wf, w.bvec, w.band, w.lam
-    f[:, :] = d.f_ext
+    copy_into(f, d.f_ext)
     if m.damping.coef.shape[0] != 0:        # damped cables (solver.kernels.contact)
         cable_forces_damped(x, v, topo.cable_a, topo.cable_b, cable_rot, d.rest, d.EA,
                             m.damping.coef, f, d.ledger)

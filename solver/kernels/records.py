@@ -25,7 +25,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from solver.compiled import jit
+from solver.compiled import jit, jit_inline
 from solver.kernels.massmatrix import KKT, KKTScratch, scratch
 
 
@@ -278,15 +278,25 @@ def clone_work(work):
                   else np.zeros_like(a) for a in work))
 
 
+@jit_inline
+def copy_into(dst, src):
+    """``dst[...] = src`` for C-contiguous arrays of the same shape, by a loop: the kernels run
+    without reference counting (:mod:`solver.compiled`), and numba's array assignment needs it."""
+    a = dst.reshape(-1)
+    b = src.reshape(-1)
+    for i in range(a.shape[0]):
+        a[i] = b[i]
+
+
 @jit
 def copy_data(src, dst):
     """Copy every array of the :class:`Data` ``src`` into ``dst`` (the same shapes)."""
-    dst.x[:, :] = src.x
-    dst.v[:, :] = src.v
-    dst.rest[:] = src.rest
-    dst.EA[:] = src.EA
-    dst.f_ext[:, :] = src.f_ext
-    dst.ledger[:] = src.ledger
-    dst.contact.scan[:] = src.contact.scan
-    dst.contact.active[:] = src.contact.active
-    dst.refine[:] = src.refine
+    copy_into(dst.x, src.x)
+    copy_into(dst.v, src.v)
+    copy_into(dst.rest, src.rest)
+    copy_into(dst.EA, src.EA)
+    copy_into(dst.f_ext, src.f_ext)
+    copy_into(dst.ledger, src.ledger)
+    copy_into(dst.contact.scan, src.contact.scan)
+    copy_into(dst.contact.active, src.contact.active)
+    copy_into(dst.refine, src.refine)
