@@ -40,8 +40,8 @@ def point(name, mode, v0):
     row = {'scene': name, 'mode': mode, 'v0': v0}
     try:
         s = simulate(scene, sets).summary
-        row.update(status='ok', reason='', energy_balance_error=s['energy_balance_error'],
-                   contacts_met=s['contacts_met'], steps_taken=s['steps_taken'])
+        row.update(status='ok', reason='', energy_balance_error=s.energy_balance_error,
+                   contacts_met=s.contacts_met, steps_taken=s.steps_taken)
     except SimulationDiverged as exc:
         row.update(status='diverged', reason=str(exc), energy_balance_error=None,
                    contacts_met=None, steps_taken=None)

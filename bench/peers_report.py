@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from solver.simulate.runner import json_safe
+from solver import json_safe
 
 TARGETS = {'speedup_vs_mujoco': 10.0, 'speedup_vs_scipy': 50.0, 'step_over_kernel_bound': 1.2,
            'real_time_factor_fb': 200.0}

@@ -78,7 +78,8 @@ def convergence(name, v0=1.0, t_end=1.0, levels=LEVELS, perturbations=3,
     (``conditioning``: how far the response at those steps carries a change of the input), and
     the change under v0 (1 + rel) at the finest rung's steps for each ``rel`` of
     ``sensitivities`` (``sensitivity_finest``; ``conditioning_finest`` is its 1e-9 entry)."""
-    from solver.simulate.convergence import FIGURES, relative_change, rung_overrides
+    from solver import json_safe
+    from solver.simulate.convergence import FIGURES, figures_of, relative_change, rung_overrides
     from solver.simulate.runner import simulate
     path = ROOT / 'config' / 'scenes' / f'{name}.yaml'
     base = [f'loading.impact.v0={v0}', f'run.t_end={t_end}']
@@ -86,10 +87,11 @@ def convergence(name, v0=1.0, t_end=1.0, levels=LEVELS, perturbations=3,
     def run(overrides):
         t0 = time.perf_counter()
         point = simulate(path, overrides)
-        pulse = point.summary['pulse'] or {}
-        return {'figures': {k: pulse.get(k) for k in FIGURES},
-                'balance_error': point.summary['energy_balance_error'],
-                'steps_taken': point.summary['steps_taken'],
+        s = point.summary
+        figures = figures_of(s)
+        return {'figures': json_safe(figures[0] if figures else {k: None for k in FIGURES}),
+                'balance_error': s.energy_balance_error,
+                'steps_taken': s.steps_taken,
                 'dt': point.scene.integrator.dt, 'resolution': point.scene.contact.resolution,
                 'wall_s': time.perf_counter() - t0}
 

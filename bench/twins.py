@@ -106,7 +106,8 @@ def ensemble(name, v0, refine=0, n=16, step=1e-7, t_end=1.0, overrides=()):
     ``mean``, ``sem`` (standard error of the mean) and ``std`` (None below two values). Where
     a figure is a function of v0 the values agree; where the response is chaotic they scatter,
     and a figure that converges in distribution has means that agree across rungs."""
-    from solver.simulate.convergence import FIGURES, rung_overrides
+    from solver import json_safe
+    from solver.simulate.convergence import FIGURES, figures_of, rung_overrides
     from solver.simulate.runner import simulate
     from solver.simulate.simulation import SimulationDiverged
     path = ROOT / 'config' / 'scenes' / f'{name}.yaml'
@@ -116,8 +117,9 @@ def ensemble(name, v0, refine=0, n=16, step=1e-7, t_end=1.0, overrides=()):
     for j in range(n):
         v = v0 * (1.0 + (j - (n - 1) / 2) * step)
         try:
-            pulse = simulate(path, ov + list(overrides) + [f'loading.impact.v0={v!r}']
-                             ).summary['pulse'] or {}
+            summary = simulate(path, ov + list(overrides) + [f'loading.impact.v0={v!r}']
+                               ).summary
+            pulse = json_safe(figures_of(summary)[0]) if summary.pulses else {}
         except SimulationDiverged as exc:
             stopped.append({'v0': v, 'reason': str(exc)})
             continue

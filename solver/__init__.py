@@ -7,8 +7,8 @@ solver does not import all of it.
 - one simulation: :class:`Simulation`, :func:`simulation_for`, :class:`SimulationDiverged`,
   :class:`Frame`;
 - runs: :func:`simulate_scene` (:func:`solver.simulate.runner.simulate`),
-  :func:`frame_count`, :func:`run_frame`, :class:`ImpactTrain`, :data:`T_REF`,
-  :func:`json_safe`;
+  :func:`frame_count`, :func:`run_frame`, :class:`ImpactTrain`, :data:`T_REF`; their typed
+  results :class:`RunSummary` and :func:`json_safe`;
 - many runs: :func:`simulate_batch`, :func:`default_threads`; the convergence check
   (:mod:`solver.simulate.convergence`, as ``convergence``, and its names);
 - studies and analysis modules: ``lens``, ``paper``, ``field``, ``observables``,
@@ -28,12 +28,13 @@ _NAMES = {
     'simulate_scene': 'solver.simulate.runner:simulate',
     'frame_count': 'solver.simulate.runner', 'run_frame': 'solver.simulate.runner',
     'ImpactTrain': 'solver.simulate.runner', 'T_REF': 'solver.simulate.runner',
-    'json_safe': 'solver.simulate.runner',
+    'json_safe': 'solver.simulate.results', 'RunSummary': 'solver.simulate.results',
     'simulate_batch': 'solver.simulate.batch', 'default_threads': 'solver.simulate.batch',
     'compile_all': 'solver.simulate.precompile', 'source_hash': 'solver.compiled',
     # the convergence check
     **{name: 'solver.simulate.convergence' for name in (
         'FIGURES', 'TOLERANCE', 'PERTURBATION', 'check_tolerance', 'check_figures', 'compare',
+        'figures_of',
         'describe', 'refined_overrides', 'perturbed_overrides')},
     # the record of an array impact and the pulse front
     **{name: 'solver.studies.lens_record' for name in (

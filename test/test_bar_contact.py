@@ -167,7 +167,7 @@ def test_the_paper_regime_is_unchanged_where_no_contact_acts(name):
             acted.append(v0)
             continue
         assert with_bars.sim.steps_taken == line.sim.steps_taken, v0
-        a, b = with_bars.summary['pulse'], line.summary['pulse']
+        a, b = with_bars.summary.to_json()['pulse'], line.summary.to_json()['pulse']
         for key, value in b.items():
             if isinstance(value, float):
                 assert a[key] == value, (v0, key)
@@ -196,8 +196,8 @@ def test_pulse_figures_at_a_strong_impact_converge_as_the_step_is_halved(name):
         point = simulate(scene, ['loading.impact.v0=0.3', 'run.t_end=0.6',
                                  f'integrator.dt={scene.integrator.dt * scale}'])
         assert point.sim.contacts_met > 0
-        assert point.summary['energy_balance_error'] < point.sim.div.energy_error
-        figures.append(point.summary['pulse'])
+        assert point.summary.to_json()['energy_balance_error'] < point.sim.div.energy_error
+        figures.append(point.summary.to_json()['pulse'])
     coarse, fine = figures
     for key in ('amplitude', 'speed_m_s', 'speed_snapshot_m_s'):
         assert math.isclose(coarse[key], fine[key], rel_tol=0.01), (key, coarse[key], fine[key])
@@ -215,8 +215,8 @@ def test_fb_figures_at_1_m_s_converge_once_the_steps_resolve_the_contacts():
         point = simulate(scene, ['loading.impact.v0=1.0', 'run.t_end=0.55',
                                  f'integrator.dt={dt / 2 ** k}',
                                  f'contact.resolution={res * 2 ** k}'])
-        assert point.summary['energy_balance_error'] < point.sim.div.energy_error
-        pulses.append(point.summary['pulse'])
+        assert point.summary.to_json()['energy_balance_error'] < point.sim.div.energy_error
+        pulses.append(point.summary.to_json()['pulse'])
     for key in ('amplitude', 'speed_snapshot_m_s'):
         assert relative_change(pulses[0][key], pulses[1][key]) < 0.01, key
 

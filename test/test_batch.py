@@ -44,7 +44,7 @@ def _same(a, b, path=''):
 
 @pytest.fixture(scope='module')
 def singles():
-    return [simulate(FB, p).summary for p in POINTS]
+    return [simulate(FB, p).summary.to_json() for p in POINTS]
 
 
 @pytest.mark.parametrize('threads, together', [(1, False), (2, False), (2, True)])
@@ -52,19 +52,19 @@ def test_every_figure_of_a_batched_point_is_that_of_its_single_run(singles, thre
     got = simulate_batch([(FB, p) for p in POINTS], threads=threads, together=together)
     assert [g.status for g in got] == ['ok'] * len(POINTS)
     for p, single, g in zip(POINTS, singles, got):
-        assert _same(single, g.summary) == [], p
+        assert _same(single, g.summary.to_json()) == [], p
     # the points differ: the comparison is not of one run with itself
     figures = [(s['energy_work_J'], s['pulse']['speed_m_s'], s['base']) for s in singles]
     assert sum(f[1] is not None for f in figures) >= 4
     assert len({repr(f) for f in figures}) == len(figures)
-    assert len(got[2].summary['impacts']) == 4
+    assert len(got[2].summary.to_json()['impacts']) == 4
 
 
 def test_full_frames_give_the_same_figures_as_the_lean_record(singles):
     frames = []
     got = simulate_batch([(FB, POINTS[2])], threads=1,
                          on_frame=lambda k, f: frames.append(f))
-    assert _same(singles[2], got[0].summary) == []
+    assert _same(singles[2], got[0].summary.to_json()) == []
     assert len(frames) == len(got[0].point.record.times)
     assert frames[-1].positions.shape == (got[0].point.sim.network.n_nodes, 3)
 
@@ -83,8 +83,8 @@ def test_a_diverging_point_stops_alone_and_the_others_rows_are_unchanged(singles
     assert got[1].reason == str(info.value).splitlines()[0]
     assert 'energy balance' in got[1].reason and got[1].summary is None
     assert 'prestrain' in got[3].reason
-    assert _same(singles[0], got[0].summary) == []
-    assert _same(singles[2], got[2].summary) == []
+    assert _same(singles[0], got[0].summary.to_json()) == []
+    assert _same(singles[2], got[2].summary.to_json()) == []
 
 
 def test_a_batch_steps_its_instances_and_stops_only_the_one_that_diverges():
@@ -109,17 +109,17 @@ def test_a_batch_steps_its_instances_and_stops_only_the_one_that_diverges():
 def test_without_the_base_force_every_other_figure_is_the_single_runs(singles):
     got = simulate_batch([(FB, p) for p in POINTS[:3]], threads=2, base=False)
     for single, g in zip(singles, got):
-        assert g.summary['base'] == [] != single['base']
+        assert g.summary.to_json()['base'] == [] != single['base']
         assert _same({k: v for k, v in single.items() if k != 'base'},
-                     {k: v for k, v in g.summary.items() if k != 'base'}) == []
+                     {k: v for k, v in g.summary.to_json().items() if k != 'base'}) == []
 
 
 def test_an_array_scene_runs_in_a_batch_as_it_runs_alone():
     """An array of columns (its own ArraySimulation) in a batch of lean records."""
     point = (str(ROOT / 'config' / 'scenes' / 'lens_array.yaml'),
              ['structure.n_prisms=10', 'run.t_end=0.1'])
-    single = simulate(*point).summary
+    single = simulate(*point).summary.to_json()
     got = simulate_batch([point], threads=1, base=False)[0]
     assert got.status == 'ok', got.reason
     assert _same({k: v for k, v in single.items() if k != 'base'},
-                 {k: v for k, v in got.summary.items() if k != 'base'}) == []
+                 {k: v for k, v in got.summary.to_json().items() if k != 'base'}) == []

@@ -107,7 +107,7 @@ def test_the_text_summary_prints_the_ledger_and_explains_large_strain(tmp_path):
     point = simulate(FB, [('loading.impact.v0', 1.0), ('run.t_end', 0.3)], setup=setup)
     h0 = Scene.load(FB).structure.h0
     flattest = min(float(np.min(np.abs(h))) for h in heights) / h0
-    assert point.summary['energy_balance_error'] < 1e-4
+    assert point.summary.to_json()['energy_balance_error'] < 1e-4
     assert reported == pytest.approx(flattest, rel=0.02)
     assert reported < 0.5
 

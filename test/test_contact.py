@@ -102,7 +102,7 @@ def test_a_striker_at_the_scenes_own_dt_resolves_its_contact(name):
     pulses = []
     for resolution in (40, 80):
         s = simulate(f'{SCENES}/{name}.yaml', [('loading.impact.mode', 'striker'),
-                                              ('contact.resolution', resolution)]).summary
+                                              ('contact.resolution', resolution)]).summary.to_json()
         assert abs(s['energy_balance_error']) < 1e-5
         pulses.append(s['pulse'])
         steps = s['steps_taken']

@@ -73,6 +73,6 @@ def test_the_held_out_target_holds_the_figures_of_the_runs_it_names():
     for case in target['cases']:
         pulse = simulate(ROOT / 'config' / 'scenes' / 'fb_column.yaml', [
             ('structure.radius', 0.0042), ('prestrain', 0.003), ('run.t_end', 0.55),
-            *case['set'].items()]).summary['pulse']
+            *case['set'].items()]).summary.to_json()['pulse']
         for name, value in case['figures'].items():
             assert round(pulse[name.split('.', 1)[1]], 5) == value, name

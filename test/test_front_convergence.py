@@ -23,8 +23,8 @@ def _pulse(name, halved):
         sets += [('integrator.dt', scene.integrator.dt / 2),
                  ('contact.resolution', 2 * scene.contact.resolution)]
     point = simulate(scene, sets)
-    assert point.summary['energy_balance_error'] < scene.divergence.energy_error
-    return point.summary['pulse']
+    assert point.summary.to_json()['energy_balance_error'] < scene.divergence.energy_error
+    return point.summary.to_json()['pulse']
 
 
 @pytest.mark.parametrize('name', ['fb_column', 'rb_column'])

@@ -271,7 +271,7 @@ def test_a_stiff_table_law_takes_the_sub_steps_its_frequency_needs(monkeypatch):
     runs = []
     for factor in (1.0, 0.5):
         monkeypatch.setattr(chain1d, 'OMEGA_SUBSTEP', 0.02 * factor)
-        s = simulate(str(SCENES / 'rb_column.yaml'), sets).summary
+        s = simulate(str(SCENES / 'rb_column.yaml'), sets).summary.to_json()
         assert abs(s['energy_balance_error']) < 1e-4
         runs.append(s['pulse']['speed_m_s'])
     assert runs[1] == pytest.approx(runs[0], rel=1e-5)

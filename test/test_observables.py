@@ -203,7 +203,7 @@ def test_pulse_momenta_of_the_fb_column_from_strains_and_from_velocities_agree()
         return on_frame, None, None
     pt = simulate(ROOT_SCENES / 'fb_column.yaml', [('loading.impact.v0', v0),
                                                     ('run.t_end', 0.75)], setup=setup)
-    rec, pulse = pt.record, pt.summary['pulse']
+    rec, pulse = pt.record, pt.summary.to_json()['pulse']
     assert len(kept) == 5 and pulse['t_ref'] == pytest.approx(0.5)
     for t, p_level in kept.items():
         k = int(np.argmin(np.abs(rec.times - t)))

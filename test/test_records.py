@@ -227,3 +227,33 @@ def test_every_model_implements_the_abstract_interface():
             return None
     with pytest.raises(TypeError, match='abstract'):
         Half(None)
+
+
+def test_the_run_summary_is_a_typed_record_whose_json_is_the_cli_s(capsys):
+    """``simulate`` returns a frozen :class:`RunSummary` whose fields carry the figures (impacts
+    and pulses as records), and ``tensegrity run --json`` prints its :meth:`to_json` (the same
+    run again: equal but for the timings)."""
+    import dataclasses
+    import json
+    from solver import RunSummary, simulate_scene
+    from solver.analysis.observables import Pulse
+    from solver.simulate.results import ImpactApplied
+    from tensegrity_ros import cli
+    scene = str(ROOT / 'config' / 'scenes' / 'fb_column.yaml')
+    sets = [('loading.impact.v0', 0.1), ('run.t_end', 0.3)]
+    s = simulate_scene(scene, sets).summary
+    assert isinstance(s, RunSummary)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        s.steps = 0
+    assert [type(i) for i in s.impacts] == [ImpactApplied] and s.impacts[0].v0_m_s == 0.1
+    assert isinstance(s.pulse, Pulse) and s.pulse is s.pulses[0]
+    assert s.steps == round(0.3 / s.dt) and s.steps_taken >= s.steps
+    assert s.with_outputs(plot='p.png').outputs.plot == 'p.png' and s.outputs.plot is None
+    capsys.readouterr()
+    assert cli.main(['run', scene, '--v0', '0.1', '--t-end', '0.3', '--json']) == 0
+    printed = json.loads(capsys.readouterr().out)
+    own = s.to_json()
+    timing = ('wall_time_s', 'real_time_factor')
+    assert {k: v for k, v in printed.items() if k not in timing} == \
+        {k: v for k, v in own.items() if k not in timing}
+    assert printed['pulse']['amplitude_median'] == s.pulse.amplitude_median > 0.0

@@ -29,7 +29,7 @@ def test_strong_impacts_run_well_inside_the_ledger(name, v0):
     limit; with ``contact.refine: none`` they stop there again."""
     sets = [f'loading.impact.v0={v0}', 'run.t_end=1.0']
     point = simulate(_scene(name), sets)
-    s = point.summary
+    s = point.summary.to_json()
     assert s['contacts_met'] > 0
     assert abs(s['energy_balance_error']) < 0.1 * point.sim.div.energy_error, s
     with pytest.raises(SimulationDiverged, match='energy balance lost'):

@@ -26,7 +26,7 @@ def _refined_summary(v0):
     sets = [('loading.impact.v0', v0), ('run.t_end', T_END),
             ('integrator.dt', scene.integrator.dt / 2),
             ('contact.resolution', 2 * scene.contact.resolution)]
-    return simulate(scene, sets).summary
+    return simulate(scene, sets).summary.to_json()
 
 
 def _change(a, b):
@@ -67,7 +67,7 @@ def _refined(scene_path, v0, t_end):
     sets = [('loading.impact.v0', v0), ('run.t_end', t_end),
             ('integrator.dt', scene.integrator.dt / 2),
             ('contact.resolution', 2 * scene.contact.resolution)]
-    return simulate(scene, sets).summary['pulse']
+    return simulate(scene, sets).summary.to_json()['pulse']
 
 
 def _sensitive_by_hand(row, scene_path, v0, t_end):
@@ -202,10 +202,10 @@ def test_fit_convergence_checks_the_best_point_against_separate_refined_runs(tmp
     for i, v0 in enumerate((0.1, 1.0)):
         sets = [('loading.impact.v0', v0), ('prestrain', result['best']['prestrain']),
                 ('run.t_end', T_END)]
-        base = simulate(scene, sets).summary['pulse']['amplitude']
+        base = simulate(scene, sets).summary.to_json()['pulse']['amplitude']
         ref = simulate(scene, sets + [('integrator.dt', scene.integrator.dt / 2),
                                       ('contact.resolution', 2 * scene.contact.resolution)]
-                       ).summary['pulse']['amplitude']
+                       ).summary.to_json()['pulse']['amplitude']
         assert result['cases'][i]['figures']['pulse.amplitude']['simulated'] == base
         assert check['cases'][i]['changes']['pulse.amplitude'] == pytest.approx(
             _change(base, ref), rel=1e-9, abs=1e-15)

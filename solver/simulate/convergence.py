@@ -3,7 +3,7 @@ refined, and the relative change of each figure between the two.
 
     base = simulate(scene, overrides)
     refined = simulate(scene, overrides + refined_overrides(base.scene))
-    check = compare(base.summary, refined.summary, tolerance=0.01)
+    check = compare(figures_of(base.summary), figures_of(refined.summary), tolerance=0.01)
     check['converged']          # False: some figure moved by more than 1 %
 
 The energy ledger catches a step that loses or gains energy; it does not catch a figure that is
@@ -17,16 +17,17 @@ a figure read late enough moves as much when the input changes in its seventh di
 steps are halved; no step size settles it. :func:`sensitivity` tells the two apart from a twin
 of the refined run with the impacts changed by :data:`PERTURBATION`, up and down:
 
-    up, down = (simulate(scene, overrides + refined_overrides(base.scene)
-                         + perturbed_overrides(base.scene, rel)).summary
+    up, down = (figures_of(simulate(scene, overrides + refined_overrides(base.scene)
+                                    + perturbed_overrides(base.scene, rel)).summary)
                 for rel in (PERTURBATION, -PERTURBATION))
-    check['sensitivity'] = sensitivity(check, refined.summary, up, down)
+    check['sensitivity'] = sensitivity(check, figures_of(refined.summary), up, down)
 """
 from __future__ import annotations
 
 import math
 
 from solver.build.scene import RANGES
+from solver.simulate.results import json_safe
 from solver.integrators import registry as integrators
 
 # the figures a pulse is summarised by (solver.analysis.observables.Pulse): the tracked peak's
@@ -88,11 +89,12 @@ def describe(refined):
     return ', '.join(names.get(k, f'{k}={v}') for k, v in refined)
 
 
-def _pulses(summary):
-    pulses = summary.get('pulses') or []
-    if not pulses and summary.get('pulse'):
-        pulses = [summary['pulse']]
-    return pulses
+def figures_of(summary):
+    """The figures :func:`compare` reads of a :class:`~solver.simulate.results.RunSummary`: per
+    column, ``{figure: value}`` for each of :data:`FIGURES`, None where the pulse was not found
+    (as in the summary's JSON)."""
+    return [{k: v for k, v in json_safe(p.as_dict()).items() if k in FIGURES}
+            for p in summary.pulses]
 
 
 def relative_change(base, refined):
@@ -130,15 +132,17 @@ def check_figures(figures, name='--convergence-figures', error=ValueError):
 
 
 def compare(base, refined, tolerance=0.01, figures=None):
-    """The convergence check of two run summaries (``base``, and ``refined`` of the same point
-    with every step control refined): per figure of :data:`FIGURES` its largest relative change
+    """The convergence check of two runs' pulse figures (``base``, and ``refined`` of the same
+    point with every step control refined; each a list per column of ``{figure: value}``,
+    :func:`figures_of` of a run's summary, None or NaN where the pulse was not found): per
+    figure of :data:`FIGURES` its largest relative change
     over the columns (``changes``; None where no run found it), the worst figure and whether every
     change is within ``tolerance`` (``converged``; None when neither run has a pulse). With
     ``figures`` (a subset of :data:`FIGURES`, :func:`check_figures`) only those decide ``worst``
     and ``converged``; ``changes`` still lists every figure, ``figures`` the ones checked."""
     check_tolerance(tolerance, 'convergence tolerance')
     checked = FIGURES if figures is None else check_figures(figures)
-    pb, pr = _pulses(base), _pulses(refined)
+    pb, pr = list(base), list(refined)
     changes = {k: None for k in FIGURES}
     for i in range(max(len(pb), len(pr))):
         b = pb[i] if i < len(pb) else {}
@@ -156,7 +160,8 @@ def compare(base, refined, tolerance=0.01, figures=None):
 
 def sensitivity(check, refined, *twins, rel=PERTURBATION):
     """Which figures that failed ``check`` (:func:`compare`) are sensitive rather than
-    under-resolved: ``refined`` is the summary of the refined run, ``twins`` those of the same
+    under-resolved: ``refined`` is the pulse figures of the refined run (:func:`figures_of`),
+    ``twins`` those of the same
     refined run with every impact velocity changed by the factor ``1 + rel`` (or ``1 - rel``:
     :func:`perturbed_overrides`). Per figure its largest relative change over the columns and
     the twins (``changes``), and ``sensitive``: the figures whose change under refinement and

@@ -10,6 +10,7 @@ import numpy as np
 
 from solver.analysis import observables, support
 from solver.build.scene import Scene
+from solver.simulate.results import ImpactApplied, RunSummary, StrikerEnd
 from solver.simulate.simulation import Simulation
 from solver.simulate.array import simulation_for
 
@@ -19,7 +20,8 @@ class RunRecord:
     """Everything a run recorded. ``times`` (n_t,) s, ``strain`` (n_t, n_columns, n_prisms),
     ``energy`` (n_t,) J, ``constraint_error`` (n_t,), ``energy_balance_error`` (n_t,) (signed,
     relative: :meth:`Simulation.energy_error`), ``wall_time_s`` of the time stepping only,
-    ``impacts``: ``{'t_s', 'v0_m_s', 'work_J'}`` of each impact the run applied."""
+    ``impacts``: the :class:`~solver.simulate.results.ImpactApplied` of each impact the run
+    applied."""
     times: np.ndarray
     strain: np.ndarray
     energy: np.ndarray
@@ -41,8 +43,9 @@ def run_frame(sim: Simulation):
 class ImpactTrain:
     """The impacts of a scene's ``loading.impact`` (one, or a train) on the step grid of ``dt``:
     an impact at ``t`` s lands on step ``round(t / dt)``; impacts of 0 m/s are left out. Each is
-    applied once, by :meth:`apply_due`; ``applied`` lists ``{'t_s', 'v0_m_s', 'work_J'}`` of
-    those applied, ``t_s`` the simulation time it was applied at."""
+    applied once, by :meth:`apply_due`; ``applied`` lists the
+    :class:`~solver.simulate.results.ImpactApplied` of those applied, ``t_s`` the simulation
+    time it was applied at."""
 
     def __init__(self, impact, dt):
         self.columns = impact.columns
@@ -63,7 +66,7 @@ class ImpactTrain:
         while (k := self.next_step()) is not None and k <= sim.step:
             v0 = self.impacts[len(self.applied)][1]
             work = sim.apply_impact(v0, self.columns)
-            self.applied.append({'t_s': float(sim.t), 'v0_m_s': v0, 'work_J': float(work)})
+            self.applied.append(ImpactApplied(float(sim.t), v0, float(work)))
             if on_impact is not None:
                 on_impact(len(self.applied) - 1, self.applied[-1])
 
@@ -130,7 +133,8 @@ class Recorder:
                 self.on_frame(f)
         else:              # lean: what the summary reads, computed as Simulation.frame does
             f = sim.frame_figures()
-            t, strain, e, cerr, bal = f
+            t, strain, e, cerr, bal = (f.t, f.strain, f.energy, f.constraint_error,
+                                       f.energy_balance_error)
             base = np.array(sim.base_force()) if self.with_base else None
         self.times.append(t)
         self.strain.append(strain)
@@ -205,60 +209,35 @@ class RefMomenta:
                                                         len(rec.times) > 1 else 0) + 1e-9:
             return
         unit_mass = float(sim.network.meta.get('unit_mass', np.nan))
-        v0 = rec.impacts[0]['v0_m_s'] if rec.impacts else np.nan
+        v0 = rec.impacts[0].v0_m_s if rec.impacts else np.nan
         for c, p in enumerate(rec.pulses):
             if np.isfinite(p.amplitude):
                 observables.pulse_momentum(p, rec.strain[k, c], self.p[c], unit_mass, v0)
 
 
-def json_safe(value):
-    """``value`` (dicts, lists, numbers, strings) with every non-finite float replaced by None, so
-    that it is strict JSON (``null``): a pulse not found in a short run has NaN figures, and JSON
-    has no NaN."""
-    if isinstance(value, dict):
-        return {k: json_safe(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [json_safe(v) for v in value]
-    if isinstance(value, (float, np.floating)):
-        return float(value) if np.isfinite(value) else None
-    if isinstance(value, np.integer):
-        return int(value)
-    return value
-
-
-def summary(scene: Scene, sim: Simulation, rec: RunRecord, outputs=None):
-    """The JSON summary of ``tensegrity run`` (docs/interfaces.md section 2); non-finite figures (a
-    pulse not found, a run too short to time) are None."""
+def summary(scene: Scene, sim: Simulation, rec: RunRecord):
+    """The :class:`~solver.simulate.results.RunSummary` of a run (``tensegrity run``; its JSON:
+    docs/interfaces.md section 2)."""
     t_end = float(rec.times[-1] - rec.times[0])
     e0 = rec.energy[0]
     drift = float(np.max(np.abs(rec.energy - e0)) / abs(e0)) if e0 else 0.0
-    out = {
-        'scene': scene.name, 'model': sim.model.name, 'integrator': sim.integrator.name,
-        'dt': sim.dt, 't_end': t_end,
-        'n_nodes': sim.network.n_nodes, 'n_bars': sim.network.n_bars,
-        'n_cables': sim.network.n_cables, 'n_rigid_edges': sim.network.n_edges,
-        'steps': int(rec.steps), 'steps_taken': int(rec.steps_taken),
-        'wall_time_s': rec.wall_time_s,
-        'real_time_factor': t_end / rec.wall_time_s if rec.wall_time_s > 0 else float('inf'),
-        'energy_drift_rel': drift / t_end if t_end > 0 else drift,
-        'constraint_error_rel': float(np.max(rec.constraint_error)),
+    net, strikers = sim.network, sim.striker()
+    return RunSummary(
+        scene=scene.name, model=sim.model.name, integrator=sim.integrator.name, dt=sim.dt,
+        t_end=t_end, n_nodes=net.n_nodes, n_bars=net.n_bars, n_cables=net.n_cables,
+        n_rigid_edges=net.n_edges, steps=int(rec.steps), steps_taken=int(rec.steps_taken),
+        wall_time_s=rec.wall_time_s,
+        real_time_factor=t_end / rec.wall_time_s if rec.wall_time_s > 0 else float('inf'),
+        energy_drift_rel=drift / t_end if t_end > 0 else drift,
+        constraint_error_rel=float(np.max(rec.constraint_error)),
         # the energy ledger: the impacts applied, the work of every command, the largest
         # |balance error| over the frames (docs/physics.md section 7.1)
-        'impacts': rec.impacts,
-        'energy_work_J': float(sim.energy_work()),
-        'energy_balance_error': float(np.max(np.abs(rec.energy_balance_error))),
-        'bar_contact': sim.bar_contact,
-        'contacts_met': int(sim.contacts_met),
-        'pulse': rec.pulses[0].as_dict() if rec.pulses else None,
-        'pulses': [p.as_dict() for p in rec.pulses],
-        'base': support.base_summary(rec.times, rec.base_force),
-        # loading.impact.mode: striker: each column's striker at the end (face height m, axial
-        # velocity m/s, > 0 away from the column)
-        'striker': None if sim.striker() is None else [
-            {'z_m': float(z), 'v_m_s': float(v)} for z, v in sim.striker()],
-        'outputs': dict({'mcap': None, 'rerun': None, 'plot': None}, **(outputs or {})),
-    }
-    return json_safe(out)
+        impacts=tuple(rec.impacts), energy_work_J=float(sim.energy_work()),
+        energy_balance_error=float(np.max(np.abs(rec.energy_balance_error))),
+        bar_contact=sim.bar_contact, contacts_met=int(sim.contacts_met),
+        pulses=tuple(rec.pulses), base=tuple(support.base_summary(rec.times, rec.base_force)),
+        striker=None if strikers is None else tuple(StrikerEnd(float(z), float(v))
+                                                    for z, v in strikers))
 
 
 @dataclass
@@ -268,7 +247,7 @@ class Point:
     scene: Scene
     sim: Simulation
     record: RunRecord
-    summary: dict
+    summary: RunSummary
 
 
 def _at_rest(scene, overrides):

@@ -3,8 +3,10 @@ a Rerun file or viewer), a strain-wave plot and a summary (text, or strict JSON 
 The command line itself is :mod:`tensegrity_ros.cli`."""
 from __future__ import annotations
 
+import dataclasses
 import gc
 import json
+import math
 import sys
 from pathlib import Path
 
@@ -34,12 +36,12 @@ def _open_mcap(stack, sinks, scene, sim, path):
     columns = scene.loading.impact.columns
 
     def impact(i, entry):
-        v0 = entry['v0_m_s']
+        v0 = entry.v0_m_s
         values = [v0] if columns is None else [v0 if c in columns else 0.0
                                                for c in range(sim.network.n_columns)]
         log.command('~/cmd/impact', values, 'all' if columns is None else 'column', run_frame(sim),
                     f'impact v0 = {v0:g} m/s (scene {scene.name})')
-        log.event(entry['t_s'], _impact_text(i, entry, scene, sim))
+        log.event(entry.t_s, _impact_text(i, entry, scene, sim))
     sinks.add(Sink(frame=log.frame, impact=impact))
     return str(recorder.folder)
 
@@ -53,19 +55,19 @@ def _open_rerun(stack, sinks, scene, sim, path=None, url=None):
     recorder = stack.enter_context(RerunRecorder(sim.network, path, connect=url))
 
     def impact(i, entry):
-        recorder.command(entry['t_s'], _impact_text(i, entry, scene, sim))
+        recorder.command(entry.t_s, _impact_text(i, entry, scene, sim))
     sinks.add(Sink(frame=recorder.frame, impact=impact))
     return str(path) if path is not None else url
 
 
 def _impact_text(i, entry, scene, sim):
-    """The event text of impact ``i`` of a run (``entry`` as ``ImpactTrain.applied`` lists it):
+    """The event text of impact ``i`` of a run (``entry``: an ``ImpactApplied``):
     the first starts with ``impact`` (the Rerun heat map starts there), the later ones of a train
     with ``train impact``."""
     from solver import ImpactTrain
     n, columns = len(ImpactTrain(scene.loading.impact, sim.dt)), scene.loading.impact.columns
     where = 'all columns' if columns is None else f'columns {list(columns)}'
-    text = f'v0 = {entry["v0_m_s"]:g} m/s on {where}'
+    text = f'v0 = {entry.v0_m_s:g} m/s on {where}'
     if i == 0:
         return f'impact {text}' + (f' (1 of {n})' if n > 1 else '')
     return f'train impact {i + 1} of {n}: {text}'
@@ -121,62 +123,69 @@ class _Stopped(Exception):
     """The refined run of ``--convergence`` was told to stop."""
 
 
+def _found(value):
+    return value is not None and math.isfinite(value)
+
+
 def _pulse_line(p, t_end):
-    """The summary's line on the leading pulse ``p`` (the JSON's ``pulse``), or None without
-    one. The amplitude is read at ``T_REF``; a run that ends before it, or whose pulse reaches
-    the clamped end first, still reports the speed and median amplitude of the window."""
+    """The summary's line on the leading pulse ``p`` (a
+    :class:`~solver.analysis.observables.Pulse`), or None without one. The amplitude is read at
+    ``T_REF``; a run that ends before it, or whose pulse reaches the clamped end first, still
+    reports the speed and median amplitude of the window."""
     from solver import T_REF
-    if not p:
+    if p is None:
         return None
-    speed = 'n/a' if p['speed_m_s'] is None else f"{p['speed_m_s']:.3f} m/s"
-    median = 'n/a' if p['amplitude_median'] is None else f"{p['amplitude_median']:.4f}"
-    if p['amplitude'] is not None:
-        return (f"  pulse: amplitude {p['amplitude']:.4f} at t = {p['t_ref']:g} s (median "
-                f"{median}), speed {speed}, width {p['width_prisms']} prisms")
-    if p['speed_m_s'] is None and p['amplitude_median'] is None:
+    speed = f"{p.speed_m_s:.3f} m/s" if _found(p.speed_m_s) else 'n/a'
+    median = f"{p.amplitude_median:.4f}" if _found(p.amplitude_median) else 'n/a'
+    if _found(p.amplitude):
+        return (f"  pulse: amplitude {p.amplitude:.4f} at t = {p.t_ref:g} s (median "
+                f"{median}), speed {speed}, width {p.width_prisms} prisms")
+    if not _found(p.speed_m_s) and not _found(p.amplitude_median):
         return f"  pulse: none found by t = {t_end:g} s"
-    why = (f"it reached the clamped end at t = {p['arrival_end_s']:.3g} s"
-           if p.get('arrival_end_s') is not None and p['arrival_end_s'] < T_REF
+    why = (f"it reached the clamped end at t = {p.arrival_end_s:.3g} s"
+           if _found(p.arrival_end_s) and p.arrival_end_s < T_REF
            else f"the run ends at t = {t_end:g} s")
     return (f"  pulse: speed {speed}, median amplitude {median} in the window; no amplitude "
             f"at t = {T_REF:g} s: {why}")
 
 
 def _front_line(p, n_prisms):
-    """The summary's line on the front (``front_*`` of the JSON's ``pulse``), or None where the
-    front did not reach both stations (:func:`~solver.analysis.front.front_stations` of a
+    """The summary's line on the front (``front_*`` of the leading pulse ``p``), or None where
+    the front did not reach both stations (:func:`~solver.analysis.front.front_stations` of a
     column of ``n_prisms``)."""
     from solver import FRONT_LEVEL, front_stations
     stations = front_stations(n_prisms)
-    if not p or p.get('front_speed_m_s') is None or stations is None:
+    if p is None or not _found(p.front_speed_m_s) or stations is None:
         return None
     near, far = stations
-    peak = ('still rising at the end' if p.get('front_amplitude') is None
-            else f"first peak {p['front_amplitude']:.4f} there")
-    return (f"  front ({100 * FRONT_LEVEL:g} % strain): {p['front_speed_m_s']:.3f} m/s from prism "
-            f"{near} to {far}, at prism {far} at t = {p['front_arrival_s']:.3g} s, {peak}")
+    peak = (f"first peak {p.front_amplitude:.4f} there" if _found(p.front_amplitude)
+            else 'still rising at the end')
+    return (f"  front ({100 * FRONT_LEVEL:g} % strain): {p.front_speed_m_s:.3f} m/s from prism "
+            f"{near} to {far}, at prism {far} at t = {p.front_arrival_s:.3g} s, {peak}")
 
 
-def _convergence(args, result, refined_run, tolerance):
-    """Add the check of ``--convergence`` to ``result``; the one line of a failure, or None.
-    A failed check also runs the sensitivity twin (:func:`_sensitivity`)."""
+def _convergence(args, summary, refined_run, tolerance):
+    """The check of ``--convergence`` of the run of ``summary`` (a ``RunSummary``): ``(its JSON
+    object, the one line of a failure or None)``. A failed check also runs the sensitivity twin
+    (:func:`_sensitivity`)."""
     from solver import convergence
     from solver import SimulationDiverged
     refined, future, _ = refined_run
     try:
         point = future.result()
     except SimulationDiverged as exc:
-        result['convergence'] = {'tolerance': tolerance, 'refined': dict(refined),
-                                 'converged': False, 'refined_run': str(exc)}
-        return (f'convergence check: the refined run ({convergence.describe(refined)}) '
+        return ({'tolerance': tolerance, 'refined': dict(refined), 'converged': False,
+                 'refined_run': str(exc)},
+                f'convergence check: the refined run ({convergence.describe(refined)}) '
                 f'diverged: {exc}')
-    check = convergence.compare(result, point.summary, tolerance,
-                                getattr(args, 'convergence_figures', None))
+    check = convergence.compare(convergence.figures_of(summary),
+                                convergence.figures_of(point.summary), tolerance,
+                                args.convergence_figures)
     if check['converged'] is False:
         check['sensitivity'] = _sensitivity(args, check, refined, point)
-    result['convergence'] = dict(convergence.jsonable(check), refined=dict(refined),
-                                 refined_steps_taken=point.summary['steps_taken'])
-    return convergence.failure(check, refined)
+    return (dict(convergence.jsonable(check), refined=dict(refined),
+                 refined_steps_taken=point.summary.steps_taken),
+            convergence.failure(check, refined))
 
 
 def _sensitivity(args, check, refined, point):
@@ -202,12 +211,12 @@ def _sensitivity(args, check, refined, point):
             twins = [pool.submit(simulate, args.scene, base + p,
                                  setup=lambda stack, scene, sim: (None, update, None))
                      for p in perturbed]
-            summaries = [t.result().summary for t in twins]
+            twin_figures = [convergence.figures_of(t.result().summary) for t in twins]
     except SimulationDiverged:
         return None
     finally:
         close()
-    return convergence.sensitivity(check, point.summary, *summaries)
+    return convergence.sensitivity(check, convergence.figures_of(point.summary), *twin_figures)
 
 
 STRAIN_NOTE = 0.5       # |strain| from which the summary says what the strain measure means
@@ -291,33 +300,32 @@ def _run(args, refined_run):
         from tensegrity_ros.studies.plots import strain_wave
         outputs['plot'] = str(strain_wave(rec, out_dir / 'strain_wave.png',
                                           title=f'{scene.name}: v0 = {v0} m/s'))
-    result = point.summary
-    result['outputs'].update(outputs)
-    problem = None if refined_run is None else _convergence(args, result, refined_run,
-                                                            args.convergence)
+    summary = point.summary.with_outputs(**outputs)
+    result = summary.to_json()
+    check, problem = (None, None) if refined_run is None else _convergence(
+        args, summary, refined_run, args.convergence)
+    if check is not None:
+        result['convergence'] = check
     if out_dir is not None:
         (out_dir / 'summary.json').write_text(json.dumps(result, indent=2, allow_nan=False))
     if args.json:
         print(json.dumps(result, allow_nan=False))
     else:
-        p = result['pulse'] or {}
-        print(f"{result['scene']}: {result['model']} + {result['integrator']}, "
-              f"dt = {result['dt']:g} s,"
-              f" t_end = {result['t_end']:g} s, {result['steps_taken']} steps in "
-              f"{result['wall_time_s']:.2f} s ({result['real_time_factor'] or 0:.1f}x real time)")
-        print(f"  energy ledger: balance error {result['energy_balance_error']:.2e} (largest; "
-              f"limit {scene.divergence.energy_error:g}), work {result['energy_work_J']:.3e} J "
-              f"in {len(result['impacts'])} impact(s); constraint error "
-              f"{result['constraint_error_rel']:.2e}")
-        if result['contacts_met'] and result.get('convergence') is None:
-            print(f"  contact: bars touched in {result['contacts_met']} force evaluations; "
+        s = summary
+        rtf = s.real_time_factor if _found(s.real_time_factor) else 0.0
+        print(f"{s.scene}: {s.model} + {s.integrator}, dt = {s.dt:g} s, t_end = {s.t_end:g} s, "
+              f"{s.steps_taken} steps in {s.wall_time_s:.2f} s ({rtf:.1f}x real time)")
+        print(f"  energy ledger: balance error {s.energy_balance_error:.2e} (largest; "
+              f"limit {scene.divergence.energy_error:g}), work {s.energy_work_J:.3e} J "
+              f"in {len(s.impacts)} impact(s); constraint error {s.constraint_error_rel:.2e}")
+        if s.contacts_met and check is None:
+            print(f"  contact: bars touched in {s.contacts_met} force evaluations; "
                   f"figures read after a contact can depend on the steps (--convergence "
                   f"checks them)")
-        for line in (_pulse_line(p, result['t_end']),
-                     _front_line(p, point.sim.network.n_prisms), _strain_line(rec.strain)):
+        for line in (_pulse_line(s.pulse, s.t_end),
+                     _front_line(s.pulse, point.sim.network.n_prisms), _strain_line(rec.strain)):
             if line:
                 print(line)
-        check = result.get('convergence')
         if check is not None and 'changes' in check:
             from solver import describe
             moved = _changes(check) or 'no pulse figures to compare'
@@ -334,7 +342,7 @@ def _run(args, refined_run):
                 print(f"  sensitivity (impact velocities x (1 ± {sens['perturbation']:g}), "
                       f"refined steps): {moved}: "
                       f"{', '.join(sens['sensitive']) or 'none'} sensitive")
-        for key, path in result['outputs'].items():
+        for key, path in dataclasses.asdict(s.outputs).items():
             if path:
                 print(f'  {key}: {path}')
     if problem is not None:

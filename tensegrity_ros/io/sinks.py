@@ -8,8 +8,8 @@ the others stay None and are not called):
   ``takes_bytes = True`` a frame's messages come as the CDR bytes that were published;
 - ``frame(frame)``: a published :class:`solver.simulate.simulation.Frame`;
 - ``event(t, text)``: a command or event at simulation time ``t`` s;
-- ``impact(index, entry)``: impact ``index`` of a headless run's train, applied (``entry``:
-  ``{'t_s', 'v0_m_s', 'work_J'}``);
+- ``impact(index, entry)``: impact ``index`` of a headless run's train, applied (``entry``: its
+  :class:`solver.simulate.results.ImpactApplied`);
 - ``field(t, peak, pressure)``: the field maps of an array in its host medium;
 - ``close()``: at shutdown.
 

@@ -21,10 +21,11 @@ def _parts():
     return f'1 part in 10^{round(-math.log10(PERTURBATION))}'
 
 
-def _pulse_summary(row):
-    """A row's first pulse as the summary's ``pulse`` (what the convergence module compares)."""
+def _pulse_figures(row):
+    """A row's first pulse as the figures the convergence module compares
+    (:func:`solver.simulate.convergence.figures_of`: one column)."""
     from solver import FIGURES
-    return {'pulse': {k: row.get(f'pulse.{k}') for k in FIGURES}}
+    return [{k: row.get(f'pulse.{k}') for k in FIGURES}]
 
 
 def check(row, twin, tolerance, figures=None):
@@ -33,7 +34,7 @@ def check(row, twin, tolerance, figures=None):
     from solver import compare
     if row is None or twin is None or row.get('status') != 'ok' or twin.get('status') != 'ok':
         return None
-    return compare(_pulse_summary(row), _pulse_summary(twin), tolerance, figures)
+    return compare(_pulse_figures(row), _pulse_figures(twin), tolerance, figures)
 
 
 def failed(row, twin, tolerance, figures=None):
@@ -80,7 +81,7 @@ def convergence_columns(row, twin, tolerance, refined, figures=None, twins=None)
     out.update({f'convergence.{k}': v for k, v in c['changes'].items()})
     found = twins() if c['converged'] is False and twins is not None else None
     if found is not None and all(t is not None and t.get('status') == 'ok' for t in found):
-        sens = convergence.sensitivity(c, _pulse_summary(twin), *map(_pulse_summary, found))
+        sens = convergence.sensitivity(c, _pulse_figures(twin), *map(_pulse_figures, found))
         out[SENSITIVE] = ','.join(sens['sensitive'])
     return out
 

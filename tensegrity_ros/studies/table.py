@@ -28,9 +28,11 @@ FIGURES = tuple(f'pulse.{k}' for k in PULSE_FIELDS if k != 't_ref') + (
 
 
 def flatten(summary):
-    """The figures of a run summary a row holds: ``SUMMARY_FIELDS`` and ``pulse.*``."""
-    row = {k: summary.get(k) for k in SUMMARY_FIELDS}
-    pulse = summary.get('pulse') or {}
+    """The figures of a run's ``RunSummary`` a row holds, in their JSON form (None where not
+    finite): ``SUMMARY_FIELDS`` and ``pulse.*``."""
+    figures = summary.to_json()
+    row = {k: figures[k] for k in SUMMARY_FIELDS}
+    pulse = figures['pulse'] or {}
     for k in PULSE_FIELDS:
         row[f'pulse.{k}'] = pulse.get(k)
     return row
