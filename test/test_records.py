@@ -229,6 +229,34 @@ def test_every_model_implements_the_abstract_interface():
         Half(None)
 
 
+def test_both_simulations_implement_the_simulation_interface_and_nothing_more():
+    """``Simulation`` and ``ArraySimulation`` implement every abstract member of
+    :class:`solver.simulate.interface.SimulationAPI`; the array is not a ``Simulation`` (it
+    inherits none of its code), and what runs, batches and the node call of a simulation is the
+    interface's (the array answers all of it)."""
+    from solver import Scene, Simulation, simulation_for
+    from solver.simulate.array import ArraySimulation
+    from solver.simulate.interface import SimulationAPI
+    for cls in (Simulation, ArraySimulation):
+        assert issubclass(cls, SimulationAPI) and not inspect.isabstract(cls), cls
+    assert not issubclass(ArraySimulation, Simulation)
+    array = simulation_for(Scene.load(ROOT / 'config' / 'scenes' / 'lens_array.yaml'))
+    assert isinstance(array, ArraySimulation)
+    nc, n_p = array.network.n_columns, array.network.n_prisms
+    array.apply_prestrain([0.01 * (c + 1) for c in range(nc)], ramp_s=0.01)
+    assert array.prestrain_goal.shape == (nc, n_p) and array.striker() is None
+    assert array.prestrain_map.cross_prism is not None
+    array.apply_impact(0.1)
+    array.advance(0.02)
+    assert np.allclose(array.prestrain, array.prestrain_goal)   # the ramp is done
+
+    class Half(SimulationAPI):              # a simulation that forgets part of the interface
+        def reset(self):
+            pass
+    with pytest.raises(TypeError, match='abstract'):
+        Half()
+
+
 def test_the_run_summary_is_a_typed_record_whose_json_is_the_cli_s(capsys):
     """``simulate`` returns a frozen :class:`RunSummary` whose fields carry the figures (impacts
     and pulses as records), and ``tensegrity run --json`` prints its :meth:`to_json` (the same

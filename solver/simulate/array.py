@@ -11,9 +11,9 @@ integrator history included, so every copy continues exactly as the shared one w
 command that breaks a column's symmetry (asymmetric rest lengths or state) expands only that
 column's simulation to ``full3d`` (the one-column simulation does this itself).
 
-The public interface is that of :class:`~solver.simulate.simulation.Simulation`
-(:func:`simulation_for` returns an :class:`ArraySimulation` when :func:`wants_array` holds);
-frames hold the full array
+:class:`ArraySimulation` implements :class:`~solver.simulate.interface.SimulationAPI`, as
+:class:`~solver.simulate.simulation.Simulation` does (:func:`simulation_for` returns an
+:class:`ArraySimulation` when :func:`wants_array` holds); frames hold the full array
 (node, cable and column order of the column builder's network). Every column steps with the same
 ``dt`` on one clock ``t``; the groups are independent simulations and step in parallel on threads
 (:mod:`solver.simulate.parallel`). A divergence in any column restores every column and names the
@@ -27,9 +27,10 @@ import re
 import numpy as np
 
 from solver.build.scene import Scene
-from solver.build.structures import build_network
+from solver.build.structures import PrestrainMap, build_network
 from solver.models.base import ModelView
 from solver.simulate import parallel
+from solver.simulate.interface import SimulationAPI
 from solver.simulate.loading import prestrain_values, rest_length_values
 from solver.simulate.simulation import Frame, FrameFigures, Simulation, SimulationDiverged
 
@@ -91,7 +92,7 @@ class _Group:
         self.sim, self.columns = sim, list(columns)
 
 
-class ArraySimulation(Simulation):
+class ArraySimulation(SimulationAPI):
     """An array of independent columns (see the module text). ``dedup=False`` gives every column
     its own simulation from the start (the plain twin of the shared one)."""
 
@@ -324,7 +325,7 @@ class ArraySimulation(Simulation):
         out = np.empty((self.n_columns, self.network.n_prisms))
         for g in self.groups:
             s = g.sim
-            out[g.columns] = s._ramp[3][0] if s._ramp is not None else s._prestrain[0]
+            out[g.columns] = s.prestrain_goal[0]
         return out
 
     def apply_prestrain(self, p, columns=None, ramp_s=0.0):
@@ -353,21 +354,34 @@ class ArraySimulation(Simulation):
     def prestrain(self):
         out = np.empty((self.n_columns, self.network.n_prisms))
         for g in self.groups:
-            out[g.columns] = g.sim._prestrain[0]
+            out[g.columns] = g.sim.prestrain[0]
         return out
 
     @property
-    def _prestrain(self):
-        return self.prestrain
+    def prestrain_goal(self):
+        """The prestrain per prism (n_columns, n_prisms) each column ramps to, or has."""
+        return self._targets()
 
     @property
-    def _ramp(self):
-        """None when no column ramps its prestrain, else (t0, duration, start, target) with the
-        array's current and target prestrain (the per-column ramps may differ in t0/duration)."""
-        ramps = [g.sim._ramp for g in self.groups if g.sim._ramp is not None]
-        if not ramps:
-            return None
-        return (ramps[0][0], ramps[0][1], self.prestrain, self._targets())
+    def prestrain_map(self):
+        """The :class:`~solver.build.structures.PrestrainMap` of the whole array's network
+        (built on first use)."""
+        if self._prestrain_map is None:
+            self._prestrain_map = PrestrainMap(self.network)
+        return self._prestrain_map
+
+    def striker(self):
+        """(n_columns, 2) each column's striker face height m and axial velocity m/s, or None
+        without strikers."""
+        out = None
+        for g in self.groups:
+            st = g.sim.striker()
+            if st is None:
+                return None
+            if out is None:
+                out = np.empty((self.n_columns, 2))
+            out[g.columns] = st            # (1, 2): the group's one column
+        return out
 
     # -- time -----------------------------------------------------------------------------------
     def advance(self, duration):

@@ -7,6 +7,7 @@ commands; it works on the simulation's model, network and energy reference.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
@@ -63,6 +64,15 @@ def rest_length_values(rest, n_cables):
     if not np.all(np.isfinite(rest)) or np.any(rest <= 0):
         raise ValueError('cable rest lengths: every value must be finite and positive')
     return rest
+
+
+class Ramp(NamedTuple):
+    """A prestrain ramp: from ``start`` at ``t0`` s to ``target`` (n_columns, n_prisms) over
+    ``duration`` s, linear in the prestrain."""
+    t0: float
+    duration: float
+    start: np.ndarray
+    target: np.ndarray
 
 
 class Loading:
@@ -175,9 +185,15 @@ class Loading:
         if not cols or any(not 0 <= c < net.n_columns for c in cols):
             raise ValueError(f'prestrain: columns must be indices 0..{net.n_columns - 1}')
         p = prestrain_values(p, len(cols), net.n_prisms)
-        target = self._ramp[3].copy() if self._ramp is not None else self._prestrain.copy()
+        target = self.prestrain_goal
         target[cols] = p
         return target
+
+    @property
+    def prestrain_goal(self):
+        """The prestrain per prism (n_columns, n_prisms) the columns are ramping to, or have
+        (a copy)."""
+        return (self._ramp.target if self._ramp is not None else self._prestrain).copy()
 
     def apply_prestrain(self, p, columns=None, ramp_s=0.0):
         """Change the cross prestrain of the addressed columns (see :meth:`prestrain_target`) by
@@ -193,7 +209,7 @@ class Loading:
             self._ramp = None
             self._set_prestrain(target)
         else:
-            self._ramp = (self.t, float(ramp_s), self._prestrain.copy(), target)
+            self._ramp = Ramp(self.t, float(ramp_s), self._prestrain.copy(), target)
 
     def _set_prestrain(self, p):
         e0 = self.energy()
@@ -203,10 +219,10 @@ class Loading:
         self._add_work(e0)
 
     def _ramp_to(self, t):
-        t0, duration, p0, p1 = self._ramp
-        u = (t - t0) / duration
+        r = self._ramp
+        u = (t - r.t0) / r.duration
         if u >= 1.0:
             self._ramp = None
-            self._set_prestrain(p1)
+            self._set_prestrain(r.target)
         else:
-            self._set_prestrain(p0 + max(u, 0.0) * (p1 - p0))
+            self._set_prestrain(r.start + max(u, 0.0) * (r.target - r.start))

@@ -193,7 +193,7 @@ class RefMomenta:
             return
         if self.masses is not None and abs(t - T_REF) < self.dt - 1e-12:
             self.dt, self.k = abs(t - T_REF), k
-            self.p = observables.level_momenta(sim._full_state().v, sim.network.levels,
+            self.p = observables.level_momenta(sim.model.velocities(), sim.network.levels,
                                                self.masses)
 
     def pulses(self, rec, sim):

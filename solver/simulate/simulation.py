@@ -34,7 +34,8 @@ from solver.analysis import observables
 from solver.build import structures
 from solver.build.scene import Scene
 from solver.simulate.checks import Checks, SimulationDiverged  # noqa: F401 (imported from here)
-from solver.simulate.loading import Loading, rest_length_values
+from solver.simulate.interface import SimulationAPI
+from solver.simulate.loading import Loading, Ramp, rest_length_values
 
 
 @dataclass
@@ -107,7 +108,7 @@ class CheckedCall:
     entry: object = None
 
 
-class Simulation(Loading, Checks):
+class Simulation(Loading, Checks, SimulationAPI):
     def __init__(self, scene: Scene, network=None):
         # the model's choice and the model reduce the network alike: once, within one memo
         with memo.sharing():
@@ -169,7 +170,7 @@ class Simulation(Loading, Checks):
         self.integrator.reset()
         self._prestrain_map = None
         self._prestrain = None          # (n_columns, n_prisms) current cross prestrain, or None
-        self._ramp = None               # (t0, duration, p_start, p_target) of a prestrain ramp
+        self._ramp = None               # the Ramp of the prestrain, while it ramps
         if net.levels.size and net.meta.get('builder') == 'column':
             self._prestrain = np.full((net.n_columns, net.n_prisms), float(net.meta['prestrain']))
         self._energy_ref = self._energy_0 = self.energy()
@@ -186,8 +187,9 @@ class Simulation(Loading, Checks):
         new._cache = {}
         new._call = None
         new._prestrain = None if self._prestrain is None else self._prestrain.copy()
-        new._ramp = None if self._ramp is None else tuple(
-            np.array(r) if isinstance(r, np.ndarray) else r for r in self._ramp)
+        new._ramp = None if self._ramp is None else Ramp(
+            self._ramp.t0, self._ramp.duration, self._ramp.start.copy(),
+            self._ramp.target.copy())
         new._base_force = None
         return new
 
