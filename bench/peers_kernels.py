@@ -49,7 +49,7 @@ def _loop_kink(x, v, acc, m, d, h, n):
 def _loop_project_positions(x_off, xs, topo, w, tol, max_iter, n):
     bad = 0
     for _ in range(n):
-        xs[:, :] = x_off
+        records.copy_into(xs, x_off)
         bad += dyn.project_positions(xs, topo, w, tol, max_iter)
     return bad
 
@@ -57,7 +57,7 @@ def _loop_project_positions(x_off, xs, topo, w, tol, max_iter, n):
 @jit
 def _loop_copy(x_off, xs, n):
     for _ in range(n):
-        xs[:, :] = x_off
+        records.copy_into(xs, x_off)
     return xs[0, 0]
 
 
@@ -65,7 +65,7 @@ def _loop_copy(x_off, xs, n):
 def _loop_project_velocities(x, v_off, vs, topo, w, n):
     bad = 0
     for _ in range(n):
-        vs[:, :] = v_off
+        records.copy_into(vs, v_off)
         bad += dyn.project_velocities(x, vs, topo, w)
     return bad
 

@@ -102,11 +102,11 @@ def test_a_striker_at_the_scenes_own_dt_resolves_its_contact(name):
     pulses = []
     for resolution in (40, 80):
         s = simulate(f'{SCENES}/{name}.yaml', [('loading.impact.mode', 'striker'),
-                                              ('contact.resolution', resolution)]).summary.to_json()
-        assert abs(s['energy_balance_error']) < 1e-5
-        pulses.append(s['pulse'])
-        steps = s['steps_taken']
-    assert steps > s['t_end'] / s['dt']                 # the contact took shorter steps
+                                              ('contact.resolution', resolution)]).summary
+        assert abs(s.energy_balance_error) < 1e-5
+        pulses.append(s.to_json()['pulse'])
+        steps = s.steps_taken
+    assert steps > s.t_end / s.dt                 # the contact took shorter steps
     for key in ('amplitude', 'speed_m_s'):
         assert pulses[0][key] == pytest.approx(pulses[1][key], rel=1e-5)
 

@@ -191,7 +191,8 @@ def test_the_trains_bench_ladder_refines_every_step_control_each_rung(tmp_path):
     # the sensitivity to v0 at the finest rung's steps: the same figures of a run given them
     moved = simulate(rb, [f'loading.impact.v0={0.3 * (1 + 1e-9)}', 'run.t_end=0.3',
                           f'integrator.dt={scene.integrator.dt / 4}',
-                          f'contact.resolution={scene.contact.resolution * 4}']).summary.to_json()['pulse']
+                          f'contact.resolution={scene.contact.resolution * 4}']
+                     ).summary.to_json()['pulse']
     for f in convergence.FIGURES:
         assert c['conditioning_finest'][f] == convergence.relative_change(
             moved[f], c['ladder'][-1]['figures'][f])

@@ -30,7 +30,7 @@ def _outcome(method, column, v0):
         return ('diverged', str(exc))
     except (SceneError, ValueError) as exc:
         return ('refused', str(exc))
-    return ('ran', point.summary.to_json()['energy_balance_error'], point.scene.divergence.energy_error)
+    return ('ran', point.summary.energy_balance_error, point.scene.divergence.energy_error)
 
 
 def test_every_method_runs_the_default_columns_or_is_refused_naming_ones_that_do():

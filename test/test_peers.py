@@ -14,7 +14,7 @@ import pytest
 from solver.kernels import dynamics as dyn
 from solver.kernels import records
 from solver.build import structures
-from solver.simulate.runner import json_safe
+from solver import json_safe
 from solver.build.scene import Scene
 from solver.simulate.array import simulation_for
 

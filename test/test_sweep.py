@@ -119,7 +119,8 @@ def test_small_parameter_changes_move_the_figures_continuously():
     figs = {n: [] for n in names}
     for p in ps:
         pulse = simulate(FB, [('structure.radius', 0.0042), ('structure.stacking', 'parallel'),
-                              ('prestrain', float(p)), ('run.t_end', T_END)]).summary.to_json()['pulse']
+                              ('prestrain', float(p)), ('run.t_end', T_END)]
+                         ).summary.to_json()['pulse']
         for n in names:
             figs[n].append(pulse[n])
     assert f'{figs["amplitude"][0]:.4f}' != f'{figs["amplitude"][-1]:.4f}'
