@@ -22,7 +22,7 @@ their state in ``ContactState.scan`` (:mod:`solver.kernels.records`: :data:`MET`
 and the positions of :func:`remember`).
 
 **Bases.** The two bases of a prism cannot pass through each other: when its height (mean z of
-its upper level minus that of its lower, ``levels`` of the extras tuple) falls below ``D`` (the
+its upper level minus that of its lower, ``Model.levels``) falls below ``D`` (the
 thickness of the bars lying flat between them), each joint of the upper level rests on the lower
 base as one more crossed-rod contact, ``F = k d^1.5`` per node at overlap ``d = D - h``, energy
 ``2 k d^2.5 / 5`` per node of the full network.
