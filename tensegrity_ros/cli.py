@@ -72,16 +72,22 @@ def cmd_paper(args):
     """``tensegrity paper``: the paper's table under every modelling variant
     (solver.studies.paper)."""
     from solver import paper
+    from tensegrity_ros.io.share import find_data, searched
+    fb = find_data('config/scenes/fb_column.yaml')     # a checkout's or an install's scenes
+    if fb is None:
+        raise UserError(f'paper: config/scenes/fb_column.yaml not found (looked in {searched()})')
+    scenes = fb.parent
     models = ('sym3d',) if args.no_chain or args.set else ('sym3d', 'chain1d')
     sets = list(args.set or [])
     if sets:                 # checked on the FB scene before anything runs
         from solver import Scene
-        Scene.load(paper.SCENES / 'fb_column.yaml').with_overrides(sets)
+        Scene.load(fb).with_overrides(sets)
     v0s = paper.V0S[:1] if args.quick else paper.V0S
-    update, close = progress_bar(paper.n_runs(v0s, models), 'paper', unit='frame', leave=False)
+    update, close = progress_bar(paper.n_runs(v0s, models, scenes), 'paper', unit='frame',
+                                 leave=False)
     try:
         result = paper.paper_table(v0s=v0s, t_end=0.6 if args.quick else 1.2, models=models,
-                                   progress=update, quick=args.quick, sets=sets)
+                                   progress=update, quick=args.quick, sets=sets, scenes=scenes)
     finally:
         close()
     if args.json:
@@ -151,15 +157,11 @@ def cmd_demo(args):
         int(os.environ['ROS_DOMAIN_ID']) if os.environ.get('ROS_DOMAIN_ID') else None)
     if args.focus is None:
         v0, prestrain = demo_values(args)
-    import solver
     from solver import compile_all
-    # from a checkout, every kernel on every core first; an install has not the scenes beside
-    # the solver that this needs, and the node compiles what it uses at its start (and says so)
-    if (Path(solver.__file__).resolve().parents[1] / 'config' / 'scenes').is_dir():
-        try:
-            compile_all()
-        except RuntimeError as exc:
-            raise UserError(f'demo: {exc}') from None
+    try:                                # every kernel on every core first (once per solver)
+        compile_all()
+    except RuntimeError as exc:
+        raise UserError(f'demo: {exc}') from None
     if args.focus is not None:
         return _demo_focus(args, domain)
     from tensegrity_ros.node.demo import format_summary, run_demo

@@ -96,6 +96,28 @@ def test_the_installed_package_finds_its_data_from_another_directory(prefix):
                      str(SHARE / 'config/paper/fb_target.yaml'), str(SHARE / 'config/node.yaml')]
 
 
+def test_the_installed_solver_compiles_and_finds_the_paper_scenes_outside_a_checkout(prefix):
+    """An install has no config/ beside its solver: the precompile runs build their scene from
+    the schema's defaults (a worker of ``tensegrity compile`` runs from the root), and
+    ``tensegrity paper`` runs the scenes the installed package finds."""
+    r = subprocess.run([sys.executable, '-m', 'solver.simulate.precompile', 'chain1d'], cwd='/',
+                       env=_env(), capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    code = ('from solver import paper\n'
+            'from tensegrity_ros.io.share import find_data\n'
+            'scenes = find_data("config/scenes/fb_column.yaml").parent\n'
+            'print(paper.__file__)\n'
+            'for v in paper.variants(("sym3d",), scenes):\n'
+            '    print(v.scene)\n')
+    r = subprocess.run([sys.executable, '-c', code], cwd='/', env=_env(), capture_output=True,
+                       text=True, timeout=120)
+    assert r.returncode == 0, r.stderr[-2000:]
+    module, *scenes = r.stdout.split()
+    assert Path(module).is_relative_to(SITE)
+    assert str(SHARE / 'config/scenes/paper_fb.yaml') in scenes
+    assert str(SHARE / 'config/scenes/paper_rb.yaml') in scenes
+
+
 def test_the_installed_node_runs_from_the_root_with_default_parameters(prefix):
     script = PREFIX / 'bin' / 'tensegrity_node'
     assert script.is_file()

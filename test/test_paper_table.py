@@ -89,7 +89,7 @@ def test_paper_set_applies_an_option_to_every_variant_and_names_it(monkeypatch):
     from solver.studies import paper
     seen = []
 
-    def fake_run(variant, v0, t_end=1.2, output_dt=0.005, sets=()):
+    def fake_run(variant, v0, t_end=1.2, output_dt=0.005, sets=(), scenes=paper.SCENES):
         seen.append((variant.scene, list(sets)))
         from dataclasses import asdict
         return paper.Row(variant=asdict(variant), label=variant.label(), v0=v0, status='ok')

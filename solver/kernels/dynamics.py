@@ -104,7 +104,7 @@ def add_constraint_forces(lam, bvec, tail, head, f):
             f[t, i] -= g
 
 
-# the dispatchers take the single arrays their branches read: the plain or the rotated (sym3d) kernel
+# the dispatchers take the single arrays their branches read: plain or rotated (sym3d) kernels
 @jit
 def _members(x, tail, head, rot, bvec):
     if rot.shape[0] == 0:

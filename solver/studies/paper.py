@@ -32,7 +32,8 @@ from solver.build.scene import Scene
 from solver.simulate.simulation import SimulationDiverged
 from solver.simulate.array import simulation_for
 
-SCENES = Path(__file__).resolve().parents[2] / 'config' / 'scenes'
+SCENES = Path(__file__).resolve().parents[2] / 'config' / 'scenes'   # a checkout's; an install's:
+# the caller passes ``scenes`` (tensegrity_ros finds its data files)
 V0S = (0.100, 0.125, 0.150)
 PAPER_FB = {0.100: {'amplitude': 0.054, 'speed_m_s': 0.248},
             0.125: {'amplitude': 0.0697, 'speed_m_s': None},
@@ -107,7 +108,7 @@ class Row:
     chain_error: dict = field(default_factory=dict)
 
 
-def variants(models=('sym3d', 'chain1d')):
+def variants(models=('sym3d', 'chain1d'), scenes=SCENES):
     """Every variant the FB and RB scenes support; chain1d once per structure (its impact has no
     constraint to project, so the impulse and energy modes coincide)."""
     out = []
@@ -120,7 +121,7 @@ def variants(models=('sym3d', 'chain1d')):
             for impact in impacts:
                 out.append(Variant(bases, stacking, rb_as, impact, model))
     for name, bases in (('paper_fb.yaml', 'flexible'), ('paper_rb.yaml', 'rigid')):
-        path = SCENES / name      # the model identified on the FB figures (docs/paper.md)
+        path = Path(scenes) / name  # the model identified on the FB figures (docs/paper.md)
         if path.exists():
             sc = Scene.load(path)
             out.append(Variant(bases, sc['structure.stacking'], sc['structure.rigid_bases_as'],
@@ -128,10 +129,11 @@ def variants(models=('sym3d', 'chain1d')):
     return out
 
 
-def run_variant(variant, v0, t_end=1.2, output_dt=0.005, sets=()):
-    """One :class:`Row`: the variant's scene, impact v0, run to ``t_end``."""
-    path = variant.scene or SCENES / ('fb_column.yaml' if variant.bases == 'flexible'
-                                      else 'rb_column.yaml')
+def run_variant(variant, v0, t_end=1.2, output_dt=0.005, sets=(), scenes=SCENES):
+    """One :class:`Row`: the variant's scene (or the column scene of its bases in ``scenes``),
+    impact v0, run to ``t_end``."""
+    path = variant.scene or Path(scenes) / ('fb_column.yaml' if variant.bases == 'flexible'
+                                            else 'rb_column.yaml')
     # ``sets``: modelling options applied to every variant (``tensegrity paper --set``), the
     # identified scenes excepted (they are a fixed choice of those options)
     extra = [] if variant.scene else list(sets)
@@ -218,13 +220,13 @@ def chain_errors(rows):
     return rows
 
 
-def speed_ratio(v0=0.1, t_end=1.2, repeats=3):
+def speed_ratio(v0=0.1, t_end=1.2, repeats=3, scenes=SCENES):
     """Wall time of ``full3d`` over ``sym3d`` on the FB and RB columns (rk4_projected, default
     dt), measured alternately in this process (best of ``repeats``), and the largest relative
     difference of their node positions at ``t_end``."""
     out = {}
     for name in ('fb_column', 'rb_column'):
-        scene = Scene.load(SCENES / f'{name}.yaml').with_overrides([f'run.t_end={t_end}'])
+        scene = Scene.load(Path(scenes) / f'{name}.yaml').with_overrides([f'run.t_end={t_end}'])
         best, pos = {}, {}
         for _ in range(repeats):
             for model in ('full3d', 'sym3d'):
@@ -244,29 +246,30 @@ def speed_ratio(v0=0.1, t_end=1.2, repeats=3):
 
 
 def paper_table(v0s=V0S, t_end=1.2, models=('sym3d', 'chain1d'), progress=None, quick=False,
-                sets=()):
+                sets=(), scenes=SCENES):
     """Every variant at every v0: ``{'rows': [Row...], 'speed': {...}, 'paper_fb': ...}``.
     ``progress(n)`` is called after each run. ``t_end`` (s) covers the pulse window (prisms 10-40
-    from the impact) and the reference time 0.5 s."""
+    from the impact) and the reference time 0.5 s. ``scenes``: the folder of the shipped scenes
+    (``fb_column.yaml``, ``rb_column.yaml``, ``paper_fb.yaml``, ``paper_rb.yaml``)."""
     rows = []
-    for variant in variants(models):
+    for variant in variants(models, scenes):
         for v0 in v0s:
             if sets and variant.model == 'chain1d':
                 continue                # the chain has none of the 3D options
-            rows.append(run_variant(variant, v0, t_end=t_end, sets=sets))
+            rows.append(run_variant(variant, v0, t_end=t_end, sets=sets, scenes=scenes))
             if progress is not None:
                 progress(1)
     chain_errors(rows)
-    speed = speed_ratio(t_end=0.2 if quick else t_end)
+    speed = speed_ratio(t_end=0.2 if quick else t_end, scenes=scenes)
     if progress is not None:
         progress(1)
     return {'rows': rows, 'speed': speed, 'paper_fb': PAPER_FB, 'default': DEFAULT_VARIANT,
             't_end': t_end, 'sets': [str(x) for x in sets]}
 
 
-def n_runs(v0s=V0S, models=('sym3d', 'chain1d')):
+def n_runs(v0s=V0S, models=('sym3d', 'chain1d'), scenes=SCENES):
     """Number of progress ticks of :func:`paper_table`."""
-    return len(variants(models)) * len(v0s) + 1
+    return len(variants(models, scenes)) * len(v0s) + 1
 
 
 def as_json(result):
