@@ -15,36 +15,37 @@ def rk4_step(x, v, h, a1, topo, d, w, status):
     """One classical RK4 step of size h of each lane, given its first-stage accelerations ``a1``;
     the new state is written to ``x``, ``v`` of the lanes whose ``status`` is still ``OK`` after
     the three further evaluations (:func:`solver.integrators.rk4._rk4_step` without effects)."""
-    xs, vs, acc, xacc, vacc = w.xs, w.vs, w.acc, w.xacc, w.vacc
     n = x.shape[0]
     n_lanes = x.shape[2]
-    for p in range(n):
-        for i in range(3):
-            for k in range(n_lanes):
-                xacc[p, i, k] = v[p, i, k]
-                vacc[p, i, k] = a1[p, i, k]
-                xs[p, i, k] = x[p, i, k] + 0.5 * h * v[p, i, k]
-                vs[p, i, k] = v[p, i, k] + 0.5 * h * a1[p, i, k]
+    # the element-wise updates as loops over whole arrays (each entry's operations are those of
+    # the scalar step)
+    x1, v1, b1 = x.reshape(-1), v.reshape(-1), a1.reshape(-1)
+    xs, vs, acc = w.xs.reshape(-1), w.vs.reshape(-1), w.acc.reshape(-1)
+    xacc, vacc = w.xacc.reshape(-1), w.vacc.reshape(-1)
+    for j in range(x1.shape[0]):
+        xacc[j] = v1[j]
+        vacc[j] = b1[j]
+        xs[j] = x1[j] + 0.5 * h * v1[j]
+        vs[j] = v1[j] + 0.5 * h * b1[j]
     for stage in range(1, 4):
-        lanes.accelerations(xs, vs, topo, d, w, acc, status)
+        lanes.accelerations(w.xs, w.vs, topo, d, w, w.acc, status)
         wt = 1.0 if stage == 3 else 2.0
         c = 0.5 * h if stage == 1 else h
-        for p in range(n):
-            for i in range(3):
-                for k in range(n_lanes):
-                    xacc[p, i, k] += wt * vs[p, i, k]
-                    vacc[p, i, k] += wt * acc[p, i, k]
-                    if stage < 3:
-                        xs[p, i, k] = x[p, i, k] + c * vs[p, i, k]
-                        vs[p, i, k] = v[p, i, k] + c * acc[p, i, k]
-    go = w.go
+        for j in range(x1.shape[0]):
+            xacc[j] += wt * vs[j]
+            vacc[j] += wt * acc[j]
+        if stage < 3:
+            for j in range(x1.shape[0]):
+                xs[j] = x1[j] + c * vs[j]
+                vs[j] = v1[j] + c * acc[j]
+    go, xa, va = w.go, w.xacc, w.vacc
     for k in range(n_lanes):
         go[k] = 1 if status[k] == OK else 0
     for p in range(n):
         for i in range(3):
             for k in range(n_lanes):
-                x[p, i, k] = x[p, i, k] + h / 6.0 * xacc[p, i, k] if go[k] != 0 else x[p, i, k]
-                v[p, i, k] = v[p, i, k] + h / 6.0 * vacc[p, i, k] if go[k] != 0 else v[p, i, k]
+                x[p, i, k] = x[p, i, k] + h / 6.0 * xa[p, i, k] if go[k] != 0 else x[p, i, k]
+                v[p, i, k] = v[p, i, k] + h / 6.0 * va[p, i, k] if go[k] != 0 else v[p, i, k]
 
 
 @jit_lanes

@@ -95,10 +95,31 @@ def check_plain(topo):
 
 
 @jit_lanes
+def copy(dst, src):
+    """``dst[...] = src`` for C-contiguous arrays of one shape, as one loop (no reference
+    counting: :mod:`solver.compiled`)."""
+    a = dst.reshape(-1)
+    b = src.reshape(-1)
+    for j in range(a.shape[0]):
+        a[j] = b[j]
+
+
+@jit_lanes
+def zero(dst):
+    """``dst[...] = 0`` for a C-contiguous array, as one loop."""
+    a = dst.reshape(-1)
+    for j in range(a.shape[0]):
+        a[j] = 0.0
+
+
+@jit_lanes
 def cable_forces(x, cable_a, cable_b, rest, EA, f, tmp):
     """Add tension-only cable forces to ``f`` (n_nodes, 3, B) N, lane by lane as
     :func:`solver.kernels.dynamics.cable_forces`; ``tmp`` (3, B) holds one cable's forces."""
     n_lanes = x.shape[2]
+    row = 3 * n_lanes
+    f2 = f.reshape((f.shape[0], row))       # a node's 3 B entries as one row: longer loops
+    t2 = tmp.reshape(row)
     for c in range(cable_a.shape[0]):
         a = cable_a[c]
         b = cable_b[c]
@@ -114,38 +135,41 @@ def cable_forces(x, cable_a, cable_b, rest, EA, f, tmp):
             tmp[0, k] = g * dx
             tmp[1, k] = g * dy
             tmp[2, k] = g * dz
-        for i in range(3):
-            for k in range(n_lanes):
-                f[a, i, k] += tmp[i, k]
-            for k in range(n_lanes):
-                f[b, i, k] -= tmp[i, k]
+        for j in range(row):
+            f2[a, j] += t2[j]
+        for j in range(row):
+            f2[b, j] -= t2[j]
 
 
 @jit_lanes
 def apply_w(f, w_diag, partner, w_off, out):
     """``out = W f`` lane by lane (:func:`solver.kernels.dynamics.apply_w`)."""
-    n_lanes = f.shape[2]
-    for p in range(f.shape[0]):
+    n = f.shape[0]
+    row = 3 * f.shape[2]
+    f2 = f.reshape((n, row))
+    out2 = out.reshape((n, row))
+    for p in range(n):
         w = w_diag[p]
         q = partner[p]
-        for i in range(3):
-            for k in range(n_lanes):
-                out[p, i, k] = w * f[p, i, k]
+        for j in range(row):
+            out2[p, j] = w * f2[p, j]
         if q >= 0:
             wo = w_off[p]
-            for i in range(3):
-                for k in range(n_lanes):
-                    out[p, i, k] += wo * f[q, i, k]
+            for j in range(row):
+                out2[p, j] += wo * f2[q, j]
 
 
 @jit_lanes
 def member_vectors(x, tail, head, bvec):
     """``bvec[c] = x[head[c]] - x[tail[c]]`` lane by lane."""
-    n_lanes = x.shape[2]
+    row = 3 * x.shape[2]
+    x2 = x.reshape((x.shape[0], row))
+    b2 = bvec.reshape((bvec.shape[0], row))
     for c in range(tail.shape[0]):
-        for i in range(3):
-            for k in range(n_lanes):
-                bvec[c, i, k] = x[head[c], i, k] - x[tail[c], i, k]
+        h = head[c]         # read once: LLVM cannot tell that the stores leave head unchanged
+        t = tail[c]
+        for j in range(row):
+            b2[c, j] = x2[h, j] - x2[t, j]
 
 
 @jit_lanes
@@ -240,10 +264,7 @@ def accelerations(x, v, topo, d, w, out, status):
     tail, head = topo.con_tail, topo.con_head
     f, wf, bvec, band, lam = w.f, w.wf, w.bvec, w.band, w.lam
     n_lanes = x.shape[2]
-    for p in range(x.shape[0]):
-        for i in range(3):
-            for k in range(n_lanes):
-                f[p, i, k] = d.f_ext[p, i, k]
+    copy(f, d.f_ext)
     cable_forces(x, topo.cable_a, topo.cable_b, d.rest, d.EA, f, w.tmp)
     apply_w(f, topo.w_diag, topo.partner, topo.w_off, wf)
     member_vectors(x, tail, head, bvec)
@@ -340,10 +361,7 @@ def correct(u, lam, bvec, topo, w, status):
         if go[k] != 0 and flag[k] != OK:
             go[k] = 0
             status[k] = flag[k]
-    for p in range(u.shape[0]):
-        for i in range(3):
-            for k in range(n_lanes):
-                f[p, i, k] = 0.0
+    zero(f)
     add_constraint_forces(lam, bvec, topo.con_tail, topo.con_head, f)
     apply_w(f, topo.w_diag, topo.partner, topo.w_off, wf)
     for p in range(u.shape[0]):
