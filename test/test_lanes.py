@@ -179,3 +179,14 @@ def test_a_nan_lane_fails_alone_and_the_others_match_their_scalar_runs(column):
     for k, (_, d, _) in enumerate(scalars):
         assert np.array_equal(lanes.lane(data.x, k), d.x, equal_nan=True), k
         assert np.array_equal(lanes.lane(data.v, k), d.v, equal_nan=True), k
+
+
+def test_lanes_refuse_a_network_they_do_not_step():
+    """A sym3d model's topology (members or cables to rotated images) gets no lane scratch."""
+    from solver.simulate.simulation import Simulation
+    scene = Scene.load(ROOT / 'config' / 'scenes' / 'fb_column.yaml').with_overrides(
+        [('model', 'sym3d'), ('contact.bars', 'none')])
+    topo = Simulation(scene).model.rec.topo
+    assert topo.con_rot.shape[0] > 0 or topo.cable_rot.shape[0] > 0
+    with pytest.raises(ValueError, match='plain networks'):
+        lanes.lane_work(topo, topo.w_diag.shape[0], 2)

@@ -72,7 +72,9 @@ def lane_data(x, v, rest, EA, f_ext):
 
 
 def lane_work(topo, n_rows, lanes):
-    """A zeroed :class:`LaneWork` for ``lanes`` instances of ``n_rows`` nodes on ``topo``."""
+    """A zeroed :class:`LaneWork` for ``lanes`` instances of ``n_rows`` nodes on ``topo``; a
+    ValueError when ``topo`` is not a plain network (:func:`check_plain`)."""
+    check_plain(topo)
     n_con, width = topo.con_coef.shape
 
     def z(*shape):
