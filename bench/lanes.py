@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import time
 from pathlib import Path
 
@@ -121,6 +122,7 @@ def main(out_dir='bench/results', log=print):
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     net = _network()
+    load = [os.getloadavg()[0]]         # how busy the machine was (1-minute load average)
     rows = []
     for n_lanes in LANES:
         row = {'lanes': n_lanes}
@@ -132,10 +134,14 @@ def main(out_dir='bench/results', log=print):
             log(f'lanes: B={n_lanes:4d} {kind:10s}: scalar {s * 1e6:8.2f} us, lanes '
                 f'{b * 1e6:8.2f} us per instance: ratio {ratio:.3f} ({1 / ratio:.2f}x)')
         rows.append(row)
+    load.append(os.getloadavg()[0])
+    log(f'lanes: load average {load[0]:.2f} at the start, {load[1]:.2f} at the end '
+        f'({os.cpu_count()} CPUs)')
     path = out / 'lanes.json'
     path.write_text(json.dumps({'network': 'fb_column full3d, no bar contact',
                                 'n_nodes': int(net.n_nodes), 'n_cables': int(net.n_cables),
                                 'dt_s': DT, 'ratio': 'lanes time per instance / scalar time',
+                                'load_average_start_end': load, 'cpus': os.cpu_count(),
                                 'rows': rows}, indent=2))
     return [str(path)]
 
