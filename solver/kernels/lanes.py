@@ -9,10 +9,12 @@ rotated members (``sym3d``), no massive-bar KKT system, no damping, stops, strik
 
 Each kernel performs, lane by lane, exactly the floating-point operations of its scalar twin in
 :mod:`solver.kernels.dynamics` and :mod:`solver.kernels.banded`, in the same order, so every lane
-equals the scalar kernel on that instance bit for bit (a slack cable adds a signed zero where the
-scalar kernel adds nothing, which changes no value). Loops run over all lanes: a lane that has
-failed keeps computing (NaN or inf, harmless under NumPy's error model, :data:`jit_lanes`) but
-its state is no longer written and its status keeps the first failure.
+equals the scalar kernel on that instance bit for bit. One difference is not a value: a slack
+cable adds a zero force where the scalar kernel adds nothing, which can turn a force of -0.0
+into +0.0 and no division of these kernels has a force as its divisor. Loops run over all lanes:
+a lane that has failed keeps computing (NaN or inf, harmless under NumPy's error model,
+:data:`solver.compiled.jit_lanes`), but its state is no longer written (its scratch and
+``out`` arrays are) and its status keeps the first failure.
 
 Status arrays (B,) int64 hold one code of :mod:`solver.status` per lane. A kernel sets the code
 of a lane that fails only while that lane's code is ``OK``.
