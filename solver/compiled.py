@@ -74,6 +74,13 @@ jit_alloc = numba.njit(cache=True, nogil=True)
 # members).
 jit_inline = numba.njit(cache=True, nogil=True, inline='always', _nrt=False)
 
+# Lane kernels (solver.kernels.lanes: many instances of one topology, the instance index innermost)
+# use NumPy's error model: with the default 'python' model every float division carries a check
+# for a zero divisor that raises ZeroDivisionError, and that branch stops LLVM from vectorising
+# the loop over instances. Under 'numpy' a division by zero gives inf or NaN as IEEE says; every
+# other operation, and so every result of a lane that divides by no zero, is the same.
+jit_lanes = numba.njit(cache=True, nogil=True, _nrt=False, error_model='numpy')
+
 
 # -- calling a compiled kernel without numba's dispatch ------------------------------------------
 # A kernel call goes through numba's dispatcher, which types every argument to pick the compiled
