@@ -12,7 +12,7 @@ from bench.main import main as bench_main
 from tensegrity_ros.cli import OneLineParser
 
 CHOICES = ('work_precision', 'stability', 'stiff', 'peers', 'rerun', 'sweep', 'soak', 'array',
-           'trains', 'impacts')
+           'trains', 'impacts', 'lanes')
 
 
 def parser():
@@ -30,7 +30,8 @@ def parser():
                         'soak: the node under a command flood for 10 minutes, array: arrays of '
                         'columns per column, trains: pulse trains and strong impacts on the '
                         'default columns, impacts: 70 single impacts of 0.3-2 m/s with the steps '
-                        'after a contact refined and not (these six only on request)')
+                        'after a contact refined and not, lanes: B instances stepped together '
+                        'against the scalar kernels (these seven only on request)')
     return p
 
 

@@ -13,7 +13,7 @@ equals the scalar kernel on that instance bit for bit. One difference is not a v
 cable adds a zero force where the scalar kernel adds nothing, which can turn a force of -0.0
 into +0.0 and no division of these kernels has a force as its divisor. Loops run over all lanes:
 a lane that has failed keeps computing (NaN or inf, harmless under NumPy's error model,
-:data:`solver.compiled.jit_lanes`), but its state is no longer written (its scratch and
+:data:`solver.compiled.jit_lanes`), but its state is not written after that (its scratch and
 ``out`` arrays are) and its status keeps the first failure.
 
 Status arrays (B,) int64 hold one code of :mod:`solver.status` per lane. A kernel sets the code
@@ -296,7 +296,7 @@ def project_positions(x, topo, w, tol, max_iter, status):
     """Mass-weighted Gauss-Newton projection of each lane's positions onto the rigid-member
     manifold, as :func:`solver.kernels.dynamics.project_positions`: ``A dmu = -g``,
     ``x += W sum_c dmu_c G_c`` until ``|g_c| < tol L_c^2``. Each lane stops on its own: a lane
-    that converged (or failed) is no longer changed. Lanes whose ``status`` is not ``OK`` on
+    that converged (or failed) stays as it is from then on. Lanes whose ``status`` is not ``OK`` on
     entry are left as they are; a lane that does not converge gets ``NOT_CONVERGED``, one whose
     constraint matrix is singular ``SINGULAR``."""
     tail, head, length = topo.con_tail, topo.con_head, topo.con_length
