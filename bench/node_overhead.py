@@ -66,7 +66,7 @@ def _node(node, ex, rtf, window_s):
     node.params['real_time_factor'] = rtf
     node.sim.reset()
     node.sim.apply_impact(0.1)
-    node.pacer.anchor(node.sim.t, time.monotonic())
+    node.restart_pace()            # the pace and the achieved factor count from here
     f0, t_sim0 = node.counts['frames'], node.sim.t
     node.publishing.tick_max_s = 0.0
     t0, c0 = time.perf_counter(), time.process_time()
