@@ -49,7 +49,7 @@ def main(out, quick=False, log=print, workers=2):
     from solver import compile_all
     from tensegrity_ros.studies import sweep as sw
     from tensegrity_ros.studies.table import TIMING_FIELDS
-    compile_all(log=log)        # every kernel in the cache: the cluster's workers load, not compile
+    compile_all(log=log)      # every kernel cached: the cluster's workers load, not compile
     grid = [f'loading.impact.v0={V0S}', f'prestrain={PRESTRAINS}']
     t_end = 1.0
     if quick:
