@@ -48,7 +48,10 @@ import numpy as np
 
 from solver.kernels import dynamics as dyn
 from solver.kernels import summary
-from solver.compiled import jit_alloc, jit_inline
+# The Newton step builds small matrices (3x3 blocks, their products): the kernels that allocate
+# them, and those that call them, are compiled with numba's reference counting (``jit_alloc``);
+# the others without it, as every solver kernel (solver.compiled)
+from solver.compiled import jit, jit_alloc, jit_inline
 from solver.integrators.base import Integrator
 from solver.kernels.banded import band_ldl_apply, band_ldl_factor
 from solver.kernels.records import copy_data, copy_into
@@ -113,7 +116,7 @@ def layout(topo):
     return node_pos, con_pos, 3 * n + len(tail), bw
 
 
-@jit_alloc
+@jit
 def _rot(rot, c):
     if rot.shape[0] == 0:
         return 1.0, 0.0
@@ -121,7 +124,7 @@ def _rot(rot, c):
 
 
 # -- discrete-gradient cable forces -------------------------------------------------------------
-@jit_alloc
+@jit
 def dg_density(s0, s1, L, k):
     """Discrete-gradient force density of a tension-only cable, ``V(s) = k/2 (s - L)_+^2``, from
     length ``s0`` to ``s1``: ``gbar = (V(s1) - V(s0)) / ((s1^2 - s0^2) / 2)`` (its limit when
@@ -150,7 +153,7 @@ def _chords(x0, x1, a, b, cable_rot, c):
             math.sqrt(bx * bx + by * by + bz * bz))
 
 
-@jit_alloc
+@jit
 def dg_forces(x0, x1, m, d, f):
     """``f`` = external forces + discrete-gradient cable forces ``gbar (d0 + d1) / 2`` between
     the configurations ``x0`` and ``x1`` (their work over the step equals the change of the
@@ -178,7 +181,7 @@ def dg_forces(x0, x1, m, d, f):
 
 
 # -- assembly -------------------------------------------------------------------------------------
-@jit_alloc
+@jit
 def _add(band, i, j, value):
     """Add ``value`` to the symmetric entry (i, j) (stored once, in the lower band)."""
     if i >= j:
@@ -285,7 +288,7 @@ def assemble_kkt(x0, x1, xm, h, nu, m, d, node_pos, con_pos, band):
                 _add(band, q, node_pos[hd] + i, gh[i])
 
 
-@jit_alloc
+@jit
 def _residual(x, x0, v0, h, f, xm, nu, topo, node_pos, con_pos, rhs):
     """``rhs = -(r, g(x1))``: ``r = M (x1 - x0 - h v0) - h^2/2 f + G(xm)^T nu`` with the step's
     forces ``f`` (:func:`dg_forces`); g at ``x1 = x``."""

@@ -317,16 +317,9 @@ class ArraySimulation(SimulationAPI):
         cols = self._columns(columns, 'prestrain')
         n_p = self.network.n_prisms
         p = prestrain_values(p, len(cols), n_p)
-        target = self._targets()
+        target = self.prestrain_goal
         target[cols] = p
         return target
-
-    def _targets(self):
-        out = np.empty((self.n_columns, self.network.n_prisms))
-        for g in self.groups:
-            s = g.sim
-            out[g.columns] = s.prestrain_goal[0]
-        return out
 
     def apply_prestrain(self, p, columns=None, ramp_s=0.0):
         """Change the cross prestrain of the addressed columns, ramped over ``ramp_s`` s (see
@@ -360,7 +353,10 @@ class ArraySimulation(SimulationAPI):
     @property
     def prestrain_goal(self):
         """The prestrain per prism (n_columns, n_prisms) each column ramps to, or has."""
-        return self._targets()
+        out = np.empty((self.n_columns, self.network.n_prisms))
+        for g in self.groups:
+            out[g.columns] = g.sim.prestrain_goal[0]
+        return out
 
     @property
     def prestrain_map(self):

@@ -35,7 +35,7 @@ from solver.build import structures
 from solver.build.scene import Scene
 from solver.simulate.checks import Checks, SimulationDiverged  # noqa: F401 (imported from here)
 from solver.simulate.interface import SimulationAPI
-from solver.simulate.loading import Loading, Ramp, rest_length_values
+from solver.simulate.loading import Loading, rest_length_values
 
 
 @dataclass
@@ -187,9 +187,8 @@ class Simulation(Loading, Checks, SimulationAPI):
         new._cache = {}
         new._call = None
         new._prestrain = None if self._prestrain is None else self._prestrain.copy()
-        new._ramp = None if self._ramp is None else Ramp(
-            self._ramp.t0, self._ramp.duration, self._ramp.start.copy(),
-            self._ramp.target.copy())
+        new._ramp = None if self._ramp is None else self._ramp._replace(
+            start=self._ramp.start.copy(), target=self._ramp.target.copy())
         new._base_force = None
         return new
 
