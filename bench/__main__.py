@@ -12,7 +12,7 @@ from bench.main import main as bench_main
 from tensegrity_ros.cli import OneLineParser
 
 CHOICES = ('work_precision', 'stability', 'stiff', 'peers', 'rerun', 'sweep', 'soak', 'array',
-           'trains', 'impacts', 'lanes')
+           'trains', 'impacts', 'lanes', 'flops')
 
 
 def parser():
@@ -31,7 +31,9 @@ def parser():
                         'columns per column, trains: pulse trains and strong impacts on the '
                         'default columns, impacts: 70 single impacts of 0.3-2 m/s with the steps '
                         'after a contact refined and not, lanes: B instances stepped together '
-                        'against the scalar kernels (these seven only on request)')
+                        'against the scalar kernels, flops: the GFLOP/s of one evaluation, '
+                        'scalar and per lane, against the core\'s peak (these eight only on '
+                        'request)')
     return p
 
 

@@ -8,7 +8,7 @@ from pathlib import Path
 def main(out_dir='bench/results', quick=False, peers=False, only=None, log=print):
     """Run the benchmarks into ``out_dir``; ``only`` is None or a subset of
     ``{'work_precision', 'stability', 'stiff', 'peers', 'rerun', 'sweep', 'soak', 'array',
-    'trains', 'impacts', 'lanes'}`` (``stiff``: the
+    'trains', 'impacts', 'lanes', 'flops'}`` (``stiff``: the
     stiff scenes of both, which ``work_precision`` and ``stability`` also run; ``peers=True`` adds
     the peer comparison, which :mod:`bench.peers` provides; ``rerun``, only on request, the cost of
     a Rerun recording, :mod:`bench.rerun_overhead`; ``sweep``, only on request, a sweep's
@@ -54,4 +54,7 @@ def main(out_dir='bench/results', quick=False, peers=False, only=None, log=print
     if only is not None and 'lanes' in only:           # instances stepped together
         from . import lanes
         written += lanes.main(out, log=log)
+    if only is not None and 'flops' in only:           # GFLOP/s of one evaluation, peak
+        from . import flops
+        written += flops.main(out, log=log)
     return written
