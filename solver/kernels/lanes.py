@@ -27,6 +27,7 @@ from typing import NamedTuple
 import numpy as np
 
 from solver.compiled import jit_lanes
+from solver.kernels.rotation import ROT_C, ROT_S
 from solver.status import NONFINITE, NOT_CONVERGED, OK, SINGULAR
 
 
@@ -52,6 +53,7 @@ class LaneWork(NamedTuple):
     band: np.ndarray
     lam: np.ndarray
     tmp: np.ndarray
+    pair: np.ndarray
     xs: np.ndarray
     vs: np.ndarray
     acc: np.ndarray
@@ -82,7 +84,7 @@ def lane_work(topo, n_rows, lanes):
     def z(*shape):
         return np.zeros(shape + (lanes,))
     return LaneWork(z(n_rows, 3), z(n_rows, 3), z(n_con, 3), z(n_con, width), z(n_con), z(3),
-                    z(n_rows, 3), z(n_rows, 3), z(n_rows, 3), z(n_rows, 3), z(n_rows, 3),
+                    z(6), z(n_rows, 3), z(n_rows, 3), z(n_rows, 3), z(n_rows, 3), z(n_rows, 3),
                     z(n_rows, 3), z(), z(), np.zeros(lanes, np.int64),
                     np.zeros(lanes, np.int64))
 
@@ -93,9 +95,11 @@ def lane(a, index):
 
 
 def check_plain(topo):
-    """Raise ValueError unless ``topo`` is a plain network (the only kind the lanes step)."""
-    if topo.con_rot.shape[0] or topo.cable_rot.shape[0] or topo.kkt.node_u.shape[0]:
-        raise ValueError('lanes: only plain networks (no rotated members, no massive-bar KKT)')
+    """Raise ValueError unless the lanes step networks of ``topo``: plain or rotated members
+    (``sym3d``), not the KKT system of massive bars that share nodes."""
+    if topo.kkt.node_u.shape[0]:
+        raise ValueError('lanes: networks with massive bars that share nodes (a KKT system) '
+                         'step one instance at a time')
 
 
 @jit_lanes
@@ -305,7 +309,7 @@ def project_positions(x, topo, w, tol, max_iter, status):
     for k in range(n_lanes):
         go[k] = 1 if status[k] == OK else 0
     for it in range(max_iter + 1):
-        member_vectors(x, tail, head, bvec)
+        members(x, topo, bvec)
         for k in range(n_lanes):
             worst[k] = 0.0
         for c in range(tail.shape[0]):
@@ -341,14 +345,27 @@ def project_velocities(x, v, topo, w, status):
     n_lanes = x.shape[2]
     for k in range(n_lanes):
         go[k] = 1 if status[k] == OK else 0
-    member_vectors(x, tail, head, bvec)
-    for c in range(tail.shape[0]):
-        h = head[c]
-        t = tail[c]
-        for k in range(n_lanes):
-            lam[c, k] = -(bvec[c, 0, k] * (v[h, 0, k] - v[t, 0, k])
-                          + bvec[c, 1, k] * (v[h, 1, k] - v[t, 1, k])
-                          + bvec[c, 2, k] * (v[h, 2, k] - v[t, 2, k]))
+    members(x, topo, bvec)
+    if topo.con_rot.shape[0] == 0:
+        for c in range(tail.shape[0]):
+            h = head[c]
+            t = tail[c]
+            for k in range(n_lanes):
+                lam[c, k] = -(bvec[c, 0, k] * (v[h, 0, k] - v[t, 0, k])
+                              + bvec[c, 1, k] * (v[h, 1, k] - v[t, 1, k])
+                              + bvec[c, 2, k] * (v[h, 2, k] - v[t, 2, k]))
+    else:
+        rot = topo.con_rot
+        for c in range(tail.shape[0]):
+            h = head[c]
+            t = tail[c]
+            cr = ROT_C[rot[c]]
+            sr = ROT_S[rot[c]]
+            for k in range(n_lanes):
+                dx = cr * v[h, 0, k] - sr * v[h, 1, k] - v[t, 0, k]
+                dy = sr * v[h, 0, k] + cr * v[h, 1, k] - v[t, 1, k]
+                dz = v[h, 2, k] - v[t, 2, k]
+                lam[c, k] = -(bvec[c, 0, k] * dx + bvec[c, 1, k] * dy + bvec[c, 2, k] * dz)
     correct(v, lam, bvec, topo, w, status)
 
 
@@ -359,14 +376,14 @@ def correct(u, lam, bvec, topo, w, status):
     gets ``SINGULAR`` and leaves ``go`` unchanged."""
     f, wf, go, flag = w.f, w.wf, w.go, w.flag
     n_lanes = u.shape[2]
-    assemble_band(bvec, topo.con_coef, w.band)
+    assemble(bvec, topo, w.band)
     band_ldl_solve(w.band, lam, w.piv, flag)
     for k in range(n_lanes):
         if go[k] != 0 and flag[k] != OK:
             go[k] = 0
             status[k] = flag[k]
     zero(f)
-    add_constraint_forces(lam, bvec, topo.con_tail, topo.con_head, f)
+    add_forces(lam, bvec, topo, f)
     apply_w(f, topo.w_diag, topo.partner, topo.w_off, wf)
     for p in range(u.shape[0]):
         for i in range(3):
@@ -389,3 +406,263 @@ def check_finite(x, v, sums, status):
     for k in range(n_lanes):
         if status[k] == OK and sums[k] != 0.0:
             status[k] = NONFINITE
+
+
+# -- the rotated members of the symmetric reduction (sym3d) and damped cables -------------------
+# Each kernel performs, lane by lane, the operations of its scalar twin in
+# solver.kernels.rotation and solver.kernels.contact in the same order.
+
+@jit_lanes
+def cable_forces_rot(x, cable_a, cable_b, cable_rot, rest, EA, f, tmp):
+    """Cables from ``x_a`` to the image ``R^r x_b`` lane by lane
+    (:func:`solver.kernels.rotation.cable_forces_rot`); ``tmp`` (6, B) holds one cable's
+    forces on a and b."""
+    n_lanes = x.shape[2]
+    for c in range(cable_a.shape[0]):
+        a = cable_a[c]
+        b = cable_b[c]
+        cr = ROT_C[cable_rot[c]]
+        sr = ROT_S[cable_rot[c]]
+        for k in range(n_lanes):
+            dx = cr * x[b, 0, k] - sr * x[b, 1, k] - x[a, 0, k]
+            dy = sr * x[b, 0, k] + cr * x[b, 1, k] - x[a, 1, k]
+            dz = x[b, 2, k] - x[a, 2, k]
+            s = math.sqrt(dx * dx + dy * dy + dz * dz)
+            L = rest[c, k]
+            g = 0.0
+            if s > L:
+                g = EA[c, k] / L * (s - L) / s
+            fx = g * dx
+            fy = g * dy
+            tmp[0, k] = fx
+            tmp[1, k] = fy
+            tmp[2, k] = g * dz
+            tmp[3, k] = cr * fx + sr * fy
+            tmp[4, k] = cr * fy - sr * fx
+        for i in range(3):
+            for k in range(n_lanes):
+                f[a, i, k] += tmp[i, k]
+        for i in range(2):
+            for k in range(n_lanes):
+                f[b, i, k] -= tmp[3 + i, k]
+        for k in range(n_lanes):
+            f[b, 2, k] -= tmp[2, k]
+
+
+@jit_lanes
+def cable_forces_damped(x, v, cable_a, cable_b, cable_rot, rest, EA, damp, f, tmp, power, live):
+    """Tension-only cables with viscous damping lane by lane
+    (:func:`solver.kernels.contact.cable_forces_damped`), plain or to the rotated image; the
+    damping's power W of lane k into ``power[k]`` where ``live[k]`` (the others keep theirs)."""
+    n_lanes = x.shape[2]
+    rotated = cable_rot.shape[0] > 0
+    mult = 3.0 if rotated else 1.0
+    p = tmp[5]
+    for k in range(n_lanes):
+        p[k] = 0.0
+    for c in range(cable_a.shape[0]):
+        a = cable_a[c]
+        b = cable_b[c]
+        cr = 1.0
+        sr = 0.0
+        if rotated:
+            cr = ROT_C[cable_rot[c]]
+            sr = ROT_S[cable_rot[c]]
+        for k in range(n_lanes):
+            dx = cr * x[b, 0, k] - sr * x[b, 1, k] - x[a, 0, k]
+            dy = sr * x[b, 0, k] + cr * x[b, 1, k] - x[a, 1, k]
+            dz = x[b, 2, k] - x[a, 2, k]
+            s = math.sqrt(dx * dx + dy * dy + dz * dz)
+            L = rest[c, k]
+            g = 0.0
+            if s > L:
+                ux = cr * v[b, 0, k] - sr * v[b, 1, k] - v[a, 0, k]
+                uy = sr * v[b, 0, k] + cr * v[b, 1, k] - v[a, 1, k]
+                uz = v[b, 2, k] - v[a, 2, k]
+                rate = (dx * ux + dy * uy + dz * uz) / s
+                elastic = EA[c, k] / L * (s - L)
+                T = max(elastic + damp[c] * rate, 0.0)
+                p[k] += (T - elastic) * rate
+                if T > 0.0:
+                    g = T / s
+            fx = g * dx
+            fy = g * dy
+            tmp[0, k] = fx
+            tmp[1, k] = fy
+            tmp[2, k] = g * dz
+            tmp[3, k] = cr * fx + sr * fy
+            tmp[4, k] = cr * fy - sr * fx
+        for i in range(3):
+            for k in range(n_lanes):
+                f[a, i, k] += tmp[i, k]
+        for i in range(2):
+            for k in range(n_lanes):
+                f[b, i, k] -= tmp[3 + i, k]
+        for k in range(n_lanes):
+            f[b, 2, k] -= tmp[2, k]
+    for k in range(n_lanes):
+        if live[k] != 0:
+            power[k] = mult * p[k]
+
+
+@jit_lanes
+def member_vectors_rot(x, tail, head, rot, bvec):
+    """``bvec[c] = R^rot[c] x[head[c]] - x[tail[c]]`` lane by lane."""
+    n_lanes = x.shape[2]
+    for c in range(tail.shape[0]):
+        h = head[c]
+        t = tail[c]
+        cr = ROT_C[rot[c]]
+        sr = ROT_S[rot[c]]
+        for k in range(n_lanes):
+            bvec[c, 0, k] = cr * x[h, 0, k] - sr * x[h, 1, k] - x[t, 0, k]
+            bvec[c, 1, k] = sr * x[h, 0, k] + cr * x[h, 1, k] - x[t, 1, k]
+            bvec[c, 2, k] = x[h, 2, k] - x[t, 2, k]
+
+
+@jit_lanes
+def assemble_band_rot(bvec, coef3, band):
+    """The band of the rotated members lane by lane
+    (:func:`solver.kernels.rotation.assemble_band_rot`)."""
+    m = coef3.shape[0]
+    width = coef3.shape[1]
+    n_lanes = band.shape[2]
+    for c in range(m):
+        for j in range(width):
+            if j > c:
+                for k in range(n_lanes):
+                    band[c, j, k] = 0.0
+                continue
+            d = c - j
+            c0 = coef3[c, j, 0]
+            c1 = coef3[c, j, 1]
+            c2 = coef3[c, j, 2]
+            for k in range(n_lanes):
+                band[c, j, k] = (c0 * bvec[c, 2, k] * bvec[d, 2, k]
+                                 + c1 * (bvec[c, 0, k] * bvec[d, 0, k]
+                                         + bvec[c, 1, k] * bvec[d, 1, k])
+                                 + c2 * (bvec[c, 1, k] * bvec[d, 0, k]
+                                         - bvec[c, 0, k] * bvec[d, 1, k]))
+
+
+@jit_lanes
+def add_constraint_forces_rot(lam, bvec, tail, head, rot, f):
+    """``f += sum_c lam_c G_c`` with the head force rotated back lane by lane
+    (:func:`solver.kernels.rotation.add_constraint_forces_rot`)."""
+    n_lanes = f.shape[2]
+    for c in range(tail.shape[0]):
+        h = head[c]
+        t = tail[c]
+        cr = ROT_C[rot[c]]
+        sr = ROT_S[rot[c]]
+        for k in range(n_lanes):
+            gx = lam[c, k] * bvec[c, 0, k]
+            gy = lam[c, k] * bvec[c, 1, k]
+            gz = lam[c, k] * bvec[c, 2, k]
+            f[h, 0, k] += cr * gx + sr * gy
+            f[h, 1, k] += cr * gy - sr * gx
+            f[h, 2, k] += gz
+            f[t, 0, k] -= gx
+            f[t, 1, k] -= gy
+            f[t, 2, k] -= gz
+
+
+@jit_lanes
+def members(x, topo, bvec):
+    """Member vectors, plain or rotated."""
+    if topo.con_rot.shape[0] == 0:
+        member_vectors(x, topo.con_tail, topo.con_head, bvec)
+    else:
+        member_vectors_rot(x, topo.con_tail, topo.con_head, topo.con_rot, bvec)
+
+
+@jit_lanes
+def assemble(bvec, topo, band):
+    """The constraint band, plain or rotated."""
+    if topo.con_rot.shape[0] == 0:
+        assemble_band(bvec, topo.con_coef, band)
+    else:
+        assemble_band_rot(bvec, topo.con_coef3, band)
+
+
+@jit_lanes
+def add_forces(lam, bvec, topo, f):
+    """The constraint forces, plain or rotated."""
+    if topo.con_rot.shape[0] == 0:
+        add_constraint_forces(lam, bvec, topo.con_tail, topo.con_head, f)
+    else:
+        add_constraint_forces_rot(lam, bvec, topo.con_tail, topo.con_head, topo.con_rot, f)
+
+
+@jit_lanes
+def rhs_rot(wf, v, bvec, topo, lam):
+    """The right-hand side of the acceleration multipliers of rotated members lane by lane (the
+    ``rel`` terms of :func:`solver.kernels.dynamics.accelerations`)."""
+    tail, head, rot = topo.con_tail, topo.con_head, topo.con_rot
+    n_lanes = v.shape[2]
+    for c in range(tail.shape[0]):
+        h = head[c]
+        t = tail[c]
+        cr = ROT_C[rot[c]]
+        sr = ROT_S[rot[c]]
+        for k in range(n_lanes):
+            ax = cr * wf[h, 0, k] - sr * wf[h, 1, k] - wf[t, 0, k]
+            ay = sr * wf[h, 0, k] + cr * wf[h, 1, k] - wf[t, 1, k]
+            az = wf[h, 2, k] - wf[t, 2, k]
+            dx = cr * v[h, 0, k] - sr * v[h, 1, k] - v[t, 0, k]
+            dy = sr * v[h, 0, k] + cr * v[h, 1, k] - v[t, 1, k]
+            dz = v[h, 2, k] - v[t, 2, k]
+            lam[c, k] = -(bvec[c, 0, k] * ax + bvec[c, 1, k] * ay + bvec[c, 2, k] * az
+                          + dx * dx + dy * dy + dz * dz)
+
+
+@jit_lanes
+def rhs_plain(wf, v, bvec, topo, lam):
+    """The right-hand side of the acceleration multipliers of plain members lane by lane."""
+    tail, head = topo.con_tail, topo.con_head
+    n_lanes = v.shape[2]
+    for c in range(tail.shape[0]):
+        h = head[c]
+        t = tail[c]
+        for k in range(n_lanes):
+            s = 0.0
+            db = v[h, 0, k] - v[t, 0, k]
+            s += bvec[c, 0, k] * (wf[h, 0, k] - wf[t, 0, k]) + db * db
+            db = v[h, 1, k] - v[t, 1, k]
+            s += bvec[c, 1, k] * (wf[h, 1, k] - wf[t, 1, k]) + db * db
+            db = v[h, 2, k] - v[t, 2, k]
+            s += bvec[c, 2, k] * (wf[h, 2, k] - wf[t, 2, k]) + db * db
+            lam[c, k] = -s
+
+
+@jit_lanes
+def cables(x, v, topo, damp, rest, EA, f, tmp, power, live):
+    """Add the cable forces of every lane to ``f``: damped (``damp`` not empty; the power into
+    ``power`` where ``live``), plain or rotated."""
+    if damp.shape[0] != 0:
+        cable_forces_damped(x, v, topo.cable_a, topo.cable_b, topo.cable_rot, rest, EA, damp, f,
+                            tmp, power, live)
+    elif topo.cable_rot.shape[0] == 0:
+        cable_forces(x, topo.cable_a, topo.cable_b, rest, EA, f, tmp)
+    else:
+        cable_forces_rot(x, topo.cable_a, topo.cable_b, topo.cable_rot, rest, EA, f, tmp)
+
+
+@jit_lanes
+def constrained(x, v, topo, w, out, status):
+    """From the nodal forces ``w.f`` (every force but the constraints'), the accelerations of
+    each lane's constrained system into ``out``, as the second half of
+    :func:`solver.kernels.dynamics.accelerations` (plain or rotated members; no KKT system). A
+    lane whose constraint matrix is not positive definite gets ``SINGULAR`` (when ``OK``)."""
+    f, wf, bvec, band, lam = w.f, w.wf, w.bvec, w.band, w.lam
+    apply_w(f, topo.w_diag, topo.partner, topo.w_off, wf)
+    members(x, topo, bvec)
+    if topo.con_rot.shape[0] == 0:
+        rhs_plain(wf, v, bvec, topo, lam)
+    else:
+        rhs_rot(wf, v, bvec, topo, lam)
+    assemble(bvec, topo, band)
+    band_ldl_solve(band, lam, w.piv, w.flag)
+    fail(status, w.flag)
+    add_forces(lam, bvec, topo, f)
+    apply_w(f, topo.w_diag, topo.partner, topo.w_off, out)
