@@ -10,14 +10,11 @@ from typing import NamedTuple
 
 import numpy as np
 
-from solver.compiled import jit_inline, jit_lanes
+from solver.compiled import jit_lanes
 from solver.integrators.rk4 import REFINE_COARSEN, REFINE_LEVELS, REFINE_SHARE
-from solver.kernels import effects, lanes, summary
-from solver.kernels.barcontact import bar_forces, base_forces
-from solver.kernels.contact import axial_contacts
+from solver.kernels import effects, lanedata, lanes, summary
 from solver.kernels.kinks import next_kink
-from solver.kernels.records import (DISSIPATED, LOOK, MET, POWER, ContactState, Data, Work,
-                                    copy_data)
+from solver.kernels.records import copy_data
 from solver.status import OK
 
 
@@ -92,34 +89,17 @@ def rk4_projected_run(topo, d, w, dt, n_steps, tol, max_iter, status, steps):
 
 
 # -- the checked run with every effect: lanes on their own clocks -------------------------------
-class LaneState(NamedTuple):
-    """The data of B instances with the lane index OUTERMOST: lane k's slices (``x[k]``,
-    ``scan[k]``, ...) are the arrays of that instance's :class:`~solver.kernels.records.Data`
-    (:func:`lane_record`), which the scalar effect kernels read and write as they do in a single
-    run. ``saved`` (B, 2, n, 3) is each lane's :attr:`Work.saved`."""
-    x: np.ndarray
-    v: np.ndarray
-    rest: np.ndarray
-    EA: np.ndarray
-    f_ext: np.ndarray
-    ledger: np.ndarray
-    scan: np.ndarray
-    active: np.ndarray
-    refine: np.ndarray
-    saved: np.ndarray
-
-
 class LaneControl(NamedTuple):
-    """Each lane's step control (B,): its clock ``t``, the step ``h`` of this round, the step
-    before the contact limit ``h_free``, the shorter step ``h2`` after a trial that was not kept,
-    the ledger energy ``e0`` at the step's start, the run state :func:`effects.mark` kept
+    """Each lane's step control (B,): its clock ``t``, the step ``h`` of the current round, the
+    step before the contact limit ``h_free``, the shorter step ``h2`` after a trial that was not
+    kept, the ledger energy ``e0`` at the step's start, the run state :func:`effects.mark` kept
     (``met``, ``p0``, ``d0``), the trial's ``known`` motion and the state
     :func:`effects.begin_trial` kept (``tb``, ``tp``, ``td``, ``tf``), the work of the damping
     ``work``; int64 (B,): the halving levels ``level``, ``clevel``, whether the steps are
     refined ``refine``, the round's ``mode`` (0 plain step, 1 trial, 2 trial not kept), ``live``
-    (the lane steps this round) and ``go`` (the lane takes the step being computed), the
-    status ``st`` of this round and ``ev`` (the lanes an evaluation computes for: ``go`` and
-    ``st`` still ``OK``, as a single run stops evaluating at its first failure)."""
+    (the lane steps in the current round) and ``go`` (the lane takes the step being computed),
+    the status ``st`` of the current round and ``ev`` (the lanes an evaluation computes for:
+    ``go`` and ``st`` still ``OK``, as a single run stops evaluating at its first failure)."""
     t: np.ndarray
     h: np.ndarray
     h_free: np.ndarray
@@ -151,103 +131,11 @@ def lane_control(lanes_n):
     return LaneControl(*f, *i)
 
 
-class LaneScratch(NamedTuple):
-    """Per-lane scratch in the scalar layout (B, n, 3): the positions an evaluation's contact
-    forces read ``xe``, its forces ``fe``, the first-stage accelerations ``a1``."""
-    xe: np.ndarray
-    fe: np.ndarray
-    a1: np.ndarray
-
-
-@jit_inline
-def lane_record(S, k):
-    """Lane k's :class:`~solver.kernels.records.Data` (views into ``S``)."""
-    return Data(S.x[k], S.v[k], S.rest[k], S.EA[k], S.f_ext[k], S.ledger[k],
-                ContactState(S.scan[k], S.active[k]), S.refine[k])
-
-
-@jit_inline
-def lane_work_record(w0, S, k):
-    """The scalar :class:`~solver.kernels.records.Work` of lane k: the shared scratch ``w0``
-    with lane k's ``saved``."""
-    return Work(w0.f, w0.wf, w0.bvec, w0.band, w0.lam, w0.xs, w0.vs, w0.acc, w0.xacc, w0.vacc,
-                w0.a1, w0.kkt, S.saved[k])
-
-
-@jit_lanes
-def to_lanes(src, dst):
-    """``dst[..., k] = src[k]``: lane-outer (B, ...) to lane-inner (..., B)."""
-    n_lanes = src.shape[0]
-    s = src.reshape((n_lanes, -1))
-    d = dst.reshape((-1, n_lanes))
-    for k in range(n_lanes):
-        for j in range(s.shape[1]):
-            d[j, k] = s[k, j]
-
-
-@jit_lanes
-def lane_out(src, k, dst):
-    """``dst[...] = src[..., k]``: one lane of a lane-inner array into a scalar-layout one."""
-    n_lanes = src.shape[src.ndim - 1]
-    s = src.reshape((-1, n_lanes))
-    d = dst.reshape(-1)
-    for j in range(d.shape[0]):
-        d[j] = s[j, k]
-
-
-@jit_lanes
-def lane_in(src, k, dst):
-    """``dst[..., k] = src[...]``: a scalar-layout array into one lane of a lane-inner one."""
-    n_lanes = dst.shape[dst.ndim - 1]
-    s = src.reshape(-1)
-    d = dst.reshape((-1, n_lanes))
-    for j in range(s.shape[0]):
-        d[j, k] = s[j]
-
-
-@jit_lanes
-def evaluate(x, v, m, S, L, W, X, C, out):
-    """Accelerations of every lane at ``x``, ``v`` (lane-inner) into ``out``, with the forces of
-    every effect, as :func:`solver.kernels.dynamics.accelerations` per lane: external forces and
-    cables over lanes, then for each lane that takes the step (``C.go``) its stops, strikers and
-    bar and base contacts by the scalar kernels on that lane (``C.ev``; on views of its
-    positions and forces: the same operations in the same order), then the constraints
-    over lanes. A lane's failure goes to ``C.st``."""
-    f, ev = W.f, C.ev
-    for k in range(ev.shape[0]):
-        ev[k] = 1 if C.go[k] != 0 and C.st[k] == OK else 0
-    lanes.copy(f, L.f_ext)
-    lanes.cables(x, v, m.topo, m.damping.coef, L.rest, L.EA, f, W.pair, W.piv, ev)
-    if m.damping.coef.shape[0] != 0:
-        for k in range(ev.shape[0]):
-            if ev[k] != 0:
-                S.ledger[k, POWER] = W.piv[k]
-    axial = m.stops.height.shape[0] != 0 or m.strikers.row.shape[0] != 0
-    bars = m.bar_contact.pairs.shape[0] != 0
-    if axial or bars:
-        for k in range(ev.shape[0]):
-            if ev[k] == 0:
-                continue
-            scan = S.scan[k]
-            touch = bars and scan[LOOK] != 0.0
-            if not (axial or touch):
-                continue
-            xk = x[:, :, k]             # views: these kernels read and write a few nodes
-            fk = f[:, :, k]
-            if axial:
-                axial_contacts(xk, m, fk)
-            if touch:
-                scan[MET] += bar_forces(xk, m.bar_contact, fk, S.active[k])
-                if scan[LOOK] == 1.0:
-                    scan[MET] += base_forces(xk, m.levels, m.bar_contact, fk)
-    lanes.constrained(x, v, m.topo, W, out, C.st)
-
-
 @jit_lanes
 def _stage_power(S, C, weight):
     for k in range(C.go.shape[0]):
         if C.go[k] != 0:
-            C.work[k] += weight * S.ledger[k, POWER]
+            C.work[k] += weight * effects.power(lanedata.lane_record(S, k))
 
 
 @jit_lanes
@@ -262,7 +150,7 @@ def step(m, S, L, W, X, C, a1, h):
     n = x.shape[0]
     for k in range(n_lanes):
         if C.go[k] != 0:
-            C.work[k] = S.ledger[k, POWER]
+            C.work[k] = effects.power(lanedata.lane_record(S, k))
     for p in range(n):
         for i in range(3):
             for k in range(n_lanes):
@@ -271,7 +159,7 @@ def step(m, S, L, W, X, C, a1, h):
                 xs[p, i, k] = x[p, i, k] + 0.5 * h[k] * v[p, i, k]
                 vs[p, i, k] = v[p, i, k] + 0.5 * h[k] * a1[p, i, k]
     for stage in range(1, 4):
-        evaluate(xs, vs, m, S, L, W, X, C, acc)
+        lanedata.evaluate(xs, vs, m, S, L, W, X, C, acc)
         wt = 1.0 if stage == 3 else 2.0
         _stage_power(S, C, wt)
         for p in range(n):
@@ -293,57 +181,64 @@ def step(m, S, L, W, X, C, a1, h):
                 v[p, i, k] = v[p, i, k] + h[k] / 6.0 * vacc[p, i, k] if go[k] != 0 else v[p, i, k]
     for k in range(n_lanes):
         if go[k] != 0:
-            S.ledger[k, DISSIPATED] += h[k] / 6.0 * C.work[k]
+            effects.dissipate(lanedata.lane_record(S, k), h[k] / 6.0 * C.work[k])
 
 
 @jit_lanes
-def _sync_out(L, S, k):
-    lane_out(L.x, k, S.x[k])
-    lane_out(L.v, k, S.v[k])
-
-
-@jit_lanes
-def _sync_in(L, S, k):
-    lane_in(S.x[k], k, L.x)
-    lane_in(S.v[k], k, L.v)
-
-
-@jit_lanes
-def run(m, S, L, W, X, C, w0, dt, n_steps, tol, max_iter, kinks, project, status, steps):
-    """Advance each lane whose ``status`` is ``OK`` by ``n_steps * dt`` as
-    :func:`solver.integrators.rk4._rk4_run` advances one instance, every lane on its own clock
-    with its own steps (kink landing, contact steps, trials, refinement against the ledger). The
-    lanes take their rounds together: in a round each lane takes (or retakes) one step; its
-    force evaluations run over all lanes at once, its step control runs lane by lane on the
-    scalar kernels (the lane's data in ``S``, kept in step with the lane-inner copy ``L``). A
-    lane that fails keeps its code in ``status`` and stops; ``steps`` (B,) counts each lane's
-    steps. ``S`` holds the data before and after; ``L``, ``W``, ``X``, ``C``, ``w0`` are
-    scratch."""
-    n_lanes = status.shape[0]
-    total = n_steps * dt
-    to_lanes(S.x, L.x)
-    to_lanes(S.v, L.v)
-    to_lanes(S.rest, L.rest)
-    to_lanes(S.EA, L.EA)
-    to_lanes(S.f_ext, L.f_ext)
-    for k in range(n_lanes):
+def begin(m, S, L, C, status, steps):
+    """The start of a call: ``L`` from ``S``, every clock at 0, and for each lane whose
+    ``status`` is ``OK`` the effects' start and its halving levels (as
+    :func:`solver.integrators.rk4._rk4_run` begins)."""
+    lanedata.enter(S, L)
+    for k in range(status.shape[0]):
         C.t[k] = 0.0
         C.e0[k] = math.nan
         C.mode[k] = 0
         steps[k] = 0
         if status[k] == OK:
-            d = lane_record(S, k)
+            d = lanedata.lane_record(S, k)
             effects.start(d.x, m, d)
             level, clevel = effects.halvings(m, d)
             C.level[k] = level
             C.clevel[k] = clevel
+
+
+@jit_lanes
+def end(m, S, C, status):
+    """The end of a call: the effects' finish and the halving levels kept, for each lane that
+    ended ``OK``."""
+    for k in range(status.shape[0]):
+        if status[k] == OK:
+            d = lanedata.lane_record(S, k)
+            effects.finish(d.x, m, d)
+            effects.keep_levels(m, d, C.level[k], C.clevel[k])
+
+
+@jit_lanes
+def rounds(m, S, L, W, X, C, w0, dt, total, tol, max_iter, kinks, project, status, steps,
+           min_live):
+    """Step each lane whose ``status`` is ``OK`` until its clock ``C.t`` reaches ``total`` s, as
+    :func:`solver.integrators.rk4._rk4_run` steps one instance, every lane on its own clock with
+    its own steps (kink landing, contact steps, trials, refinement against the ledger). The
+    lanes take their rounds together: in a round each lane takes (or retakes) one step; its
+    force evaluations run over all lanes at once, its step control runs lane by lane on the
+    scalar kernels (the lane's data in ``S``, kept in step with the lane-inner copy ``L``: at
+    the end of every round ``S`` holds each lane's state, ``C`` its step control and ``X.a1``
+    the accelerations a pending step starts from). A lane that fails keeps its code in
+    ``status`` and stops; ``steps`` counts each lane's steps. Returns 0 when every lane is
+    done, or the number of lanes still stepping once it is below ``min_live`` (at the end of a
+    round: the caller moves them to fewer lanes, :mod:`solver.simulate.lanebatch`, and calls
+    again)."""
+    n_lanes = status.shape[0]
     while True:
         left = 0
         for k in range(n_lanes):
             C.live[k] = 1 if status[k] == OK and total - C.t[k] > 1e-9 * dt else 0
             left += C.live[k]
         if left == 0:
-            break
+            return 0
+        if left < min_live:
+            return left
         # the step's start, lane by lane; a lane whose trial was not kept (mode 2) takes the
         # shorter step from the same start, with the same first-stage accelerations
         for k in range(n_lanes):
@@ -353,8 +248,8 @@ def run(m, S, L, W, X, C, w0, dt, n_steps, tol, max_iter, kinks, project, status
             if C.live[k] == 0 or pending:
                 continue
             C.mode[k] = 0
-            d = lane_record(S, k)
-            w = lane_work_record(w0, S, k)
+            d = lanedata.lane_record(S, k)
+            w = lanedata.lane_work_record(w0, S, k)
             refine = effects.refining(m, d)
             C.refine[k] = 1 if refine else 0
             if not refine:
@@ -369,20 +264,20 @@ def run(m, S, L, W, X, C, w0, dt, n_steps, tol, max_iter, kinks, project, status
                 effects.save_start(d.x, d.v, w)
                 if C.e0[k] != C.e0[k]:
                     C.e0[k] = effects.ledger_energy(d.x, d.v, m, d)
-        evaluate(L.x, L.v, m, S, L, W, X, C, W.a1)
+        lanedata.evaluate(L.x, L.v, m, S, L, W, X, C, W.a1)
         # where the step ends, lane by lane (_controlled_step's plan)
         for k in range(n_lanes):
             if C.mode[k] == 2 and C.live[k] != 0:
-                lane_in(X.a1[k], k, W.a1)
+                lanedata.lane_in(X.a1[k], k, W.a1)
                 C.h[k] = C.h2[k]
                 C.go[k] = 1
                 continue
             if C.go[k] == 0 or C.st[k] != OK:
                 C.go[k] = 0
                 continue
-            d = lane_record(S, k)
+            d = lanedata.lane_record(S, k)
             a1 = X.a1[k]
-            lane_out(W.a1, k, a1)
+            lanedata.lane_out(W.a1, k, a1)
             h = C.h[k]
             if kinks:
                 h = next_kink(d.x, d.v, a1, m, d, h, 1e-3 * dt)
@@ -393,7 +288,7 @@ def run(m, S, L, W, X, C, w0, dt, n_steps, tol, max_iter, kinks, project, status
             if h_c >= h:
                 C.h[k] = h
             elif trial:
-                w = lane_work_record(w0, S, k)
+                w = lanedata.lane_work_record(w0, S, k)
                 tb, tp, td, tf = effects.begin_trial(d.x, d.v, d, w)
                 C.tb[k] = tb
                 C.tp[k] = tp
@@ -409,21 +304,21 @@ def run(m, S, L, W, X, C, w0, dt, n_steps, tol, max_iter, kinks, project, status
         # a step tried whole: kept, or undone (the shorter step follows in the next round)
         for k in range(n_lanes):
             if C.mode[k] == 2:
-                C.mode[k] = 0           # taken this round
+                C.mode[k] = 0           # taken in the current round
                 continue
             if C.mode[k] != 1:
                 continue
-            d = lane_record(S, k)
-            w = lane_work_record(w0, S, k)
+            d = lanedata.lane_record(S, k)
+            w = lanedata.lane_work_record(w0, S, k)
             trial = (C.tb[k], C.tp[k], C.td[k], C.tf[k])
             C.mode[k] = 0
             if C.st[k] == OK:
-                _sync_out(L, S, k)
+                lanedata.sync_out(L, S, k)
                 if effects.trial_kept(d.x, d.v, X.a1[k], m, d, w, C.h[k], C.known[k], trial):
                     continue
             effects.undo_trial(d.x, d.v, d, w, trial)
-            _sync_in(L, S, k)
-            C.st[k] = -1                # no projection, no end of step this round
+            lanedata.sync_in(L, S, k)
+            C.st[k] = -1                # no projection, no end of step in the current round
             C.mode[k] = 2
         if project:
             lanes.project_positions(L.x, m.topo, W, tol, max_iter, C.st)
@@ -436,8 +331,8 @@ def run(m, S, L, W, X, C, w0, dt, n_steps, tol, max_iter, kinks, project, status
             if C.st[k] != OK:
                 status[k] = C.st[k]
                 continue
-            d = lane_record(S, k)
-            _sync_out(L, S, k)
+            d = lanedata.lane_record(S, k)
+            lanedata.sync_out(L, S, k)
             h = C.h[k]
             if C.refine[k] != 0:
                 e1 = effects.ledger_energy(d.x, d.v, m, d)
@@ -447,9 +342,9 @@ def run(m, S, L, W, X, C, w0, dt, n_steps, tol, max_iter, kinks, project, status
                 limited = h < C.h_free[k]
                 lv = C.clevel[k] if limited else C.level[k]
                 if err > budget and lv < REFINE_LEVELS:
-                    w = lane_work_record(w0, S, k)
+                    w = lanedata.lane_work_record(w0, S, k)
                     effects.back_to(d.x, d.v, d, w, (C.met[k], C.p0[k], C.d0[k]))
-                    _sync_in(L, S, k)
+                    lanedata.sync_in(L, S, k)
                     if limited:
                         C.clevel[k] += 1
                     else:
@@ -463,27 +358,37 @@ def run(m, S, L, W, X, C, w0, dt, n_steps, tol, max_iter, kinks, project, status
                 C.e0[k] = e1
             C.t[k] += h
             steps[k] += 1
-    for k in range(n_lanes):
-        if status[k] == OK:
-            d = lane_record(S, k)
-            effects.finish(d.x, m, d)
-            effects.keep_levels(m, d, C.level[k], C.clevel[k])
 
 
 @jit_lanes
-def checked(m, S, L, W, X, C, w0, dt, n_steps, tol, max_iter, kinks, project, status, steps,
-            kept, out, heights):
-    """:func:`run` between a copy of every running lane's data into ``kept`` (a
-    :class:`LaneState`: the data to restore) and the state summary of each lane
-    (:func:`solver.kernels.summary.state_summary`) into ``out`` (B, 4: finite, energy J,
-    constraint error, smallest prism height m) and ``heights`` (B, n_columns, n_prisms): the
-    per-lane twin of :func:`solver.integrators.rk4._rk4_checked`."""
+def run(m, S, L, W, X, C, w0, dt, n_steps, tol, max_iter, kinks, project, status, steps):
+    """Advance each lane whose ``status`` is ``OK`` by ``n_steps * dt`` (:func:`rounds` from
+    :func:`begin` to :func:`end`, every lane in this one set of lanes)."""
+    begin(m, S, L, C, status, steps)
+    rounds(m, S, L, W, X, C, w0, dt, n_steps * dt, tol, max_iter, kinks, project, status,
+           steps, 0)
+    end(m, S, C, status)
+
+
+@jit_lanes
+def begin_checked(m, S, L, C, status, steps, kept):
+    """:func:`begin` after a copy of every running lane's data into ``kept`` (a
+    :class:`~solver.kernels.lanedata.LaneState`: the data to restore)."""
     for k in range(status.shape[0]):
         if status[k] == OK:
-            copy_data(lane_record(S, k), lane_record(kept, k))
-    run(m, S, L, W, X, C, w0, dt, n_steps, tol, max_iter, kinks, project, status, steps)
+            copy_data(lanedata.lane_record(S, k), lanedata.lane_record(kept, k))
+    begin(m, S, L, C, status, steps)
+
+
+@jit_lanes
+def end_checked(m, S, C, status, out, heights):
+    """:func:`end`, then the state summary of each lane
+    (:func:`solver.kernels.summary.state_summary`) into ``out`` (B, 4: finite, energy J,
+    constraint error, smallest prism height m) and ``heights`` (B, n_columns, n_prisms): with
+    :func:`begin_checked` the per-lane twin of :func:`solver.integrators.rk4._rk4_checked`."""
+    end(m, S, C, status)
     for k in range(status.shape[0]):
-        d = lane_record(S, k)
+        d = lanedata.lane_record(S, k)
         finite, e, cerr, h_min = summary.state_summary(d.x, d.v, m, d, heights[k])
         out[k, 0] = 1.0 if finite else 0.0
         out[k, 1] = e

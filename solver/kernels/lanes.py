@@ -303,7 +303,7 @@ def project_positions(x, topo, w, tol, max_iter, status):
     that converged (or failed) stays as it is from then on. Lanes whose ``status`` is not ``OK`` on
     entry are left as they are; a lane that does not converge gets ``NOT_CONVERGED``, one whose
     constraint matrix is singular ``SINGULAR``."""
-    tail, head, length = topo.con_tail, topo.con_head, topo.con_length
+    tail, length = topo.con_tail, topo.con_length
     bvec, lam, worst, go = w.bvec, w.lam, w.worst, w.go
     n_lanes = x.shape[2]
     for k in range(n_lanes):

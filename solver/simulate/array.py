@@ -29,7 +29,7 @@ import numpy as np
 from solver.build.scene import Scene
 from solver.build.structures import PrestrainMap, build_network
 from solver.models.base import ModelView
-from solver.simulate import parallel
+from solver.simulate import lanebatch, parallel
 from solver.simulate.interface import SimulationAPI
 from solver.simulate.loading import prestrain_values, rest_length_values
 from solver.simulate.simulation import Frame, FrameFigures, Simulation, SimulationDiverged
@@ -97,6 +97,7 @@ class ArraySimulation(SimulationAPI):
     its own simulation from the start (the plain twin of the shared one)."""
 
     threads = None          # threads the groups step on (None: every core; 1: one after another)
+    lanes = True            # alike groups step together as lanes (solver.simulate.lanebatch)
 
     def __init__(self, scene: Scene, network=None, dedup=True):
         if network is not None:
@@ -151,6 +152,7 @@ class ArraySimulation(SimulationAPI):
             self.groups = [_Group(self._proto if c == 0 else self._proto.clone(), [c])
                            for c in cols]
         self._cache = {}
+        self._plan = None
 
     def _group_of(self):
         """Group index per column (n_columns,)."""
@@ -179,6 +181,7 @@ class ArraySimulation(SimulationAPI):
                 apply(grp.sim, key)
         self.groups = sorted((g for g, _ in new_groups), key=lambda g: g.columns[0])
         self._cache = {}
+        self._plan = None
 
     # -- assembling full arrays -----------------------------------------------------------------
     def _assemble_nodes(self, get, offset):
@@ -385,7 +388,64 @@ class ArraySimulation(SimulationAPI):
         on :attr:`threads` threads (:func:`solver.simulate.parallel.each`). A divergence in any
         column restores every column and raises :class:`SimulationDiverged` naming it (the first
         diverging group in column order)."""
+        n = max(int(round(duration / self.dt)), 0)
+        if self.lanes and n > 0 and len(self.groups) > 1:
+            return self._advance_lanes(duration, n)
         return self._each(lambda sim: sim.advance(duration))
+
+    def _lane_plan(self):
+        """``(lane groups, single simulations)`` of the present groups
+        (:func:`solver.simulate.lanebatch.groups_of`), kept until the groups change or a
+        simulation leaves its lane group."""
+        plan = self._plan
+        if plan is None or not all(g.bound() for g in plan.groups):
+            threads = self.threads or parallel.default_threads()
+            lists, singles = lanebatch.groups_of([g.sim for g in self.groups], threads)
+            plan = self._plan = lanebatch.Plan([lanebatch.LaneGroup(x) for x in lists], singles)
+        return plan
+
+    def _advance_lanes(self, duration, n):
+        """:meth:`advance` with alike groups stepped as lanes (one lane group per thread) and
+        the others one at a time; a failure restores every column, as :meth:`_each` does."""
+        lane_groups, singles = self._lane_plan()
+        sims = [g.sim for g in self.groups]
+        before = {id(s): lanebatch.clock_of(s) for s in sims}
+        keeps = {id(s): s._keep() for s in singles}
+        tasks = [(True, g) for g in lane_groups] + [(False, s) for s in singles]
+
+        def work(task):
+            is_lanes, item = task
+            return item.advance(n) if is_lanes else item.advance(duration)
+        done = parallel.each(work, tasks, self.threads if len(tasks) > 1 else 1)
+        self._cache = {}
+        result = {}               # id(sim) -> (ok, value)
+        where = {}                # id(sim) -> (lane group, lane) for lane members
+        for (is_lanes, item), (ok, value) in zip(tasks, done):
+            if not is_lanes:
+                result[id(item)] = (ok, value)
+                continue
+            if not ok:
+                raise value       # the group's call itself failed: not a lane's divergence
+            for k, (s, r) in enumerate(zip(item.sims, value)):
+                result[id(s)] = r
+                where[id(s)] = (item, k)
+        failed = next(((g, result[id(g.sim)][1]) for g in self.groups
+                       if not result[id(g.sim)][0]), None)
+        if failed is not None:
+            for s in sims:
+                if not result[id(s)][0]:
+                    continue                        # it restored itself
+                if id(s) in where:
+                    group, k = where[id(s)]
+                    group.restore(k, before[id(s)])
+                else:
+                    s._restore(keeps[id(s)])
+                    s.t, s.step, s.steps_taken = before[id(s)][:3]
+            grp, exc = failed
+            if isinstance(exc, SimulationDiverged):
+                raise _renamed(exc, grp.columns) from None
+            raise exc
+        return max(v for _, v in result.values())
 
     def advance_part(self, fraction):
         """Every column by one step shortened to ``fraction`` of ``dt``

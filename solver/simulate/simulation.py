@@ -394,14 +394,25 @@ class Simulation(Loading, Checks, SimulationAPI):
             else:
                 out = call.entry(*args)
             steps, status, finite, e, cerr, h_min = out
-            self._cache = {'summary': StateSummary(finite, e, h, cerr, h_min)}
-            keep = None
+            return self._conclude(n, steps, status, (finite, e, h, cerr, h_min),
+                                  lambda: self._kept(call.kept, integ_state))
+        return self._conclude(n, steps, status, None, lambda: keep)
+
+    def _conclude(self, n, steps, status, summary, keep):
+        """The end of an interval of ``n`` steps whose integrator returned ``steps`` and
+        ``status`` (from :meth:`advance`, or a lane group's call:
+        :mod:`solver.simulate.lanebatch`): ``summary`` the state summary the call computed
+        (``(finite, energy, heights, constraint error, smallest height)``, or None), ``keep()``
+        the :class:`Kept` of the interval's start. Checks the state; on a failure restores
+        ``keep()`` and raises :class:`SimulationDiverged` naming the step, else moves the clock.
+        Returns ``steps``."""
+        if summary is not None:
+            self._cache = {'summary': StateSummary(*summary)}
         problem = self._check(status)
         if problem is not None:
-            if keep is None:        # the call kept the data it started from
-                keep = self._kept(call.kept, integ_state)
-            self._restore(keep)
-            raise self._locate(n, keep, problem)
+            kept = keep()
+            self._restore(kept)
+            raise self._locate(n, kept, problem)
         self._energy_scale = max(self._energy_scale, abs(self._summary().energy))
         self.t += n * self.dt
         self.step += n

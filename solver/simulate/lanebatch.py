@@ -1,0 +1,304 @@
+"""Simulations of one model stepped together as lanes (:mod:`solver.integrators.rk4lanes`).
+
+A :class:`LaneGroup` takes B :class:`~solver.simulate.simulation.Simulation` objects whose
+models are alike (:func:`lane_key`: the same model class, the same constants record by value,
+the same integrator settings) and steps them in one compiled call: each lane on its own clock,
+with its own steps, exactly the steps its single run would take (bit for bit). The group owns
+the data: each simulation's ``model.data`` is rebound to views of the group's lane-outer arrays,
+so that its commands, frames and checks read and write the group's memory in place and the
+call copies nothing in or out. A group notices when a simulation's model or data were replaced
+(an expansion to ``full3d``, a reset of the model) and is then rebuilt by its owner
+(:meth:`LaneGroup.bound`).
+
+After the call each simulation concludes its interval on its own
+(:meth:`Simulation._conclude`): the divergence checks on the state summary the call computed
+per lane, and on a failure the restore from the data the call kept and the replay that names
+the failing step. One lane's failure leaves the others' results as they are.
+
+Lanes serve ``rk4_projected`` and ``rk4`` on exact models without a running prestrain ramp and
+without the KKT system of massive bars (:func:`eligible`); everything else steps one
+simulation at a time.
+"""
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from solver.compiled import compiled_overload
+from solver.integrators import rk4lanes
+from solver.kernels import lanedata, lanes as lanes_mod, records
+from solver.status import OK
+
+LANE_METHODS = ('rk4_projected', 'rk4')
+
+# The largest group stepped in one call: past 64 lanes the lane arrays of the FB column spill
+# from the core's L2 cache (bench/results/lanes.json: 0.44x of the scalar evaluation per lane at
+# B = 32-64, 0.52x at 128).
+MAX_LANES = 64
+SMALLEST = 8            # blocks of stragglers halve down to this many lanes
+
+
+def eligible(sim):
+    """Whether ``sim`` can step as a lane: an exact record model (not ``chain1d``), an
+    integrator of :data:`LANE_METHODS`, no prestrain ramp running, no KKT system."""
+    m = sim.model
+    return (not m.integrates_itself and m.exact and sim._ramp is None
+            and sim.integrator.name in LANE_METHODS
+            and m.rec.topo.kkt.node_u.shape[0] == 0)
+
+
+def _fingerprint(value):
+    """A hashable summary of a record's constants by value (arrays by dtype, shape and bytes)."""
+    if isinstance(value, np.ndarray):
+        return (value.dtype.str, value.shape, value.tobytes())
+    if isinstance(value, tuple):
+        return tuple(_fingerprint(v) for v in value)
+    return value
+
+
+_PRINTS: dict = {}          # id(record) -> (record, its number)
+_NUMBERS: dict = {}         # fingerprint -> number
+
+
+def _record_number(rec):
+    """A number per distinct constants record (by value), computed once per record object (a
+    record is never edited: :mod:`solver.kernels.records`)."""
+    hit = _PRINTS.get(id(rec))
+    if hit is None or hit[0] is not rec:
+        if len(_PRINTS) > 4096:
+            _PRINTS.clear()
+        number = _NUMBERS.setdefault(_fingerprint(rec), len(_NUMBERS))
+        hit = _PRINTS[id(rec)] = (rec, number)
+    return hit[1]
+
+
+def lane_key(sim):
+    """What simulations must share to step as lanes of one group: the model class, its
+    constants (by value), the shapes of its data, ``dt`` and the integrator's settings."""
+    m = sim.model
+    d = m.data
+    return (type(m).__name__, _record_number(m.rec), d.x.shape, d.contact.scan.shape,
+            d.contact.active.shape, sim.integrator.name, float(sim.dt), float(sim.tol),
+            int(sim.max_iter), bool(sim.kinks), sim._heights_shape)
+
+
+class LaneGroup:
+    """B simulations of one :func:`lane_key` stepped together (see the module text)."""
+
+    def __init__(self, sims):
+        sims = list(sims)
+        if not sims:
+            raise ValueError('a lane group needs simulations')
+        key = lane_key(sims[0])
+        for s in sims:
+            if not eligible(s) or lane_key(s) != key:
+                raise ValueError('lane group: the simulations are not alike')
+        self.sims = sims
+        b = len(sims)
+        m0 = sims[0].model
+        self.rec = m0.rec
+        d0 = m0.data
+        n = d0.x.shape[0]
+
+        def stack(get, dtype=np.float64):
+            return np.ascontiguousarray(np.stack([get(s.model.data) for s in sims]), dtype=dtype)
+        self.S = lanedata.LaneState(
+            stack(lambda d: d.x), stack(lambda d: d.v), stack(lambda d: d.rest),
+            stack(lambda d: d.EA), stack(lambda d: d.f_ext), stack(lambda d: d.ledger),
+            stack(lambda d: d.contact.scan), stack(lambda d: d.contact.active, np.int64),
+            stack(lambda d: d.refine), np.zeros((b, 2, n, 3)))
+        self.kept = lanedata.LaneState(*(np.zeros_like(a) for a in self.S))
+        self.blocks = [_Block(self.S, self.rec.topo, m0.work)]
+        size = b
+        while size > SMALLEST:          # fewer lanes for the stragglers: half, a multiple of 4
+            size = -(-size // 8) * 4
+            self.blocks.append(_Block(None, self.rec.topo, m0.work, like=self.S, lanes=size))
+        self.status = np.zeros(b, np.int64)
+        self.steps = np.zeros(b, np.int64)
+        self.out = np.zeros((b, 4))
+        self._models = []
+        self._data = []
+        for k, s in enumerate(sims):
+            data = self.record(self.S, k)
+            s.model.data = data
+            s._call = None
+            s._changed()
+            self._models.append(s.model)
+            self._data.append(data)
+
+    @staticmethod
+    def record(S, k):
+        """Lane ``k``'s :class:`~solver.kernels.records.Data`: views into ``S``."""
+        return records.Data(S.x[k], S.v[k], S.rest[k], S.EA[k], S.f_ext[k], S.ledger[k],
+                            records.ContactState(S.scan[k], S.active[k]), S.refine[k])
+
+    def bound(self):
+        """Whether every simulation still steps on this group's memory, alike and eligible."""
+        return all(s.model is m and m.data is d and eligible(s)
+                   for s, m, d in zip(self.sims, self._models, self._data))
+
+    def advance(self, n):
+        """Advance every simulation by ``n`` steps of ``dt`` in one call, then conclude each
+        (:meth:`Simulation._conclude`). Returns ``[(ok, steps or exception)]`` per simulation,
+        as :func:`solver.simulate.parallel.each` does; a simulation that failed restored itself
+        to its state before the call."""
+        if not self.bound():
+            raise RuntimeError('lane group: a simulation left the group (rebuild it)')
+        if n <= 0:
+            return [(True, s.advance(0.0)) for s in self.sims]
+        s0 = self.sims[0]
+        self.status[:] = OK
+        heights = np.empty((len(self.sims),) + s0._heights_shape)
+        self._step(n, heights)
+        results = []
+        for k, s in enumerate(self.sims):
+            o = self.out[k]
+            summary = (bool(o[0]), float(o[1]), heights[k], float(o[2]), float(o[3]))
+            kept = self.record(self.kept, k)
+            try:
+                results.append((True, s._conclude(
+                    n, int(self.steps[k]), int(self.status[k]), summary,
+                    lambda s=s, kept=kept: s._kept(kept, None))))
+            except Exception as exc:            # noqa: BLE001 - this lane's result
+                results.append((False, exc))
+        return results
+
+    def _step(self, n, heights):
+        """The compiled call of :meth:`advance`: the lanes step together while at least half of
+        them still step; the stragglers then move to a block of fewer lanes (the next
+        :class:`_Block`), and back when they are done, so that a few lanes in long contact do
+        not cost the vector work of all of them."""
+        s0 = self.sims[0]
+        dt = float(s0.dt)
+        total = n * dt
+        fixed = (dt, total, float(s0.tol), int(s0.max_iter), bool(s0.kinks),
+                 bool(s0.integrator.projected))
+        top = self.blocks[0]
+        rk4lanes.begin_checked(self.rec, top.S, top.L, top.C, self.status, self.steps,
+                               self.kept)
+        chain = []                      # (block, its lanes' slots in the block above)
+        block, status, steps = top, self.status, self.steps
+        level = 0
+        while True:
+            smaller = self.blocks[level + 1] if level + 1 < len(self.blocks) else None
+            min_live = 0 if smaller is None else smaller.lanes + 1
+            left = block.rounds(self.rec, fixed, status, steps, min_live)
+            if left == 0:
+                break
+            alive = np.flatnonzero((status == OK) & (total - block.C.t > 1e-9 * dt))
+            smaller.take(block, alive, status, steps)
+            chain.append((block, alive, status, steps))
+            block, status, steps = smaller, smaller.status, smaller.steps
+            level += 1
+        for above, alive, st, sp in reversed(chain):
+            block.give(above, alive, st, sp)
+            block = above
+        rk4lanes.end_checked(self.rec, top.S, top.C, self.status, self.out, heights)
+
+    def restore(self, k, before):
+        """Back to the data the last call started from, for simulation ``k`` that concluded its
+        interval (an array restores every column when one fails); ``before``: its
+        ``(t, step, steps_taken, energy scale, twist reference)`` before the call."""
+        s = self.sims[k]
+        s._restore(s._kept(self.record(self.kept, k), None))
+        s.t, s.step, s.steps_taken, s._energy_scale, s._twist_ref = before
+
+
+class _Block:
+    """One set of lanes and its scratch: ``S`` (the group's memory for the first block; a
+    block of ``lanes`` stragglers shaped ``like`` it otherwise), the lane-inner copies ``L``,
+    scratch ``W``, ``X``, ``w0``, the step control ``C`` and, for a block of stragglers, their
+    ``status`` and ``steps``."""
+
+    def __init__(self, S, topo, work, like=None, lanes=None):
+        if S is None:
+            S = lanedata.LaneState(*(np.zeros((lanes,) + a.shape[1:], a.dtype) for a in like))
+        self.S = S
+        self.lanes = b = S.x.shape[0]
+        n, nc = S.x.shape[1], S.rest.shape[1]
+        self.L = lanes_mod.LaneData(np.zeros((n, 3, b)), np.zeros((n, 3, b)),
+                                    np.zeros((nc, b)), np.zeros((nc, b)), np.zeros((n, 3, b)))
+        self.W = lanes_mod.lane_work(topo, n, b)
+        self.X = lanedata.LaneScratch(np.zeros((b, n, 3)), np.zeros((b, n, 3)),
+                                      np.zeros((b, n, 3)))
+        self.C = rk4lanes.lane_control(b)
+        self.w0 = records.clone_work(work)
+        self.status = np.zeros(b, np.int64)
+        self.steps = np.zeros(b, np.int64)
+        self._entry = None
+
+    def rounds(self, rec, fixed, status, steps, min_live):
+        dt, total, tol, max_iter, kinks, project = fixed
+        args = (rec, self.S, self.L, self.W, self.X, self.C, self.w0, dt, total, tol, max_iter,
+                kinks, project, status, steps, int(min_live))
+        if self._entry is None:         # through numba's dispatch, then its compiled overload
+            left = rk4lanes.rounds(*args)
+            self._entry = compiled_overload(rk4lanes.rounds, args) or rk4lanes.rounds
+            return left
+        return self._entry(*args)
+
+    def take(self, above, alive, status, steps):
+        """Move the lanes ``alive`` of the block ``above`` (its ``status``, ``steps``) into the
+        first lanes of this one; the others here do not step."""
+        m = len(alive)
+        for mine, theirs in zip(self.S + self.C, above.S + above.C):
+            mine[:m] = theirs[alive]
+        self.X.a1[:m] = above.X.a1[alive]
+        self.status[:m] = status[alive]
+        self.status[m:] = NOT_A_LANE
+        self.steps[:m] = steps[alive]
+        lanedata.enter(self.S, self.L)
+
+    def give(self, above, alive, status, steps):
+        """Move the lanes taken by :meth:`take` back into the block ``above``."""
+        m = len(alive)
+        for mine, theirs in zip(self.S + self.C, above.S + above.C):
+            theirs[alive] = mine[:m]
+        above.X.a1[alive] = self.X.a1[:m]
+        status[alive] = self.status[:m]
+        steps[alive] = self.steps[:m]
+
+
+NOT_A_LANE = -99        # the status of an empty lane of a block of stragglers
+
+
+def clock_of(sim):
+    """What :meth:`LaneGroup.restore` puts back besides the data."""
+    return sim.t, sim.step, sim.steps_taken, sim._energy_scale, sim._twist_ref
+
+
+class Plan(NamedTuple):
+    """Simulations split by :func:`groups_of`: the lane ``groups`` (:class:`LaneGroup`) and the
+    ``singles`` that step one at a time."""
+    groups: list
+    singles: list
+
+
+def groups_of(sims, threads=1, max_lanes=MAX_LANES, min_lanes=8):
+    """Split ``sims`` into lists that step as lane groups (alike and eligible, at most
+    ``max_lanes`` a list, in the given order within a key; a key with more than ``threads``
+    times ``min_lanes`` members is cut into at least ``threads`` lists, so that every thread
+    steps one) and the rest, which step one at a time. Returns ``(lane lists, singles)``."""
+    by_key = {}
+    singles = []
+    for s in sims:
+        if eligible(s):
+            by_key.setdefault(lane_key(s), []).append(s)
+        else:
+            singles.append(s)
+    lists = []
+    for members in by_key.values():
+        n = len(members)
+        if n < 2:
+            singles.extend(members)
+            continue
+        n_lists = max(-(-n // max_lanes), min(max(int(threads), 1), n // min_lanes), 1)
+        size = -(-n // n_lists)
+        for i in range(0, n, size):
+            part = members[i:i + size]
+            if len(part) > 1:
+                lists.append(part)
+            else:
+                singles.extend(part)
+    return lists, singles

@@ -1,0 +1,157 @@
+"""Lane groups (solver.simulate.lanebatch) against single runs: simulations stepped together as
+lanes equal, bit for bit, the same simulations stepped one at a time (positions, strains,
+energies, balance, steps taken, contacts met, the damping's ledger), with different prestrains,
+impacts that bring bar and base contact, cable damping, a pulse train, stragglers moved to
+fewer lanes, and a lane that diverges alone with its single run's reason; arrays of columns
+equal their one-at-a-time twin on 1 and 2 threads."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from solver import Scene
+from solver.simulate import lanebatch
+from solver.simulate.array import simulation_for
+from solver.simulate.simulation import Simulation, SimulationDiverged
+
+ROOT = Path(__file__).resolve().parents[1]
+FB = ROOT / 'config' / 'scenes' / 'fb_column.yaml'
+
+
+def _same(a, b):
+    """Whether two simulations are in the same state, bit for bit."""
+    fa, fb = a.frame(), b.frame()
+    return (np.array_equal(fa.positions, fb.positions) and np.array_equal(fa.strain, fb.strain)
+            and np.array_equal(fa.tension, fb.tension) and fa.energy == fb.energy
+            and fa.energy_balance_error == fb.energy_balance_error and a.t == b.t
+            and a.step == b.step and a.steps_taken == b.steps_taken
+            and a.contacts_met == b.contacts_met
+            and a.model.dissipated() == b.model.dissipated())
+
+
+def _pair(scene, commands):
+    """Two lists of simulations of ``scene``, each with ``commands[k](sim)`` applied."""
+    def make():
+        out = []
+        for c in commands:
+            s = Simulation(scene)
+            c(s)
+            out.append(s)
+        return out
+    return make(), make()
+
+
+def _cmd(prestrain, v0):
+    def apply(sim):
+        sim.apply_prestrain(prestrain)
+        sim.apply_impact(v0)
+    return apply
+
+
+def _step_both(group, singles, n, intervals):
+    """``intervals`` calls of ``n`` steps: the group's results and the singles' (ok, value)."""
+    out = []
+    for _ in range(intervals):
+        got = group.advance(n)
+        want = []
+        for s in singles:
+            try:
+                want.append((True, s.advance(n * s.dt)))
+            except SimulationDiverged as exc:
+                want.append((False, exc))
+        out.append((got, want))
+    return out
+
+
+def test_mixed_lanes_equal_their_single_runs():
+    """Nine lanes: different prestrains; impacts of 0.3, 1 and 2 m/s (bar and base contact,
+    trials, ledger refinement), which split the lanes into stragglers moved to fewer lanes;
+    one lane hit at 30 m/s diverges in its first step. Every other lane equals its single run
+    after every interval; the diverging lane fails with its single run's message, restored to
+    its state before the interval."""
+    scene = Scene.load(FB)
+    v0s = [0.3, 1.0, 2.0, 1.0, 0.3, 2.0, 1.0, 30.0, 0.3]
+    commands = [_cmd(0.02 + 0.005 * k, v) for k, v in enumerate(v0s)]
+    lanes, singles = _pair(scene, commands)
+    group = lanebatch.LaneGroup(lanes)
+    assert len(group.blocks) > 1                # 9 lanes: stragglers move to a block of 8
+    got, want = _step_both(group, singles, 8, 1)[0]
+    bad = v0s.index(30.0)
+    for k, ((ok, value), (ok_s, value_s)) in enumerate(zip(got, want)):
+        assert ok == (k != bad) and ok_s == ok
+        if not ok:
+            assert isinstance(value, SimulationDiverged)
+            assert str(value) == str(value_s)
+        else:
+            assert value == value_s
+        assert _same(lanes[k], singles[k]), k
+    keep = [k for k in range(len(lanes)) if k != bad]
+    group = lanebatch.LaneGroup([lanes[k] for k in keep])
+    singles = [singles[k] for k in keep]
+    for got, want in _step_both(group, singles, 8, 5):
+        assert got == want
+        assert all(_same(a, b) for a, b in zip(group.sims, singles))
+    hard = [s for s, v in zip(group.sims, [v0s[k] for k in keep]) if v >= 1.0]
+    assert all(s.contacts_met > 0 for s in hard)
+    assert max(s.steps_taken for s in group.sims) > 2 * min(s.steps_taken for s in group.sims)
+
+
+def test_damped_lanes_and_a_pulse_train():
+    """Cable damping (the power and the energy it takes out, booked per lane) and the impacts
+    of a pulse train applied between intervals: lanes equal their single runs."""
+    scene = Scene.load(FB).with_overrides([('materials.cable_damping_ratio', 0.02)])
+    commands = [_cmd(0.03 + 0.01 * k, 0.5 + 0.25 * k) for k in range(4)]
+    lanes, singles = _pair(scene, commands)
+    group = lanebatch.LaneGroup(lanes)
+    for i in range(4):
+        for got, want in _step_both(group, singles, 6, 1):
+            assert got == want
+        for k, (a, b) in enumerate(zip(lanes, singles)):
+            if i % 2 == k % 2:
+                a.apply_impact(0.2)
+                b.apply_impact(0.2)
+        assert all(_same(a, b) for a, b in zip(lanes, singles))
+    assert all(s.model.dissipated() > 0 for s in lanes)
+
+
+def test_lane_keys_group_only_alike_models():
+    """Prestrains differ in the data only: one key. A radius or a prism height changes the
+    model's constants: another key, another group; a running ramp steps alone."""
+    scene = Scene.load(FB)
+    a, b = Simulation(scene), Simulation(scene)
+    b.apply_prestrain(0.07)
+    assert lanebatch.lane_key(a) == lanebatch.lane_key(b)
+    for key, value in [('structure.h0', 0.0065), ('structure.radius', 0.0052)]:
+        other = Simulation(scene.with_overrides([(key, value)]))
+        assert lanebatch.lane_key(other) != lanebatch.lane_key(a)
+    c = Simulation(scene)
+    c.apply_prestrain(0.05, ramp_s=0.01)
+    assert not lanebatch.eligible(c)
+    lists, singles = lanebatch.groups_of([a, b, c])
+    assert [len(x) for x in lists] == [2] and singles == [c]
+
+
+@pytest.mark.parametrize('threads', [1, 2])
+def test_array_lanes_equal_one_column_at_a_time(threads):
+    """An array of 20 columns with different prestrains hit at 0.5 m/s: stepped as lanes (one
+    lane group per thread) it equals the array stepped one column simulation at a time."""
+    scene = Scene.load(FB).with_overrides([('structure.n_columns', 20)])
+    sims = []
+    for lanes in (True, False):
+        sim = simulation_for(scene)
+        sim.lanes, sim.threads = lanes, threads
+        n_p = sim.network.n_prisms
+        sim.apply_prestrain(np.linspace(0.02, 0.06, 20)[:, None] * np.ones((1, n_p)))
+        sim.apply_impact(0.5)
+        for _ in range(5):
+            sim.advance(8 * sim.dt)
+        sims.append(sim)
+    a, b = sims
+    assert a._plan is not None and len(a._plan.groups) == threads
+    fa, fb = a.frame(), b.frame()
+    assert np.array_equal(fa.positions, fb.positions)
+    assert np.array_equal(fa.strain, fb.strain)
+    assert fa.energy == fb.energy and a.steps_taken == b.steps_taken
+    assert a.contacts_met == b.contacts_met
