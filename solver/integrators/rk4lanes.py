@@ -12,8 +12,7 @@ import numpy as np
 
 from solver.compiled import jit_lanes
 from solver.integrators.rk4 import REFINE_COARSEN, REFINE_LEVELS, REFINE_SHARE
-from solver.kernels import effects, lanedata, lanes, summary
-from solver.kernels.kinks import next_kink
+from solver.kernels import effects, lanedata, lanes, lanesteps, summary
 from solver.kernels.records import copy_data
 from solver.status import OK
 
@@ -99,7 +98,9 @@ class LaneControl(NamedTuple):
     refined ``refine``, the round's ``mode`` (0 plain step, 1 trial, 2 trial not kept), ``live``
     (the lane steps in the current round) and ``go`` (the lane takes the step being computed),
     the status ``st`` of the current round and ``ev`` (the lanes an evaluation computes for:
-    ``go`` and ``st`` still ``OK``, as a single run stops evaluating at its first failure)."""
+    ``go`` and ``st`` still ``OK``, as a single run stops evaluating at its first failure).
+    Scratch of a round: each lane's step to its next kink ``hk``, the ledger energy at its
+    step's end ``e1`` and a mask ``mk``."""
     t: np.ndarray
     h: np.ndarray
     h_free: np.ndarray
@@ -122,13 +123,17 @@ class LaneControl(NamedTuple):
     go: np.ndarray
     st: np.ndarray
     ev: np.ndarray
+    hk: np.ndarray
+    e1: np.ndarray
+    mk: np.ndarray
 
 
 def lane_control(lanes_n):
     """A zeroed :class:`LaneControl` of ``lanes_n`` lanes."""
     f = [np.zeros(lanes_n) for _ in range(14)]
     i = [np.zeros(lanes_n, np.int64) for _ in range(8)]
-    return LaneControl(*f, *i)
+    return LaneControl(*f, *i, np.zeros(lanes_n), np.zeros(lanes_n),
+                       np.zeros(lanes_n, np.int64))
 
 
 @jit_lanes
@@ -265,7 +270,13 @@ def rounds(m, S, L, W, X, C, w0, dt, total, tol, max_iter, kinks, project, statu
                 if C.e0[k] != C.e0[k]:
                     C.e0[k] = effects.ledger_energy(d.x, d.v, m, d)
         lanedata.evaluate(L.x, L.v, m, S, L, W, X, C, W.a1)
-        # where the step ends, lane by lane (_controlled_step's plan)
+        # where the step ends: the next kink over lanes, then lane by lane (_controlled_step's
+        # plan)
+        for k in range(n_lanes):
+            C.mk[k] = 1 if C.go[k] != 0 and C.st[k] == OK else 0
+            C.hk[k] = C.h[k]
+        if kinks:
+            lanesteps.next_kink_lanes(L.x, L.v, W.a1, m, L.rest, C.h, 1e-3 * dt, C.mk, C.hk)
         for k in range(n_lanes):
             if C.mode[k] == 2 and C.live[k] != 0:
                 lanedata.lane_in(X.a1[k], k, W.a1)
@@ -278,10 +289,7 @@ def rounds(m, S, L, W, X, C, w0, dt, total, tol, max_iter, kinks, project, statu
             d = lanedata.lane_record(S, k)
             a1 = X.a1[k]
             lanedata.lane_out(W.a1, k, a1)
-            h = C.h[k]
-            if kinks:
-                h = next_kink(d.x, d.v, a1, m, d, h, 1e-3 * dt)
-            h = effects.fixed_step_limit(d.x, d.v, a1, m, h)
+            h = effects.fixed_step_limit(d.x, d.v, a1, m, C.hk[k])
             C.h_free[k] = h
             h_c, trial, known = effects.plan(d.x, d.v, a1, m, d, h, C.met[k],
                                              0.5 ** C.clevel[k])
@@ -324,7 +332,12 @@ def rounds(m, S, L, W, X, C, w0, dt, total, tol, max_iter, kinks, project, statu
             lanes.project_positions(L.x, m.topo, W, tol, max_iter, C.st)
             lanes.project_velocities(L.x, L.v, m.topo, W, C.st)
         lanes.check_finite(L.x, L.v, W.piv, C.st)
-        # the step's end, lane by lane: failed, retaken at half its length, or done
+        # the step's end: the ledger energy over lanes, then lane by lane: failed, retaken at
+        # half its length, or done
+        for k in range(n_lanes):
+            C.mk[k] = 1 if (C.live[k] != 0 and C.mode[k] != 2 and C.st[k] == OK
+                            and C.refine[k] != 0) else 0
+        lanedata.ledger_energies(m, S, L, C.mk, C.e1, W.tmp)
         for k in range(n_lanes):
             if C.live[k] == 0 or C.mode[k] == 2:
                 continue
@@ -335,7 +348,7 @@ def rounds(m, S, L, W, X, C, w0, dt, total, tol, max_iter, kinks, project, statu
             lanedata.sync_out(L, S, k)
             h = C.h[k]
             if C.refine[k] != 0:
-                e1 = effects.ledger_energy(d.x, d.v, m, d)
+                e1 = C.e1[k]
                 e0 = C.e0[k]
                 err = abs(e1 + (effects.dissipated(d) - C.d0[k]) - e0)
                 budget = REFINE_SHARE * effects.rate(m) * h * abs(e0)

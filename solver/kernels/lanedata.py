@@ -18,7 +18,7 @@ from typing import NamedTuple
 import numpy as np
 
 from solver.compiled import jit_inline, jit_lanes
-from solver.kernels import lanes
+from solver.kernels import lanes, lanesteps
 from solver.kernels.barcontact import bar_forces, base_forces
 from solver.kernels.contact import axial_contacts
 from solver.kernels.records import LOOK, MET, POWER, ContactState, Data, Work
@@ -157,3 +157,11 @@ def enter(S, L):
     to_lanes(S.rest, L.rest)
     to_lanes(S.EA, L.EA)
     to_lanes(S.f_ext, L.f_ext)
+
+
+@jit_lanes
+def ledger_energies(m, S, L, go, out, tmp):
+    """:func:`solver.kernels.effects.ledger_energy` of each lane whose ``go`` is set, into
+    ``out`` (:func:`solver.kernels.lanesteps.ledger_energy_lanes` on the lane-inner state ``L``
+    and each lane's contact scans); ``tmp`` (3, B) scratch."""
+    lanesteps.ledger_energy_lanes(L.x, L.v, m, L.rest, L.EA, L.f_ext, S.scan, go, out, tmp)

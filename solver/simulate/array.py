@@ -407,45 +407,17 @@ class ArraySimulation(SimulationAPI):
     def _advance_lanes(self, duration, n):
         """:meth:`advance` with alike groups stepped as lanes (one lane group per thread) and
         the others one at a time; a failure restores every column, as :meth:`_each` does."""
-        lane_groups, singles = self._lane_plan()
-        sims = [g.sim for g in self.groups]
-        before = {id(s): lanebatch.clock_of(s) for s in sims}
-        keeps = {id(s): s._keep() for s in singles}
-        tasks = [(True, g) for g in lane_groups] + [(False, s) for s in singles]
-
-        def work(task):
-            is_lanes, item = task
-            return item.advance(n) if is_lanes else item.advance(duration)
-        done = parallel.each(work, tasks, self.threads if len(tasks) > 1 else 1)
+        step = lanebatch.Step(self._lane_plan(), [g.sim for g in self.groups])
+        step.run(duration, n, self.threads)
         self._cache = {}
-        result = {}               # id(sim) -> (ok, value)
-        where = {}                # id(sim) -> (lane group, lane) for lane members
-        for (is_lanes, item), (ok, value) in zip(tasks, done):
-            if not is_lanes:
-                result[id(item)] = (ok, value)
-                continue
-            if not ok:
-                raise value       # the group's call itself failed: not a lane's divergence
-            for k, (s, r) in enumerate(zip(item.sims, value)):
-                result[id(s)] = r
-                where[id(s)] = (item, k)
-        failed = next(((g, result[id(g.sim)][1]) for g in self.groups
-                       if not result[id(g.sim)][0]), None)
+        failed = next(((g, step.error(g.sim)) for g in self.groups if step.error(g.sim)), None)
         if failed is not None:
-            for s in sims:
-                if not result[id(s)][0]:
-                    continue                        # it restored itself
-                if id(s) in where:
-                    group, k = where[id(s)]
-                    group.restore(k, before[id(s)])
-                else:
-                    s._restore(keeps[id(s)])
-                    s.t, s.step, s.steps_taken = before[id(s)][:3]
+            step.restore()
             grp, exc = failed
             if isinstance(exc, SimulationDiverged):
                 raise _renamed(exc, grp.columns) from None
             raise exc
-        return max(v for _, v in result.values())
+        return step.most_steps()
 
     def advance_part(self, fraction):
         """Every column by one step shortened to ``fraction`` of ``dt``

@@ -28,6 +28,7 @@ import numpy as np
 from solver.compiled import compiled_overload
 from solver.integrators import rk4lanes
 from solver.kernels import lanedata, lanes as lanes_mod, records
+from solver.simulate import parallel
 from solver.status import OK
 
 LANE_METHODS = ('rk4_projected', 'rk4')
@@ -36,7 +37,7 @@ LANE_METHODS = ('rk4_projected', 'rk4')
 # from the core's L2 cache (bench/results/lanes.json: 0.44x of the scalar evaluation per lane at
 # B = 32-64, 0.52x at 128).
 MAX_LANES = 64
-SMALLEST = 8            # blocks of stragglers halve down to this many lanes
+SMALLEST = 2            # blocks of stragglers halve down to this many lanes
 
 
 def eligible(sim):
@@ -111,8 +112,8 @@ class LaneGroup:
         self.kept = lanedata.LaneState(*(np.zeros_like(a) for a in self.S))
         self.blocks = [_Block(self.S, self.rec.topo, m0.work)]
         size = b
-        while size > SMALLEST:          # fewer lanes for the stragglers: half, a multiple of 4
-            size = -(-size // 8) * 4
+        while size > SMALLEST:          # fewer lanes for the stragglers: half as many
+            size = (size + 1) // 2
             self.blocks.append(_Block(None, self.rec.topo, m0.work, like=self.S, lanes=size))
         self.status = np.zeros(b, np.int64)
         self.steps = np.zeros(b, np.int64)
@@ -266,6 +267,58 @@ NOT_A_LANE = -99        # the status of an empty lane of a block of stragglers
 def clock_of(sim):
     """What :meth:`LaneGroup.restore` puts back besides the data."""
     return sim.t, sim.step, sim.steps_taken, sim._energy_scale, sim._twist_ref
+
+
+class Step:
+    """One interval of every simulation of ``sims`` (split by ``plan``, a :class:`Plan`): the
+    lane groups and the single simulations on threads, each simulation's result kept, and
+    what restores every one of them when one failed (an array of columns fails as a whole)."""
+
+    def __init__(self, plan, sims):
+        self.plan, self.sims = plan, sims
+        self.before = {id(s): clock_of(s) for s in sims}
+        self.keeps = {id(s): s._keep() for s in plan.singles}
+        self.result = {}            # id(sim) -> (ok, steps or exception)
+        self.where = {}             # id(sim) -> (lane group, lane)
+
+    def run(self, duration, n, threads):
+        """Advance each simulation by ``duration`` s (``n`` steps) on ``threads`` threads."""
+        tasks = [(True, g) for g in self.plan.groups] + [(False, s) for s in self.plan.singles]
+
+        def work(task):
+            is_lanes, item = task
+            return item.advance(n) if is_lanes else item.advance(duration)
+        done = parallel.each(work, tasks, threads if len(tasks) > 1 else 1)
+        for (is_lanes, item), (ok, value) in zip(tasks, done):
+            if not is_lanes:
+                self.result[id(item)] = (ok, value)
+                continue
+            if not ok:
+                raise value         # the group's call itself failed: not a lane's divergence
+            for k, (s, r) in enumerate(zip(item.sims, value)):
+                self.result[id(s)] = r
+                self.where[id(s)] = (item, k)
+
+    def error(self, sim):
+        """The exception of ``sim``'s interval, or None."""
+        ok, value = self.result[id(sim)]
+        return None if ok else value
+
+    def most_steps(self):
+        return max(v for _, v in self.result.values())
+
+    def restore(self):
+        """Every simulation that concluded its interval back to its start (one that failed
+        restored itself)."""
+        for s in self.sims:
+            if not self.result[id(s)][0]:
+                continue
+            if id(s) in self.where:
+                group, k = self.where[id(s)]
+                group.restore(k, self.before[id(s)])
+            else:
+                s._restore(self.keeps[id(s)])
+                s.t, s.step, s.steps_taken = self.before[id(s)][:3]
 
 
 class Plan(NamedTuple):
