@@ -133,19 +133,20 @@ def test_lane_keys_group_only_alike_models():
     assert [len(x) for x in lists] == [2] and singles == [c]
 
 
-@pytest.mark.parametrize('threads', [1, 2])
-def test_array_lanes_equal_one_column_at_a_time(threads):
+@pytest.mark.parametrize('threads, way', [(1, True), (2, True), (2, 'auto')])
+def test_array_lanes_equal_one_column_at_a_time(threads, way):
     """An array of 20 columns with different prestrains hit at 0.5 m/s: stepped as lanes (one
-    lane group per thread) it equals the array stepped one column simulation at a time."""
+    lane group per thread), or switching between lanes and single simulations as measured
+    (``'auto'``), it equals the array stepped one column simulation at a time."""
     scene = Scene.load(FB).with_overrides([('structure.n_columns', 20)])
     sims = []
-    for lanes in (True, False):
+    for lanes in (way, False):
         sim = simulation_for(scene)
         sim.lanes, sim.threads = lanes, threads
         n_p = sim.network.n_prisms
         sim.apply_prestrain(np.linspace(0.02, 0.06, 20)[:, None] * np.ones((1, n_p)))
         sim.apply_impact(0.5)
-        for _ in range(5):
+        for _ in range(6):
             sim.advance(8 * sim.dt)
         sims.append(sim)
     a, b = sims
@@ -155,3 +156,18 @@ def test_array_lanes_equal_one_column_at_a_time(threads):
     assert np.array_equal(fa.strain, fb.strain)
     assert fa.energy == fb.energy and a.steps_taken == b.steps_taken
     assert a.contacts_met == b.contacts_met
+
+
+def test_chooser_takes_the_faster_way_and_probes_the_other():
+    """Unknown ways first (their first call not counted), then the cheaper per step, the other
+    once every ``probe_every`` calls; a way that becomes cheaper takes over."""
+    c = lanebatch.Chooser(probe_every=4, weight=1.0)
+    trace = []
+    for _ in range(12):
+        way = c.pick()
+        trace.append(way)
+        cost = 1.0 if way is False else (2.0 if c.calls < 8 else 0.5)
+        c.note(way, cost * 8, 8)
+    assert trace[:4] == [True, True, False, False]
+    assert trace[4:8] == [False, False, False, True]     # call 8: the probe of lanes
+    assert trace[8:] == [True, True, True, False]        # lanes cheaper from call 8 on

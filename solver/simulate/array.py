@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 import re
+import time
 
 import numpy as np
 
@@ -97,7 +98,10 @@ class ArraySimulation(SimulationAPI):
     its own simulation from the start (the plain twin of the shared one)."""
 
     threads = None          # threads the groups step on (None: every core; 1: one after another)
-    lanes = True            # alike groups step together as lanes (solver.simulate.lanebatch)
+    # alike groups step together as lanes (solver.simulate.lanebatch): True, False, or 'auto':
+    # the faster of the two as measured along the run (both give the same result, bit for bit)
+    lanes = 'auto'
+    _chooser = None
 
     def __init__(self, scene: Scene, network=None, dedup=True):
         if network is not None:
@@ -389,9 +393,18 @@ class ArraySimulation(SimulationAPI):
         column restores every column and raises :class:`SimulationDiverged` naming it (the first
         diverging group in column order)."""
         n = max(int(round(duration / self.dt)), 0)
-        if self.lanes and n > 0 and len(self.groups) > 1:
+        if not (self.lanes and n > 0 and len(self.groups) > 1):
+            return self._each(lambda sim: sim.advance(duration))
+        if self.lanes != 'auto':
             return self._advance_lanes(duration, n)
-        return self._each(lambda sim: sim.advance(duration))
+        if self._chooser is None:
+            self._chooser = lanebatch.Chooser()
+        way = self._chooser.pick()
+        t0 = time.perf_counter()
+        steps = (self._advance_lanes(duration, n) if way
+                 else self._each(lambda sim: sim.advance(duration)))
+        self._chooser.note(way, time.perf_counter() - t0, n)
+        return steps
 
     def _lane_plan(self):
         """``(lane groups, single simulations)`` of the present groups

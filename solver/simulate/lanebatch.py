@@ -355,3 +355,33 @@ def groups_of(sims, threads=1, max_lanes=MAX_LANES, min_lanes=8):
             else:
                 singles.extend(part)
     return lists, singles
+
+
+class Chooser:
+    """Picks, call by call, the faster of two ways to step that give the same result (lanes or
+    one simulation at a time): each way's wall time per step, averaged over its recent calls
+    (the first call of a way, which builds and may compile, not counted); until both are known
+    the unknown one is taken, then the cheaper, and every ``probe_every`` calls the other one
+    once more (the dynamics change: contact makes lanes wait for each other)."""
+
+    def __init__(self, probe_every=32, weight=0.3):
+        self.probe_every, self.weight = probe_every, weight
+        self.cost = {True: None, False: None}
+        self.seen = {True: 0, False: 0}
+        self.calls = 0
+
+    def pick(self):
+        self.calls += 1
+        for way in (True, False):
+            if self.cost[way] is None:
+                return way
+        best = self.cost[True] <= self.cost[False]
+        return (not best) if self.calls % self.probe_every == 0 else best
+
+    def note(self, way, seconds, n):
+        self.seen[way] += 1
+        if self.seen[way] < 2:
+            return
+        c = seconds / max(n, 1)
+        old = self.cost[way]
+        self.cost[way] = c if old is None else (1 - self.weight) * old + self.weight * c
