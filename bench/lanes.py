@@ -11,7 +11,16 @@ accelerations` against :func:`solver.kernels.dynamics.accelerations`) and one pr
 kernel, no kinks). The calls repeat inside compiled loops, so numba's dispatch is not timed. The
 ratio is the lanes' time per instance over the scalar time (below 1: the lanes are cheaper); each
 lane measurement is paired with a scalar one just before it and the lowest ratio of three pairs is
-reported. One run's ratios: on a busy machine they are noisy.
+reported.
+
+Then whole runs of the FB column scene as users run it (``fb_column.yaml``: ``sym3d``, bar and
+base contact, the ledger's refinement), B columns with different prestrains (0.02-0.08) stepped
+as a :class:`~solver.simulate.lanebatch.LaneGroup` against the same B simulations stepped one at
+a time, on one thread, in calls of 8 steps (the node's 200 Hz frames): at rest after the
+prestrain (no contact) and after an impact of 0.3 m/s on every column (contact); then the array
+of 64 columns (:class:`~solver.simulate.array.ArraySimulation`, one thread) with ``lanes`` True,
+False and ``'auto'``. The figure is the wall time per column over one column's single run (the
+issue's "per-column cost"). One run's ratios: on a busy machine they are noisy.
 """
 from __future__ import annotations
 
@@ -118,6 +127,83 @@ def _measure(net, n_lanes, kind):
     return s, b, ratio
 
 
+RUN_LANES = (8, 32, 64)
+RUN_CALLS = 40           # calls of 8 steps (0.2 s of simulation) per run
+
+
+def _runs_case(n_lanes, v0, calls=RUN_CALLS):
+    """Wall time s of ``calls`` calls of 8 steps: B simulations as one lane group, the same B
+    one at a time, and one simulation alone (the first of them), and whether the lanes ended
+    equal to the single runs."""
+    from solver.simulate import lanebatch
+    from solver.simulate.simulation import Simulation
+    scene = Scene.load(COLUMNS['FB'])
+
+    def make():
+        out = []
+        for k in range(n_lanes):
+            sim = Simulation(scene)
+            sim.apply_prestrain(0.02 + 0.06 * k / max(n_lanes - 1, 1))
+            if v0:
+                sim.apply_impact(v0)
+            out.append(sim)
+        return out
+    a, b = make(), make()
+    group = lanebatch.LaneGroup(a)
+    group.advance(8)                          # compile / load outside the timing
+    for sim in b:
+        sim.advance(8 * sim.dt)
+    t0 = time.perf_counter()
+    for _ in range(calls):
+        group.advance(8)
+    lanes_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    for _ in range(calls):
+        for sim in b:
+            sim.advance(8 * sim.dt)
+    scalar_s = time.perf_counter() - t0
+    same = all(np.array_equal(x.model.positions(), y.model.positions()) and
+               x.steps_taken == y.steps_taken for x, y in zip(a, b))
+    return lanes_s, scalar_s, same, sum(s.steps_taken for s in b)
+
+
+def _array_case(n_columns, v0, calls=RUN_CALLS):
+    """Wall time s of ``calls`` calls of 8 steps of an array of ``n_columns`` different
+    columns on one thread, per ``lanes`` mode."""
+    from solver.simulate.array import simulation_for
+    scene = Scene.load(COLUMNS['FB']).with_overrides([('structure.n_columns', n_columns)])
+    out = {}
+    for mode in (False, True, 'auto'):
+        sim = simulation_for(scene)
+        sim.lanes, sim.threads = mode, 1
+        p = np.linspace(0.02, 0.08, n_columns)[:, None] * np.ones((1, sim.network.n_prisms))
+        sim.apply_prestrain(p)
+        sim.apply_impact(v0)
+        sim.advance(8 * sim.dt)
+        t0 = time.perf_counter()
+        for _ in range(calls):
+            sim.advance(8 * sim.dt)
+        out[str(mode)] = time.perf_counter() - t0
+    return out
+
+
+def runs(log=print):
+    """The whole-run figures (see the module text)."""
+    rows = []
+    for n_lanes in RUN_LANES:
+        for v0 in (0.0, 0.3):
+            lanes_s, scalar_s, same, steps = _runs_case(n_lanes, v0)
+            row = {'lanes': n_lanes, 'v0_m_s': v0, 'lanes_s': lanes_s, 'one_at_a_time_s': scalar_s,
+                   'ratio': lanes_s / scalar_s, 'equal_bit_for_bit': same, 'steps': steps}
+            rows.append(row)
+            log(f"lanes: run B={n_lanes:3d} v0={v0:.1f}: lanes {lanes_s:.3f} s, one at a time "
+                f"{scalar_s:.3f} s: per-column ratio {row['ratio']:.3f}, equal {same}")
+    arr = _array_case(64, 0.3)
+    log('lanes: array of 64 columns at 0.3 m/s, one thread: ' + ', '.join(
+        f'lanes={k} {v:.3f} s' for k, v in arr.items()))
+    return rows, arr
+
+
 def main(out_dir='bench/results', log=print):
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -134,6 +220,7 @@ def main(out_dir='bench/results', log=print):
             log(f'lanes: B={n_lanes:4d} {kind:10s}: scalar {s * 1e6:8.2f} us, lanes '
                 f'{b * 1e6:8.2f} us per instance: ratio {ratio:.3f} ({1 / ratio:.2f}x)')
         rows.append(row)
+    run_rows, array = runs(log)
     load.append(os.getloadavg()[0])
     log(f'lanes: load average {load[0]:.2f} at the start, {load[1]:.2f} at the end '
         f'({os.cpu_count()} CPUs)')
@@ -142,7 +229,8 @@ def main(out_dir='bench/results', log=print):
                                 'n_nodes': int(net.n_nodes), 'n_cables': int(net.n_cables),
                                 'dt_s': DT, 'ratio': 'lanes time per instance / scalar time',
                                 'load_average_start_end': load, 'cpus': os.cpu_count(),
-                                'rows': rows}, indent=2))
+                                'rows': rows, 'runs': run_rows,
+                                'array_64_columns_one_thread_s': array}, indent=2))
     return [str(path)]
 
 
