@@ -100,7 +100,7 @@ class LaneControl(NamedTuple):
     the status ``st`` of the current round and ``ev`` (the lanes an evaluation computes for:
     ``go`` and ``st`` still ``OK``, as a single run stops evaluating at its first failure).
     Scratch of a round: each lane's step to its next kink ``hk``, the ledger energy at its
-    step's end ``e1`` and a mask ``mk``."""
+    step's end ``e1`` and a mask ``mk``, a coefficient per lane ``cs``."""
     t: np.ndarray
     h: np.ndarray
     h_free: np.ndarray
@@ -126,6 +126,7 @@ class LaneControl(NamedTuple):
     hk: np.ndarray
     e1: np.ndarray
     mk: np.ndarray
+    cs: np.ndarray
 
 
 def lane_control(lanes_n):
@@ -133,7 +134,7 @@ def lane_control(lanes_n):
     f = [np.zeros(lanes_n) for _ in range(14)]
     i = [np.zeros(lanes_n, np.int64) for _ in range(8)]
     return LaneControl(*f, *i, np.zeros(lanes_n), np.zeros(lanes_n),
-                       np.zeros(lanes_n, np.int64))
+                       np.zeros(lanes_n, np.int64), np.zeros(lanes_n))
 
 
 @jit_lanes
@@ -156,34 +157,48 @@ def step(m, S, L, W, X, C, a1, h):
     for k in range(n_lanes):
         if C.go[k] != 0:
             C.work[k] = effects.power(lanedata.lane_record(S, k))
-    for p in range(n):
-        for i in range(3):
-            for k in range(n_lanes):
-                xacc[p, i, k] = v[p, i, k]
-                vacc[p, i, k] = a1[p, i, k]
-                xs[p, i, k] = x[p, i, k] + 0.5 * h[k] * v[p, i, k]
-                vs[p, i, k] = v[p, i, k] + 0.5 * h[k] * a1[p, i, k]
+    # the element-wise updates over (n * 3, B) rows, each lane's coefficient from a (B,) array
+    # (the operations of the scalar step: x + (0.5 h) v, x + c v, x + (h / 6) xacc)
+    shape = (n * 3, n_lanes)
+    rows = shape[0]
+    x2, v2, a2 = x.reshape(shape), v.reshape(shape), a1.reshape(shape)
+    xs2, vs2, ac2 = xs.reshape(shape), vs.reshape(shape), acc.reshape(shape)
+    xa2, va2 = xacc.reshape(shape), vacc.reshape(shape)
+    c = C.cs
+    for k in range(n_lanes):
+        c[k] = 0.5 * h[k]
+    for j in range(rows):
+        for k in range(n_lanes):
+            xa2[j, k] = v2[j, k]
+            va2[j, k] = a2[j, k]
+            xs2[j, k] = x2[j, k] + c[k] * v2[j, k]
+            vs2[j, k] = v2[j, k] + c[k] * a2[j, k]
     for stage in range(1, 4):
         lanedata.evaluate(xs, vs, m, S, L, W, X, C, acc)
         wt = 1.0 if stage == 3 else 2.0
         _stage_power(S, C, wt)
-        for p in range(n):
-            for i in range(3):
+        if stage == 3:
+            for j in range(rows):
                 for k in range(n_lanes):
-                    c = 0.5 * h[k] if stage == 1 else h[k]
-                    xacc[p, i, k] += wt * vs[p, i, k]
-                    vacc[p, i, k] += wt * acc[p, i, k]
-                    if stage < 3:
-                        xs[p, i, k] = x[p, i, k] + c * vs[p, i, k]
-                        vs[p, i, k] = v[p, i, k] + c * acc[p, i, k]
+                    xa2[j, k] += wt * vs2[j, k]
+                    va2[j, k] += wt * ac2[j, k]
+            continue
+        for k in range(n_lanes):
+            c[k] = 0.5 * h[k] if stage == 1 else h[k]
+        for j in range(rows):
+            for k in range(n_lanes):
+                xa2[j, k] += wt * vs2[j, k]
+                va2[j, k] += wt * ac2[j, k]
+                xs2[j, k] = x2[j, k] + c[k] * vs2[j, k]
+                vs2[j, k] = v2[j, k] + c[k] * ac2[j, k]
     go = W.go
     for k in range(n_lanes):
         go[k] = 1 if C.go[k] != 0 and C.st[k] == OK else 0
-    for p in range(n):
-        for i in range(3):
-            for k in range(n_lanes):
-                x[p, i, k] = x[p, i, k] + h[k] / 6.0 * xacc[p, i, k] if go[k] != 0 else x[p, i, k]
-                v[p, i, k] = v[p, i, k] + h[k] / 6.0 * vacc[p, i, k] if go[k] != 0 else v[p, i, k]
+        c[k] = h[k] / 6.0
+    for j in range(rows):
+        for k in range(n_lanes):
+            x2[j, k] = x2[j, k] + c[k] * xa2[j, k] if go[k] != 0 else x2[j, k]
+            v2[j, k] = v2[j, k] + c[k] * va2[j, k] if go[k] != 0 else v2[j, k]
     for k in range(n_lanes):
         if go[k] != 0:
             effects.dissipate(lanedata.lane_record(S, k), h[k] / 6.0 * C.work[k])
