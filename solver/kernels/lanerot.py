@@ -7,8 +7,34 @@ from __future__ import annotations
 
 import math
 
-from solver.compiled import jit_lanes
+from solver.compiled import jit_inline, jit_lanes
 from solver.kernels.rotation import ROT_C, ROT_S
+
+
+@jit_inline
+def _pair_force(tmp, k, g, dx, dy, dz, cr, sr):
+    """Lane k's force ``g (dx, dy, dz)`` on node a and its reaction rotated back onto node b
+    (:func:`solver.kernels.rotation.add_pair_force`) into ``tmp[:5, k]``."""
+    fx = g * dx
+    fy = g * dy
+    tmp[0, k] = fx
+    tmp[1, k] = fy
+    tmp[2, k] = g * dz
+    tmp[3, k] = cr * fx + sr * fy
+    tmp[4, k] = cr * fy - sr * fx
+
+
+@jit_inline
+def _add_pair(f, a, b, tmp, n_lanes):
+    """Add one cable's forces of every lane (``tmp`` of :func:`_pair_force`) to nodes a and b."""
+    for i in range(3):
+        for k in range(n_lanes):
+            f[a, i, k] += tmp[i, k]
+    for i in range(2):
+        for k in range(n_lanes):
+            f[b, i, k] -= tmp[3 + i, k]
+    for k in range(n_lanes):
+        f[b, 2, k] -= tmp[2, k]
 
 
 @jit_lanes
@@ -31,21 +57,8 @@ def cable_forces_rot(x, cable_a, cable_b, cable_rot, rest, EA, f, tmp):
             g = 0.0
             if s > L:
                 g = EA[c, k] / L * (s - L) / s
-            fx = g * dx
-            fy = g * dy
-            tmp[0, k] = fx
-            tmp[1, k] = fy
-            tmp[2, k] = g * dz
-            tmp[3, k] = cr * fx + sr * fy
-            tmp[4, k] = cr * fy - sr * fx
-        for i in range(3):
-            for k in range(n_lanes):
-                f[a, i, k] += tmp[i, k]
-        for i in range(2):
-            for k in range(n_lanes):
-                f[b, i, k] -= tmp[3 + i, k]
-        for k in range(n_lanes):
-            f[b, 2, k] -= tmp[2, k]
+            _pair_force(tmp, k, g, dx, dy, dz, cr, sr)
+        _add_pair(f, a, b, tmp, n_lanes)
 
 
 @jit_lanes
@@ -84,21 +97,8 @@ def cable_forces_damped(x, v, cable_a, cable_b, cable_rot, rest, EA, damp, f, tm
                 p[k] += (T - elastic) * rate
                 if T > 0.0:
                     g = T / s
-            fx = g * dx
-            fy = g * dy
-            tmp[0, k] = fx
-            tmp[1, k] = fy
-            tmp[2, k] = g * dz
-            tmp[3, k] = cr * fx + sr * fy
-            tmp[4, k] = cr * fy - sr * fx
-        for i in range(3):
-            for k in range(n_lanes):
-                f[a, i, k] += tmp[i, k]
-        for i in range(2):
-            for k in range(n_lanes):
-                f[b, i, k] -= tmp[3 + i, k]
-        for k in range(n_lanes):
-            f[b, 2, k] -= tmp[2, k]
+            _pair_force(tmp, k, g, dx, dy, dz, cr, sr)
+        _add_pair(f, a, b, tmp, n_lanes)
     for k in range(n_lanes):
         if live[k] != 0:
             power[k] = mult * p[k]

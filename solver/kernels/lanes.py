@@ -275,30 +275,9 @@ def accelerations(x, v, topo, d, w, out, status):
     :func:`solver.kernels.dynamics.accelerations` on a plain model with every effect off;
     multipliers in ``w.lam``. A lane whose constraint matrix is not positive definite gets
     ``SINGULAR`` in ``status`` (when it is ``OK``)."""
-    tail, head = topo.con_tail, topo.con_head
-    f, wf, bvec, band, lam = w.f, w.wf, w.bvec, w.band, w.lam
-    n_lanes = x.shape[2]
-    copy(f, d.f_ext)
-    cable_forces(x, topo.cable_a, topo.cable_b, d.rest, d.EA, f, w.tmp)
-    apply_w(f, topo.w_diag, topo.partner, topo.w_off, wf)
-    member_vectors(x, tail, head, bvec)
-    for c in range(tail.shape[0]):
-        h = head[c]
-        t = tail[c]
-        for k in range(n_lanes):
-            s = 0.0
-            db = v[h, 0, k] - v[t, 0, k]
-            s += bvec[c, 0, k] * (wf[h, 0, k] - wf[t, 0, k]) + db * db
-            db = v[h, 1, k] - v[t, 1, k]
-            s += bvec[c, 1, k] * (wf[h, 1, k] - wf[t, 1, k]) + db * db
-            db = v[h, 2, k] - v[t, 2, k]
-            s += bvec[c, 2, k] * (wf[h, 2, k] - wf[t, 2, k]) + db * db
-            lam[c, k] = -s
-    assemble_band(bvec, topo.con_coef, band)
-    band_ldl_solve(band, lam, w.piv, w.flag)
-    fail(status, w.flag)
-    add_constraint_forces(lam, bvec, tail, head, f)
-    apply_w(f, topo.w_diag, topo.partner, topo.w_off, out)
+    copy(w.f, d.f_ext)
+    cable_forces(x, topo.cable_a, topo.cable_b, d.rest, d.EA, w.f, w.tmp)
+    constrained(x, v, topo, w, out, status)
 
 
 @jit_lanes
