@@ -12,7 +12,7 @@ from bench.main import main as bench_main
 from tensegrity_ros.cli import OneLineParser
 
 CHOICES = ('work_precision', 'stability', 'stiff', 'peers', 'rerun', 'sweep', 'soak', 'array',
-           'trains', 'impacts', 'lanes', 'flops')
+           'trains', 'impacts', 'lanes', 'flops', 'node_array')
 
 
 def parser():
@@ -32,8 +32,9 @@ def parser():
                         'default columns, impacts: 70 single impacts of 0.3-2 m/s with the steps '
                         'after a contact refined and not, lanes: B instances stepped together '
                         'against the scalar kernels, flops: the GFLOP/s of one evaluation, '
-                        'scalar and per lane, against the core\'s peak (these eight only on '
-                        'request)')
+                        'scalar and per lane, against the core\'s peak, node_array: the node\'s '
+                        'real-time factor on arrays of 10-50 distinct columns, lanes and not '
+                        '(these nine only on request)')
     return p
 
 

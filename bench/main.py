@@ -8,13 +8,15 @@ from pathlib import Path
 def main(out_dir='bench/results', quick=False, peers=False, only=None, log=print):
     """Run the benchmarks into ``out_dir``; ``only`` is None or a subset of
     ``{'work_precision', 'stability', 'stiff', 'peers', 'rerun', 'sweep', 'soak', 'array',
-    'trains', 'impacts', 'lanes', 'flops'}`` (``stiff``: the
+    'trains', 'impacts', 'lanes', 'flops', 'node_array'}`` (``stiff``: the
     stiff scenes of both, which ``work_precision`` and ``stability`` also run; ``peers=True`` adds
     the peer comparison, which :mod:`bench.peers` provides; ``rerun``, only on request, the cost of
     a Rerun recording, :mod:`bench.rerun_overhead`; ``sweep``, only on request, a sweep's
     single runs against the batched runner, :mod:`bench.sweep`; ``soak``, only on request, the
-    node under a command flood for 10 minutes, 20 s with ``quick``, :mod:`bench.soak`). Returns
-    the files written."""
+    node under a command flood for 10 minutes, 20 s with ``quick``, :mod:`bench.soak`;
+    ``node_array``, only on request, the node's real-time factor on arrays of distinct columns
+    per way of stepping them, :mod:`bench.node_array`, 2 s windows with ``quick``). Returns the
+    files written."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     written = []
@@ -57,4 +59,8 @@ def main(out_dir='bench/results', quick=False, peers=False, only=None, log=print
     if only is not None and 'flops' in only:           # GFLOP/s of one evaluation, peak
         from . import flops
         written += flops.main(out, log=log)
+    if only is not None and 'node_array' in only:      # the node on arrays of columns
+        from . import node_array
+        written += node_array.main(out, log=log, **({'window_s': 2.0, 'ramp_s': 0.05}
+                                                    if quick else {}))
     return written
