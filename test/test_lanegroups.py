@@ -160,14 +160,15 @@ def test_array_lanes_equal_one_column_at_a_time(threads, way):
 
 def test_chooser_takes_the_faster_way_and_probes_the_other():
     """Unknown ways first (their first call not counted), then the cheaper per step, the other
-    once every ``probe_every`` calls; a way that becomes cheaper takes over."""
+    once every ``probe_every`` calls times how many times slower it was; a way that becomes
+    cheaper takes over."""
     c = lanebatch.Chooser(probe_every=4, weight=1.0)
     trace = []
-    for _ in range(12):
+    for _ in range(16):
         way = c.pick()
         trace.append(way)
         cost = 1.0 if way is False else (2.0 if c.calls < 8 else 0.5)
         c.note(way, cost * 8, 8)
     assert trace[:4] == [True, True, False, False]
-    assert trace[4:8] == [False, False, False, True]     # call 8: the probe of lanes
-    assert trace[8:] == [True, True, True, False]        # lanes cheaper from call 8 on
+    assert trace[4:8] == [False, False, False, True]     # lanes 2x slower: probed at call 8
+    assert trace[8:] == [True] * 7 + [False]             # cheaper from call 8 on; probe at 16

