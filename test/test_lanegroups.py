@@ -162,7 +162,7 @@ def test_chooser_takes_the_faster_way_and_probes_the_other():
     """Unknown ways first (their first call not counted), then the cheaper per step, the other
     once every ``probe_every`` calls times how many times slower it was; a way that becomes
     cheaper takes over."""
-    c = lanebatch.Chooser(probe_every=4, weight=1.0)
+    c = lanebatch.Chooser(probe_every=4, weight=1.0, margin=0.1)
     trace = []
     for _ in range(16):
         way = c.pick()
@@ -172,3 +172,16 @@ def test_chooser_takes_the_faster_way_and_probes_the_other():
     assert trace[:4] == [True, True, False, False]
     assert trace[4:8] == [False, False, False, True]     # lanes 2x slower: probed at call 8
     assert trace[8:] == [True] * 7 + [False]             # cheaper from call 8 on; probe at 16
+
+
+def test_chooser_switches_only_for_a_margin():
+    """Ways within the margin of each other: the one in use stays."""
+    c = lanebatch.Chooser(probe_every=1000, weight=1.0, margin=0.1)
+    for way, cost in [(True, 1.0), (True, 1.0), (False, 1.0), (False, 1.05)]:
+        assert c.pick() is way
+        c.note(way, cost, 1)
+    assert c.pick() is True                     # lanes 1.0 against 1.05
+    c.note(True, 1.1, 1)                        # now 1.1 against 1.05: within 10 %
+    assert c.pick() is True
+    c.note(True, 1.3, 1)                        # 1.3 against 1.05: switch
+    assert c.pick() is False

@@ -27,13 +27,15 @@ MARKER = '.precompiled'
 # from nothing (measured with numba's compile events on this 2-core host): rk4 and
 # rk4_projected are one kernel (about 70 s with the force, projection and contact kernels it
 # calls), to which dopri54_projected adds its stages; rattle compiles those shared kernels
-# again in its own process, and implicit_midpoint its Newton solver.
-GROUPS = (('rattle', 'implicit_midpoint', 'chain1d'),
+# again in its own process, implicit_midpoint its Newton solver, and 'lanes' the kernels over
+# lanes (solver.simulate.lanebatch: about 50 s).
+GROUPS = (('rattle', 'implicit_midpoint', 'chain1d', 'lanes'),
           ('rk4_projected', 'rk4', 'dopri54_projected'))
 
 
 def _exercise(method):
-    """Short runs that call every kernel ``method`` uses (``'chain1d'``: the chain model)."""
+    """Short runs that call every kernel ``method`` uses (``'chain1d'``: the chain model;
+    ``'lanes'``: a lane group)."""
     from solver.build.scene import Scene
     from solver.simulate.simulation import Simulation
 
@@ -41,6 +43,12 @@ def _exercise(method):
     # file needed, so an install compiles as a checkout does; the kernels' types do not depend
     # on the values. The checks stay out of the way: these runs are for the compiler.
     base = Scene({'name': 'precompile', 'divergence': {'energy_error': 1.0}})
+    if method == 'lanes':                       # rk4_projected and rk4 over lanes
+        from solver.simulate.lanebatch import LaneGroup
+        pair = [Simulation(base), Simulation(base)]
+        pair[1].apply_impact(0.1)
+        LaneGroup(pair).advance(2)
+        return
     if method == 'chain1d':
         scene = base.with_overrides([('model', 'chain1d'), ('contact.bars', 'none')])
     elif method == 'implicit_midpoint':           # it refuses bar contact
