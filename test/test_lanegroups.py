@@ -185,3 +185,14 @@ def test_chooser_switches_only_for_a_margin():
     assert c.pick() is True
     c.note(True, 1.3, 1)                        # 1.3 against 1.05: switch
     assert c.pick() is False
+
+
+def test_the_scene_chooses_the_arrays_way_of_stepping():
+    """``integrator.lanes``: off (the default), on, auto; anything else is refused by name."""
+    from solver.build.scene import SceneError
+    base = Scene.load(FB).with_overrides([('structure.n_columns', 3)])
+    assert simulation_for(base).lanes is False
+    for value, want in [('on', True), ('auto', 'auto'), ('off', False)]:
+        assert simulation_for(base.with_overrides([('integrator.lanes', value)])).lanes == want
+    with pytest.raises(SceneError, match='integrator.lanes'):
+        base.with_overrides([('integrator.lanes', 'sideways')])

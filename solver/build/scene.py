@@ -67,7 +67,11 @@ DEFAULTS = {
                 'gravity': 0.0},
     'model': 'auto',
     'integrator': {'method': 'rk4_projected', 'dt': 5e-4, 'projection_tol': 1e-12,
-                   'projection_max_iter': 3, 'land_on_kinks': True, 'rtol': 1e-8, 'atol': 1e-10},
+                   'projection_max_iter': 3, 'land_on_kinks': True, 'rtol': 1e-8, 'atol': 1e-10,
+                   # the distinct columns of an array stepped together as lanes
+                   # (solver.simulate.lanebatch; the same results): off, on, or auto (the
+                   # faster as measured along the run)
+                   'lanes': 'off'},
     'run': {'t_end': 1.2, 'output_dt': 0.005},
     'contact': {'bars': 'hertz', 'resolution': 40, 'lock': 'none', 'stiffness': 1.0e5,
                 'tolerance': 0.05,
@@ -98,6 +102,7 @@ CHOICES = {
     'contact.bars': ('hertz', 'none'),
     'contact.refine': ('ledger', 'none'),
     'model': ('auto', 'full3d', 'sym3d', 'chain1d'),
+    'integrator.lanes': ('off', 'on', 'auto'),
     # stop when a prism twists through 180 deg (its bars cross): in rigid-base columns only (the
     # lock), in every column, or never
     'divergence.bar_crossing': ('rigid', 'all', 'none'),

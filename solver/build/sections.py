@@ -91,6 +91,7 @@ class Integrator:
     land_on_kinks: bool
     rtol: float
     atol: float
+    lanes: str
 
 
 @dataclass(frozen=True)

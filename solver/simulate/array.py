@@ -99,8 +99,9 @@ class ArraySimulation(SimulationAPI):
 
     threads = None          # threads the groups step on (None: every core; 1: one after another)
     # alike groups step together as lanes (solver.simulate.lanebatch): True, False, or 'auto':
-    # the faster of the two as measured along the run (both give the same result, bit for bit)
-    lanes = 'auto'
+    # the faster of the two as measured along the run (both give the same result, bit for bit);
+    # set from the scene's integrator.lanes
+    lanes = False
     _chooser = None
 
     def __init__(self, scene: Scene, network=None, dedup=True):
@@ -122,6 +123,7 @@ class ArraySimulation(SimulationAPI):
         self._offset[:, 0] = np.arange(nc) * scene.structure.column_spacing
         self._check_layout(cnet)
         self.dedup = bool(dedup)
+        self.lanes = {'off': False, 'on': True, 'auto': 'auto'}[scene.integrator.lanes]
         self._proto = proto
         self.dt = proto.dt
         self.integrator = proto.integrator
