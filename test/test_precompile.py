@@ -41,7 +41,7 @@ def test_a_later_process_loads_every_kernel_from_the_cache():
 def test_every_integrator_is_in_a_group():
     from solver.integrators import registry
     methods = {m for group in precompile.GROUPS for m in group}
-    assert set(registry.METHODS) | {'chain1d'} == methods
+    assert set(registry.METHODS) | {'chain1d', 'lanes'} == methods
 
 
 def test_the_cli_refuses_zero_processes():

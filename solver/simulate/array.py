@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import math
 import re
-import time
 
 import numpy as np
 
@@ -401,12 +400,8 @@ class ArraySimulation(SimulationAPI):
             return self._advance_lanes(duration, n)
         if self._chooser is None:
             self._chooser = lanebatch.Chooser()
-        way = self._chooser.pick()
-        t0 = time.perf_counter()
-        steps = (self._advance_lanes(duration, n) if way
-                 else self._each(lambda sim: sim.advance(duration)))
-        self._chooser.note(way, time.perf_counter() - t0, n)
-        return steps
+        return self._chooser.run(lambda lanes: self._advance_lanes(duration, n) if lanes
+                                 else self._each(lambda sim: sim.advance(duration)), n)
 
     def _lane_plan(self):
         """``(lane groups, single simulations)`` of the present groups

@@ -21,6 +21,7 @@ simulation at a time.
 """
 from __future__ import annotations
 
+import time
 from typing import NamedTuple
 
 import numpy as np
@@ -389,6 +390,14 @@ class Chooser:
             min(self.cost[True], self.cost[False]), 1e-300)
         every = self.probe_every * max(1, min(int(slower), self.patience))
         return (not best) if self.calls % every == 0 else best
+
+    def run(self, step, n):
+        """``step(way)`` of ``n`` steps by the way :meth:`pick` gives, timed and noted."""
+        way = self.pick()
+        t0 = time.perf_counter()
+        out = step(way)
+        self.note(way, time.perf_counter() - t0, n)
+        return out
 
     def note(self, way, seconds, n):
         self.seen[way] += 1
