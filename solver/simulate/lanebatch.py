@@ -30,6 +30,7 @@ from solver.compiled import compiled_overload
 from solver.integrators import rk4lanes
 from solver.kernels import lanedata, lanes as lanes_mod, records
 from solver.simulate import parallel
+from solver.simulate.simulation import StateSummary
 from solver.status import OK
 
 LANE_METHODS = ('rk4_projected', 'rk4')
@@ -156,12 +157,11 @@ class LaneGroup:
         results = []
         for k, s in enumerate(self.sims):
             o = self.out[k]
-            summary = (bool(o[0]), float(o[1]), heights[k], float(o[2]), float(o[3]))
-            kept = self.record(self.kept, k)
+            s._cache = {'summary': StateSummary(bool(o[0]), float(o[1]), heights[k], float(o[2]),
+                                                float(o[3]))}
             try:
-                results.append((True, s._conclude(
-                    n, int(self.steps[k]), int(self.status[k]), summary,
-                    lambda s=s, kept=kept: s._kept(kept, None))))
+                results.append((True, s._conclude(n, int(self.steps[k]), int(self.status[k]),
+                                                  self.record(self.kept, k), None)))
             except Exception as exc:            # noqa: BLE001 - this lane's result
                 results.append((False, exc))
         return results

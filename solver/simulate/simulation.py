@@ -394,25 +394,24 @@ class Simulation(Loading, Checks, SimulationAPI):
             else:
                 out = call.entry(*args)
             steps, status, finite, e, cerr, h_min = out
-            return self._conclude(n, steps, status, (finite, e, h, cerr, h_min),
-                                  lambda: self._kept(call.kept, integ_state))
-        return self._conclude(n, steps, status, None, lambda: keep)
+            self._cache = {'summary': StateSummary(finite, e, h, cerr, h_min)}
+            return self._conclude(n, steps, status, call.kept, integ_state)
+        return self._conclude(n, steps, status, keep=keep)
 
-    def _conclude(self, n, steps, status, summary, keep):
+    def _conclude(self, n, steps, status, kept_data=None, integ_state=None, keep=None):
         """The end of an interval of ``n`` steps whose integrator returned ``steps`` and
         ``status`` (from :meth:`advance`, or a lane group's call:
-        :mod:`solver.simulate.lanebatch`): ``summary`` the state summary the call computed
-        (``(finite, energy, heights, constraint error, smallest height)``, or None), ``keep()``
-        the :class:`Kept` of the interval's start. Checks the state; on a failure restores
-        ``keep()`` and raises :class:`SimulationDiverged` naming the step, else moves the clock.
-        Returns ``steps``."""
-        if summary is not None:
-            self._cache = {'summary': StateSummary(*summary)}
+        :mod:`solver.simulate.lanebatch`), the state summary of the call, if it made one,
+        already in the cache. Checks the state; on a failure restores the interval's start (the
+        :class:`Kept` ``keep``, or the data ``kept_data`` the call kept and the integrator's
+        ``integ_state``) and raises :class:`SimulationDiverged` naming the step, else moves the
+        clock. Returns ``steps``."""
         problem = self._check(status)
         if problem is not None:
-            kept = keep()
-            self._restore(kept)
-            raise self._locate(n, kept, problem)
+            if keep is None:
+                keep = self._kept(kept_data, integ_state)
+            self._restore(keep)
+            raise self._locate(n, keep, problem)
         self._energy_scale = max(self._energy_scale, abs(self._summary().energy))
         self.t += n * self.dt
         self.step += n
