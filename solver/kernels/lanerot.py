@@ -12,6 +12,14 @@ from solver.kernels.rotation import ROT_C, ROT_S
 
 
 @jit_inline
+def lane_chord(u, a, b, cr, sr, k):
+    """Lane k's ``R u[b] - u[a]`` for the rotation of cosine ``cr`` and sine ``sr`` about z, as
+    :func:`solver.kernels.rotation.image_chord`: a 3-tuple."""
+    return (cr * u[b, 0, k] - sr * u[b, 1, k] - u[a, 0, k],
+            sr * u[b, 0, k] + cr * u[b, 1, k] - u[a, 1, k], u[b, 2, k] - u[a, 2, k])
+
+
+@jit_inline
 def _pair_force(tmp, k, g, dx, dy, dz, cr, sr):
     """Lane k's force ``g (dx, dy, dz)`` on node a and its reaction rotated back onto node b
     (:func:`solver.kernels.rotation.add_pair_force`) into ``tmp[:5, k]``."""
@@ -49,9 +57,7 @@ def cable_forces_rot(x, cable_a, cable_b, cable_rot, rest, EA, f, tmp):
         cr = ROT_C[cable_rot[c]]
         sr = ROT_S[cable_rot[c]]
         for k in range(n_lanes):
-            dx = cr * x[b, 0, k] - sr * x[b, 1, k] - x[a, 0, k]
-            dy = sr * x[b, 0, k] + cr * x[b, 1, k] - x[a, 1, k]
-            dz = x[b, 2, k] - x[a, 2, k]
+            dx, dy, dz = lane_chord(x, a, b, cr, sr, k)
             s = math.sqrt(dx * dx + dy * dy + dz * dz)
             L = rest[c, k]
             g = 0.0
@@ -81,16 +87,12 @@ def cable_forces_damped(x, v, cable_a, cable_b, cable_rot, rest, EA, damp, f, tm
             cr = ROT_C[cable_rot[c]]
             sr = ROT_S[cable_rot[c]]
         for k in range(n_lanes):
-            dx = cr * x[b, 0, k] - sr * x[b, 1, k] - x[a, 0, k]
-            dy = sr * x[b, 0, k] + cr * x[b, 1, k] - x[a, 1, k]
-            dz = x[b, 2, k] - x[a, 2, k]
+            dx, dy, dz = lane_chord(x, a, b, cr, sr, k)
             s = math.sqrt(dx * dx + dy * dy + dz * dz)
             L = rest[c, k]
             g = 0.0
             if s > L:
-                ux = cr * v[b, 0, k] - sr * v[b, 1, k] - v[a, 0, k]
-                uy = sr * v[b, 0, k] + cr * v[b, 1, k] - v[a, 1, k]
-                uz = v[b, 2, k] - v[a, 2, k]
+                ux, uy, uz = lane_chord(v, a, b, cr, sr, k)
                 rate = (dx * ux + dy * uy + dz * uz) / s
                 elastic = EA[c, k] / L * (s - L)
                 T = max(elastic + damp[c] * rate, 0.0)
@@ -178,11 +180,7 @@ def rhs_rot(wf, v, bvec, topo, lam):
         cr = ROT_C[rot[c]]
         sr = ROT_S[rot[c]]
         for k in range(n_lanes):
-            ax = cr * wf[h, 0, k] - sr * wf[h, 1, k] - wf[t, 0, k]
-            ay = sr * wf[h, 0, k] + cr * wf[h, 1, k] - wf[t, 1, k]
-            az = wf[h, 2, k] - wf[t, 2, k]
-            dx = cr * v[h, 0, k] - sr * v[h, 1, k] - v[t, 0, k]
-            dy = sr * v[h, 0, k] + cr * v[h, 1, k] - v[t, 1, k]
-            dz = v[h, 2, k] - v[t, 2, k]
+            ax, ay, az = lane_chord(wf, t, h, cr, sr, k)
+            dx, dy, dz = lane_chord(v, t, h, cr, sr, k)
             lam[c, k] = -(bvec[c, 0, k] * ax + bvec[c, 1, k] * ay + bvec[c, 2, k] * az
                           + dx * dx + dy * dy + dz * dz)

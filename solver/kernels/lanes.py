@@ -31,8 +31,8 @@ import numpy as np
 
 from solver.compiled import jit_lanes
 from solver.kernels.lanerot import (add_constraint_forces_rot, assemble_band_rot,
-                                    cable_forces_damped, cable_forces_rot, member_vectors_rot,
-                                    rhs_rot)
+                                    cable_forces_damped, cable_forces_rot, lane_chord,
+                                    member_vectors_rot, rhs_rot)
 from solver.kernels.rotation import ROT_C, ROT_S
 from solver.status import NONFINITE, NOT_CONVERGED, OK, SINGULAR
 
@@ -347,9 +347,7 @@ def project_velocities(x, v, topo, w, status):
             cr = ROT_C[rot[c]]
             sr = ROT_S[rot[c]]
             for k in range(n_lanes):
-                dx = cr * v[h, 0, k] - sr * v[h, 1, k] - v[t, 0, k]
-                dy = sr * v[h, 0, k] + cr * v[h, 1, k] - v[t, 1, k]
-                dz = v[h, 2, k] - v[t, 2, k]
+                dx, dy, dz = lane_chord(v, t, h, cr, sr, k)
                 lam[c, k] = -(bvec[c, 0, k] * dx + bvec[c, 1, k] * dy + bvec[c, 2, k] * dz)
     correct(v, lam, bvec, topo, w, status)
 

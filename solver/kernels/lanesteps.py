@@ -17,6 +17,7 @@ import math
 from solver.compiled import jit_inline, jit_lanes
 from solver.kernels.contact import contact_kink, extra_energy, gap_kink
 from solver.kernels.contactsteps import bounded_contact_energy
+from solver.kernels.lanerot import lane_chord
 from solver.kernels.rotation import ROT_C, ROT_S
 
 
@@ -180,9 +181,7 @@ def step_energy_lanes(x, v, m, rest, EA, f_ext, go, out, tmp):
             cr = ROT_C[cable_rot[c]]
             sr = ROT_S[cable_rot[c]]
             for k in range(n_lanes):
-                dx = cr * x[b, 0, k] - sr * x[b, 1, k] - x[a, 0, k]
-                dy = sr * x[b, 0, k] + cr * x[b, 1, k] - x[a, 1, k]
-                dz = x[b, 2, k] - x[a, 2, k]
+                dx, dy, dz = lane_chord(x, a, b, cr, sr, k)
                 s = math.sqrt(dx * dx + dy * dy + dz * dz)
                 L = rest[c, k]
                 e = mc * 0.5 * EA[c, k] / L * (s - L) ** 2
