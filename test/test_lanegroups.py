@@ -196,3 +196,23 @@ def test_the_scene_chooses_the_arrays_way_of_stepping():
         assert simulation_for(base.with_overrides([('integrator.lanes', value)])).lanes == want
     with pytest.raises(SceneError, match='integrator.lanes'):
         base.with_overrides([('integrator.lanes', 'sideways')])
+
+
+def test_columns_join_the_lanes_again_after_a_ramp():
+    """A ramped prestrain steps each column alone (the ramp's path); once it has ended the
+    columns step as lanes again, and the array equals its one-at-a-time twin."""
+    scene = Scene.load(FB).with_overrides([('structure.n_columns', 6)])
+    sims = []
+    for lanes in (True, False):
+        sim = simulation_for(scene)
+        sim.lanes, sim.threads = lanes, 1
+        n_p = sim.network.n_prisms
+        sim.apply_prestrain(np.linspace(0.02, 0.05, 6)[:, None] * np.ones((1, n_p)),
+                            ramp_s=4 * sim.dt)
+        sim.advance(8 * sim.dt)                 # the ramp, then plain steps
+        sim.advance(8 * sim.dt)                 # no command between: the split is redone
+        sims.append(sim)
+    a, b = sims
+    assert [len(g.sims) for g in a._plan.groups] == [6] and not a._plan.singles
+    assert np.array_equal(a.frame().positions, b.frame().positions)
+    assert a.steps_taken == b.steps_taken and a.energy() == b.energy()

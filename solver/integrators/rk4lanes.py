@@ -1,7 +1,12 @@
-"""Classical RK4 with projections for lanes (:mod:`solver.kernels.lanes`): B instances of one
-plain network stepped together with one clock, each lane with its own status. The operations of
-each lane are those of :func:`solver.integrators.rk4._rk4_run` (``rk4_projected``, no kinks) on a
-model with every effect off, in the same order: each lane's run equals the scalar run bit for bit.
+"""Classical RK4 over lanes (:mod:`solver.kernels.lanes`): B instances of one model stepped
+together, each lane's operations those of :func:`solver.integrators.rk4._rk4_run` on that
+instance, in the same order, so each lane equals its single run bit for bit.
+
+- :func:`rk4_projected_run`: the plain network with every effect off, all lanes on one clock
+  (``rk4_projected`` without kinks; the kernels' own test and bench).
+- :func:`rounds` (with :func:`begin`, :func:`end` and their checked forms): every effect, each
+  lane on its own clock with its own steps (see :func:`rounds`); the lane groups of
+  :mod:`solver.simulate.lanebatch` call them.
 """
 from __future__ import annotations
 
@@ -129,12 +134,13 @@ class LaneControl(NamedTuple):
     cs: np.ndarray
 
 
+_COUNTS = {'level', 'clevel', 'refine', 'mode', 'live', 'go', 'st', 'ev', 'mk'}   # int64
+
+
 def lane_control(lanes_n):
     """A zeroed :class:`LaneControl` of ``lanes_n`` lanes."""
-    f = [np.zeros(lanes_n) for _ in range(14)]
-    i = [np.zeros(lanes_n, np.int64) for _ in range(8)]
-    return LaneControl(*f, *i, np.zeros(lanes_n), np.zeros(lanes_n),
-                       np.zeros(lanes_n, np.int64), np.zeros(lanes_n))
+    return LaneControl(*(np.zeros(lanes_n, np.int64 if name in _COUNTS else np.float64)
+                         for name in LaneControl._fields))
 
 
 @jit_lanes

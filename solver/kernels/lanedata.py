@@ -43,10 +43,8 @@ class LaneState(NamedTuple):
 
 
 class LaneScratch(NamedTuple):
-    """Per-lane scratch in the scalar layout (B, n, 3): the positions an evaluation's contact
-    forces read ``xe``, its forces ``fe``, the first-stage accelerations ``a1``."""
-    xe: np.ndarray
-    fe: np.ndarray
+    """Per-lane scratch in the scalar layout: each lane's first-stage accelerations ``a1``
+    (B, n, 3), which its step control reads and a pending step starts from."""
     a1: np.ndarray
 
 

@@ -50,9 +50,9 @@ class LaneData(NamedTuple):
 class LaneWork(NamedTuple):
     """Scratch of the lane kernels: nodal forces and their mass-weighted image, member vectors,
     the constraint band (n_con, bw + 1, B) and multipliers (n_con, B), one cable's forces
-    ``tmp`` (3, B), the stage arrays of RK4 (n_nodes, 3, B), and per lane (B,): a pivot or sum
-    ``piv``, the worst constraint error ``worst``, the active mask ``go`` and the status of the
-    last solve ``flag``."""
+    ``tmp`` (3, B) and, for rotated and damped cables, ``pair`` (6, B), the stage arrays of RK4
+    (n_nodes, 3, B), and per lane (B,): a pivot or sum ``piv``, the worst constraint error
+    ``worst``, the active mask ``go`` and the status of the last solve ``flag``."""
     f: np.ndarray
     wf: np.ndarray
     bvec: np.ndarray
@@ -83,8 +83,8 @@ def lane_data(x, v, rest, EA, f_ext):
 
 def lane_work(topo, n_rows, lanes):
     """A zeroed :class:`LaneWork` for ``lanes`` instances of ``n_rows`` nodes on ``topo``; a
-    ValueError when ``topo`` is not a plain network (:func:`check_plain`)."""
-    check_plain(topo)
+    ValueError when the lanes do not step ``topo`` (:func:`check_lanes`)."""
+    check_lanes(topo)
     n_con, width = topo.con_coef.shape
 
     def z(*shape):
@@ -100,7 +100,7 @@ def lane(a, index):
     return np.ascontiguousarray(a[..., index])
 
 
-def check_plain(topo):
+def check_lanes(topo):
     """Raise ValueError unless the lanes step networks of ``topo``: plain or rotated members
     (``sym3d``), not the KKT system of massive bars that share nodes."""
     if topo.kkt.node_u.shape[0]:

@@ -405,14 +405,12 @@ class ArraySimulation(SimulationAPI):
 
     def _lane_plan(self):
         """``(lane groups, single simulations)`` of the present groups
-        (:func:`solver.simulate.lanebatch.groups_of`), kept until the groups change or a
-        simulation leaves its lane group."""
-        plan = self._plan
-        if plan is None or not all(g.bound() for g in plan.groups):
-            threads = self.threads or parallel.default_threads()
-            lists, singles = lanebatch.groups_of([g.sim for g in self.groups], threads)
-            plan = self._plan = lanebatch.Plan([lanebatch.LaneGroup(x) for x in lists], singles)
-        return plan
+        (:func:`solver.simulate.lanebatch.plan_of`), kept while the groups stay and the split
+        holds (:meth:`~solver.simulate.lanebatch.Plan.holds`)."""
+        if self._plan is None or not self._plan.holds():
+            self._plan = lanebatch.plan_of([g.sim for g in self.groups],
+                                           self.threads or parallel.default_threads())
+        return self._plan
 
     def _advance_lanes(self, duration, n):
         """:meth:`advance` with alike groups stepped as lanes (one lane group per thread) and

@@ -117,8 +117,6 @@ class LaneGroup:
         while size > SMALLEST:          # fewer lanes for the stragglers: half as many
             size = (size + 1) // 2
             self.blocks.append(_Block(None, self.rec.topo, m0.work, like=self.S, lanes=size))
-        self.status = np.zeros(b, np.int64)
-        self.steps = np.zeros(b, np.int64)
         self.out = np.zeros((b, 4))
         self._models = []
         self._data = []
@@ -151,7 +149,8 @@ class LaneGroup:
         if n <= 0:
             return [(True, s.advance(0.0)) for s in self.sims]
         s0 = self.sims[0]
-        self.status[:] = OK
+        top = self.blocks[0]
+        top.status[:] = OK
         heights = np.empty((len(self.sims),) + s0._heights_shape)
         self._step(n, heights)
         results = []
@@ -160,7 +159,7 @@ class LaneGroup:
             s._cache = {'summary': StateSummary(bool(o[0]), float(o[1]), heights[k], float(o[2]),
                                                 float(o[3]))}
             try:
-                results.append((True, s._conclude(n, int(self.steps[k]), int(self.status[k]),
+                results.append((True, s._conclude(n, int(top.steps[k]), int(top.status[k]),
                                                   self.record(self.kept, k), None)))
             except Exception as exc:            # noqa: BLE001 - this lane's result
                 results.append((False, exc))
@@ -177,26 +176,21 @@ class LaneGroup:
         fixed = (dt, total, float(s0.tol), int(s0.max_iter), bool(s0.kinks),
                  bool(s0.integrator.projected))
         top = self.blocks[0]
-        rk4lanes.begin_checked(self.rec, top.S, top.L, top.C, self.status, self.steps,
-                               self.kept)
+        rk4lanes.begin_checked(self.rec, top.S, top.L, top.C, top.status, top.steps, self.kept)
         chain = []                      # (block, its lanes' slots in the block above)
-        block, status, steps = top, self.status, self.steps
-        level = 0
-        while True:
-            smaller = self.blocks[level + 1] if level + 1 < len(self.blocks) else None
-            min_live = 0 if smaller is None else smaller.lanes + 1
-            left = block.rounds(self.rec, fixed, status, steps, min_live)
+        block = top
+        for smaller in self.blocks[1:] + [None]:
+            left = block.rounds(self.rec, fixed, 0 if smaller is None else smaller.lanes + 1)
             if left == 0:
                 break
-            alive = np.flatnonzero((status == OK) & (total - block.C.t > 1e-9 * dt))
-            smaller.take(block, alive, status, steps)
-            chain.append((block, alive, status, steps))
-            block, status, steps = smaller, smaller.status, smaller.steps
-            level += 1
-        for above, alive, st, sp in reversed(chain):
-            block.give(above, alive, st, sp)
+            alive = np.flatnonzero((block.status == OK) & (total - block.C.t > 1e-9 * dt))
+            smaller.take(block, alive)
+            chain.append((block, alive))
+            block = smaller
+        for above, alive in reversed(chain):
+            block.give(above, alive)
             block = above
-        rk4lanes.end_checked(self.rec, top.S, top.C, self.status, self.out, heights)
+        rk4lanes.end_checked(self.rec, top.S, top.C, top.status, self.out, heights)
 
     def restore(self, k, before):
         """Back to the data the last call started from, for simulation ``k`` that concluded its
@@ -210,8 +204,8 @@ class LaneGroup:
 class _Block:
     """One set of lanes and its scratch: ``S`` (the group's memory for the first block; a
     block of ``lanes`` stragglers shaped ``like`` it otherwise), the lane-inner copies ``L``,
-    scratch ``W``, ``X``, ``w0``, the step control ``C`` and, for a block of stragglers, their
-    ``status`` and ``steps``."""
+    scratch ``W``, ``X``, ``w0``, the step control ``C``, each lane's ``status`` and
+    ``steps``."""
 
     def __init__(self, S, topo, work, like=None, lanes=None):
         if S is None:
@@ -222,44 +216,44 @@ class _Block:
         self.L = lanes_mod.LaneData(np.zeros((n, 3, b)), np.zeros((n, 3, b)),
                                     np.zeros((nc, b)), np.zeros((nc, b)), np.zeros((n, 3, b)))
         self.W = lanes_mod.lane_work(topo, n, b)
-        self.X = lanedata.LaneScratch(np.zeros((b, n, 3)), np.zeros((b, n, 3)),
-                                      np.zeros((b, n, 3)))
+        self.X = lanedata.LaneScratch(np.zeros((b, n, 3)))
         self.C = rk4lanes.lane_control(b)
         self.w0 = records.clone_work(work)
         self.status = np.zeros(b, np.int64)
         self.steps = np.zeros(b, np.int64)
         self._entry = None
 
-    def rounds(self, rec, fixed, status, steps, min_live):
+    def rounds(self, rec, fixed, min_live):
+        """:func:`solver.integrators.rk4lanes.rounds` on this block's lanes."""
         dt, total, tol, max_iter, kinks, project = fixed
         args = (rec, self.S, self.L, self.W, self.X, self.C, self.w0, dt, total, tol, max_iter,
-                kinks, project, status, steps, int(min_live))
+                kinks, project, self.status, self.steps, int(min_live))
         if self._entry is None:         # through numba's dispatch, then its compiled overload
             left = rk4lanes.rounds(*args)
             self._entry = compiled_overload(rk4lanes.rounds, args) or rk4lanes.rounds
             return left
         return self._entry(*args)
 
-    def take(self, above, alive, status, steps):
-        """Move the lanes ``alive`` of the block ``above`` (its ``status``, ``steps``) into the
-        first lanes of this one; the others here do not step."""
+    def take(self, above, alive):
+        """Move the lanes ``alive`` of the block ``above`` into the first lanes of this one;
+        the others here do not step."""
         m = len(alive)
         for mine, theirs in zip(self.S + self.C, above.S + above.C):
             mine[:m] = theirs[alive]
         self.X.a1[:m] = above.X.a1[alive]
-        self.status[:m] = status[alive]
+        self.status[:m] = above.status[alive]
         self.status[m:] = NOT_A_LANE
-        self.steps[:m] = steps[alive]
+        self.steps[:m] = above.steps[alive]
         lanedata.enter(self.S, self.L)
 
-    def give(self, above, alive, status, steps):
+    def give(self, above, alive):
         """Move the lanes taken by :meth:`take` back into the block ``above``."""
         m = len(alive)
         for mine, theirs in zip(self.S + self.C, above.S + above.C):
             theirs[alive] = mine[:m]
         above.X.a1[alive] = self.X.a1[:m]
-        status[alive] = self.status[:m]
-        steps[alive] = self.steps[:m]
+        above.status[alive] = self.status[:m]
+        above.steps[alive] = self.steps[:m]
 
 
 NOT_A_LANE = -99        # the status of an empty lane of a block of stragglers
@@ -323,10 +317,25 @@ class Step:
 
 
 class Plan(NamedTuple):
-    """Simulations split by :func:`groups_of`: the lane ``groups`` (:class:`LaneGroup`) and the
-    ``singles`` that step one at a time."""
+    """Simulations split by :func:`groups_of`: the lane ``groups`` (:class:`LaneGroup`), the
+    ``singles`` that step one at a time, and how many of those were :func:`eligible`
+    (``n_eligible``)."""
     groups: list
     singles: list
+    n_eligible: int
+
+    def holds(self):
+        """Whether the split still holds: every group bound (:meth:`LaneGroup.bound`) and as
+        many singles eligible as when it was made (a column whose prestrain ramp ended can join
+        a group again)."""
+        return (all(g.bound() for g in self.groups)
+                and sum(map(eligible, self.singles)) == self.n_eligible)
+
+
+def plan_of(sims, threads=1):
+    """The :class:`Plan` of ``sims`` (:func:`groups_of`), lane groups built."""
+    lists, singles = groups_of(sims, threads)
+    return Plan([LaneGroup(x) for x in lists], singles, sum(map(eligible, singles)))
 
 
 def groups_of(sims, threads=1, max_lanes=MAX_LANES, min_lanes=2):
