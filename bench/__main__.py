@@ -12,7 +12,7 @@ from bench.main import main as bench_main
 from tensegrity_ros.cli import OneLineParser
 
 CHOICES = ('work_precision', 'stability', 'stiff', 'peers', 'rerun', 'sweep', 'soak', 'array',
-           'trains', 'impacts', 'lanes', 'flops', 'node_array')
+           'trains', 'impacts', 'lanes', 'flops', 'node_array', 'shots')
 
 
 def parser():
@@ -33,8 +33,9 @@ def parser():
                         'after a contact refined and not, lanes: B instances stepped together '
                         'against the scalar kernels, flops: the GFLOP/s of one evaluation, '
                         'scalar and per lane, against the core\'s peak, node_array: the node\'s '
-                        'real-time factor on arrays of 10-50 distinct columns, lanes and not '
-                        '(these nine only on request)')
+                        'real-time factor on arrays of 10-50 distinct columns, lanes and not, '
+                        'shots: 1 and 2 m/s shots on both default columns and a train then a '
+                        'shot, against a refined reference (these ten only on request)')
     return p
 
 

@@ -8,15 +8,16 @@ from pathlib import Path
 def main(out_dir='bench/results', quick=False, peers=False, only=None, log=print):
     """Run the benchmarks into ``out_dir``; ``only`` is None or a subset of
     ``{'work_precision', 'stability', 'stiff', 'peers', 'rerun', 'sweep', 'soak', 'array',
-    'trains', 'impacts', 'lanes', 'flops', 'node_array'}`` (``stiff``: the
+    'trains', 'impacts', 'lanes', 'flops', 'node_array', 'shots'}`` (``stiff``: the
     stiff scenes of both, which ``work_precision`` and ``stability`` also run; ``peers=True`` adds
     the peer comparison, which :mod:`bench.peers` provides; ``rerun``, only on request, the cost of
     a Rerun recording, :mod:`bench.rerun_overhead`; ``sweep``, only on request, a sweep's
     single runs against the batched runner, :mod:`bench.sweep`; ``soak``, only on request, the
     node under a command flood for 10 minutes, 20 s with ``quick``, :mod:`bench.soak`;
     ``node_array``, only on request, the node's real-time factor on arrays of distinct columns
-    per way of stepping them, :mod:`bench.node_array`, 2 s windows with ``quick``). Returns the
-    files written."""
+    per way of stepping them, :mod:`bench.node_array`, 2 s windows with ``quick``; ``shots``, only
+    on request, strong shots on the default columns against a refined reference,
+    :mod:`bench.shots`). Returns the files written."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     written = []
@@ -63,4 +64,7 @@ def main(out_dir='bench/results', quick=False, peers=False, only=None, log=print
         from . import node_array
         written += node_array.main(out, log=log, **({'window_s': 2.0, 'ramp_s': 0.05}
                                                     if quick else {}))
+    if only is not None and 'shots' in only:           # strong shots, real-time factor
+        from . import shots
+        written += shots.main(out, quick=quick, log=log)
     return written

@@ -1,0 +1,129 @@
+"""Strong shots on the default columns: real-time factor, energy balance and the figures a run
+measures, against a refined reference (docs/physics.md section 7.1, "Strong shots").
+
+    python -m bench.shots [--quick] [--out bench/results]      # tensegrity bench --only shots
+
+Each case is one shot of ``v0`` on ``fb_column`` or ``rb_column``, ``T_END`` s simulated, run
+once at the scene's steps (each contact treatment of ``TREATMENTS``) and once refined (``dt / 4``,
+``contact.resolution x 4``). A row gives the real-time factor of the stepping loop (one run, the
+machine otherwise idle), the RK4 steps, the contacts met, the largest balance error, and the
+change against the refined run of the front figures (front speed, amplitude and arrival: ahead
+of the chaotic motion behind the front, docs/physics.md section 7.1) and of the base-force peak
+(the first peak at the far base, ``base[0].peak_N``; ``max_N``, the largest over the run, is
+reported too, but behind the front the response is chaotic). The train case is the 20 impacts of
+``fb_train.yaml`` then a 2 m/s shot at 1 s, 5 s simulated. Writes ``shots.json``."""
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+from solver.build.scene import Scene
+from solver.simulate.results import json_safe
+from solver.simulate.runner import ImpactTrain, _at_rest, run, summary
+from solver.simulate.simulation import SimulationDiverged
+
+ROOT = Path(__file__).resolve().parents[1]
+CASES = (('fb_column', 1.0), ('fb_column', 2.0), ('rb_column', 1.0), ('rb_column', 2.0))
+T_END = 2.0
+REFINE = 4                      # the reference: dt / REFINE, contact.resolution x REFINE
+FRONT = ('front_speed_m_s', 'front_amplitude', 'front_arrival_s')
+# the contact treatments compared: name -> overrides (the first: the scene as it is). The other
+# two are the cheap candidates: contact steps T / 20 instead of T / 40 (the ledger's refinement
+# still checks every step), and bars 32 times softer (E / 32: a compliant contact whose duration
+# is 4 times the Hertz contact's, so its steps are 4 times longer)
+TREATMENTS = {'default': (), 'resolution 20': ('contact.resolution=20',),
+              'bar_E / 32': ('materials.bar_E=6.25e9',)}
+TRAIN_SHOT = (1.0, 2.0)         # the shot after the train: at 1 s, 2 m/s
+TRAIN_T_END = 5.0
+
+
+def _scene(name):
+    return Scene.load(ROOT / 'config' / 'scenes' / f'{name}.yaml')
+
+
+def shot(name, v0, t_end, overrides=(), refine=1):
+    """One shot: the summary's figures, or the stop's message."""
+    scene = _scene(name)
+    sets = [f'loading.impact.v0={v0!r}', f'run.t_end={t_end!r}', *overrides]
+    if refine > 1:
+        sets += [f'integrator.dt={scene.integrator.dt / refine!r}',
+                 f'contact.resolution={scene.contact.resolution * refine!r}']
+    scene, sim = _at_rest(scene, sets)
+    return _record(scene, sim, ImpactTrain(scene.loading.impact, sim.dt), t_end)
+
+
+def train_then_shot(t_end=TRAIN_T_END, overrides=()):
+    """``fb_train.yaml``'s 20 impacts, then a shot of ``TRAIN_SHOT``, to ``t_end``."""
+    scene, sim = _at_rest(_scene('fb_train'), [f'run.t_end={t_end!r}', *overrides])
+    train = ImpactTrain(scene.loading.impact, sim.dt)
+    train.impacts.append((int(round(TRAIN_SHOT[0] / sim.dt)), TRAIN_SHOT[1]))
+    return _record(scene, sim, train, t_end)
+
+
+def _record(scene, sim, train, t_end):
+    t0 = time.perf_counter()
+    try:
+        rec = run(sim, t_end, scene.run.output_dt, train=train)
+    except SimulationDiverged as exc:
+        return {'stopped': str(exc), 'wall_s': time.perf_counter() - t0}
+    s = json_safe(summary(scene, sim, rec).to_json())   # ``tensegrity run --json``'s
+    base = s['base'][0] if s['base'] else {}
+    pulse = s['pulse'] or {}
+    return {'real_time_factor': s['real_time_factor'], 'wall_s': s['wall_time_s'],
+            'steps': s['steps_taken'], 'contacts_met': s['contacts_met'],
+            'balance_error': s['energy_balance_error'],
+            **{k: pulse.get(k) for k in FRONT},
+            'base_peak_N': base.get('peak_N'), 'base_max_N': base.get('max_N')}
+
+
+def _change(a, b):
+    """Relative change of ``a`` against the reference ``b`` (None where either is missing)."""
+    if a is None or b is None or b == 0:
+        return None
+    return abs(a - b) / abs(b)
+
+
+def main(out_dir='bench/results', quick=False, log=print, treatments=None):
+    """Every case under every treatment, and the refined reference; returns the files
+    written."""
+    t_end = 0.5 if quick else T_END
+    treatments = TREATMENTS if treatments is None else treatments
+    rows = []
+    for name, v0 in CASES:
+        ref = shot(name, v0, t_end, refine=REFINE)
+        log(f'{name} {v0} m/s, reference: {_line(ref)}')
+        for label, sets in treatments.items():
+            row = {'scene': name, 'v0': v0, 'treatment': label, **shot(name, v0, t_end, sets)}
+            for k in (*FRONT, 'base_peak_N', 'base_max_N'):
+                row[f'{k}_change'] = _change(row.get(k), ref.get(k))
+            rows.append(row)
+            log(f'{name} {v0} m/s, {label}: {_line(row)}')
+    train = {label: train_then_shot(1.5 if quick else TRAIN_T_END, sets)
+             for label, sets in treatments.items()}
+    for label, r in train.items():
+        log(f'fb_train + {TRAIN_SHOT[1]} m/s at {TRAIN_SHOT[0]} s, {label}: {_line(r)}')
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / ('shots_quick.json' if quick else 'shots.json')
+    path.write_text(json.dumps({'t_end_s': t_end, 'refine': REFINE, 'rows': rows,
+                                'train_then_shot': train}, indent=1))
+    return [str(path)]
+
+
+def _line(r):
+    if 'stopped' in r:
+        return f"stopped: {r['stopped']}"
+    ch = ', '.join(f"{k} {r[k + '_change']:.2%}" for k in (*FRONT, 'base_peak_N')
+                   if r.get(k + '_change') is not None)
+    return (f"RTF {r['real_time_factor']:.2f}, {r['steps']} steps, balance "
+            f"{r['balance_error']:.1e}" + (f'; against the reference: {ch}' if ch else ''))
+
+
+if __name__ == '__main__':
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument('--quick', action='store_true')
+    ap.add_argument('--out', default='bench/results')
+    a = ap.parse_args()
+    main(a.out, quick=a.quick)
