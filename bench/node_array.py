@@ -34,9 +34,9 @@ ramp runs the array steps one column simulation at a time and each of them one s
 
 ``--whole-steps`` makes every stepping tick take at least one whole step. The node's pacer
 (:class:`tensegrity_ros.node.pacing.Pacer`) takes a fraction of a step when its estimate of one
-step's cost exceeds the tick's budget, and estimates the cost of a whole step as the fraction's
-cost over the fraction; on an array a fraction of a step costs about what a whole one does, so
-this bound shows what the stepping itself allows.
+step's cost exceeds the tick's budget; on an array a fraction of a step costs about what a whole
+one does (the pacer predicts it with a floor), so this bound shows what the stepping itself
+allows.
 
 The results go to ``node_array.json`` (``node_array_v0_<v0>.json`` for another ``--v0``,
 ``_whole`` appended with ``--whole-steps``), with the machine's load average at the start and the

@@ -123,13 +123,16 @@ class Focus:
 
     def advance(self, n):
         """Advance the simulation ``n`` steps (``n`` < 1: one step shortened to that fraction),
-        sampling the base forces of a record."""
+        sampling the base forces of a record (whole steps: a fraction becomes one); returns the
+        steps taken."""
         if self.record is not None:
-            self.record.advance(self.node.sim, max(int(n), 1))
+            n = max(int(n), 1)
+            self.record.advance(self.node.sim, n)
         elif n < 1:
             self.node.sim.advance_part(n)
         else:
             self.node.sim.advance(n * self.node.sim.dt)
+        return n
 
     def after_steps(self, now):
         """Once per stepping tick with a record: the focus figures when it is complete, the

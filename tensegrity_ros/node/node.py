@@ -246,13 +246,13 @@ class TensegritySim(LifecycleNode):
         (handled as ``on_divergence`` says: :meth:`diverged`)."""
         t0 = time.perf_counter()
         try:
-            self.stepper.advance(n)
+            taken = self.stepper.advance(n)
         except SimulationDiverged as exc:
             self.diverged(str(exc), exc.t)
             if self.running:                # reset: the rest state goes out at once
                 self.publishing.frame(now)
             return False
-        self.pacer.stepped(n, time.perf_counter() - t0)
+        self.pacer.stepped(taken, time.perf_counter() - t0)
         ok = self.publishing.frame(now)
         self.stepper.after(now)
         return ok

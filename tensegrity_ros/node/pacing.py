@@ -3,6 +3,29 @@
 Pure arithmetic on wall-clock and simulation times, no ROS: the node hands it the times, the
 costs it measured (moving averages of a step, of publishing a frame and of the markers) and the
 wall time its command callbacks took since the last tick.
+
+A tick takes whole steps while one fits in its budget. When a whole step costs more (a column in
+lasting contact takes hundreds of contact sub-steps per step), it takes one step shortened to a
+fraction ``f`` of ``dt`` (:meth:`Simulation.advance_part`), whose cost the pacer predicts as
+``F + f (C - F)``: ``C`` the cost of a whole step, ``F`` the floor, what a fraction costs however
+short. A single column in contact has a floor near 0 (its cost follows ``f``); an array has a
+large one, since each column out of contact takes a whole integrator step and each column costs
+its per-call overhead whatever the fraction.
+
+- ``C`` follows the whole steps the node takes. A fractional step moves it towards the smaller
+  of its cost over ``f`` (a bound from above: the ticks return to whole steps when the contact
+  ends) and the cost of a step in the last whole steps taken. A fraction that costs more than
+  ``f C`` so never makes a whole step look dearer than the last whole steps were, and the
+  fraction does not shrink towards :data:`MIN_STEP_FRACTION` while simulated time stops.
+- ``F`` follows the difference between the cost of each fractional step and its prediction
+  (``F`` at most ``C``); each whole step shrinks it by the weight :data:`SMOOTHING`, so that
+  fractions are tried again.
+- The fraction is the largest whose predicted cost fits in the budget, or in
+  :data:`FLOOR_MULTIPLE` times the floor when that is larger: a floor near or above the budget
+  leaves the fraction about half of the tick, and simulated time keeps about half the pace of
+  whole steps. A floor of half a whole step's cost or more makes the tick take a whole step; so
+  do fractional steps that cost more than predicted by :data:`EXCESS_RECHECK` on average (a
+  whole step costs more than the last whole steps did: this one measures it).
 """
 from __future__ import annotations
 
@@ -14,15 +37,24 @@ FAST_WORK_FRACTION = 1.0         # at real_time_factor 0: share of the time left
 MIN_WORK_FRACTION = 0.2          # a tick steps at least this share of a period
 SMOOTHING = 0.2                  # weight of a new measurement in the moving averages
 MIN_STEP_FRACTION = 1.0 / 256    # the shortest step a tick takes when a whole one does not fit
+FLOOR_MULTIPLE = 2.0             # a fractional step may cost this many times the floor, when
+                                 # that exceeds the budget
+EXCESS_RECHECK = 0.25            # fractional steps costing this share more than predicted (a
+                                 # moving average, each share at most 1): the next tick takes a
+                                 # whole step, which measures the cost of one
 
 
 class Pacer:
     """The pace: ``anchor_wall`` (monotonic s) and ``anchor_t`` (simulation s) of the last
-    re-anchoring, and the measured costs, s: ``step_cost`` per step, ``publish_cost`` per frame,
-    ``marker_cost`` extra for the markers, ``cmd_wall`` of commands since the last tick."""
+    re-anchoring, and the measured costs, s: ``step_cost`` per whole step (moving average),
+    ``whole_cost`` per step of the last whole steps taken, ``floor_cost`` of a fraction of a step
+    however short (at most ``step_cost``), ``excess`` the moving average of the share by which
+    fractional steps cost more than predicted, ``publish_cost`` per frame, ``marker_cost`` extra
+    for the markers, ``cmd_wall`` of commands since the last tick."""
 
     def __init__(self, period, step_cost):
-        self.period, self.step_cost = period, step_cost
+        self.period, self.step_cost, self.whole_cost = period, step_cost, step_cost
+        self.floor_cost = self.excess = 0.0
         self.publish_cost = self.marker_cost = self.cmd_wall = 0.0
         self.anchor_wall = self.anchor_t = 0.0
 
@@ -39,7 +71,8 @@ class Pacer:
 
         Whole steps (an int) while one fits in the budget; when a single step costs more (a
         column in lasting contact), the fraction of a step that fits (a float in
-        [:data:`MIN_STEP_FRACTION`, 1), for :meth:`Simulation.advance_part`)."""
+        [:data:`MIN_STEP_FRACTION`, 1), for :meth:`Simulation.advance_part`), or one whole step
+        where fractions do not pay (:meth:`_fit`)."""
         publish = self.publish_cost + (self.marker_cost if markers else 0.0)
         if rtf <= 0:
             left = self.period if deadline is None else deadline - now
@@ -57,13 +90,39 @@ class Pacer:
         return max(want, 0)
 
     def _fit(self, budget):
-        """The steps that fit in ``budget`` s: whole ones, or the fraction of one."""
-        fits = budget / max(self.step_cost, 1e-9)
-        return int(fits) if fits >= 1.0 else max(fits, MIN_STEP_FRACTION)
+        """The steps that fit in ``budget`` s: whole ones; else the largest fraction ``f`` whose
+        predicted cost ``F + f (C - F)`` is at most ``budget`` or :data:`FLOOR_MULTIPLE` ``F``,
+        whichever is larger; one whole step when that fraction reaches 1, or while fractional
+        steps cost more than predicted (``excess`` above :data:`EXCESS_RECHECK`)."""
+        whole = max(self.step_cost, 1e-9)
+        fits = budget / whole
+        if fits >= 1.0:
+            return int(fits)
+        floor = min(self.floor_cost, whole)
+        allowed = max(budget, FLOOR_MULTIPLE * floor)
+        if allowed >= whole or self.excess > EXCESS_RECHECK:
+            return 1
+        return max((allowed - floor) / (whole - floor), MIN_STEP_FRACTION)
 
     def stepped(self, n, seconds):
-        """``n`` steps (a fraction of one included) took ``seconds``."""
-        self.step_cost = (1 - SMOOTHING) * self.step_cost + SMOOTHING * seconds / n
+        """``n`` steps took ``seconds``. Whole steps measure the cost of one (and shrink the
+        floor). A fraction of one (``n`` < 1) moves the cost of a whole step towards the smaller
+        of ``seconds / n`` and ``whole_cost``, and the floor and ``excess`` by the difference
+        between ``seconds`` and the cost so predicted."""
+        if n >= 1:
+            self.whole_cost = seconds / n
+            self.step_cost = (1 - SMOOTHING) * self.step_cost + SMOOTHING * self.whole_cost
+            self.floor_cost = min((1 - SMOOTHING) * self.floor_cost, self.step_cost)
+            self.excess = 0.0
+            return
+        whole = min(seconds / n, self.whole_cost)
+        floor = min(self.floor_cost, whole)
+        self.step_cost = (1 - SMOOTHING) * self.step_cost + SMOOTHING * whole
+        predicted = floor + n * (whole - floor)
+        miss = seconds - predicted
+        self.excess = ((1 - SMOOTHING) * self.excess
+                       + SMOOTHING * min(miss / max(predicted, 1e-12), 1.0))
+        self.floor_cost = min(max(floor + SMOOTHING * miss, 0.0), self.step_cost)
 
     def published(self, seconds, markers):
         """Publishing a frame took ``seconds`` (with ``markers``: the markers' part on top)."""

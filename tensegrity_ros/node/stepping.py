@@ -33,13 +33,15 @@ class Stepper:
         return n if self.lens is None else self.lens.steps_until_impact(n)
 
     def advance(self, n):
-        """``n`` steps (``n`` < 1: one step shortened to that fraction of ``dt``)."""
+        """``n`` steps (``n`` < 1: one step shortened to that fraction of ``dt``); returns the
+        steps taken (the lens takes a whole step for a fraction while it records)."""
         if self.lens is not None:
-            self.lens.advance(n)
-        elif n < 1:
+            return self.lens.advance(n)
+        if n < 1:
             self.sim.advance_part(n)
         else:
             self.sim.advance(n * self.sim.dt)
+        return n
 
     def after(self, now):
         """Once per stepping: the lens's figures and field when they are due."""

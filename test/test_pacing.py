@@ -1,0 +1,150 @@
+"""The pacer against fake cost models (pure arithmetic: no ROS, no wall clock): hundreds of ticks
+driven as the node drives them (``Pacer.steps``, the steps, ``Pacer.stepped`` with their cost),
+with a whole step that costs more than a tick's budget.
+
+A single column in lasting contact: a fraction of a step costs that fraction of a whole one, and
+the ticks settle on the fraction that fits. An array: a fraction costs at least a floor near or
+above the budget however short it is, and simulated time keeps a good part of the pace of whole
+steps (it does not shrink to ``MIN_STEP_FRACTION`` of a step a tick). When the contact ends the
+ticks return to whole steps within a few ticks."""
+import math
+
+import pytest
+
+from tensegrity_ros.node.pacing import FAST_WORK_FRACTION, MIN_STEP_FRACTION, Pacer
+
+PERIOD = 0.005                   # s: 200 Hz
+DT = 0.625e-3                    # s: the FB column's step
+BUDGET = FAST_WORK_FRACTION * PERIOD   # s: a tick's budget at real_time_factor 0
+REST = 0.01 * BUDGET             # s: a step of a column out of contact
+CONTACT = 10 * BUDGET            # s: a whole step in lasting contact
+
+
+def jitter(k):
+    """A deterministic scatter of measured wall times, +-10 %."""
+    return 1.0 + 0.1 * math.sin(1.7 * k)
+
+
+def proportional(whole):
+    """A single column: a fraction ``f`` of a step costs ``f`` times a whole one."""
+    return lambda f, k: f * whole(k)
+
+
+def with_floor(floor, whole):
+    """An array: a fraction costs at least ``floor`` s, ``max(floor, f C)``."""
+    return lambda f, k: max(floor, f * whole(k))
+
+
+def floor_plus(floor, whole):
+    """An array: a fraction costs ``floor`` s plus its share of the rest, ``F + f (C - F)``."""
+    return lambda f, k: floor + f * (whole(k) - floor)
+
+
+def drive(pacer, part, whole, ticks, rtf=0.0):
+    """``ticks`` ticks of the node: each asks the pacer for its steps, takes them at the cost the
+    model gives (``n`` whole steps: ``n whole(k)``; a fraction ``f``: ``part(f, k)``, both with
+    the jitter) and tells the pacer. The next tick is due a period on, or when this one ends.
+    Returns ``(steps, seconds)`` of each tick."""
+    now = t_sim = 0.0
+    pacer.anchor(t_sim, now)
+    ticks_out = []
+    for k in range(ticks):
+        n = pacer.steps(now, t_sim, DT, rtf, deadline=now + PERIOD)
+        seconds = 0.0
+        if n > 0:
+            seconds = (n * whole(k) if n >= 1 else part(n, k)) * jitter(k)
+            pacer.stepped(n, seconds)
+            t_sim += n * DT
+        ticks_out.append((n, seconds))
+        now += max(PERIOD, seconds)
+    return ticks_out
+
+
+def sim_per_tick(ticks):
+    """Simulated seconds per tick."""
+    return sum(n for n, _ in ticks) * DT / len(ticks)
+
+
+def pace(ticks):
+    """Simulated seconds per wall second (a tick lasts a period, or longer when it overruns)."""
+    return sum(n for n, _ in ticks) * DT / sum(max(PERIOD, s) for _, s in ticks)
+
+
+def contact_from(k0, before=REST, after=CONTACT):
+    """The cost of a whole step, s: ``before`` until tick ``k0``, then ``after``."""
+    return lambda k: before if k < k0 else after
+
+
+def test_a_column_in_lasting_contact_takes_the_fraction_of_a_step_that_fits():
+    """Cost proportional to the fraction: after the contact begins each tick takes a fraction
+    of a step that costs about the budget, and simulated time advances about budget / C of a
+    step a tick, without whole steps that would overrun the tick tenfold."""
+    whole = contact_from(50)
+    ticks = drive(Pacer(PERIOD, REST), proportional(whole), whole, 400)
+    settled = ticks[100:]
+    assert all(0 < n < 1 for n, _ in settled)
+    assert sim_per_tick(settled) == pytest.approx(BUDGET / CONTACT * DT, rel=0.1)
+    assert max(s for _, s in settled) < 1.3 * BUDGET
+    assert pace(settled) == pytest.approx(DT / CONTACT, rel=0.15)      # as whole steps would
+
+
+@pytest.mark.parametrize('model, floor', [(with_floor, 1.2), (with_floor, 2.0),
+                                          (with_floor, 5.0), (floor_plus, 1.0),
+                                          (floor_plus, 3.0), (with_floor, 15.0)])
+def test_a_fraction_with_a_floor_keeps_simulated_time_going(model, floor):
+    """A fraction costs at least ``floor`` budgets however short (an array: its columns out of
+    contact take whole steps, each column its overhead); a whole step costs 10 budgets. Simulated
+    time per tick stays of the order of budget / C of a step, at least half of it, and the pace
+    at least 0.4 of what whole steps give; it does not shrink towards MIN_STEP_FRACTION of a step
+    a tick. (A floor above the cost of a whole step: mostly whole steps.)"""
+    whole = contact_from(50)
+    ticks = drive(Pacer(PERIOD, REST), model(floor * BUDGET, whole), whole, 600)
+    settled = ticks[200:]
+    assert sim_per_tick(settled) > 0.5 * BUDGET / CONTACT * DT
+    assert sim_per_tick(settled) > 10 * MIN_STEP_FRACTION * DT
+    assert pace(settled) > 0.4 * DT / CONTACT
+
+
+def test_the_ticks_return_to_whole_steps_when_the_contact_ends():
+    """A column in lasting contact (fractions), then out of contact (a whole step costs a fifth
+    of the budget): whole steps again within a few ticks, as many as fit."""
+    whole = contact_from(200, CONTACT, 0.2 * BUDGET)
+    ticks = drive(Pacer(PERIOD, CONTACT), proportional(whole), whole, 300)
+    assert all(n < 1 for n, _ in ticks[100:200])
+    first = next(k for k in range(200, 300) if ticks[k][0] >= 1)
+    assert first - 200 <= 20
+    assert all(n >= 3 for n, _ in ticks[first + 20:])
+
+
+def test_an_array_returns_to_whole_steps_when_the_contact_ends():
+    """The same from an array's fractions with a floor above the budget."""
+    whole = contact_from(200, CONTACT, 0.2 * BUDGET)
+    in_contact = floor_plus(2 * BUDGET, whole)
+
+    def part(f, k):            # out of contact a fraction costs what a whole step does
+        return in_contact(f, k) if k < 200 else whole(k)
+    ticks = drive(Pacer(PERIOD, CONTACT), part, whole, 300)
+    first = next(k for k in range(200, 300) if ticks[k][0] >= 1)
+    assert first - 200 <= 20
+    assert all(n >= 3 for n, _ in ticks[first + 20:])
+
+
+@pytest.mark.parametrize('growth', [2.0, 10.0])
+def test_a_contact_that_grows_shrinks_the_fraction_again(growth):
+    """In lasting contact a whole step comes to cost ``growth`` times more: the ticks, after a
+    whole step or two that measure the new cost, take the fraction that fits again."""
+    whole = contact_from(100, CONTACT, growth * CONTACT)
+    ticks = drive(Pacer(PERIOD, CONTACT), proportional(whole), whole, 400)
+    assert sum(1 for n, _ in ticks[100:] if n >= 1) <= 2
+    settled = ticks[150:]
+    assert sim_per_tick(settled) == pytest.approx(BUDGET / (growth * CONTACT) * DT, rel=0.1)
+    assert max(s for _, s in settled) < 1.3 * BUDGET
+
+
+def test_paced_ticks_that_cannot_keep_up_take_what_fits_with_a_floor():
+    """At real_time_factor 1 with a whole step dearer than the budget and a floor above it: the
+    pacer re-anchors each tick (no debt) and simulated time keeps going."""
+    whole = contact_from(0, after=CONTACT)
+    ticks = drive(Pacer(PERIOD, CONTACT), with_floor(2 * BUDGET, whole), whole, 400, rtf=1.0)
+    settled = ticks[100:]
+    assert pace(settled) > 0.4 * DT / CONTACT
