@@ -90,9 +90,10 @@ def main(out_dir='bench/results', quick=False, log=print, treatments=None):
     written."""
     t_end = 0.5 if quick else T_END
     treatments = TREATMENTS if treatments is None else treatments
-    rows = []
+    rows, refs = [], []
     for name, v0 in CASES:
         ref = shot(name, v0, t_end, refine=REFINE)
+        refs.append({'scene': name, 'v0': v0, **ref})
         log(f'{name} {v0} m/s, reference: {_line(ref)}')
         for label, sets in treatments.items():
             row = {'scene': name, 'v0': v0, 'treatment': label, **shot(name, v0, t_end, sets)}
@@ -108,7 +109,7 @@ def main(out_dir='bench/results', quick=False, log=print, treatments=None):
     out.mkdir(parents=True, exist_ok=True)
     path = out / ('shots_quick.json' if quick else 'shots.json')
     path.write_text(json.dumps({'t_end_s': t_end, 'refine': REFINE, 'rows': rows,
-                                'train_then_shot': train}, indent=1))
+                                'references': refs, 'train_then_shot': train}, indent=1))
     return [str(path)]
 
 
