@@ -20,34 +20,13 @@ from solver.simulate.array import ArraySimulation  # noqa: E402
 from tensegrity_ros.msgs import messages  # noqa: E402
 from tensegrity_ros.node.demo import Commander, spin_until  # noqa: E402
 from tensegrity_ros.node.node import TensegritySim  # noqa: E402
+from node_helpers import Logged  # noqa: E402
 
 DOMAIN = 140 + os.getpid() % 10
 N_COLUMNS = 6
 PRESTRAIN = np.linspace(0.02, 0.08, N_COLUMNS)
 V0 = 0.3
 AFTER_IMPACT_S = 0.1             # simulation time stepped after the impact
-
-
-class Logged:
-    """What the node does to its simulation, in order: each call of the recorded methods with
-    its arguments (the replay repeats them on another simulation)."""
-
-    METHODS = ('advance', 'advance_part', 'apply_prestrain', 'apply_impact', 'reset')
-
-    def __init__(self, sim):
-        self.calls = []
-        for name in self.METHODS:
-            setattr(sim, name, self._wrap(name, getattr(sim, name)))
-
-    def _wrap(self, name, method):
-        def call(*args, **kwargs):
-            self.calls.append((name, args, kwargs))
-            return method(*args, **kwargs)
-        return call
-
-    def replay(self, sim):
-        for name, args, kwargs in self.calls:
-            getattr(sim, name)(*args, **kwargs)
 
 
 @pytest.fixture
