@@ -11,11 +11,14 @@ change against the refined run of the front figures (front speed, amplitude and 
 of the chaotic motion behind the front, docs/physics.md section 7.1) and of the base-force peak
 (the first peak at the far base, ``base[0].peak_N``; ``max_N``, the largest over the run, is
 reported too, but behind the front the response is chaotic). The train case is the 20 impacts of
-``fb_train.yaml`` then a 2 m/s shot at 1 s, 5 s simulated. Writes ``shots.json``."""
+``fb_train.yaml`` then a 2 m/s shot at 1 s, 5 s simulated, in the solver and through the node
+(:func:`node_train_then_shot`). Writes ``shots.json``."""
 from __future__ import annotations
 
 import argparse
 import json
+import os
+import tempfile
 import time
 from pathlib import Path
 
@@ -62,6 +65,37 @@ def train_then_shot(t_end=TRAIN_T_END, overrides=()):
     return _record(scene, sim, train, t_end)
 
 
+def node_train_then_shot(t_end=TRAIN_T_END, domain_id=120 + os.getpid() % 10):
+    """The train and the shot through the node, as a user commands them: one FB column
+    (:class:`bench.node_array.Session`: the node in this process, ``real_time_factor`` 0, 200 Hz
+    publishing), each impact published on ``~/cmd/impact`` once the simulation has reached its
+    time, then stepped to ``t_end``. The real-time factor counts from the first impact."""
+    from bench.node_array import Session
+    impacts = [(float(t), float(v0)) for t, v0 in _scene('fb_train').loading.impact.train()]
+    impacts.append(TRAIN_SHOT)
+    with tempfile.TemporaryDirectory() as folder:
+        s = Session(1, folder, domain_id)
+        try:
+            s.reset()
+            s.set_ramp(0.0)
+            node, sim = s.node, s.node.sim
+            t0, f0, d0 = sim.t, node.counts['frames'], node.divergences
+            w0 = None
+            for t, v0 in impacts:
+                if not s.spin_until(lambda: sim.t - t0 >= t - 1e-12, 600.0):
+                    raise RuntimeError(f'shots: the node did not reach t = {t} s')
+                s.command('impact', [v0], 'all')
+                w0 = time.perf_counter() if w0 is None else w0
+            tail = s.window(3600.0, until_t=t0 + t_end)
+            wall = time.perf_counter() - w0
+            return {'real_time_factor': (sim.t - t0 - impacts[0][0]) / wall, 'wall_s': wall,
+                    'frames_per_s': (node.counts['frames'] - f0) / wall,
+                    'after_shot': tail, 'divergences': node.divergences - d0,
+                    'energy_balance_error': float(sim.energy_error())}
+        finally:
+            s.close()
+
+
 def _record(scene, sim, train, t_end):
     t0 = time.perf_counter()
     try:
@@ -105,11 +139,15 @@ def main(out_dir='bench/results', quick=False, log=print, treatments=None):
              for label, sets in treatments.items()}
     for label, r in train.items():
         log(f'fb_train + {TRAIN_SHOT[1]} m/s at {TRAIN_SHOT[0]} s, {label}: {_line(r)}')
+    node = node_train_then_shot(1.5 if quick else TRAIN_T_END)
+    log(f"the same through the node: real-time factor {node['real_time_factor']:.2f}, "
+        f"{node['frames_per_s']:.0f} frames/s, balance {node['energy_balance_error']:.1e}")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     path = out / ('shots_quick.json' if quick else 'shots.json')
     path.write_text(json.dumps({'t_end_s': t_end, 'refine': REFINE, 'rows': rows,
-                                'references': refs, 'train_then_shot': train}, indent=1))
+                                'references': refs, 'train_then_shot': train,
+                                'node_train_then_shot': node}, indent=1))
     return [str(path)]
 
 
