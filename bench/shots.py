@@ -67,7 +67,7 @@ def train_then_shot(t_end=TRAIN_T_END, overrides=()):
 
 def node_train_then_shot(t_end=TRAIN_T_END, domain_id=120 + os.getpid() % 10):
     """The train and the shot through the node, as a user commands them: one FB column
-    (:class:`bench.node_array.Session`: the node in this process, ``real_time_factor`` 0, 200 Hz
+    (the node as :mod:`bench.node_array` runs it, in this process, ``real_time_factor`` 0, 200 Hz
     publishing), each impact published on ``~/cmd/impact`` once the simulation has reached its
     time, then stepped to ``t_end``. The real-time factor counts from the first impact."""
     from bench.node_array import Session
