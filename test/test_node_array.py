@@ -11,16 +11,13 @@ import pytest
 import yaml
 
 rclpy = pytest.importorskip('rclpy')
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
-from rclpy.parameter import Parameter  # noqa: E402
 
 from solver.build.scene import Scene  # noqa: E402
 from solver.simulate import lanebatch  # noqa: E402
 from solver.simulate.array import ArraySimulation  # noqa: E402
 from tensegrity_ros.msgs import messages  # noqa: E402
-from tensegrity_ros.node.demo import Commander, spin_until  # noqa: E402
-from tensegrity_ros.node.node import TensegritySim  # noqa: E402
-from node_helpers import Logged  # noqa: E402
+from tensegrity_ros.node.demo import spin_until  # noqa: E402
+from node_helpers import commanded_node  # noqa: E402
 
 DOMAIN = 140 + os.getpid() % 10
 N_COLUMNS = 6
@@ -42,24 +39,12 @@ def array_node(tmp_path, monkeypatch):
         lane_calls.append((len(group.sims), n))
         return advance(group, n)
     monkeypatch.setattr(lanebatch.LaneGroup, 'advance', counted)
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx, domain_id=DOMAIN)
-    node = TensegritySim(context=ctx, parameter_overrides=[
-        Parameter('scene_file', value=str(path)), Parameter('real_time_factor', value=0.0),
-        Parameter('publish_rate_hz', value=200.0), Parameter('prestrain_ramp_s', value=0.0)])
-    node.sim.lanes = True
-    log = Logged(node.sim)
-    cmd = Commander(context=ctx)
-    ex = SingleThreadedExecutor(context=ctx)
-    ex.add_node(node)
-    ex.add_node(cmd)
-    assert spin_until(ex, cmd.connected, 60), 'commander never connected'
-    yield node, ex, cmd, log, scene, lane_calls
-    ex.shutdown()
-    node.close()
-    cmd.destroy_node()
-    node.destroy_node()
-    rclpy.shutdown(context=ctx)
+
+    def lanes_on(node):
+        node.sim.lanes = True
+    with commanded_node(DOMAIN, path, prepare=lanes_on, prestrain_ramp_s=0.0) as (
+            node, ex, cmd, log):
+        yield node, ex, cmd, log, scene, lane_calls
 
 
 def _accepted(node, ex, count, topic):

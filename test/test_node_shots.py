@@ -10,14 +10,11 @@ import numpy as np
 import pytest
 
 rclpy = pytest.importorskip('rclpy')
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
-from rclpy.parameter import Parameter  # noqa: E402
 
 from solver.build.scene import Scene  # noqa: E402
 from solver.simulate.array import simulation_for  # noqa: E402
-from tensegrity_ros.node.demo import Commander, spin_until  # noqa: E402
-from tensegrity_ros.node.node import TensegritySim  # noqa: E402
-from node_helpers import Logged  # noqa: E402
+from tensegrity_ros.node.demo import spin_until  # noqa: E402
+from node_helpers import commanded_node  # noqa: E402
 
 DOMAIN = 100 + os.getpid() % 10
 SCENE = 'config/scenes/fb_column.yaml'
@@ -28,23 +25,8 @@ AFTER_SHOT_S = 0.1                # simulation time stepped after it
 
 @pytest.fixture
 def shot_node():
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx, domain_id=DOMAIN)
-    node = TensegritySim(context=ctx, parameter_overrides=[
-        Parameter('scene_file', value=SCENE), Parameter('real_time_factor', value=0.0),
-        Parameter('publish_rate_hz', value=200.0)])
-    log = Logged(node.sim)
-    cmd = Commander(context=ctx)
-    ex = SingleThreadedExecutor(context=ctx)
-    ex.add_node(node)
-    ex.add_node(cmd)
-    assert spin_until(ex, cmd.connected, 60), 'commander never connected'
-    yield node, ex, cmd, log
-    ex.shutdown()
-    node.close()
-    cmd.destroy_node()
-    node.destroy_node()
-    rclpy.shutdown(context=ctx)
+    with commanded_node(DOMAIN, SCENE) as started:
+        yield started
 
 
 def _impact_at(node, ex, cmd, t, v0, count):
