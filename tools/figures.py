@@ -167,6 +167,12 @@ ROWS = [
         F('impacts.json: points stopped with contact.refine ledger', lambda: _impacts('stopped')),
         F('impacts.json: largest balance error with contact.refine ledger',
           lambda: _impacts('balance_error_max'))]),
+    ('shot, 2 s: real-time factor', '{}, {}; {}, {}; {}', [
+        J('shots.json', 'rows', 0, 'real_time_factor', spec='.2f'),     # FB 1 m/s, default
+        J('shots.json', 'rows', 6, 'real_time_factor', spec='.2f'),     # RB 1 m/s
+        J('shots.json', 'rows', 3, 'real_time_factor', spec='.2f'),     # FB 2 m/s
+        J('shots.json', 'rows', 9, 'real_time_factor', spec='.2f'),     # RB 2 m/s
+        J('shots.json', 'node_train_then_shot', 'real_time_factor', spec='.2f')]),
     ('1 m/s impact, FB, RB: front speed', '{}, {} m/s; {}, {}', [
         F('trains.json: front_speed_m_s at the scene steps, fb_column 1 m/s',
           lambda: _front('fb_column', 'speed')),
