@@ -42,9 +42,9 @@ def floor_plus(floor, whole):
 
 def drive(pacer, part, whole, ticks, rtf=0.0):
     """``ticks`` ticks of the node: each asks the pacer for its steps, takes them at the cost the
-    model gives (``n`` whole steps: ``n whole(k)``; a fraction ``f``: ``part(f, k)``, both with
-    the jitter) and tells the pacer. The next tick is due a period on, or when this one ends.
-    Returns ``(steps, seconds)`` of each tick."""
+    model gives (``n`` whole steps: ``n whole(k)``; a fraction ``f``: ``part(f, k)``; whole steps
+    and a fraction of one more: the sum; all with the jitter) and tells the pacer. The next tick
+    is due a period on, or when this one ends. Returns ``(steps, seconds)`` of each tick."""
     now = t_sim = 0.0
     pacer.anchor(t_sim, now)
     ticks_out = []
@@ -52,7 +52,8 @@ def drive(pacer, part, whole, ticks, rtf=0.0):
         n = pacer.steps(now, t_sim, DT, rtf, deadline=now + PERIOD)
         seconds = 0.0
         if n > 0:
-            seconds = (n * whole(k) if n >= 1 else part(n, k)) * jitter(k)
+            w = int(n)
+            seconds = (w * whole(k) + (part(n - w, k) if n > w else 0.0)) * jitter(k)
             pacer.stepped(n, seconds)
             t_sim += n * DT
         ticks_out.append((n, seconds))
@@ -148,3 +149,28 @@ def test_paced_ticks_that_cannot_keep_up_take_what_fits_with_a_floor():
     ticks = drive(Pacer(PERIOD, CONTACT), with_floor(2 * BUDGET, whole), whole, 400, rtf=1.0)
     settled = ticks[100:]
     assert pace(settled) > 0.4 * DT / CONTACT
+
+
+@pytest.mark.parametrize('cost', [0.3, 0.6, 0.9])
+def test_a_single_column_fills_the_tick_after_its_few_whole_steps(cost):
+    """A whole step costs ``cost`` budgets (a column in lasting contact, fractions proportional):
+    at real_time_factor 0 each tick takes the whole steps that fit and a fraction of one more in
+    what they leave, so that it works through its budget instead of idling until the next tick:
+    simulated time per tick is about budget / C of a step, ticks stay within the period."""
+    whole = contact_from(0, after=cost * BUDGET)
+    ticks = drive(Pacer(PERIOD, cost * BUDGET, fill=True), proportional(whole), whole, 300)
+    settled = ticks[50:]
+    assert sim_per_tick(settled) > 0.85 * BUDGET / (cost * BUDGET) * DT
+    assert max(s for _, s in settled) < 1.25 * BUDGET
+    assert any(n != int(n) for n, _ in settled)
+
+
+def test_cheap_steps_and_arrays_take_whole_steps_only():
+    """Steps far cheaper than the budget (many fit) keep the frames on the step grid; an array
+    (no ``fill``) too, its fractions costing about a whole step."""
+    cheap = contact_from(0, after=0.1 * BUDGET)
+    ticks = drive(Pacer(PERIOD, 0.1 * BUDGET, fill=True), proportional(cheap), cheap, 100)
+    assert all(n == int(n) and n >= 8 for n, _ in ticks[20:])
+    dear = contact_from(0, after=0.6 * BUDGET)
+    ticks = drive(Pacer(PERIOD, 0.6 * BUDGET), with_floor(0.6 * BUDGET, dear), dear, 100)
+    assert all(n == int(n) for n, _ in ticks)

@@ -182,7 +182,7 @@ class TensegritySim(LifecycleNode):
         self.t_max = style.reference_tension_scale(net)
         self.running, self.problem = not self.params['start_paused'], ''
         self.divergences, self.last_divergence = 0, None
-        self.pacer = Pacer(self.period, step_cost)
+        self.pacer = Pacer(self.period, step_cost, fill=not is_array(sim.scene))
         self.realtime = RealTime(step_cost, net.n_columns, net.n_nodes)
         self.intake, self.focus = Intake(self), Focus(self)
         self.counts = self.intake.counts

@@ -4,13 +4,17 @@ Pure arithmetic on wall-clock and simulation times, no ROS: the node hands it th
 costs it measured (moving averages of a step, of publishing a frame and of the markers) and the
 wall time its command callbacks took since the last tick.
 
-A tick takes whole steps while one fits in its budget. When a whole step costs more (a column in
-lasting contact takes hundreds of contact sub-steps per step), it takes one step shortened to a
-fraction ``f`` of ``dt`` (:meth:`Simulation.advance_part`), whose cost the pacer predicts as
-``F + f (C - F)``: ``C`` the cost of a whole step, ``F`` the floor, what a fraction costs however
-short. A single column in contact has a floor near 0 (its cost follows ``f``); an array has a
-large one, since each column out of contact takes a whole integrator step and each column costs
-its per-call overhead whatever the fraction.
+A tick takes whole steps while one fits in its budget; at ``real_time_factor`` 0, for a single
+simulation (``fill``: not an array, whose fractions cost about a whole step), when only a few fit
+(fewer than :data:`FILL_BELOW`: steps in lasting contact), it fills what they leave of its budget
+with a fraction of a further step, instead of waiting for the next tick. When a whole step costs
+more than the budget (a column in lasting contact takes hundreds of contact sub-steps per
+step), it takes one step shortened to a fraction ``f`` of ``dt``
+(:meth:`Simulation.advance_part`), whose cost the pacer predicts as ``F + f (C - F)``: ``C`` the
+cost of a whole step, ``F`` the floor, what a fraction costs however short. A single column in
+contact has a floor near 0 (its cost follows ``f``); an array has a large one, since each column
+out of contact takes a whole integrator step and each column costs its per-call overhead whatever
+the fraction.
 
 - ``C`` follows the whole steps the node takes. A fractional step moves it towards the smaller
   of its cost over ``f`` (a bound from above: the ticks return to whole steps when the contact
@@ -42,18 +46,24 @@ FLOOR_MULTIPLE = 2.0             # a fractional step may cost this many times th
 EXCESS_RECHECK = 0.25            # fractional steps costing this share more than predicted (a
                                  # moving average, each share at most 1): the next tick takes a
                                  # whole step, which measures the cost of one
+FILL_BELOW = 4                   # at real_time_factor 0, a tick that fits fewer whole steps
+                                 # than this fills the rest of its budget with a fraction
+MIN_FILL = 0.1                   # the shortest fraction a tick adds to its whole steps
 
 
 class Pacer:
     """The pace: ``anchor_wall`` (monotonic s) and ``anchor_t`` (simulation s) of the last
-    re-anchoring, and the measured costs, s: ``step_cost`` per whole step (moving average),
-    ``whole_cost`` per step of the last whole steps taken, ``floor_cost`` of a fraction of a step
-    however short (at most ``step_cost``), ``excess`` the moving average of the share by which
-    fractional steps cost more than predicted, ``publish_cost`` per frame, ``marker_cost`` extra
-    for the markers, ``cmd_wall`` of commands since the last tick."""
+    re-anchoring; ``fill``: whether a tick at ``real_time_factor`` 0 fills its budget with a
+    fraction of a step after its whole steps (:meth:`_fill`); and the measured costs, s:
+    ``step_cost`` per whole step (moving average), ``whole_cost`` per step of the last whole
+    steps taken, ``floor_cost`` of a fraction of a step however short (at most ``step_cost``),
+    ``excess`` the moving average of the share by which fractional steps cost more than
+    predicted, ``publish_cost`` per frame, ``marker_cost`` extra for the markers, ``cmd_wall`` of
+    commands since the last tick."""
 
-    def __init__(self, period, step_cost):
+    def __init__(self, period, step_cost, fill=False):
         self.period, self.step_cost, self.whole_cost = period, step_cost, step_cost
+        self.fill = fill
         self.floor_cost = self.excess = 0.0
         self.publish_cost = self.marker_cost = self.cmd_wall = 0.0
         self.anchor_wall = self.anchor_t = 0.0
@@ -72,12 +82,14 @@ class Pacer:
         Whole steps (an int) while one fits in the budget; when a single step costs more (a
         column in lasting contact), the fraction of a step that fits (a float in
         [:data:`MIN_STEP_FRACTION`, 1), for :meth:`Simulation.advance_part`), or one whole step
-        where fractions do not pay (:meth:`_fit`)."""
+        where fractions do not pay (:meth:`_fit`). At ``rtf`` 0, whole steps and a fraction of
+        one more (a float above 1) where :meth:`_fill` adds one."""
         publish = self.publish_cost + (self.marker_cost if markers else 0.0)
         if rtf <= 0:
             left = self.period if deadline is None else deadline - now
             budget = max(FAST_WORK_FRACTION * left - publish, MIN_WORK_FRACTION * self.period)
-            return self._fit(budget)
+            n = self._fit(budget)
+            return n + self._fill(n, budget) if n >= 1 else n
         # paced, a tick keeps a margin so that it ends before the next one is due
         budget = max(WORK_FRACTION * self.period - publish - self.cmd_wall,
                      MIN_WORK_FRACTION * self.period)
@@ -104,11 +116,24 @@ class Pacer:
             return 1
         return max((allowed - floor) / (whole - floor), MIN_STEP_FRACTION)
 
+    def _fill(self, n, budget):
+        """With ``fill``: the fraction of a further step that fits in what ``n`` whole steps
+        leave of ``budget`` (predicted cost ``F + f (C - F)``, as :meth:`_fit`), when ``n`` is
+        below :data:`FILL_BELOW`, fractions pay (a floor below half a whole step, and no
+        ``excess``) and the fraction is at least :data:`MIN_FILL`; else 0."""
+        whole = max(self.step_cost, 1e-9)
+        floor = min(self.floor_cost, whole)
+        if (not self.fill or n >= FILL_BELOW or 2.0 * floor >= whole
+                or self.excess > EXCESS_RECHECK):
+            return 0.0
+        f = (budget - n * whole - floor) / (whole - floor)
+        return min(f, 1.0 - MIN_FILL) if f >= MIN_FILL else 0.0
+
     def stepped(self, n, seconds):
-        """``n`` steps took ``seconds``. Whole steps measure the cost of one (and shrink the
-        floor). A fraction of one (``n`` < 1) moves the cost of a whole step towards the smaller
-        of ``seconds / n`` and ``whole_cost``, and the floor and ``excess`` by the difference
-        between ``seconds`` and the cost so predicted."""
+        """``n`` steps took ``seconds``. Whole steps (with a fraction of one more: :meth:`_fill`)
+        measure the cost of one (and shrink the floor). A fraction of one (``n`` < 1) moves the
+        cost of a whole step towards the smaller of ``seconds / n`` and ``whole_cost``, and the
+        floor and ``excess`` by the difference between ``seconds`` and the cost so predicted."""
         if n >= 1:
             self.whole_cost = seconds / n
             self.step_cost = (1 - SMOOTHING) * self.step_cost + SMOOTHING * self.whole_cost

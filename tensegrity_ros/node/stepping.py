@@ -29,18 +29,22 @@ class Stepper:
 
     def limit(self, n):
         """At most ``n`` steps, so that a planned impact of the lens lands on a step (None: it
-        was made now, ask again)."""
-        return n if self.lens is None else self.lens.steps_until_impact(n)
+        was made now, ask again); the lens steps whole steps or a fraction of one."""
+        if self.lens is None:
+            return n
+        return self.lens.steps_until_impact(int(n) if n >= 1 else n)
 
     def advance(self, n):
-        """``n`` steps (``n`` < 1: one step shortened to that fraction of ``dt``); returns the
-        steps taken (the lens takes a whole step for a fraction while it records)."""
+        """``n`` steps (``n`` < 1: one step shortened to that fraction of ``dt``; a float above
+        1: its whole steps, then the fraction of one more); returns the steps taken (the lens
+        takes a whole step for a fraction while it records)."""
         if self.lens is not None:
             return self.lens.advance(n)
-        if n < 1:
-            self.sim.advance_part(n)
-        else:
-            self.sim.advance(n * self.sim.dt)
+        whole = int(n)
+        if whole >= 1:
+            self.sim.advance(whole * self.sim.dt)
+        if n - whole > 0.0:
+            self.sim.advance_part(n - whole)
         return n
 
     def after(self, now):
