@@ -14,6 +14,7 @@ import numpy as np
 
 from tensegrity_ros.msgs import messages
 from tensegrity_ros.node.commands import CommandError, describe
+from tensegrity_ros.node.stepping import step
 
 FIELD_TOPIC = '~/field'
 
@@ -128,10 +129,8 @@ class Focus:
         if self.record is not None:
             n = max(int(n), 1)
             self.record.advance(self.node.sim, n)
-        elif n < 1:
-            self.node.sim.advance_part(n)
         else:
-            self.node.sim.advance(n * self.node.sim.dt)
+            step(self.node.sim, n)
         return n
 
     def after_steps(self, now):

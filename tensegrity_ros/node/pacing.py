@@ -106,23 +106,26 @@ class Pacer:
         predicted cost ``F + f (C - F)`` is at most ``budget`` or :data:`FLOOR_MULTIPLE` ``F``,
         whichever is larger; one whole step when that fraction reaches 1, or while fractional
         steps cost more than predicted (``excess`` above :data:`EXCESS_RECHECK`)."""
-        whole = max(self.step_cost, 1e-9)
+        whole, floor = self._costs()
         fits = budget / whole
         if fits >= 1.0:
             return int(fits)
-        floor = min(self.floor_cost, whole)
         allowed = max(budget, FLOOR_MULTIPLE * floor)
         if allowed >= whole or self.excess > EXCESS_RECHECK:
             return 1
         return max((allowed - floor) / (whole - floor), MIN_STEP_FRACTION)
+
+    def _costs(self):
+        """``(C, F)``: the predicted cost of a whole step and the floor of a fraction."""
+        whole = max(self.step_cost, 1e-9)
+        return whole, min(self.floor_cost, whole)
 
     def _fill(self, n, budget):
         """With ``fill``: the fraction of a further step that fits in what ``n`` whole steps
         leave of ``budget`` (predicted cost ``F + f (C - F)``, as :meth:`_fit`), when ``n`` is
         below :data:`FILL_BELOW`, fractions pay (a floor below half a whole step, and no
         ``excess``) and the fraction is at least :data:`MIN_FILL`; else 0."""
-        whole = max(self.step_cost, 1e-9)
-        floor = min(self.floor_cost, whole)
+        whole, floor = self._costs()
         if (not self.fill or n >= FILL_BELOW or 2.0 * floor >= whole
                 or self.excess > EXCESS_RECHECK):
             return 0.0

@@ -16,6 +16,16 @@ MAX_STEPS = 100_000              # steps one request may ask for (the executor w
 PART_TOL = 1e-9                  # a duration within this share of a step of a whole number
 
 
+def step(sim, n):
+    """Advance ``sim`` by ``n`` steps: ``n`` < 1, one step shortened to that fraction of ``dt``;
+    a float above 1, its whole steps, then the fraction of one more."""
+    whole = int(n)
+    if whole >= 1:
+        sim.advance(whole * sim.dt)
+    if n - whole > 0.0:
+        sim.advance_part(n - whole)
+
+
 class StepError(ValueError):
     """A ``~/step`` request that cannot be done; the message says why."""
 
@@ -40,11 +50,7 @@ class Stepper:
         takes a whole step for a fraction while it records)."""
         if self.lens is not None:
             return self.lens.advance(n)
-        whole = int(n)
-        if whole >= 1:
-            self.sim.advance(whole * self.sim.dt)
-        if n - whole > 0.0:
-            self.sim.advance_part(n - whole)
+        step(self.sim, n)
         return n
 
     def after(self, now):
