@@ -186,7 +186,7 @@ def test_fit_convergence_checks_the_best_point_against_separate_refined_runs(tmp
     target = tmp_path / 'target.yaml'
     target.write_text('cases:\n'
                       '  - {set: {loading.impact.v0: 0.1}, figures: {pulse.amplitude: 0.15}}\n'
-                      '  - {set: {loading.impact.v0: 1.0}, figures: {pulse.amplitude: 2.0}}\n')
+                      '  - {set: {loading.impact.v0: 1.5}, figures: {pulse.amplitude: 2.0}}\n')
     args = ['fit', FB, '--target', str(target), '--free', 'prestrain=0.0019:0.0021',
             '--popsize', '1', '--maxiter', '1', '--no-polish', '--t-end', str(T_END),
             '--workers', '1', '--convergence', '--json']
@@ -199,7 +199,7 @@ def test_fit_convergence_checks_the_best_point_against_separate_refined_runs(tmp
     assert 'fitted figures not converged: case 2 pulse.amplitude moves' in err
     check = result['convergence']
     scene = Scene.load(FB)
-    for i, v0 in enumerate((0.1, 1.0)):
+    for i, v0 in enumerate((0.1, 1.5)):
         sets = [('loading.impact.v0', v0), ('prestrain', result['best']['prestrain']),
                 ('run.t_end', T_END)]
         base = simulate(scene, sets).summary.to_json()['pulse']['amplitude']

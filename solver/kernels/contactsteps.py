@@ -25,9 +25,10 @@ from solver.kernels.contact import hertz_duration
 
 
 @jit_inline
-def _resolve(gap, V, A, u2, h, bc):
+def _resolve(gap, V, A, u2, h, bc, scale):
     """The step for one contact: ``h`` (unchanged: it cannot touch within ``h``), else the
-    conservative approach step or the contact step ``T / steps``, whichever is longer."""
+    conservative approach step or the contact step ``T / steps`` times ``scale`` (the refinement
+    after a step that failed the energy balance), whichever is longer."""
     h_safe = 0.0
     if gap > 0.0:
         if 1.25 * (V * h + 0.5 * A * h * h) < gap:
@@ -35,7 +36,7 @@ def _resolve(gap, V, A, u2, h, bc):
         c = 0.4 * gap                   # 1.25 (V h + A h^2 / 2) = gap / 2
         h_safe = 2.0 * c / (V + math.sqrt(V * V + 2.0 * A * c)) if V + A > 0.0 else h
     return min(h, max(h_safe, hertz_duration(bc.m_min, bc.k, max(math.sqrt(u2), 1e-9))
-                      / bc.steps))
+                      / bc.steps * scale))
 
 
 @jit_inline
@@ -219,8 +220,9 @@ def _largest(u):
 
 
 @jit
-def contact_step(x, v, acc, bc, levels, h, state, active):
-    """:func:`scan_step` where a contact could start within ``h``, else ``h``, cheaply: the
+def contact_step(x, v, acc, bc, levels, h, state, active, scale):
+    """:func:`scan_step` where a contact could start within ``h`` (its contact steps
+    ``T / steps`` times ``scale``), else ``h``, cheaply: the
     smallest gap of the last scan, less what every node could have moved since (twice the
     largest node speed and acceleration bound any relative motion; a factor 2 over the Taylor
     terms covers how fast the accelerations change within a step), is kept in ``state[SLACK]``
@@ -238,7 +240,7 @@ def contact_step(x, v, acc, bc, levels, h, state, active):
         state[MOTION] += reach
         state[LOOK] = 0.0          # no contact force within this step: not evaluated
         return h
-    h_new, g_min, bases = scan_step(x, v, acc, bc, levels, h, active, state, reach)
+    h_new, g_min, bases = scan_step(x, v, acc, bc, levels, h, active, state, reach, scale)
     reach = _motion(v, acc, h_new)
     state[SLACK] = g_min - reach
     state[MOTION] += reach
@@ -283,13 +285,13 @@ def gate(x, v, acc, bc, levels, h, state, active):
     for a step of ``h`` from ``x, v`` (accelerations ``acc``) that is taken whole. The pairs that
     could touch within it are listed in ``active`` for the force evaluations; where a contact
     could start, they look (``state[LOOK]`` 1) and the next call scans again."""
-    if contact_step(x, v, acc, bc, levels, h, state, active) < h:
+    if contact_step(x, v, acc, bc, levels, h, state, active, 1.0) < h:
         add_motion(state, v, acc, h)
         state[LOOK] = 1.0
 
 
 @jit
-def scan_step(x, v, acc, bc, levels, h, active, state, reach):
+def scan_step(x, v, acc, bc, levels, h, active, state, reach, scale):
     """The step to take from the state ``x, v`` (accelerations ``acc``) instead of ``h``: ``h``
     when no pair of bars and no two bases can touch within it, otherwise shortened (see the
     module's text).
@@ -299,7 +301,8 @@ def scan_step(x, v, acc, bc, levels, h, active, state, reach):
     ``g`` cannot touch within ``h`` while ``1.25 (V h + A h^2 / 2) < g`` (``V``, ``A`` the largest
     relative end speed and acceleration; 1.25 covers the Taylor remainder). A pair that could
     is approached in steps that close at most half its gap, and never shorter than the contact
-    step ``T / steps``. The pairs that could touch within ``h`` (gap below twice the Taylor
+    step ``T / steps`` times ``scale``: a step that any pair in contact bounds is at most that,
+    whatever else shortened it. The pairs that could touch within ``h`` (gap below twice the Taylor
     reach) are listed in ``active`` for the force evaluations. A pair whose lower bound of the gap
     (``state``, see :func:`contact_step`) exceeds ``reach``, the bound of any relative motion
     within ``h``, is left as it is: it neither shortens the step nor gets listed, as its exact
@@ -338,7 +341,7 @@ def scan_step(x, v, acc, bc, levels, h, active, state, reach):
             vx, vy, vz = rel_velocity(v, p, s, t)
             rate = (nx * vx + ny * vy + nz * vz) / max(dist, 1e-300)
             u2 = rate * rate + 0.8 * k * d * d * math.sqrt(d) / m
-        h_new = _resolve(gap, math.sqrt(u2), A, u2, h_new, bc)
+        h_new = _resolve(gap, math.sqrt(u2), A, u2, h_new, bc, scale)
     active[0] = count
     bases = 0                           # prisms whose bases could touch within h
     for c in range(levels.shape[0]):
@@ -358,7 +361,7 @@ def scan_step(x, v, acc, bc, levels, h, active, state, reach):
                 u2 += 0.8 * k * (-gap) ** 2.5 / m
             if gap <= 2.0 * (abs(rate) * h + 0.5 * abs(accel) * h * h):
                 bases += 1
-            h_new = _resolve(gap, abs(rate), abs(accel), u2, h_new, bc)
+            h_new = _resolve(gap, abs(rate), abs(accel), u2, h_new, bc, scale)
     return h_new, g_min, bases
 
 

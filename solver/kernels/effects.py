@@ -63,7 +63,7 @@ def scan_limit(x, v, acc, m, d, h):
     (:func:`solver.kernels.contactsteps.contact_step`)."""
     if m.bar_contact.pairs.shape[0] != 0:
         return contact_step(x, v, acc, m.bar_contact, m.levels, h, d.contact.scan,
-                            d.contact.active)
+                            d.contact.active, 1.0)
     return h
 
 
@@ -81,10 +81,10 @@ def plan(x, v, acc, m, d, h, met, scale):
     """``(step, trial, known)`` for a step of at most ``h`` from ``x``, ``v`` (accelerations
     ``acc`` just evaluated; ``met`` the contacts met before that evaluation): ``step`` is ``h``
     when no contact can start within it; otherwise the contact step
-    (:func:`~solver.kernels.contactsteps.contact_step`) times ``scale`` (the refinement of the
-    steps after a contact), and ``trial`` says whether ``h`` may be tried first (no contact
-    touched at the start): :func:`begin_trial`, the step, :func:`trial_kept`, else
-    :func:`undo_trial` and the shorter step. ``known``: the motion the scans had summed at the
+    (:func:`~solver.kernels.contactsteps.contact_step`, its ``T / steps`` part times ``scale``,
+    the refinement of the steps after a contact), and ``trial`` says whether ``h`` may be tried
+    first (no contact touched at the start): :func:`begin_trial`, the step, :func:`trial_kept`,
+    else :func:`undo_trial` and the shorter step. ``known``: the motion the scans had summed at the
     start, for :func:`trial_kept`."""
     bc = m.bar_contact
     if bc.pairs.shape[0] == 0:
@@ -92,10 +92,10 @@ def plan(x, v, acc, m, d, h, met, scale):
     scan = d.contact.scan
     touched_at_start = scan[MET] > met
     known = motion_so_far(scan)
-    h_c = contact_step(x, v, acc, bc, m.levels, h, scan, d.contact.active)
+    h_c = contact_step(x, v, acc, bc, m.levels, h, scan, d.contact.active, scale)
     if h_c >= h:
         return h, False, known
-    return h_c * scale, not touched_at_start, known
+    return h_c, not touched_at_start, known
 
 
 @jit
