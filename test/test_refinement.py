@@ -99,3 +99,36 @@ def test_a_stop_restores_the_refinement_and_names_the_same_step_again():
     assert str(again.value) == str(first.value)
     sim.reset()
     assert sim._refinement() == (0.0, 0.0, 0.0)
+
+
+def test_the_refined_contact_step_bounds_a_step_shortened_for_another_reason():
+    """While a pair of bars touches, a step of the refinement level ``k`` is at most the contact
+    step ``T / steps`` times ``2^-k``, also where something else (a cable's kink, the ``dt``
+    level) already made it shorter than ``T / steps``: otherwise the ledger's retry of a rejected
+    step takes the same step again and accepts it over its budget. From a state of FB at 1 m/s
+    in contact, ``effects.plan`` is asked for steps just under the unrefined contact step."""
+    from solver.kernels import dynamics as dyn
+    from solver.kernels import effects
+    sim = simulation_for(_scene('fb_column'))
+    sim.apply_impact(1.0)
+    m = sim.model
+    rec, d, w = m.rec, m.data, m.work
+    acc = np.zeros_like(d.x)
+    checked = 0
+    while sim.t < 0.2 and checked < 5:
+        sim.advance(0.001)
+        met = d.contact.scan[MET]
+        assert dyn.accelerations(d.x, d.v, rec, d, w, acc) == dyn.OK
+        saved = d.contact.scan.copy(), d.contact.active.copy()
+        h_c, _, _ = effects.plan(d.x, d.v, acc, rec, d, sim.dt, met, 1.0)
+        touching = d.contact.scan[MET] > met and h_c < sim.dt    # a contact acted at x
+        for k in (1, 4):
+            h = 0.9 * h_c                   # as a step landed on a kink just before
+            step, _, _ = effects.plan(d.x, d.v, acc, rec, d, h, met, 0.5 ** k)
+            if touching:
+                assert step <= h_c * 0.5 ** k * (1 + 1e-12), (sim.t, k, step, h_c)
+            else:
+                assert step == h
+        d.contact.scan[:], d.contact.active[:] = saved
+        checked += touching
+    assert checked == 5
