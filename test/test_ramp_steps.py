@@ -4,7 +4,7 @@ before every single step, each stepping once, and to the value at the frame's en
 frame's last step; once a column's ramp has ended, the rest of its frame in one call. Checked for
 an array of distinct columns (every way it steps: one column at a time, lanes, ``auto``) through
 ramps longer than a frame, a ramp started mid-ramp and a ramp of some columns, and for every
-integrator. The energy balance error (whose scale the twin's extra steps see more often) is
+integrator, steps shortened by ``advance_part`` included. The energy balance error (whose scale the twin's extra steps see more often) is
 compared with the Python path of the ramp (``Loading._ramp_record`` None, one integrator call a
 step), which also equals the twin."""
 from __future__ import annotations
@@ -32,9 +32,9 @@ class Twin:
     def command(self, target, ramp_s):
         self.spec = (self.t, ramp_s, self.sim.prestrain[0].copy(), np.array(target, float))
 
-    def _set(self, k):
+    def _set(self, k, dt):
         t0, duration, start, target = self.spec
-        u = (self.t + k * self.sim.dt - t0) / duration
+        u = (self.t + k * dt - t0) / duration
         if u >= 1.0:
             p, self.spec = target, None
         else:
@@ -47,11 +47,21 @@ class Twin:
             if self.spec is None:
                 self.sim.advance((n - k) * dt)
                 break
-            self._set(k)
+            self._set(k, dt)
             self.sim.advance(dt)
         if self.spec is not None:
-            self._set(n)
+            self._set(n, dt)
         self.t += n * dt
+
+    def part(self, fraction):
+        """One step shortened to ``fraction`` of ``dt`` (``advance_part``)."""
+        dt = fraction * self.sim.dt
+        if self.spec is not None:
+            self._set(0, dt)
+        self.sim.advance_part(fraction)
+        if self.spec is not None:
+            self._set(1, dt)
+        self.t += 1 * dt
 
 
 def same(sim, twin, what):
@@ -154,4 +164,10 @@ def _single_run(method):
             sim.advance(FRAME * dt)
             twin.frame(FRAME)
             errors.append(same(sim, twin, f'{method}, ramp {i}, frame {f}'))
+    sim.apply_prestrain(0.005, ramp_s=2 * dt)                 # steps shortened to part of dt
+    twin.command(np.full(n_p, 0.005), 2 * dt)
+    for f, fraction in enumerate([0.5, 0.75, 1.0, 0.5, 0.5]):
+        sim.advance_part(fraction)
+        twin.part(fraction)
+        errors.append(same(sim, twin, f'{method}, parts, {f}'))
     return errors
