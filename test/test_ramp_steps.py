@@ -4,9 +4,9 @@ before every single step, each stepping once, and to the value at the frame's en
 frame's last step; once a column's ramp has ended, the rest of its frame in one call. Checked for
 an array of distinct columns (every way it steps: one column at a time, lanes, ``auto``) through
 ramps longer than a frame, a ramp started mid-ramp and a ramp of some columns, and for every
-integrator, steps shortened by ``advance_part`` included. The energy balance error (whose scale the twin's extra steps see more often) is
-compared with the Python path of the ramp (``Loading._ramp_record`` None, one integrator call a
-step), which also equals the twin."""
+integrator, steps shortened by ``advance_part`` included. The energy balance error (whose scale
+the twin's extra steps see more often) is compared with the Python path of the ramp
+(``Loading._ramp_record`` None, one integrator call a step), which also equals the twin."""
 from __future__ import annotations
 
 import numpy as np
