@@ -29,8 +29,9 @@ list (to ``--resolution`` columns).
 Then, for each N, one prestrain command with a ramp (``--ramp`` s of simulation time, the
 columns' prestrains reversed) from the rest state: the real-time factor while the ramp runs
 (measured until the ramp ends or for ``--window`` wall seconds, whichever comes first). While a
-ramp runs the array steps one column simulation at a time and each of them one step at a time
-(:meth:`solver.simulate.simulation.Simulation._integrate`).
+ramp runs the array steps one column simulation at a time, each of them in one compiled call per
+advance that sets the ramp's rest lengths before every step
+(:meth:`solver.simulate.loading.Loading._ramped`).
 
 ``--whole-steps`` makes every stepping tick take at least one whole step. The node's pacer
 (:class:`tensegrity_ros.node.pacing.Pacer`) takes a fraction of a step when its estimate of one

@@ -9,7 +9,8 @@ import numpy as np
 
 class Integrator:
     """A method behind one interface. ``kernel`` is the ``@jit`` run function described in the
-    module doc, ``checked`` its twin (see :meth:`checked_args`); ``extra_args`` gives the kernel
+    module doc, ``checked`` its twin (see :meth:`checked_args`), ``ramped`` (or None) its twin
+    under a prestrain ramp (see :meth:`ramped_args`); ``extra_args`` gives the kernel
     arguments after ``max_iter``; ``evaluations_per_step`` counts force evaluations (for work
     estimates)."""
     name = ''
@@ -19,6 +20,7 @@ class Integrator:
     evaluations_per_step = 0
     kernel = None
     checked = None
+    ramped = None
 
     def __init__(self, rtol=1e-8, atol=1e-10):
         self.rtol, self.atol = float(rtol), float(atol)
@@ -78,3 +80,16 @@ class Integrator:
         returning ``(steps, status, finite, energy J, relative constraint error, smallest prism
         height m)``. ``Simulation.advance`` builds them once per model."""
         return (float(tol), int(max_iter)) + tuple(self.extra_args(d.x, kinks)) + (kept,)
+
+    def ramped_args(self, m, d, w, tol, max_iter, kinks):
+        """The arguments of ``ramped`` between ``n_steps`` and the ramp: ``ramped(m, d, w, dt,
+        n_steps, *ramped_args(...), r, k0, heights)`` is, from step ``k0`` of ``n_steps``,
+        the rest lengths of the :class:`solver.kernels.ramp.Ramp` ``r`` at that step
+        (:func:`solver.kernels.ramp.set_rest`) then :meth:`run` of one step, in one compiled
+        call (and the rest lengths after the last step); it returns ``(steps done, the kernel's
+        steps, status, what the last set_rest returned)`` and, after the rest lengths at the
+        end, the state summary of ``checked`` (else ``(False, NaN, NaN, NaN)``:
+        :func:`solver.kernels.ramp.finish`), stopping after a failed step, after the step the
+        ramp ended on, or before rest lengths the model cannot hold (left unset). Whatever
+        :meth:`state_changed` forgets the twin forgets after each change."""
+        return (float(tol), int(max_iter)) + tuple(self.extra_args(d.x, kinks))

@@ -21,6 +21,7 @@ import numpy as np
 
 from solver.kernels import dynamics as dyn
 from solver.kernels import effects
+from solver.kernels import ramp
 from solver.kernels import summary
 from solver.compiled import jit
 from solver.integrators.base import Integrator
@@ -160,6 +161,25 @@ def dopri_checked(m, d, w, dt, n_steps, tol, max_iter, kinks, rtol, atol, A, E, 
     return out + summary.state_summary(d.x, d.v, m, d, heights)
 
 
+@jit
+def dopri_ramped(m, d, w, dt, n_steps, tol, max_iter, kinks, rtol, atol, A, E, kx, kv, xs, vs,
+                 hstate, pw, r, k0, heights):
+    """:func:`dopri_run` under a prestrain ramp, as :func:`solver.integrators.rk4._rk4_ramped`
+    (see ``Integrator.ramped``)."""
+    taken = 0
+    for k in range(k0, n_steps + 1):
+        went = ramp.set_rest(m, d, r, k)
+        if went == ramp.ASYMMETRIC or k == n_steps:
+            return ramp.finish(m, d, k, taken, dyn.OK, went, heights, went != ramp.ASYMMETRIC)
+        steps, status = dopri_run(m, d, w, dt, 1, tol, max_iter, kinks, rtol, atol, A, E, kx, kv,
+                                  xs, vs, hstate, pw)
+        taken += steps
+        if status != dyn.OK or went == ramp.ENDED:
+            return ramp.finish(m, d, k + 1, taken, status, went, heights,
+                               status == dyn.OK and k + 1 == n_steps)
+    return ramp.finish(m, d, n_steps, taken, dyn.OK, ramp.SET, heights, False)
+
+
 class DOPRI54Projected(Integrator):
     """Adaptive Dormand-Prince 5(4) (see :mod:`solver.integrators.dopri`): ``dt`` is the initial
     and largest step, ``rtol``/``atol`` the error tolerances. Seven force evaluations per accepted
@@ -177,6 +197,7 @@ class DOPRI54Projected(Integrator):
 
     kernel = staticmethod(dopri_run)
     checked = staticmethod(dopri_checked)
+    ramped = staticmethod(dopri_ramped)
 
     def reset(self):
         self.hstate[:] = 0.0

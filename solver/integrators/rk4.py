@@ -8,6 +8,7 @@ from solver.compiled import jit, jit_inline
 from solver.integrators.base import Integrator
 from solver.kernels import dynamics as dyn
 from solver.kernels import effects
+from solver.kernels import ramp
 from solver.kernels import summary
 from solver.kernels.kinks import next_kink
 from solver.kernels.records import copy_data, copy_into
@@ -247,6 +248,45 @@ def _rattle_checked(m, d, w, dt, n_steps, tol, max_iter, acc, x_old, carry, kept
     return out + summary.state_summary(d.x, d.v, m, d, heights)
 
 
+# The ramped kernels (Integrator.ramped): the run kernel one step of dt at a time from step k0 of
+# n_steps, the rest lengths of the prestrain ramp r set before each step and after the last
+# (ramp.set_rest), in one compiled call. They return (steps done, the kernel's steps, status,
+# what the last set_rest returned) and the end state's summary when they reach the end of the
+# interval (ramp.finish): they stop after the step whose rest lengths end the ramp, after a
+# failed step, or before rest lengths that break the model's symmetry (left unset).
+@jit
+def _rk4_ramped(m, d, w, dt, n_steps, tol, max_iter, kinks, project, r, k0, heights):
+    taken = 0
+    for k in range(k0, n_steps + 1):
+        went = ramp.set_rest(m, d, r, k)
+        if went == ramp.ASYMMETRIC or k == n_steps:
+            return ramp.finish(m, d, k, taken, dyn.OK, went, heights, went != ramp.ASYMMETRIC)
+        steps, status = _rk4_run(m, d, w, dt, 1, tol, max_iter, kinks, project)
+        taken += steps
+        if status != dyn.OK or went == ramp.ENDED:
+            return ramp.finish(m, d, k + 1, taken, status, went, heights,
+                               status == dyn.OK and k + 1 == n_steps)
+    return ramp.finish(m, d, n_steps, taken, dyn.OK, ramp.SET, heights, False)
+
+
+@jit
+def _rattle_ramped(m, d, w, dt, n_steps, tol, max_iter, acc, x_old, carry, r, k0, heights):
+    taken = 0
+    for k in range(k0, n_steps + 1):
+        went = ramp.set_rest(m, d, r, k)
+        if went == ramp.ASYMMETRIC:
+            return ramp.finish(m, d, k, taken, dyn.OK, went, heights, False)
+        carry[0] = 0.0              # new forces: Rattle.state_changed
+        if k == n_steps:
+            return ramp.finish(m, d, k, taken, dyn.OK, went, heights, True)
+        steps, status = _rattle_run(m, d, w, dt, 1, tol, max_iter, acc, x_old, carry)
+        taken += steps
+        if status != dyn.OK or went == ramp.ENDED:
+            return ramp.finish(m, d, k + 1, taken, status, went, heights,
+                               status == dyn.OK and k + 1 == n_steps)
+    return ramp.finish(m, d, n_steps, taken, dyn.OK, ramp.SET, heights, False)
+
+
 class RK4Projected(Integrator):
     """Classical RK4, then mass-weighted projection of positions and velocities after every step
     (docs/physics.md section 1.2). Four force evaluations per step; steps land on cable kinks."""
@@ -256,6 +296,7 @@ class RK4Projected(Integrator):
     evaluations_per_step = 4
     kernel = staticmethod(_rk4_run)
     checked = staticmethod(_rk4_checked)
+    ramped = staticmethod(_rk4_ramped)
 
     def extra_args(self, x, kinks):
         return (bool(kinks), self.projected)
@@ -278,6 +319,7 @@ class Rattle(Integrator):
     evaluations_per_step = 1
     kernel = staticmethod(_rattle_run)
     checked = staticmethod(_rattle_checked)
+    ramped = staticmethod(_rattle_ramped)
 
     def extra_args(self, x, kinks):
         return (self.scratch('acc', x.shape), self.scratch('x_old', x.shape),

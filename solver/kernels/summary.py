@@ -145,6 +145,46 @@ def state_summary(x, v, m, d, heights):
 
 
 @jit
+def energy_parts(x, v, m, d):
+    """The terms of :func:`state_summary`'s energy J: ``(kinetic and external forces, cables,
+    strikers and stops, bar contact)``, 0.0 where the scene has none; :func:`energy_sum` adds
+    them as it does. Only the cables' term depends on the rest lengths
+    (:func:`cable_energy`)."""
+    sm = m.summary
+    a = (_node_energy(x, v, sm.x0, d.f_ext, sm.node_mass, sm.clamped, sm.node_mult)
+         + _bar_kinetic_energy(v, sm.bar_a, sm.bar_b, sm.bar_mass))
+    extra = 0.0
+    if m.stops.height.shape[0] != 0 or m.strikers.row.shape[0] != 0:     # kernels.contact
+        extra = extra_energy(x, v, m)
+    bc = m.bar_contact
+    touch = 0.0
+    if bc.pairs.shape[0] != 0:
+        touch = (bar_energy_scanned(x, bc, d.contact.scan)
+                 + base_energy(x, m.levels, bc, m.per_level))
+    return a, cable_energy(x, m, d), extra, touch
+
+
+@jit
+def cable_energy(x, m, d):
+    """The cables' term of :func:`energy_parts`, J, at the rest lengths and EA of ``d``."""
+    topo = m.topo
+    return _cable_energy(x, topo.cable_a, topo.cable_b, topo.cable_rot, d.rest, d.EA,
+                         m.summary.cable_mult)
+
+
+@jit
+def energy_sum(m, a, cables, extra, touch):
+    """:func:`state_summary`'s energy J from the terms of :func:`energy_parts`, added in its
+    order (the terms a scene does not have are not added)."""
+    e = a + cables
+    if m.stops.height.shape[0] != 0 or m.strikers.row.shape[0] != 0:
+        e += extra
+    if m.bar_contact.pairs.shape[0] != 0:
+        e += touch
+    return e
+
+
+@jit
 def step_energy(x, v, m, d):
     """Energy J of a state in which no contact acts (kinetic, cable, external forces, and strikers
     and prism stops where a scene has them), from the model's summary arrays; NaN when the model

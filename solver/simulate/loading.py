@@ -7,15 +7,18 @@ commands; it works on the simulation's model, network and energy reference.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
 
 from solver import status as codes
+from solver.compiled import compiled_overload
 from solver.analysis import observables
 from solver.build import structures
 from solver.build.scene import RANGES
 from solver.kernels import dynamics as dyn
+from solver.kernels import ramp as ramped
 from solver.kernels import records
 from solver.models import extras
 
@@ -226,3 +229,77 @@ class Loading:
             self._set_prestrain(r.target)
         else:
             self._set_prestrain(r.start + max(u, 0.0) * (r.target - r.start))
+
+    def _ramp_record(self):
+        """The :class:`solver.kernels.ramp.Ramp` of the running ramp on the present model (built
+        once per ramp and model), or None where the ramp steps in Python: a model without a
+        summary of its own state (``exact``) or an integrator without a ramped twin."""
+        m, integ, r = self.model, self.integrator, self._ramp
+        call = self._ramp_call
+        if call is not None and call.model is m and call.integrator is integ:
+            if call.ramp is r:
+                return call.rec
+        else:
+            call = self._ramp_call = RampCall(m, integ)
+        call.ramp, call.rec = r, None
+        if m.exact and not m.integrates_itself and integ.ramped is not None:
+            pm = self.prestrain_map
+            n_model = len(m.data.rest)
+            cmap = (np.arange(n_model, dtype=np.int64) if m.reduced is None
+                    else np.array(m.reduced.cable_map, dtype=np.int64))
+            start = np.array(r.start, dtype=np.float64).reshape(-1)
+            call.rec = ramped.Ramp(
+                start, np.array(r.target, dtype=np.float64).reshape(-1), start.copy(),
+                start.copy(), np.array(pm.length), np.array(pm.cross), np.array(pm.cross_prism),
+                pm._count.astype(np.float64), np.array(pm.base),
+                np.ascontiguousarray(pm.base_prisms[:, 0]),
+                np.ascontiguousarray(pm.base_prisms[:, 1]), np.array(pm.radius),
+                np.array(m.cable_EA, dtype=np.float64), cmap, ramped.source_of(cmap, n_model),
+                np.zeros(len(pm._count)), np.zeros(len(pm.length)), np.zeros(4), np.zeros(2))
+        return call.rec
+
+    def _ramped(self, done, n):
+        """Steps ``done``.. of ``n`` of a running ramp in one compiled call of the integrator's
+        ramped twin (:meth:`solver.integrators.base.Integrator.ramped_args`), the rest lengths,
+        prestrain and work as :meth:`_ramp_to` sets them before each step. Returns ``(steps
+        done, integrator steps, status, whether the rest lengths at t + n dt are set, the state
+        summary (finite, energy, heights, constraint error, smallest height) of the end state
+        when the call reached it, else None)``, or None when it stepped nothing (no ramped call
+        here, or rest lengths the model cannot hold)."""
+        rec = self._ramp_record()
+        if rec is None:
+            return None
+        m, integ, r, call = self.model, self.integrator, self._ramp, self._ramp_call
+        rec.clock[:] = (self.t, r.t0, r.duration, self.dt)
+        rec.book[:] = (self._energy_ref, self._energy_scale)
+        h = np.empty(self._heights_shape)
+        args = (m.rec, m.data, m.work, float(self.dt), int(n),
+                *integ.ramped_args(m.rec, m.data, m.work, self.tol, self.max_iter, self.kinks),
+                rec, int(done), h)
+        if call.entry is None:      # through numba's dispatch, then its compiled overload
+            out = integ.ramped(*args)
+            call.entry = compiled_overload(integ.ramped, args) or integ.ramped
+        else:
+            out = call.entry(*args)
+        k, steps, status, went, made, finite, e, cerr, h_min = out
+        self._changed()
+        if went == ramped.ASYMMETRIC and k == done:
+            return None
+        self._energy_ref, self._energy_scale = float(rec.book[0]), float(rec.book[1])
+        self._prestrain = rec.p.reshape(self._prestrain.shape).copy()
+        if went == ramped.ENDED:
+            self._ramp = None
+        return (int(k), int(steps), int(status), k == n and went != ramped.ASYMMETRIC,
+                (finite, e, h, cerr, h_min) if made else None)
+
+
+@dataclass
+class RampCall:
+    """The ramped call of a simulation's model and integrator: the ramp whose record ``rec`` it
+    holds (None: the ramp steps in Python) and, after the first call, the compiled entry point
+    (``entry``; the arguments keep their types while model and integrator stay)."""
+    model: object
+    integrator: object
+    ramp: object = None
+    rec: object = None
+    entry: object = None

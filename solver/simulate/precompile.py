@@ -61,7 +61,7 @@ def _exercise(method):
     sim.frame()                                 # tensions, base force, heights
     if method != 'chain1d':
         sim.apply_prestrain(0.0021, ramp_s=2 * sim.dt)
-        sim.advance(2 * sim.dt)                 # the run kernel, one step at a time
+        sim.advance(2 * sim.dt)                 # the ramped kernel (run kernel, one step a call)
         sim.frame()
 
 

@@ -171,6 +171,7 @@ class Simulation(Loading, Checks, SimulationAPI):
         self._prestrain_map = None
         self._prestrain = None          # (n_columns, n_prisms) current cross prestrain, or None
         self._ramp = None               # the Ramp of the prestrain, while it ramps
+        self._ramp_call = None          # its compiled call (Loading._ramp_record)
         if net.levels.size and net.meta.get('builder') == 'column':
             self._prestrain = np.full((net.n_columns, net.n_prisms), float(net.meta['prestrain']))
         self._energy_ref = self._energy_0 = self.energy()
@@ -189,6 +190,7 @@ class Simulation(Loading, Checks, SimulationAPI):
         new._prestrain = None if self._prestrain is None else self._prestrain.copy()
         new._ramp = None if self._ramp is None else self._ramp._replace(
             start=self._ramp.start.copy(), target=self._ramp.target.copy())
+        new._ramp_call = None
         new._base_force = None
         return new
 
@@ -337,7 +339,9 @@ class Simulation(Loading, Checks, SimulationAPI):
 
     def _integrate(self, n):
         """``n`` steps; while a prestrain ramp runs, one step at a time with rest lengths updated
-        at the start of each step. Returns ``(steps, status)`` of the integrator."""
+        at the start of each step (in the integrator's compiled ramped call where it has one:
+        :meth:`~solver.simulate.loading.Loading._ramped`). Returns ``(steps, status)`` of the
+        integrator."""
         m = self.model
         self._changed()
         if m.integrates_itself:                     # chain1d: its own state and kernel
@@ -346,22 +350,30 @@ class Simulation(Loading, Checks, SimulationAPI):
             return m.advance(self.dt, n)
         done = total = 0
         status = dyn.OK
+        end_set = False             # the rest lengths at t + n dt set (by a ramped call)
         while done < n and self._ramp is not None:
-            self._ramp_to(self.t + done * self.dt)
-            m = self.model
-            steps, status = self.integrator.run(m.rec, m.data, m.work, self.dt, 1, self.tol,
-                                                self.max_iter, self.kinks)
-            self._changed()
+            ramped = self._ramped(done, n)
+            if ramped is not None:
+                done, steps, status, end_set, made = ramped
+                if made is not None:                # the end state's, from the same call
+                    self._cache = {'summary': StateSummary(*made)}
+            else:
+                self._ramp_to(self.t + done * self.dt)
+                m = self.model
+                steps, status = self.integrator.run(m.rec, m.data, m.work, self.dt, 1,
+                                                    self.tol, self.max_iter, self.kinks)
+                self._changed()
+                done += 1
             total += steps
-            done += 1
             if status != dyn.OK:
                 return total, status
+        m = self.model
         if done < n:
             steps, status = self.integrator.run(m.rec, m.data, m.work, self.dt, n - done,
                                                 self.tol, self.max_iter, self.kinks)
             self._changed()
             total += steps
-        if self._ramp is not None:
+        if self._ramp is not None and not end_set:
             self._ramp_to(self.t + n * self.dt)
         return total, status
 
