@@ -12,7 +12,13 @@ of the chaotic motion behind the front, docs/physics.md section 7.1) and of the 
 (the first peak at the far base, ``base[0].peak_N``; ``max_N``, the largest over the run, is
 reported too, but behind the front the response is chaotic). The train case is the 20 impacts of
 ``fb_train.yaml`` then a 2 m/s shot at 1 s, 5 s simulated, in the solver and through the node
-(:func:`node_train_then_shot`). Writes ``shots.json``."""
+(:func:`node_train_then_shot`). Writes ``shots.json``.
+
+``--coarse`` runs instead what the front figures alone ask of the contact steps
+(:func:`coarse`): each case at ``contact.resolution`` 40, 20, 10 and 5 with the energy ledger
+5,000 times looser (``divergence.energy_error`` 0.5, which also loosens the refinement's check
+of each step), with and without the refinement, against the same refined reference. Writes
+``shots_coarse.json``."""
 from __future__ import annotations
 
 import argparse
@@ -38,6 +44,8 @@ FRONT = ('front_speed_m_s', 'front_amplitude', 'front_arrival_s')
 # is 4 times the Hertz contact's, so its steps are 4 times longer)
 TREATMENTS = {'default': (), 'resolution 20': ('contact.resolution=20',),
               'bar_E / 32': ('materials.bar_E=6.25e9',)}
+COARSE = (40, 20, 10, 5)        # contact.resolution of the coarse study
+LOOSE = 'divergence.energy_error=0.5'
 TRAIN_SHOT = (1.0, 2.0)         # the shot after the train: at 1 s, 2 m/s
 TRAIN_T_END = 5.0
 
@@ -151,6 +159,28 @@ def main(out_dir='bench/results', quick=False, log=print, treatments=None):
     return [str(path)]
 
 
+def coarse(out_dir='bench/results', log=print, t_end=T_END):
+    """The coarse study (module text): per case, resolution and refinement, the real-time
+    factor, steps, balance error and the change of the front figures against the reference."""
+    rows = []
+    for name, v0 in CASES:
+        ref = shot(name, v0, t_end, refine=REFINE)
+        for res in COARSE:
+            for refine in ('ledger', 'none'):
+                sets = (f'contact.resolution={res}', f'contact.refine={refine}', LOOSE)
+                row = {'scene': name, 'v0': v0, 'resolution': res, 'refine': refine,
+                       **shot(name, v0, t_end, sets)}
+                for k in (*FRONT, 'base_peak_N'):
+                    row[f'{k}_change'] = _change(row.get(k), ref.get(k))
+                rows.append(row)
+                log(f'{name} {v0} m/s, T/{res}, refine {refine}: {_line(row)}')
+    path = Path(out_dir) / 'shots_coarse.json'
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps({'t_end_s': t_end, 'refine': REFINE, 'loose': LOOSE,
+                                'rows': rows}, indent=1))
+    return [str(path)]
+
+
 def _line(r):
     if 'stopped' in r:
         return f"stopped: {r['stopped']}"
@@ -164,5 +194,10 @@ if __name__ == '__main__':
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('--quick', action='store_true')
     ap.add_argument('--out', default='bench/results')
+    ap.add_argument('--coarse', action='store_true',
+                    help='what the front figures alone ask of the contact steps (about 5 min)')
     a = ap.parse_args()
-    main(a.out, quick=a.quick)
+    if a.coarse:
+        coarse(a.out, t_end=0.5 if a.quick else T_END)
+    else:
+        main(a.out, quick=a.quick)
