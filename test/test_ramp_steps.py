@@ -9,6 +9,8 @@ the twin's extra steps see more often) is compared with the Python path of the r
 (``Loading._ramp_record`` None, one integrator call a step), which also equals the twin."""
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -16,6 +18,8 @@ from solver.build.scene import Scene
 from solver.simulate.array import ArraySimulation
 from solver.simulate.loading import Loading
 from solver.simulate.simulation import Simulation
+
+ROOT = Path(__file__).resolve().parents[1]
 
 FB = 'config/scenes/fb_column.yaml'
 FRAME = 4                       # steps a frame
@@ -171,3 +175,32 @@ def _single_run(method):
         twin.part(fraction)
         errors.append(same(sim, twin, f'{method}, parts, {f}'))
     return errors
+
+
+@pytest.mark.parametrize('columns', [1, 3])
+def test_the_node_loads_the_ramped_step_at_start_and_leaves_the_state_as_loaded(columns):
+    """``warm_ramp`` (the node's start, after timing a step): the ramped twin runs, and the
+    simulation is the freshly loaded one again: positions, velocities, time, prestrain, balance,
+    and the steps it then takes equal those of a simulation never warmed."""
+    from solver.simulate.array import simulation_for
+    from tensegrity_ros.node.params import warm_ramp
+    scene = Scene.load(ROOT / 'config' / 'scenes' / 'fb_column.yaml').with_overrides(
+        [f'structure.n_columns={columns}'])
+    warmed, fresh = simulation_for(scene), simulation_for(scene)
+    sims = warmed.groups[0].sim if columns > 1 else warmed
+    calls = []
+    real = sims._ramped
+
+    def counted(*args):
+        calls.append(real(*args))
+        return calls[-1]
+    sims._ramped = counted
+    warm_ramp(warmed)
+    assert any(out is not None for out in calls)        # stepped by the compiled twin
+    for sim in (warmed, fresh):
+        sim.apply_impact(0.1)
+        sim.advance(0.05)
+    assert warmed.t == fresh.t and warmed.step == fresh.step
+    assert np.array_equal(warmed.frame().positions, fresh.frame().positions)
+    assert np.array_equal(warmed.prestrain, fresh.prestrain)
+    assert warmed.energy_error() == fresh.energy_error()
