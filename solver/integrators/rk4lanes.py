@@ -248,22 +248,23 @@ def rounds(m, S, L, W, X, C, w0, dt, total, tol, max_iter, kinks, project, statu
     its own steps (kink landing, contact steps, trials, refinement against the ledger). The
     lanes take their rounds together: in a round each lane takes (or retakes) one step; its
     force evaluations run over all lanes at once, its step control runs lane by lane on the
-    scalar kernels (the lane's data in ``S``, kept in step with the lane-inner copy ``L``: at
-    the end of every round ``S`` holds each lane's state, ``C`` its step control and ``X.a1``
-    the accelerations a pending step starts from). A lane that fails keeps its code in
-    ``status`` and stops; ``steps`` counts each lane's steps. Returns 0 when every lane is
-    done, or the number of lanes still stepping once it is below ``min_live`` (at the end of a
-    round: the caller moves them to fewer lanes, :mod:`solver.simulate.lanebatch`, and calls
-    again)."""
+    scalar kernels (the lane's data in ``S``; its positions and velocities live in the
+    lane-inner copy ``L``, which the step limits and the contact scans read through views of
+    the lane, and are copied into ``S`` only where a scalar kernel reads them there: a refined
+    step's start, a trial; ``C`` holds each lane's step control and ``X.a1`` the accelerations
+    a pending step starts from). On return ``S`` holds every lane's state. A lane that fails
+    keeps its code in ``status`` and stops; ``steps`` counts each lane's steps. Returns 0 when
+    every lane is done, or the number of lanes still stepping once it is below ``min_live`` (at
+    the end of a round: the caller moves them to fewer lanes, :mod:`solver.simulate.lanebatch`,
+    and calls again)."""
     n_lanes = status.shape[0]
     while True:
         left = 0
         for k in range(n_lanes):
             C.live[k] = 1 if status[k] == OK and total - C.t[k] > 1e-9 * dt else 0
             left += C.live[k]
-        if left == 0:
-            return 0
-        if left < min_live:
+        if left == 0 or left < min_live:
+            lanedata.leave(L, S)
             return left
         # the step's start, lane by lane; a lane whose trial was not kept (mode 2) takes the
         # shorter step from the same start, with the same first-stage accelerations
@@ -287,6 +288,7 @@ def rounds(m, S, L, W, X, C, w0, dt, total, tol, max_iter, kinks, project, statu
             C.p0[k] = p0
             C.d0[k] = d0
             if refine:
+                lanedata.sync_out(L, S, k)      # the step's start, read in S
                 effects.save_start(d.x, d.v, w)
                 if C.e0[k] != C.e0[k]:
                     C.e0[k] = effects.ledger_energy(d.x, d.v, m, d)
@@ -308,15 +310,15 @@ def rounds(m, S, L, W, X, C, w0, dt, total, tol, max_iter, kinks, project, statu
                 C.go[k] = 0
                 continue
             d = lanedata.lane_record(S, k)
-            a1 = X.a1[k]
-            lanedata.lane_out(W.a1, k, a1)
-            h = effects.fixed_step_limit(d.x, d.v, a1, m, C.hk[k])
+            xk, vk, ak = L.x[:, :, k], L.v[:, :, k], W.a1[:, :, k]     # views of the lane
+            h = effects.fixed_step_limit(xk, vk, ak, m, C.hk[k])
             C.h_free[k] = h
-            h_c, trial, known = effects.plan(d.x, d.v, a1, m, d, h, C.met[k],
-                                             0.5 ** C.clevel[k])
+            h_c, trial, known = effects.plan(xk, vk, ak, m, d, h, C.met[k], 0.5 ** C.clevel[k])
             if h_c >= h:
                 C.h[k] = h
             elif trial:
+                lanedata.lane_out(W.a1, k, X.a1[k])
+                lanedata.sync_out(L, S, k)
                 w = lanedata.lane_work_record(w0, S, k)
                 tb, tp, td, tf = effects.begin_trial(d.x, d.v, d, w)
                 C.tb[k] = tb
@@ -355,10 +357,13 @@ def rounds(m, S, L, W, X, C, w0, dt, total, tol, max_iter, kinks, project, statu
         lanes.check_finite(L.x, L.v, W.piv, C.st)
         # the step's end: the ledger energy over lanes, then lane by lane: failed, retaken at
         # half its length, or done
+        marked = 0
         for k in range(n_lanes):
             C.mk[k] = 1 if (C.live[k] != 0 and C.mode[k] != 2 and C.st[k] == OK
                             and C.refine[k] != 0) else 0
-        lanedata.ledger_energies(m, S, L, C.mk, C.e1, W.tmp)
+            marked += C.mk[k]
+        if marked != 0:
+            lanedata.ledger_energies(m, S, L, C.mk, C.e1, W.tmp)
         for k in range(n_lanes):
             if C.live[k] == 0 or C.mode[k] == 2:
                 continue
@@ -366,7 +371,6 @@ def rounds(m, S, L, W, X, C, w0, dt, total, tol, max_iter, kinks, project, statu
                 status[k] = C.st[k]
                 continue
             d = lanedata.lane_record(S, k)
-            lanedata.sync_out(L, S, k)
             h = C.h[k]
             if C.refine[k] != 0:
                 e1 = C.e1[k]

@@ -44,7 +44,7 @@ class LaneState(NamedTuple):
 
 class LaneScratch(NamedTuple):
     """Per-lane scratch in the scalar layout: each lane's first-stage accelerations ``a1``
-    (B, n, 3), which its step control reads and a pending step starts from."""
+    (B, n, 3), which a step tried whole reads and a pending step starts from."""
     a1: np.ndarray
 
 
@@ -72,6 +72,17 @@ def to_lanes(src, dst):
     for k in range(n_lanes):
         for j in range(s.shape[1]):
             d[j, k] = s[k, j]
+
+
+@jit_lanes
+def from_lanes(src, dst):
+    """``dst[k] = src[..., k]``: lane-inner (..., B) to lane-outer (B, ...), every lane."""
+    n_lanes = dst.shape[0]
+    s = src.reshape((-1, n_lanes))
+    d = dst.reshape((n_lanes, -1))
+    for j in range(s.shape[0]):
+        for k in range(n_lanes):
+            d[k, j] = s[j, k]
 
 
 @jit_lanes
@@ -155,6 +166,13 @@ def enter(S, L):
     to_lanes(S.rest, L.rest)
     to_lanes(S.EA, L.EA)
     to_lanes(S.f_ext, L.f_ext)
+
+
+@jit_lanes
+def leave(L, S):
+    """Every lane's state from the lane-inner copy ``L`` into ``S``."""
+    from_lanes(L.x, S.x)
+    from_lanes(L.v, S.v)
 
 
 @jit_lanes

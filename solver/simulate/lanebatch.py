@@ -112,6 +112,7 @@ class LaneGroup:
             stack(lambda d: d.contact.scan), stack(lambda d: d.contact.active, np.int64),
             stack(lambda d: d.refine), np.zeros((b, 2, n, 3)))
         self.kept = lanedata.LaneState(*(np.zeros_like(a) for a in self.S))
+        self._kept = [self.record(self.kept, k) for k in range(b)]     # each lane's views
         self.blocks = [_Block(self.S, self.rec.topo, m0.work)]
         size = b
         while size > SMALLEST:          # fewer lanes for the stragglers: half as many
@@ -154,13 +155,12 @@ class LaneGroup:
         heights = np.empty((len(self.sims),) + s0._heights_shape)
         self._step(n, heights)
         results = []
-        for k, s in enumerate(self.sims):
-            o = self.out[k]
-            s._cache = {'summary': StateSummary(bool(o[0]), float(o[1]), heights[k], float(o[2]),
-                                                float(o[3]))}
+        for s, o, h, steps, status, kept in zip(self.sims, self.out.tolist(), heights,
+                                                top.steps.tolist(), top.status.tolist(),
+                                                self._kept):
+            s._cache = {'summary': StateSummary(o[0] != 0.0, o[1], h, o[2], o[3])}
             try:
-                results.append((True, s._conclude(n, int(top.steps[k]), int(top.status[k]),
-                                                  self.record(self.kept, k), None)))
+                results.append((True, s._conclude(n, steps, status, kept, None)))
             except Exception as exc:            # noqa: BLE001 - this lane's result
                 results.append((False, exc))
         return results
@@ -197,7 +197,7 @@ class LaneGroup:
         interval (an array restores every column when one fails); ``before``: its
         ``(t, step, steps_taken, energy scale, twist reference)`` before the call."""
         s = self.sims[k]
-        s._restore(s._kept(self.record(self.kept, k), None))
+        s._restore(s._kept(self._kept[k], None))
         s.t, s.step, s.steps_taken, s._energy_scale, s._twist_ref = before
 
 
