@@ -119,6 +119,7 @@ class LaneGroup:
             size = (size + 1) // 2
             self.blocks.append(_Block(None, self.rec.topo, m0.work, like=self.S, lanes=size))
         self.out = np.zeros((b, 4))
+        self._entries = {}              # kernel -> its compiled overload for this group
         self._models = []
         self._data = []
         for k, s in enumerate(sims):
@@ -176,7 +177,8 @@ class LaneGroup:
         fixed = (dt, total, float(s0.tol), int(s0.max_iter), bool(s0.kinks),
                  bool(s0.integrator.projected))
         top = self.blocks[0]
-        rk4lanes.begin_checked(self.rec, top.S, top.L, top.C, top.status, top.steps, self.kept)
+        self._call(rk4lanes.begin_checked, (self.rec, top.S, top.L, top.C, top.status,
+                                             top.steps, self.kept))
         chain = []                      # (block, its lanes' slots in the block above)
         block = top
         for smaller in self.blocks[1:] + [None]:
@@ -190,7 +192,18 @@ class LaneGroup:
         for above, alive in reversed(chain):
             block.give(above, alive)
             block = above
-        rk4lanes.end_checked(self.rec, top.S, top.C, top.status, self.out, heights)
+        self._call(rk4lanes.end_checked, (self.rec, top.S, top.L, top.W, top.C, top.status,
+                                           self.out, heights, not chain))
+
+    def _call(self, kernel, args):
+        """``kernel(*args)`` through numba's dispatch the first time, then through the compiled
+        overload (the arguments are this group's arrays, or new ones of the same types)."""
+        entry = self._entries.get(kernel)
+        if entry is None:
+            out = kernel(*args)
+            self._entries[kernel] = compiled_overload(kernel, args) or kernel
+            return out
+        return entry(*args)
 
     def restore(self, k, before):
         """Back to the data the last call started from, for simulation ``k`` that concluded its
