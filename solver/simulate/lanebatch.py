@@ -35,9 +35,10 @@ from solver.status import OK
 
 LANE_METHODS = ('rk4_projected', 'rk4')
 
-# The largest group stepped in one call: past 64 lanes the lane arrays of the FB column spill
-# from the core's L2 cache (bench/results/lanes.json: 0.44x of the scalar evaluation per lane at
-# B = 32-64, 0.52x at 128).
+# The largest group stepped in one call. One (n_nodes, 3, B) array of the full3d FB column at 64
+# lanes is 235 kB, and a group holds about a dozen (the core's L2 cache: 1 MB).
+# bench/results/lanes.json gives the cost of an evaluation per lane at 32, 64 and 128 lanes; it
+# moves by about 0.1x of the scalar evaluation from run to run on a shared machine.
 MAX_LANES = 64
 SMALLEST = 2            # blocks of stragglers halve down to this many lanes
 
