@@ -18,7 +18,9 @@ import numpy as np
 from solver.compiled import jit_lanes
 from solver.integrators.rk4 import REFINE_COARSEN, REFINE_LEVELS, REFINE_SHARE
 from solver.kernels import effects, lanedata, lanes, lanesteps, summary
-from solver.kernels.records import copy_data
+from solver.kernels.barcontact import bar_energy_scanned, base_energy
+from solver.kernels.contactsteps import _motion
+from solver.kernels.records import SLACK
 from solver.status import OK
 
 
@@ -105,7 +107,8 @@ class LaneControl(NamedTuple):
     the status ``st`` of the current round and ``ev`` (the lanes an evaluation computes for:
     ``go`` and ``st`` still ``OK``, as a single run stops evaluating at its first failure).
     Scratch of a round: each lane's step to its next kink ``hk``, the ledger energy at its
-    step's end ``e1`` and a mask ``mk``, a coefficient per lane ``cs``."""
+    step's end ``e1`` and a mask ``mk``, a coefficient per lane ``cs``, the nodes of the
+    largest speed ``nv`` and acceleration ``na`` (int64) and their squares ``r2``."""
     t: np.ndarray
     h: np.ndarray
     h_free: np.ndarray
@@ -132,9 +135,12 @@ class LaneControl(NamedTuple):
     e1: np.ndarray
     mk: np.ndarray
     cs: np.ndarray
+    nv: np.ndarray
+    na: np.ndarray
+    r2: np.ndarray
 
 
-_COUNTS = {'level', 'clevel', 'refine', 'mode', 'live', 'go', 'st', 'ev', 'mk'}   # int64
+_COUNTS = {'level', 'clevel', 'refine', 'mode', 'live', 'go', 'st', 'ev', 'mk', 'nv', 'na'}
 
 
 def lane_control(lanes_n):
@@ -164,7 +170,9 @@ def step(m, S, L, W, X, C, a1, h):
         if C.go[k] != 0:
             C.work[k] = effects.power(lanedata.lane_record(S, k))
     # the element-wise updates over (n * 3, B) rows, each lane's coefficient from a (B,) array
-    # (the operations of the scalar step: x + (0.5 h) v, x + c v, x + (h / 6) xacc)
+    # (the operations of the scalar step: x + (0.5 h) v, x + c v, x + (h / 6) xacc). The sums
+    # xacc, vacc start from v, a1 where the scalar step copies them (v + 2 vs is v copied plus
+    # 2 vs), and the last one is added in the loop of the step's end: fewer passes over memory
     shape = (n * 3, n_lanes)
     rows = shape[0]
     x2, v2, a2 = x.reshape(shape), v.reshape(shape), a1.reshape(shape)
@@ -175,36 +183,39 @@ def step(m, S, L, W, X, C, a1, h):
         c[k] = 0.5 * h[k]
     for j in range(rows):
         for k in range(n_lanes):
-            xa2[j, k] = v2[j, k]
-            va2[j, k] = a2[j, k]
             xs2[j, k] = x2[j, k] + c[k] * v2[j, k]
             vs2[j, k] = v2[j, k] + c[k] * a2[j, k]
-    for stage in range(1, 4):
+    for stage in range(1, 3):
         lanedata.evaluate(xs, vs, m, S, L, W, X, C, acc)
-        wt = 1.0 if stage == 3 else 2.0
-        _stage_power(S, C, wt)
-        if stage == 3:
-            for j in range(rows):
-                for k in range(n_lanes):
-                    xa2[j, k] += wt * vs2[j, k]
-                    va2[j, k] += wt * ac2[j, k]
-            continue
+        _stage_power(S, C, 2.0)
         for k in range(n_lanes):
             c[k] = 0.5 * h[k] if stage == 1 else h[k]
+        if stage == 1:
+            for j in range(rows):
+                for k in range(n_lanes):
+                    xa2[j, k] = v2[j, k] + 2.0 * vs2[j, k]
+                    va2[j, k] = a2[j, k] + 2.0 * ac2[j, k]
+                    xs2[j, k] = x2[j, k] + c[k] * vs2[j, k]
+                    vs2[j, k] = v2[j, k] + c[k] * ac2[j, k]
+            continue
         for j in range(rows):
             for k in range(n_lanes):
-                xa2[j, k] += wt * vs2[j, k]
-                va2[j, k] += wt * ac2[j, k]
+                xa2[j, k] += 2.0 * vs2[j, k]
+                va2[j, k] += 2.0 * ac2[j, k]
                 xs2[j, k] = x2[j, k] + c[k] * vs2[j, k]
                 vs2[j, k] = v2[j, k] + c[k] * ac2[j, k]
+    lanedata.evaluate(xs, vs, m, S, L, W, X, C, acc)
+    _stage_power(S, C, 1.0)
     go = W.go
     for k in range(n_lanes):
         go[k] = 1 if C.go[k] != 0 and C.st[k] == OK else 0
         c[k] = h[k] / 6.0
     for j in range(rows):
         for k in range(n_lanes):
-            x2[j, k] = x2[j, k] + c[k] * xa2[j, k] if go[k] != 0 else x2[j, k]
-            v2[j, k] = v2[j, k] + c[k] * va2[j, k] if go[k] != 0 else v2[j, k]
+            xa = xa2[j, k] + 1.0 * vs2[j, k]
+            va = va2[j, k] + 1.0 * ac2[j, k]
+            x2[j, k] = x2[j, k] + c[k] * xa if go[k] != 0 else x2[j, k]
+            v2[j, k] = v2[j, k] + c[k] * va if go[k] != 0 else v2[j, k]
     for k in range(n_lanes):
         if go[k] != 0:
             effects.dissipate(lanedata.lane_record(S, k), h[k] / 6.0 * C.work[k])
@@ -248,22 +259,24 @@ def rounds(m, S, L, W, X, C, w0, dt, total, tol, max_iter, kinks, project, statu
     its own steps (kink landing, contact steps, trials, refinement against the ledger). The
     lanes take their rounds together: in a round each lane takes (or retakes) one step; its
     force evaluations run over all lanes at once, its step control runs lane by lane on the
-    scalar kernels (the lane's data in ``S``, kept in step with the lane-inner copy ``L``: at
-    the end of every round ``S`` holds each lane's state, ``C`` its step control and ``X.a1``
-    the accelerations a pending step starts from). A lane that fails keeps its code in
-    ``status`` and stops; ``steps`` counts each lane's steps. Returns 0 when every lane is
-    done, or the number of lanes still stepping once it is below ``min_live`` (at the end of a
-    round: the caller moves them to fewer lanes, :mod:`solver.simulate.lanebatch`, and calls
-    again)."""
+    scalar kernels (the lane's data in ``S``; its positions and velocities live in the
+    lane-inner copy ``L``, which the step limits and the contact scans read through views of
+    the lane, and are copied into ``S`` only where a scalar kernel reads them there: a refined
+    step's start, a trial; ``C`` holds each lane's step control and ``X.a1`` the accelerations
+    a pending step starts from). On return ``S`` holds every lane's state. A lane that fails
+    keeps its code in ``status`` and stops; ``steps`` counts each lane's steps. Returns 0 when
+    every lane is done, or the number of lanes still stepping once it is below ``min_live`` (at
+    the end of a round: the caller moves them to fewer lanes, :mod:`solver.simulate.lanebatch`,
+    and calls again)."""
     n_lanes = status.shape[0]
+    bars = m.bar_contact.pairs.shape[0] != 0
     while True:
         left = 0
         for k in range(n_lanes):
             C.live[k] = 1 if status[k] == OK and total - C.t[k] > 1e-9 * dt else 0
             left += C.live[k]
-        if left == 0:
-            return 0
-        if left < min_live:
+        if left == 0 or left < min_live:
+            lanedata.leave(L, S)
             return left
         # the step's start, lane by lane; a lane whose trial was not kept (mode 2) takes the
         # shorter step from the same start, with the same first-stage accelerations
@@ -287,6 +300,7 @@ def rounds(m, S, L, W, X, C, w0, dt, total, tol, max_iter, kinks, project, statu
             C.p0[k] = p0
             C.d0[k] = d0
             if refine:
+                lanedata.sync_out(L, S, k)      # the step's start, read in S
                 effects.save_start(d.x, d.v, w)
                 if C.e0[k] != C.e0[k]:
                     C.e0[k] = effects.ledger_energy(d.x, d.v, m, d)
@@ -298,6 +312,9 @@ def rounds(m, S, L, W, X, C, w0, dt, total, tol, max_iter, kinks, project, statu
             C.hk[k] = C.h[k]
         if kinks:
             lanesteps.next_kink_lanes(L.x, L.v, W.a1, m, L.rest, C.h, 1e-3 * dt, C.mk, C.hk)
+        if bars:                        # the nodes of the largest speed and acceleration
+            lanesteps.largest_nodes(L.v, C.nv, C.r2)
+            lanesteps.largest_nodes(W.a1, C.na, C.r2)
         for k in range(n_lanes):
             if C.mode[k] == 2 and C.live[k] != 0:
                 lanedata.lane_in(X.a1[k], k, W.a1)
@@ -308,15 +325,23 @@ def rounds(m, S, L, W, X, C, w0, dt, total, tol, max_iter, kinks, project, statu
                 C.go[k] = 0
                 continue
             d = lanedata.lane_record(S, k)
-            a1 = X.a1[k]
-            lanedata.lane_out(W.a1, k, a1)
-            h = effects.fixed_step_limit(d.x, d.v, a1, m, C.hk[k])
+            xk, vk, ak = L.x[:, :, k], L.v[:, :, k], W.a1[:, :, k]     # views of the lane
+            h = effects.fixed_step_limit(xk, vk, ak, m, C.hk[k])
             C.h_free[k] = h
-            h_c, trial, known = effects.plan(d.x, d.v, a1, m, d, h, C.met[k],
-                                             0.5 ** C.clevel[k])
+            if bars:
+                # those nodes alone bound the motion as the whole lane does: where no contact
+                # can start within h, the scan needs no more (X.a1[k] is free scratch here)
+                vp, ap = X.a1[k, 0:1], X.a1[k, 1:2]
+                lanesteps.node_of(L.v, C.nv, k, vp)
+                lanesteps.node_of(W.a1, C.na, k, ap)
+                if d.contact.scan[SLACK] > _motion(vp, ap, h):
+                    vk, ak = vp, ap
+            h_c, trial, known = effects.plan(xk, vk, ak, m, d, h, C.met[k], 0.5 ** C.clevel[k])
             if h_c >= h:
                 C.h[k] = h
             elif trial:
+                lanedata.lane_out(W.a1, k, X.a1[k])
+                lanedata.sync_out(L, S, k)
                 w = lanedata.lane_work_record(w0, S, k)
                 tb, tp, td, tf = effects.begin_trial(d.x, d.v, d, w)
                 C.tb[k] = tb
@@ -355,10 +380,13 @@ def rounds(m, S, L, W, X, C, w0, dt, total, tol, max_iter, kinks, project, statu
         lanes.check_finite(L.x, L.v, W.piv, C.st)
         # the step's end: the ledger energy over lanes, then lane by lane: failed, retaken at
         # half its length, or done
+        marked = 0
         for k in range(n_lanes):
             C.mk[k] = 1 if (C.live[k] != 0 and C.mode[k] != 2 and C.st[k] == OK
                             and C.refine[k] != 0) else 0
-        lanedata.ledger_energies(m, S, L, C.mk, C.e1, W.tmp)
+            marked += C.mk[k]
+        if marked != 0:
+            lanedata.ledger_energies(m, S, L, C.mk, C.e1, W.tmp)
         for k in range(n_lanes):
             if C.live[k] == 0 or C.mode[k] == 2:
                 continue
@@ -366,7 +394,6 @@ def rounds(m, S, L, W, X, C, w0, dt, total, tol, max_iter, kinks, project, statu
                 status[k] = C.st[k]
                 continue
             d = lanedata.lane_record(S, k)
-            lanedata.sync_out(L, S, k)
             h = C.h[k]
             if C.refine[k] != 0:
                 e1 = C.e1[k]
@@ -408,23 +435,46 @@ def run(m, S, L, W, X, C, w0, dt, n_steps, tol, max_iter, kinks, project, status
 def begin_checked(m, S, L, C, status, steps, kept):
     """:func:`begin` after a copy of every running lane's data into ``kept`` (a
     :class:`~solver.kernels.lanedata.LaneState`: the data to restore)."""
-    for k in range(status.shape[0]):
-        if status[k] == OK:
-            copy_data(lanedata.lane_record(S, k), lanedata.lane_record(kept, k))
+    lanedata.keep(S, kept, status)
     begin(m, S, L, C, status, steps)
 
 
 @jit_lanes
-def end_checked(m, S, C, status, out, heights):
+def end_checked(m, S, L, W, C, status, out, heights, fresh):
     """:func:`end`, then the state summary of each lane
     (:func:`solver.kernels.summary.state_summary`) into ``out`` (B, 4: finite, energy J,
     constraint error, smallest prism height m) and ``heights`` (B, n_columns, n_prisms): with
-    :func:`begin_checked` the per-lane twin of :func:`solver.integrators.rk4._rk4_checked`."""
+    :func:`begin_checked` the per-lane twin of :func:`solver.integrators.rk4._rk4_checked`. The
+    energy without contact, the constraint error and the finiteness over lanes on ``L``
+    (``fresh``: ``L`` holds the state of ``S``; else it is copied in first), the rest lane by
+    lane."""
     end(m, S, C, status)
-    for k in range(status.shape[0]):
+    n_lanes = status.shape[0]
+    if m.summary.node_mass.shape[0] == 0:       # no summary arrays: the scalar kernel
+        for k in range(n_lanes):
+            d = lanedata.lane_record(S, k)
+            finite, e, cerr, h_min = summary.state_summary(d.x, d.v, m, d, heights[k])
+            out[k, 0] = 1.0 if finite else 0.0
+            out[k, 1] = e
+            out[k, 2] = cerr
+            out[k, 3] = h_min
+        return
+    if not fresh:
+        lanedata.to_lanes(S.x, L.x)
+        lanedata.to_lanes(S.v, L.v)
+    for k in range(n_lanes):
+        C.mk[k] = 1
+    lanesteps.step_energy_lanes(L.x, L.v, m, L.rest, L.EA, L.f_ext, C.mk, C.e1, W.tmp)
+    lanesteps.constraint_error_lanes(L.x, m.topo, C.hk)
+    lanes.check_finite(L.x, L.v, C.cs, C.mk)     # C.mk: 1 (OK is 0) stays 1
+    bc = m.bar_contact
+    for k in range(n_lanes):
         d = lanedata.lane_record(S, k)
-        finite, e, cerr, h_min = summary.state_summary(d.x, d.v, m, d, heights[k])
-        out[k, 0] = 1.0 if finite else 0.0
+        e = C.e1[k]
+        if bc.pairs.shape[0] != 0:
+            e += (bar_energy_scanned(d.x, bc, d.contact.scan)
+                  + base_energy(d.x, m.levels, bc, m.per_level))
+        out[k, 0] = 1.0 if C.cs[k] == 0.0 else 0.0
         out[k, 1] = e
-        out[k, 2] = cerr
-        out[k, 3] = h_min
+        out[k, 2] = C.hk[k]
+        out[k, 3] = summary.level_heights(d.x, m.summary.levels, heights[k])

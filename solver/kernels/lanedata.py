@@ -21,7 +21,7 @@ from solver.compiled import jit_inline, jit_lanes
 from solver.kernels import lanes, lanesteps
 from solver.kernels.barcontact import bar_forces, base_forces
 from solver.kernels.contact import axial_contacts
-from solver.kernels.records import LOOK, MET, POWER, ContactState, Data, Work
+from solver.kernels.records import LOOK, MET, POWER, ContactState, Data, Work, copy_data
 from solver.status import OK
 
 
@@ -44,7 +44,7 @@ class LaneState(NamedTuple):
 
 class LaneScratch(NamedTuple):
     """Per-lane scratch in the scalar layout: each lane's first-stage accelerations ``a1``
-    (B, n, 3), which its step control reads and a pending step starts from."""
+    (B, n, 3), which a step tried whole reads and a pending step starts from."""
     a1: np.ndarray
 
 
@@ -69,9 +69,20 @@ def to_lanes(src, dst):
     n_lanes = src.shape[0]
     s = src.reshape((n_lanes, -1))
     d = dst.reshape((-1, n_lanes))
-    for k in range(n_lanes):
-        for j in range(s.shape[1]):
+    for j in range(s.shape[1]):         # stores in order, loads from B rows at a time
+        for k in range(n_lanes):
             d[j, k] = s[k, j]
+
+
+@jit_lanes
+def from_lanes(src, dst):
+    """``dst[k] = src[..., k]``: lane-inner (..., B) to lane-outer (B, ...), every lane."""
+    n_lanes = dst.shape[0]
+    s = src.reshape((-1, n_lanes))
+    d = dst.reshape((n_lanes, -1))
+    for j in range(s.shape[0]):
+        for k in range(n_lanes):
+            d[k, j] = s[j, k]
 
 
 @jit_lanes
@@ -155,6 +166,36 @@ def enter(S, L):
     to_lanes(S.rest, L.rest)
     to_lanes(S.EA, L.EA)
     to_lanes(S.f_ext, L.f_ext)
+
+
+@jit_lanes
+def keep(S, kept, status):
+    """:func:`~solver.kernels.records.copy_data` of each lane whose ``status`` is ``OK`` from
+    ``S`` into ``kept``: whole arrays when every lane is."""
+    every = True
+    for k in range(status.shape[0]):
+        every = every and status[k] == OK
+    if not every:
+        for k in range(status.shape[0]):
+            if status[k] == OK:
+                copy_data(lane_record(S, k), lane_record(kept, k))
+        return
+    lanes.copy(kept.x, S.x)
+    lanes.copy(kept.v, S.v)
+    lanes.copy(kept.rest, S.rest)
+    lanes.copy(kept.EA, S.EA)
+    lanes.copy(kept.f_ext, S.f_ext)
+    lanes.copy(kept.ledger, S.ledger)
+    lanes.copy(kept.scan, S.scan)
+    lanes.copy(kept.active, S.active)
+    lanes.copy(kept.refine, S.refine)
+
+
+@jit_lanes
+def leave(L, S):
+    """Every lane's state from the lane-inner copy ``L`` into ``S``."""
+    from_lanes(L.x, S.x)
+    from_lanes(L.v, S.v)
 
 
 @jit_lanes

@@ -111,6 +111,61 @@ def next_kink_lanes(x, v, acc, m, rest, h, ignore, go, out):
 
 
 @jit_lanes
+def largest_nodes(u, node, best):
+    """For each lane ``k``, ``node[k]``: the first node ``p`` of the largest ``|u_p|^2`` over
+    the nodes of ``u`` (n_nodes, 3, B), each computed ``u0 u0 + u1 u1 + u2 u2`` and compared
+    ``r > best`` as :func:`solver.kernels.contactsteps.contact_step` finds the largest speed and
+    acceleration (a NaN is never the largest); -1 where none exceeds 0. That node alone, as a
+    (1, 3) array, gives the scalar scan the same bound of the motion. ``best`` (B,) scratch."""
+    n_lanes = node.shape[0]
+    for k in range(n_lanes):
+        best[k] = 0.0
+        node[k] = -1
+    for p in range(u.shape[0]):
+        for k in range(n_lanes):
+            r = u[p, 0, k] * u[p, 0, k] + u[p, 1, k] * u[p, 1, k] + u[p, 2, k] * u[p, 2, k]
+            big = r > best[k]
+            best[k] = r if big else best[k]
+            node[k] = p if big else node[k]
+
+
+@jit_inline
+def node_of(u, node, k, out):
+    """Node ``node[k]`` of lane ``k`` of ``u`` into ``out`` (1, 3); zeros for -1."""
+    p = node[k]
+    for i in range(3):
+        out[0, i] = u[p, i, k] if p >= 0 else 0.0
+
+
+@jit_lanes
+def constraint_error_lanes(x, topo, out):
+    """``out[k]``: :func:`solver.kernels.rotation.constraint_error_arrays` of lane ``k``, the
+    largest ``|g_c| / L_c^2`` over the members, plain or rotated (a NaN stays the largest)."""
+    tail, head, length, rot = topo.con_tail, topo.con_head, topo.con_length, topo.con_rot
+    n_lanes = out.shape[0]
+    for k in range(n_lanes):
+        out[k] = 0.0
+    for c in range(tail.shape[0]):
+        t = tail[c]
+        h = head[c]
+        L2 = length[c] * length[c]
+        if rot.shape[0] == 0:
+            for k in range(n_lanes):
+                dx = x[h, 0, k] - x[t, 0, k]
+                dy = x[h, 1, k] - x[t, 1, k]
+                dz = x[h, 2, k] - x[t, 2, k]
+                e = abs(0.5 * (dx * dx + dy * dy + dz * dz - L2)) / L2
+                out[k] = out[k] if e <= out[k] else e
+        else:
+            cr = ROT_C[rot[c]]
+            sr = ROT_S[rot[c]]
+            for k in range(n_lanes):
+                dx, dy, dz = lane_chord(x, t, h, cr, sr, k)
+                e = abs(0.5 * (dx * dx + dy * dy + dz * dz - L2)) / L2
+                out[k] = out[k] if e <= out[k] else e
+
+
+@jit_lanes
 def step_energy_lanes(x, v, m, rest, EA, f_ext, go, out, tmp):
     """For each lane ``k`` with ``go[k]`` set, ``out[k]`` = :func:`solver.kernels.summary.
     step_energy` of that lane: node (kinetic and external-force), bar kinetic and cable energies,

@@ -35,9 +35,10 @@ from solver.status import OK
 
 LANE_METHODS = ('rk4_projected', 'rk4')
 
-# The largest group stepped in one call: past 64 lanes the lane arrays of the FB column spill
-# from the core's L2 cache (bench/results/lanes.json: 0.44x of the scalar evaluation per lane at
-# B = 32-64, 0.52x at 128).
+# The largest group stepped in one call. One (n_nodes, 3, B) array of the full3d FB column at 64
+# lanes is 235 kB, and a group holds about a dozen (the core's L2 cache: 1 MB).
+# bench/results/lanes.json gives the cost of an evaluation per lane at 32, 64 and 128 lanes; it
+# moves by about 0.1x of the scalar evaluation from run to run on a shared machine.
 MAX_LANES = 64
 SMALLEST = 2            # blocks of stragglers halve down to this many lanes
 
@@ -112,12 +113,14 @@ class LaneGroup:
             stack(lambda d: d.contact.scan), stack(lambda d: d.contact.active, np.int64),
             stack(lambda d: d.refine), np.zeros((b, 2, n, 3)))
         self.kept = lanedata.LaneState(*(np.zeros_like(a) for a in self.S))
+        self._kept = [self.record(self.kept, k) for k in range(b)]     # each lane's views
         self.blocks = [_Block(self.S, self.rec.topo, m0.work)]
         size = b
         while size > SMALLEST:          # fewer lanes for the stragglers: half as many
             size = (size + 1) // 2
             self.blocks.append(_Block(None, self.rec.topo, m0.work, like=self.S, lanes=size))
         self.out = np.zeros((b, 4))
+        self._entries = {}              # kernel -> its compiled overload for this group
         self._models = []
         self._data = []
         for k, s in enumerate(sims):
@@ -154,13 +157,12 @@ class LaneGroup:
         heights = np.empty((len(self.sims),) + s0._heights_shape)
         self._step(n, heights)
         results = []
-        for k, s in enumerate(self.sims):
-            o = self.out[k]
-            s._cache = {'summary': StateSummary(bool(o[0]), float(o[1]), heights[k], float(o[2]),
-                                                float(o[3]))}
+        for s, o, h, steps, status, kept in zip(self.sims, self.out.tolist(), heights,
+                                                top.steps.tolist(), top.status.tolist(),
+                                                self._kept):
+            s._cache = {'summary': StateSummary(o[0] != 0.0, o[1], h, o[2], o[3])}
             try:
-                results.append((True, s._conclude(n, int(top.steps[k]), int(top.status[k]),
-                                                  self.record(self.kept, k), None)))
+                results.append((True, s._conclude(n, steps, status, kept, None)))
             except Exception as exc:            # noqa: BLE001 - this lane's result
                 results.append((False, exc))
         return results
@@ -176,7 +178,8 @@ class LaneGroup:
         fixed = (dt, total, float(s0.tol), int(s0.max_iter), bool(s0.kinks),
                  bool(s0.integrator.projected))
         top = self.blocks[0]
-        rk4lanes.begin_checked(self.rec, top.S, top.L, top.C, top.status, top.steps, self.kept)
+        self._call(rk4lanes.begin_checked, (self.rec, top.S, top.L, top.C, top.status,
+                                             top.steps, self.kept))
         chain = []                      # (block, its lanes' slots in the block above)
         block = top
         for smaller in self.blocks[1:] + [None]:
@@ -190,14 +193,25 @@ class LaneGroup:
         for above, alive in reversed(chain):
             block.give(above, alive)
             block = above
-        rk4lanes.end_checked(self.rec, top.S, top.C, top.status, self.out, heights)
+        self._call(rk4lanes.end_checked, (self.rec, top.S, top.L, top.W, top.C, top.status,
+                                           self.out, heights, not chain))
+
+    def _call(self, kernel, args):
+        """``kernel(*args)`` through numba's dispatch the first time, then through the compiled
+        overload (the arguments are this group's arrays, or new ones of the same types)."""
+        entry = self._entries.get(kernel)
+        if entry is None:
+            out = kernel(*args)
+            self._entries[kernel] = compiled_overload(kernel, args) or kernel
+            return out
+        return entry(*args)
 
     def restore(self, k, before):
         """Back to the data the last call started from, for simulation ``k`` that concluded its
         interval (an array restores every column when one fails); ``before``: its
         ``(t, step, steps_taken, energy scale, twist reference)`` before the call."""
         s = self.sims[k]
-        s._restore(s._kept(self.record(self.kept, k), None))
+        s._restore(s._kept(self._kept[k], None))
         s.t, s.step, s.steps_taken, s._energy_scale, s._twist_ref = before
 
 
