@@ -18,9 +18,6 @@ import numpy as np
 from solver.compiled import jit_lanes
 from solver.integrators.rk4 import REFINE_COARSEN, REFINE_LEVELS, REFINE_SHARE
 from solver.kernels import effects, lanedata, lanes, lanesteps, summary
-from solver.kernels.barcontact import bar_energy_scanned, base_energy
-from solver.kernels.contactsteps import _motion
-from solver.kernels.records import SLACK
 from solver.status import OK
 
 
@@ -269,7 +266,7 @@ def rounds(m, S, L, W, X, C, w0, dt, total, tol, max_iter, kinks, project, statu
     the end of a round: the caller moves them to fewer lanes, :mod:`solver.simulate.lanebatch`,
     and calls again)."""
     n_lanes = status.shape[0]
-    bars = m.bar_contact.pairs.shape[0] != 0
+    bars = effects.has_bar_contact(m)
     while True:
         left = 0
         for k in range(n_lanes):
@@ -334,7 +331,7 @@ def rounds(m, S, L, W, X, C, w0, dt, total, tol, max_iter, kinks, project, statu
                 vp, ap = X.a1[k, 0:1], X.a1[k, 1:2]
                 lanesteps.node_of(L.v, C.nv, k, vp)
                 lanesteps.node_of(W.a1, C.na, k, ap)
-                if d.contact.scan[SLACK] > _motion(vp, ap, h):
+                if effects.surely_clear(vp, ap, d, h):
                     vk, ak = vp, ap
             h_c, trial, known = effects.plan(xk, vk, ak, m, d, h, C.met[k], 0.5 ** C.clevel[k])
             if h_c >= h:
@@ -467,13 +464,9 @@ def end_checked(m, S, L, W, C, status, out, heights, fresh):
     lanesteps.step_energy_lanes(L.x, L.v, m, L.rest, L.EA, L.f_ext, C.mk, C.e1, W.tmp)
     lanesteps.constraint_error_lanes(L.x, m.topo, C.hk)
     lanes.check_finite(L.x, L.v, C.cs, C.mk)     # C.mk: 1 (OK is 0) stays 1
-    bc = m.bar_contact
     for k in range(n_lanes):
         d = lanedata.lane_record(S, k)
-        e = C.e1[k]
-        if bc.pairs.shape[0] != 0:
-            e += (bar_energy_scanned(d.x, bc, d.contact.scan)
-                  + base_energy(d.x, m.levels, bc, m.per_level))
+        e = effects.with_contact_energy(C.e1[k], d.x, m, d)
         out[k, 0] = 1.0 if C.cs[k] == 0.0 else 0.0
         out[k, 1] = e
         out[k, 2] = C.hk[k]

@@ -40,7 +40,7 @@ def _resolve(gap, V, A, u2, h, bc, scale):
 
 
 @jit_inline
-def _motion(v, acc, h):
+def motion_bound(v, acc, h):
     """Bound m of any relative motion within a step of ``h`` from velocities ``v``, accelerations
     ``acc``: ``2 (V h + A h^2 / 2)`` with ``V``, ``A`` twice the largest node speed and
     acceleration (see :func:`contact_step`)."""
@@ -79,7 +79,7 @@ def passed_clear(x0, v0, a0, x1, bc, levels, h, state, known):
     checked at the end."""
     pairs = bc.pairs
     D = bc.diameter
-    reach = _motion(v0, a0, h)
+    reach = motion_bound(v0, a0, h)
     for i in range(pairs.shape[0]):
         if state[HEAD + i] - known > reach:
             s, t, nx, ny, nz = pair(x1, pairs, i)
@@ -234,14 +234,14 @@ def contact_step(x, v, acc, bc, levels, h, state, active, scale):
     last exact evaluation plus the sum then (then each prism's, for its bases): a scan evaluates
     again only the pairs whose gap, less the motion since, could close within the step. The
     last ``3 n`` entries are the positions of :func:`remember`."""
-    reach = _motion(v, acc, h)
+    reach = motion_bound(v, acc, h)
     if state[SLACK] > reach:
         state[SLACK] -= reach
         state[MOTION] += reach
         state[LOOK] = 0.0          # no contact force within this step: not evaluated
         return h
     h_new, g_min, bases = scan_step(x, v, acc, bc, levels, h, active, state, reach, scale)
-    reach = _motion(v, acc, h_new)
+    reach = motion_bound(v, acc, h_new)
     state[SLACK] = g_min - reach
     state[MOTION] += reach
     state[LOOK] = 0.0 if state[SLACK] > 0.0 else (1.0 if bases else 2.0)
@@ -276,7 +276,7 @@ def add_motion(state, v, acc, h):
     bound :func:`contact_step` adds) on top of what it counted already, and have the next step
     scan: for a step longer than the one :func:`contact_step` sized."""
     state[SLACK] = -1.0
-    state[MOTION] += _motion(v, acc, h)
+    state[MOTION] += motion_bound(v, acc, h)
 
 
 @jit

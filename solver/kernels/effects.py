@@ -24,13 +24,13 @@ records, and a call passes the records' ~60 arrays by value (0.9 us of a 13 us R
 sym3d FB column, measured).
 """
 from solver.compiled import jit, jit_inline
-from solver.kernels.barcontact import remember
+from solver.kernels.barcontact import bar_energy_scanned, base_energy, remember
 from solver.kernels.contact import striker_step
 from solver.kernels.contactsteps import (add_motion, bounded_contact_energy, contact_step,
-                                       gate as contact_gate, motion_so_far, passed_clear, rescan,
-                                       resume)
+                                       gate as contact_gate, motion_bound, motion_so_far,
+                                       passed_clear, rescan, resume)
 from solver.kernels.records import (CONTACT_LEVEL, DISSIPATED, LOOK, MET, POWER, SAVED_V,
-                                    SAVED_X, STEP_LEVEL, copy_into)
+                                    SAVED_X, SLACK, STEP_LEVEL, copy_into)
 from solver.kernels.summary import step_energy
 
 
@@ -96,6 +96,34 @@ def plan(x, v, acc, m, d, h, met, scale):
     if h_c >= h:
         return h, False, known
     return h_c, not touched_at_start, known
+
+
+@jit_inline
+def has_bar_contact(m):
+    """Whether the model has pairs of bars (or bases) that can touch."""
+    return m.bar_contact.pairs.shape[0] != 0
+
+
+@jit_inline
+def surely_clear(v, acc, d, h):
+    """Whether the contact scans already know that no contact can start within a step of ``h``
+    from velocities ``v``, accelerations ``acc``: the quick test of
+    :func:`~solver.kernels.contactsteps.contact_step` (the gap bound left exceeds the bound of
+    any relative motion), without changing the contact state. ``v``, ``acc`` may be the nodes
+    of largest speed and acceleration alone (the bound depends on those only)."""
+    return d.contact.scan[SLACK] > motion_bound(v, acc, h)
+
+
+@jit_inline
+def with_contact_energy(e, x, m, d):
+    """``e`` plus the energy J stored in touching bars and bases at ``x`` (as
+    :func:`~solver.kernels.summary.state_summary` adds it; ``e`` where the model has no bar
+    contact)."""
+    bc = m.bar_contact
+    if bc.pairs.shape[0] != 0:
+        e += (bar_energy_scanned(x, bc, d.contact.scan)
+              + base_energy(x, m.levels, bc, m.per_level))
+    return e
 
 
 @jit
