@@ -5,11 +5,12 @@ import contextlib
 
 
 @contextlib.contextmanager
-def commanded_node(domain_id, scene_file, prepare=None, **parameters):
+def commanded_node(domain_id, scene_file, prepare=None, connect_s=60, **parameters):
     """``(node, executor, commander, log)``: the node on ``scene_file`` (``real_time_factor`` 0
     and 200 Hz publishing unless ``parameters`` say otherwise) in a context of its own on
     ``domain_id``, its simulation's calls recorded (:class:`Logged`; ``prepare(node)`` runs
-    before), a commander connected to it; all torn down on exit."""
+    before), a commander connected to it within ``connect_s`` s (to a node started paused:
+    ``Commander.connected(paused=True)``); all torn down on exit."""
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.parameter import Parameter
@@ -30,7 +31,9 @@ def commanded_node(domain_id, scene_file, prepare=None, **parameters):
     ex.add_node(node)
     ex.add_node(cmd)
     try:
-        assert spin_until(ex, cmd.connected, 60), 'commander never connected'
+        paused = bool(values.get('start_paused', False))
+        assert spin_until(ex, lambda: cmd.connected(paused=paused), connect_s), \
+            'commander never connected'
         yield node, ex, cmd, log
     finally:
         ex.shutdown()

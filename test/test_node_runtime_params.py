@@ -17,6 +17,8 @@ from tensegrity_ros.msgs import messages  # noqa: E402
 from tensegrity_ros.node.demo import node_process, spin_until, stop_process  # noqa: E402
 from tensegrity_ros.node.node import TensegritySim  # noqa: E402
 
+from node_helpers import commanded_node  # noqa: E402
+
 DOMAIN = 200 + os.getpid() % 30
 SCENE = 'config/scenes/prism.yaml'
 
@@ -143,18 +145,7 @@ def test_unknown_start_up_parameter_exits_2_naming_it():
 
 
 def test_start_paused_waits_for_set_running_and_rejects_commands_meanwhile():
-    from tensegrity_ros.node.demo import Commander
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx, domain_id=DOMAIN)
-    node = TensegritySim(context=ctx, parameter_overrides=[
-        Parameter('scene_file', value=SCENE), Parameter('real_time_factor', value=0.0),
-        Parameter('start_paused', value=True)])
-    cmd = Commander(context=ctx)
-    ex = SingleThreadedExecutor(context=ctx)
-    ex.add_node(node)
-    ex.add_node(cmd)
-    try:
-        assert spin_until(ex, lambda: cmd.connected(paused=True), 30)
+    with commanded_node(DOMAIN, SCENE, connect_s=30, start_paused=True) as (node, ex, cmd, _):
         frames, energy = node.counts['frames'], node.sim.energy()
         cmd.impact([0.1])
         assert spin_until(ex, lambda: node.counts['rejected'] == 1, 10)
@@ -169,9 +160,3 @@ def test_start_paused_waits_for_set_running_and_rejects_commands_meanwhile():
         cmd.impact([0.1])                                     # running: accepted
         assert spin_until(ex, lambda: node.counts['accepted'] == 1, 10)
         assert spin_until(ex, lambda: node.sim.t > 0.01 and cmd.strain, 30)
-    finally:
-        ex.shutdown()
-        node.close()
-        cmd.destroy_node()
-        node.destroy_node()
-        rclpy.shutdown(context=ctx)
