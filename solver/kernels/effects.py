@@ -24,14 +24,14 @@ records, and a call passes the records' ~60 arrays by value (0.9 us of a 13 us R
 sym3d FB column, measured).
 """
 from solver.compiled import jit, jit_inline
-from solver.kernels.barcontact import bar_energy_scanned, base_energy, remember
+from solver.kernels.barcontact import remember
 from solver.kernels.contact import striker_step
 from solver.kernels.contactsteps import (add_motion, bounded_contact_energy, contact_step,
                                        gate as contact_gate, motion_bound, motion_so_far,
                                        passed_clear, rescan, resume)
 from solver.kernels.records import (CONTACT_LEVEL, DISSIPATED, LOOK, MET, POWER, SAVED_V,
                                     SAVED_X, SLACK, STEP_LEVEL, copy_into)
-from solver.kernels.summary import step_energy
+from solver.kernels.summary import contact_energy, step_energy
 
 
 @jit_inline
@@ -119,10 +119,8 @@ def with_contact_energy(e, x, m, d):
     """``e`` plus the energy J stored in touching bars and bases at ``x`` (as
     :func:`~solver.kernels.summary.state_summary` adds it; ``e`` where the model has no bar
     contact)."""
-    bc = m.bar_contact
-    if bc.pairs.shape[0] != 0:
-        e += (bar_energy_scanned(x, bc, d.contact.scan)
-              + base_energy(x, m.levels, bc, m.per_level))
+    if m.bar_contact.pairs.shape[0] != 0:
+        e += contact_energy(x, m, d)
     return e
 
 

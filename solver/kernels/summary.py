@@ -133,10 +133,8 @@ def state_summary(x, v, m, d, heights):
     network); plus the strikers, stops and bar contacts of the scene. The smallest height is NaN
     when a height is."""
     e = _contact_free_energy(x, v, m, d)
-    bc = m.bar_contact
-    if bc.pairs.shape[0] != 0:
-        e += (bar_energy_scanned(x, bc, d.contact.scan)
-              + base_energy(x, m.levels, bc, m.per_level))
+    if m.bar_contact.pairs.shape[0] != 0:
+        e += contact_energy(x, m, d)
     topo = m.topo
     return (all_finite(x) and all_finite(v), e,
             constraint_error_arrays(x, topo.con_tail, topo.con_head, topo.con_length,
@@ -156,12 +154,19 @@ def energy_parts(x, v, m, d):
     extra = 0.0
     if m.stops.height.shape[0] != 0 or m.strikers.row.shape[0] != 0:     # kernels.contact
         extra = extra_energy(x, v, m)
-    bc = m.bar_contact
     touch = 0.0
-    if bc.pairs.shape[0] != 0:
-        touch = (bar_energy_scanned(x, bc, d.contact.scan)
-                 + base_energy(x, m.levels, bc, m.per_level))
+    if m.bar_contact.pairs.shape[0] != 0:
+        touch = contact_energy(x, m, d)
     return a, cable_energy(x, m, d), extra, touch
+
+
+@jit
+def contact_energy(x, m, d):
+    """Energy J stored in touching bars (the pairs the scans of ``d`` do not bound apart) and
+    bases at ``x``, the positions an integrator call ended at; for a model with bar contact."""
+    bc = m.bar_contact
+    return (bar_energy_scanned(x, bc, d.contact.scan)
+            + base_energy(x, m.levels, bc, m.per_level))
 
 
 @jit
