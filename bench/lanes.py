@@ -20,7 +20,9 @@ a time, on one thread, in calls of 8 steps (the node's 200 Hz frames): at rest a
 prestrain (no contact) and after an impact of 0.3 m/s on every column (contact); then the array
 of 64 columns (:class:`~solver.simulate.array.ArraySimulation`, one thread) with ``lanes`` True,
 False and ``'auto'``. The figure is the wall time per column over one column's single run (the
-issue's "per-column cost"). One run's ratios: on a busy machine they are noisy.
+issue's "per-column cost"). Last, the 1,024-point sweep of docs/sweeps.md on two threads, its
+batches as lanes and one point at a time (:func:`sweep`; about 80 s). One run's ratios: on a
+busy machine they are noisy.
 """
 from __future__ import annotations
 
@@ -204,6 +206,39 @@ def runs(log=print):
     return rows, arr
 
 
+SWEEP_GRID = ('loading.impact.v0=0.05:0.2:16', 'prestrain=0.001:0.004:32',
+              'structure.stacking=shared,parallel')
+
+
+def sweep(log=print, threads=2):
+    """The 1,024-point sweep of docs/sweeps.md (1 s runs) in this process on ``threads``
+    threads, its batches stepped as lanes, then one point at a time: the wall times and whether
+    the rows are equal (every figure, timings aside)."""
+    import tempfile
+    from tensegrity_ros.studies import sweep as sw
+    from tensegrity_ros.studies.table import TIMING_FIELDS
+    out = {'grid': list(SWEEP_GRID), 't_end_s': 1.0, 'threads': threads}
+    rows = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for lanes in (True, False):
+            sweep = sw.build(COLUMNS['FB'], list(SWEEP_GRID), out=Path(tmp) / str(lanes),
+                             t_end=1.0)
+            t0 = time.perf_counter()
+            got, _ = sw.execute(sweep, threads=threads, lanes=lanes)
+            key = 'lanes_s' if lanes else 'one_at_a_time_s'
+            out[key] = time.perf_counter() - t0
+            rows[lanes] = [{k: v for k, v in r.items() if k not in TIMING_FIELDS} for r in got]
+            log(f'lanes: the 1,024-point sweep, {"lanes" if lanes else "one at a time"}: '
+                f'{out[key]:.1f} s')
+    out['points'] = len(rows[True])
+    out['ok'] = sum(r['status'] == 'ok' for r in rows[True])
+    out['rows_equal'] = json.dumps(rows[True], sort_keys=True, default=str) == json.dumps(
+        rows[False], sort_keys=True, default=str)
+    out['ratio'] = out['lanes_s'] / out['one_at_a_time_s']
+    log(f"lanes: sweep ratio {out['ratio']:.2f}, rows equal {out['rows_equal']}")
+    return out
+
+
 def main(out_dir='bench/results', log=print):
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -221,6 +256,7 @@ def main(out_dir='bench/results', log=print):
                 f'{b * 1e6:8.2f} us per instance: ratio {ratio:.3f} ({1 / ratio:.2f}x)')
         rows.append(row)
     run_rows, array = runs(log)
+    big = sweep(log)
     load.append(os.getloadavg()[0])
     log(f'lanes: load average {load[0]:.2f} at the start, {load[1]:.2f} at the end '
         f'({os.cpu_count()} CPUs)')
@@ -230,7 +266,8 @@ def main(out_dir='bench/results', log=print):
                                 'dt_s': DT, 'ratio': 'lanes time per instance / scalar time',
                                 'load_average_start_end': load, 'cpus': os.cpu_count(),
                                 'rows': rows, 'runs': run_rows,
-                                'array_64_columns_one_thread_s': array}, indent=2))
+                                'array_64_columns_one_thread_s': array,
+                                'sweep_1024': big}, indent=2))
     return [str(path)]
 
 

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from solver import Scene
-from solver.simulate import lanebatch
+from solver.simulate import chooser, lanebatch
 from solver.simulate.array import simulation_for
 from solver.simulate.simulation import Simulation, SimulationDiverged
 
@@ -162,7 +162,7 @@ def test_chooser_takes_the_faster_way_and_probes_the_other():
     """Unknown ways first (their first call not counted), then the cheaper per step, the other
     once every ``probe_every`` calls times how many times slower it was; a way that becomes
     cheaper takes over."""
-    c = lanebatch.Chooser(probe_every=4, weight=1.0, margin=0.1)
+    c = chooser.Chooser(probe_every=4, weight=1.0, margin=0.1)
     trace = []
     for _ in range(16):
         way = c.pick()
@@ -176,7 +176,7 @@ def test_chooser_takes_the_faster_way_and_probes_the_other():
 
 def test_chooser_switches_only_for_a_margin():
     """Ways within the margin of each other: the one in use stays."""
-    c = lanebatch.Chooser(probe_every=1000, weight=1.0, margin=0.1)
+    c = chooser.Chooser(probe_every=1000, weight=1.0, margin=0.1)
     for way, cost in [(True, 1.0), (True, 1.0), (False, 1.0), (False, 1.05)]:
         assert c.pick() is way
         c.note(way, cost, 1)

@@ -17,7 +17,7 @@ import numpy as np
 
 from solver.compiled import jit_lanes
 from solver.integrators.rk4 import REFINE_COARSEN, REFINE_LEVELS, REFINE_SHARE
-from solver.kernels import effects, lanedata, lanes, lanesteps, summary
+from solver.kernels import effects, lanechunk, lanedata, lanes, lanesteps, summary
 from solver.status import OK
 
 
@@ -250,7 +250,7 @@ def end(m, S, C, status):
 
 @jit_lanes
 def rounds(m, S, L, W, X, C, w0, dt, total, tol, max_iter, kinks, project, status, steps,
-           min_live):
+           min_live, ch):
     """Step each lane whose ``status`` is ``OK`` until its clock ``C.t`` reaches ``total`` s, as
     :func:`solver.integrators.rk4._rk4_run` steps one instance, every lane on its own clock with
     its own steps (kink landing, contact steps, trials, refinement against the ledger). The
@@ -264,12 +264,18 @@ def rounds(m, S, L, W, X, C, w0, dt, total, tol, max_iter, kinks, project, statu
     keeps its code in ``status`` and stops; ``steps`` counts each lane's steps. Returns 0 when
     every lane is done, or the number of lanes still stepping once it is below ``min_live`` (at
     the end of a round: the caller moves them to fewer lanes, :mod:`solver.simulate.lanebatch`,
-    and calls again)."""
+    and calls again). ``ch``: the :class:`~solver.kernels.lanechunk.Chunk` of
+    :func:`chunk_run` (a lane at the end of an interval with more to go goes on with the next),
+    or an empty one."""
     n_lanes = status.shape[0]
     bars = effects.has_bar_contact(m)
+    chunked = ch.todo.shape[0] != 0
     while True:
         left = 0
         for k in range(n_lanes):
+            if (chunked and ch.todo[k] > 0 and status[k] == OK
+                    and not total - C.t[k] > 1e-9 * dt):
+                lanechunk.at_end(m, S, L, C, ch, k, steps)
             C.live[k] = 1 if status[k] == OK and total - C.t[k] > 1e-9 * dt else 0
             left += C.live[k]
         if left == 0 or left < min_live:
@@ -333,6 +339,13 @@ def rounds(m, S, L, W, X, C, w0, dt, total, tol, max_iter, kinks, project, statu
                 lanesteps.node_of(W.a1, C.na, k, ap)
                 if effects.surely_clear(vp, ap, d, h):
                     vk, ak = vp, ap
+                else:
+                    # the scan reads the lane's nodes over and over: from contiguous copies
+                    # (the step's start in S, as a refined step keeps it there already)
+                    if C.refine[k] == 0:
+                        lanedata.sync_out(L, S, k)
+                    lanedata.lane_out(W.a1, k, X.a1[k])
+                    xk, vk, ak = d.x, d.v, X.a1[k]
             h_c, trial, known = effects.plan(xk, vk, ak, m, d, h, C.met[k], 0.5 ** C.clevel[k])
             if h_c >= h:
                 C.h[k] = h
@@ -419,13 +432,22 @@ def rounds(m, S, L, W, X, C, w0, dt, total, tol, max_iter, kinks, project, statu
 
 
 @jit_lanes
-def run(m, S, L, W, X, C, w0, dt, n_steps, tol, max_iter, kinks, project, status, steps):
-    """Advance each lane whose ``status`` is ``OK`` by ``n_steps * dt`` (:func:`rounds` from
-    :func:`begin` to :func:`end`, every lane in this one set of lanes)."""
+def chunk_run(m, S, L, W, X, C, w0, dt, n_steps, tol, max_iter, kinks, project, status, steps,
+              ch):
+    """``ch.todo[k]`` intervals of ``n_steps * dt`` of each lane whose ``status`` is ``OK``, in
+    one call (:mod:`solver.kernels.lanechunk`): every lane steps its own intervals as
+    :func:`begin_checked`, :func:`rounds` and :func:`end_checked` would step each (the same
+    steps, bit for bit), its data kept in ``ch`` at each interval's start and end, with the
+    state summary and steps of each interval. A lane that fails stops with its code in
+    ``status`` after ``ch.done[k]`` intervals."""
+    lanedata.keep(S, lanechunk.kept(ch, 0, S.saved), status)
     begin(m, S, L, C, status, steps)
+    for k in range(status.shape[0]):
+        ch.done[k] = 0
+        if status[k] != OK:
+            ch.todo[k] = 0
     rounds(m, S, L, W, X, C, w0, dt, n_steps * dt, tol, max_iter, kinks, project, status,
-           steps, 0)
-    end(m, S, C, status)
+           steps, 0, ch)
 
 
 @jit_lanes

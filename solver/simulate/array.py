@@ -29,7 +29,7 @@ import numpy as np
 from solver.build.scene import Scene
 from solver.build.structures import PrestrainMap, build_network
 from solver.models.base import ModelView
-from solver.simulate import lanebatch, parallel
+from solver.simulate import chooser, lanebatch, parallel
 from solver.simulate.interface import SimulationAPI
 from solver.simulate.loading import prestrain_values, rest_length_values
 from solver.simulate.simulation import Frame, FrameFigures, Simulation, SimulationDiverged
@@ -399,7 +399,7 @@ class ArraySimulation(SimulationAPI):
         if self.lanes != 'auto':
             return self._advance_lanes(duration, n)
         if self._chooser is None:
-            self._chooser = lanebatch.Chooser()
+            self._chooser = chooser.Chooser()
         return self._chooser.run(lambda lanes: self._advance_lanes(duration, n) if lanes
                                  else self._each(lambda sim: sim.advance(duration)), n)
 
@@ -416,7 +416,7 @@ class ArraySimulation(SimulationAPI):
         """:meth:`advance` with alike groups stepped as lanes (one lane group per thread) and
         the others one at a time; a failure restores every column, as :meth:`_each` does."""
         step = lanebatch.Step(self._lane_plan(), [g.sim for g in self.groups])
-        step.run(duration, n, self.threads)
+        step.run(duration, self.threads)
         self._cache = {}
         failed = next(((g, step.error(g.sim)) for g in self.groups if step.error(g.sim)), None)
         if failed is not None:

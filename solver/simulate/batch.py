@@ -33,12 +33,17 @@ from dataclasses import dataclass
 
 from solver.build.scene import Scene
 from solver.build import memo
+from solver.simulate import lanebatch
 from solver.simulate.array import simulation_for
 from solver.simulate.parallel import default_threads, each as parallel_each
 from solver.simulate.runner import ImpactTrain, Point, Recorder, summary
 from solver.simulate.simulation import SimulationDiverged
 
 RUNNING, OK, DIVERGED, ERROR = 'running', 'ok', 'diverged', 'error'
+# the most output intervals a lane group takes in one call (simulate_batch): over many intervals
+# the lanes' step counts even out (a lane in contact takes ten times the steps of one that is
+# not, and which lane that is changes from interval to interval)
+CHUNK = 40
 
 
 def reason_of(exc):
@@ -54,20 +59,22 @@ class BatchSimulation:
     ``error`` (``reasons[i]``, ``errors[i]`` the exception); a stopped instance is left out of
     every later :meth:`advance` and :meth:`each`."""
 
-    def __init__(self, sims, threads=None):
+    def __init__(self, sims, threads=None, lanes=True):
         self.sims = list(sims)
         self.threads = max(1, int(threads or default_threads()))
         n = len(self.sims)
         self.status = [RUNNING] * n
         self.reasons = [''] * n
         self.errors = [None] * n
+        self.lanes = bool(lanes)
+        self._plan = None           # (indices, lanebatch.Plan) of the last lane step
 
     @classmethod
-    def of(cls, scenes, threads=None):
+    def of(cls, scenes, threads=None, lanes=True):
         """A batch of one simulation per scene (:func:`~solver.simulate.array.simulation_for`),
         what scenes of one topology share built once."""
         with memo.sharing():
-            return cls([simulation_for(s) for s in scenes], threads)
+            return cls([simulation_for(s) for s in scenes], threads, lanes)
 
     @property
     def size(self):
@@ -107,11 +114,119 @@ class BatchSimulation:
                 self.stop(i, value)
         return out
 
-    def advance(self, duration):
-        """Advance every running instance by ``duration`` s
-        (:meth:`~solver.simulate.simulation.Simulation.advance`); an instance that diverges is
-        restored to its last good state and stops. Returns ``{i: steps}`` of the others."""
-        return self.each(lambda i, sim: sim.advance(duration))
+    def advance(self, duration, indices=None, spent=None):
+        """Advance every running instance (or those of ``indices`` still running) by
+        ``duration`` s (:meth:`~solver.simulate.simulation.Simulation.advance`); an instance
+        that diverges is restored to its last good state and stops. Returns ``{i: steps}`` of
+        the others.
+
+        With :attr:`lanes` (the default) the instances that can step as lanes of one model
+        (:mod:`solver.simulate.lanebatch`: the same topology, constants, ``dt`` and integrator)
+        step together in one compiled call per group, a group per thread; each lane takes the
+        steps of its single run, so the results are the same bit for bit. ``spent``: a dict
+        that gets ``{i: (wall s, thread CPU s)}``, each instance's share of the time."""
+        todo = [i for i in (self.running if indices is None else indices)
+                if self.status[i] == RUNNING]
+        if self.lanes and len(todo) > 1:
+            sims = [self.sims[i] for i in todo]
+            plan = self._lane_plan(todo, sims)
+            if plan.groups:
+                return self._advance_lanes(duration, todo, sims, plan, spent)
+
+        def one(i, sim):
+            t0, c0 = time.perf_counter(), time.thread_time()
+            steps = sim.advance(duration)
+            if spent is not None:
+                spent[i] = (time.perf_counter() - t0, time.thread_time() - c0)
+            return steps
+        return self.each(one, todo)
+
+    def advance_intervals(self, counts, duration, visit, spent):
+        """``counts[i]`` intervals of ``duration`` s of each running instance ``i`` of
+        ``counts``, each followed by ``visit(i, q)`` (``q``: the interval, from 0) with the
+        instance's state at that interval's end. An instance that diverges or fails in an
+        interval or its visit stops there. ``spent[i]`` is set to the (wall s, thread CPU s) of
+        the instance's steps not yet reported, before each visit that follows them.
+
+        With :attr:`lanes`, the instances that step as lanes of one group take all their
+        intervals in one compiled call per group
+        (:meth:`~solver.simulate.lanebatch.LaneGroup.chunk`), the groups on the threads, then
+        are concluded and visited interval by interval (the same steps, checks and results as
+        interval by interval); the others take their intervals one at a time on the threads."""
+        todo = [i for i in counts if self.status[i] == RUNNING]
+        sims = [self.sims[i] for i in todo]
+        plan = (self._lane_plan(todo, sims) if self.lanes and len(todo) > 1
+                else lanebatch.Plan([], sims, 0))
+        index = {id(s): i for i, s in zip(todo, sims)}
+
+        def work(task):
+            is_group, item = task
+            if not is_group:
+                return self._intervals(index[id(item)], counts, duration, visit, spent)
+            t0, c0 = time.perf_counter(), time.thread_time()
+            n = max(int(round(duration / item.sims[0].dt)), 0)
+            ch = item.chunk(n, [counts[index[id(s)]] for s in item.sims])
+            share = ((time.perf_counter() - t0) / len(item.sims),
+                     (time.thread_time() - c0) / len(item.sims))
+            self._conclude_chunk(item, n, ch, [index[id(s)] for s in item.sims], counts,
+                                 visit, spent, share)
+        tasks = [(True, g) for g in plan.groups] + [(False, s) for s in plan.singles]
+        for ok, value in parallel_each(work, tasks, self.threads if len(tasks) > 1 else 1):
+            if not ok:
+                raise value         # a group's call itself failed: not a lane's divergence
+
+    def _conclude_chunk(self, group, n, ch, which, counts, visit, spent, share):
+        """The intervals of the lane ``group``'s chunk ``ch`` concluded and visited interval by
+        interval (its instances ``which``, ``share`` each one's share of the call's time), on
+        the thread that made the call: its Python runs while the other threads step."""
+        for i in which:
+            spent[i] = share
+        for q in range(max(counts[i] for i in which)):
+            for k, i in enumerate(which):
+                if q >= counts[i] or self.status[i] != RUNNING:
+                    continue
+                try:
+                    t0, c0 = time.perf_counter(), time.thread_time()
+                    group.conclude(k, q, n, ch)
+                    w, c = spent.pop(i, (0.0, 0.0))
+                    spent[i] = (w + time.perf_counter() - t0, c + time.thread_time() - c0)
+                    visit(i, q)
+                except Exception as exc:            # noqa: BLE001 - this instance stops
+                    self.stop(i, exc)
+
+    def _intervals(self, i, counts, duration, visit, spent):
+        """:meth:`advance_intervals` of instance ``i`` one interval at a time."""
+        sim = self.sims[i]
+        for q in range(counts[i]):
+            try:
+                t0, c0 = time.perf_counter(), time.thread_time()
+                sim.advance(duration)
+                spent[i] = (time.perf_counter() - t0, time.thread_time() - c0)
+                visit(i, q)
+            except Exception as exc:                # noqa: BLE001 - this instance stops
+                self.stop(i, exc)
+                return
+
+    def _lane_plan(self, todo, sims):
+        """The :class:`~solver.simulate.lanebatch.Plan` of the instances ``todo``, kept while
+        they are the same and the plan holds."""
+        if self._plan is None or self._plan[0] != todo or not self._plan[1].holds():
+            self._plan = (todo, lanebatch.plan_of(sims, self.threads))
+        return self._plan[1]
+
+    def _advance_lanes(self, duration, todo, sims, plan, spent):
+        step = lanebatch.Step(plan, sims)
+        step.run(duration, self.threads)
+        out = {}
+        for i, sim in zip(todo, sims):
+            if spent is not None and id(sim) in step.spent:
+                spent[i] = step.spent[id(sim)]
+            exc = step.error(sim)        # a lane or single that failed restored itself
+            if exc is None:
+                out[i] = step.result[id(sim)][1]
+            else:
+                self.stop(i, exc)
+        return out
 
     def frames(self):
         """The :meth:`~solver.simulate.simulation.Simulation.frame` of every instance (stopped
@@ -177,6 +292,17 @@ class _Run(Recorder):
     def interval(self, k):
         self._timed(super().interval, k)
 
+    def stepped(self, spent):
+        """Book the ``(wall s, thread CPU s)`` of steps the batch took for this run
+        (:meth:`BatchSimulation.advance_intervals`); :meth:`take_frame` follows."""
+        self.wall += spent[0]
+        self.busy += spent[0]
+        self.cpu += spent[1]
+
+    def take_frame(self):
+        """:meth:`record`, timed: the end of an interval the batch stepped."""
+        self._timed(self.record)
+
 
 def _prepare(scene, overrides):
     if not isinstance(scene, Scene):
@@ -188,7 +314,7 @@ def _prepare(scene, overrides):
 
 
 def simulate_batch(items, threads=None, frames=False, on_frame=None, on_point=None,
-                   together=False, base=True):
+                   together=False, base=True, lanes=True):
     """:func:`solver.simulate.runner.simulate` of every ``(scene, overrides)`` of ``items`` (a
     scene is a :class:`Scene` or a path; overrides as for ``simulate``), as one batch on
     ``threads`` threads. Returns a :class:`BatchPoint` per item, in order: ``ok`` with the
@@ -225,8 +351,8 @@ def simulate_batch(items, threads=None, frames=False, on_frame=None, on_point=No
                     raise
 
     with memo.sharing():
-        if together:
-            _together(items, threads, (frames, base), on_frame, deliver)
+        if together or (lanes and len(items) > 1):
+            _together(items, threads, (frames, base), on_frame, deliver, lanes)
         else:
             def one(k):
                 if stopped:
@@ -284,8 +410,10 @@ def _point(k, item, record, on_frame):
     return bp
 
 
-def _together(items, threads, record, on_frame, deliver):
-    """:func:`simulate_batch` with ``together=True``."""
+def _together(items, threads, record, on_frame, deliver, lanes=True):
+    """:func:`simulate_batch` with ``together=True``: every point set up, then one output
+    interval of every running point at a time; with ``lanes``, the steps of the intervals
+    without an impact are one :meth:`BatchSimulation.advance` (lanes where the points allow)."""
     runs, sims, index, build = [], [], [], {}
     for k, item in enumerate(items):
         run, bp, wall, cpu = _set_up(k, item, record, on_frame)
@@ -307,6 +435,35 @@ def _together(items, threads, record, on_frame, deliver):
         if run.n_out == i + 1:
             _summarise(run)
 
+    def intervals(i, live):
+        """From interval ``i``, as many intervals of the points ``live`` as the points whose
+        next intervals hold no impact have in common (at most :data:`CHUNK`), those points
+        as one :meth:`BatchSimulation.advance_intervals` (lanes where they allow). Returns how
+        many."""
+        plain = {j: min(runs[j].plain_intervals(), runs[j].n_out - i, CHUNK) for j in live}
+        plain = {j: c for j, c in plain.items() if c > 0} if lanes else {}
+        n = min(plain.values()) if len(plain) > 1 else 1
+        if len(plain) < 2:
+            plain = {}
+        by_duration, spent = {}, {}
+        for j in plain:
+            by_duration.setdefault(runs[j].per_frame * sims[j].dt, {})[j] = n
+
+        def visit(j, q):
+            if j in spent:
+                runs[j].stepped(spent.pop(j))
+            runs[j].take_frame()
+            if runs[j].n_out == i + q + 1:
+                _summarise(runs[j])
+
+        def others(j, sim):
+            for q in range(min(n, runs[j].n_out - i)):
+                step(j, i + q)
+        batch.each(others, [j for j in live if j not in plain])
+        for duration, counts in by_duration.items():
+            batch.advance_intervals(counts, duration, visit, spent)
+        return n
+
     def finish(j):
         k, run = index[j], runs[j]
         if batch.status[j] == RUNNING:
@@ -318,11 +475,17 @@ def _together(items, threads, record, on_frame, deliver):
         bp.cpu_time_s = build[k][1] + run.cpu
         deliver(k, bp)
 
-    with BatchSimulation(sims, threads) as batch:
+    with BatchSimulation(sims, threads, lanes) as batch:
         n_out = max((r.n_out for r in runs), default=0)
-        for i in range(-1, n_out):
+        i = -1
+        while i < n_out:
             live = [j for j in batch.running if runs[j].n_out > i]
-            batch.each(lambda j, sim: step(j, i), live)
+            if i < 0:
+                batch.each(lambda j, sim: step(j, -1), live)
+                taken = 1
+            else:
+                taken = intervals(i, live)
             for j in live:
-                if batch.status[j] != RUNNING or runs[j].n_out == i + 1:
+                if batch.status[j] != RUNNING or runs[j].n_out <= i + taken:
                     finish(j)
+            i += taken

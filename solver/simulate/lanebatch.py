@@ -28,7 +28,7 @@ import numpy as np
 
 from solver.compiled import compiled_overload
 from solver.integrators import rk4lanes
-from solver.kernels import lanedata, lanes as lanes_mod, records
+from solver.kernels import lanechunk, lanedata, lanes as lanes_mod, records
 from solver.simulate import parallel
 from solver.simulate.simulation import StateSummary
 from solver.status import OK
@@ -120,6 +120,8 @@ class LaneGroup:
             size = (size + 1) // 2
             self.blocks.append(_Block(None, self.rec.topo, m0.work, like=self.S, lanes=size))
         self.out = np.zeros((b, 4))
+        self._chunks = {}               # intervals -> a Chunk of as many
+        self._fallen = [False] * b      # the simulations that left the last chunk
         self._entries = {}              # kernel -> its compiled overload for this group
         self._models = []
         self._data = []
@@ -142,13 +144,16 @@ class LaneGroup:
         return all(s.model is m and m.data is d and eligible(s)
                    for s, m, d in zip(self.sims, self._models, self._data))
 
+    def _check_bound(self):
+        if not self.bound():
+            raise RuntimeError('lane group: a simulation left the group (rebuild it)')
+
     def advance(self, n):
         """Advance every simulation by ``n`` steps of ``dt`` in one call, then conclude each
         (:meth:`Simulation._conclude`). Returns ``[(ok, steps or exception)]`` per simulation,
         as :func:`solver.simulate.parallel.each` does; a simulation that failed restored itself
         to its state before the call."""
-        if not self.bound():
-            raise RuntimeError('lane group: a simulation left the group (rebuild it)')
+        self._check_bound()
         if n <= 0:
             return [(True, s.advance(0.0)) for s in self.sims]
         s0 = self.sims[0]
@@ -196,6 +201,43 @@ class LaneGroup:
         self._call(rk4lanes.end_checked, (self.rec, top.S, top.L, top.W, top.C, top.status,
                                            self.out, heights, not chain))
 
+    def chunk(self, n, todo):
+        """``todo[k]`` intervals of ``n`` steps of simulation ``k`` in one compiled call
+        (:func:`solver.integrators.rk4lanes.chunk_run`), none of them concluded yet: returns the
+        :class:`~solver.kernels.lanechunk.Chunk`, for :meth:`conclude` interval by interval."""
+        self._check_bound()
+        s0, top = self.sims[0], self.blocks[0]
+        top.status[:] = OK
+        k_max = max(todo)
+        ch = self._chunks.get(k_max)
+        if ch is None:
+            ch = self._chunks[k_max] = lanechunk.chunk(self.S, k_max, s0._heights_shape)
+        ch.todo[:] = todo
+        self._fallen = [False] * len(self.sims)
+        self._call(rk4lanes.chunk_run, (self.rec, top.S, top.L, top.W, top.X, top.C, top.w0,
+                                        float(s0.dt), int(n), float(s0.tol), int(s0.max_iter),
+                                        bool(s0.kinks), bool(s0.integrator.projected),
+                                        top.status, top.steps, ch))
+        return ch
+
+    def conclude(self, k, j, n, ch):
+        """Interval ``j`` of simulation ``k`` from the :meth:`chunk` ``ch``, concluded as its own
+        call would be (:meth:`Simulation._conclude`: checked, the clock moved, or restored and
+        :class:`SimulationDiverged` raised): its data set to the interval's end first. Where its
+        lane failed within the interval, the simulation takes that interval by itself
+        (:meth:`Simulation.advance`, which fails as the lane did), and its later ones too."""
+        s = self.sims[k]
+        if self._fallen[k] or j >= ch.done[k]:
+            if not self._fallen[k]:
+                self._fallen[k] = True
+                _copy_data(_chunk_data(ch, j, k), s.model.data)
+            return s.advance(n * s.dt)
+        _copy_data(_chunk_data(ch, j + 1, k), s.model.data)
+        o = ch.out[j, k]
+        s._cache = {'summary': StateSummary(o[0] != 0.0, o[1], ch.heights[j, k].copy(), o[2],
+                                            o[3])}
+        return s._conclude(n, int(ch.steps[j, k]), OK, _chunk_data(ch, j, k), None)
+
     def _call(self, kernel, args):
         """``kernel(*args)`` through numba's dispatch the first time, then through the compiled
         overload (the arguments are this group's arrays, or new ones of the same types)."""
@@ -241,7 +283,7 @@ class _Block:
         """:func:`solver.integrators.rk4lanes.rounds` on this block's lanes."""
         dt, total, tol, max_iter, kinks, project = fixed
         args = (rec, self.S, self.L, self.W, self.X, self.C, self.w0, dt, total, tol, max_iter,
-                kinks, project, self.status, self.steps, int(min_live))
+                kinks, project, self.status, self.steps, int(min_live), NO_CHUNK)
         if self._entry is None:         # through numba's dispatch, then its compiled overload
             left = rk4lanes.rounds(*args)
             self._entry = compiled_overload(rk4lanes.rounds, args) or rk4lanes.rounds
@@ -273,6 +315,20 @@ class _Block:
 NOT_A_LANE = -99        # the status of an empty lane of a block of stragglers
 
 
+NO_CHUNK = lanechunk.empty()
+
+
+def _chunk_data(ch, j, k):
+    """Lane ``k``'s data at entry ``j`` of the chunk ``ch`` (views)."""
+    return records.Data(*(a[j, k] for a in ch[:6]),
+                        records.ContactState(ch.scan[j, k], ch.active[j, k]), ch.refine[j, k])
+
+
+def _copy_data(src, dst):
+    for a, b in zip(src[:6] + src.contact + src[7:], dst[:6] + dst.contact + dst[7:]):
+        np.copyto(b, a)
+
+
 def clock_of(sim):
     """What :meth:`LaneGroup.restore` puts back besides the data."""
     return sim.t, sim.step, sim.steps_taken, sim._energy_scale, sim._twist_ref
@@ -289,16 +345,31 @@ class Step:
         self.keeps = {id(s): s._keep() for s in plan.singles}
         self.result = {}            # id(sim) -> (ok, steps or exception)
         self.where = {}             # id(sim) -> (lane group, lane)
+        self.spent = {}             # id(sim) -> (wall s, thread CPU s) of its share
 
-    def run(self, duration, n, threads):
-        """Advance each simulation by ``duration`` s (``n`` steps) on ``threads`` threads."""
+    def run(self, duration, threads):
+        """Advance each simulation by ``duration`` s on ``threads`` threads (a group by the
+        whole steps of its ``dt`` that :meth:`Simulation.advance` would take). ``spent`` then
+        holds each simulation's share of the wall and thread CPU time of its task (a group's
+        time divided evenly among its lanes)."""
         tasks = [(True, g) for g in self.plan.groups] + [(False, s) for s in self.plan.singles]
 
         def work(task):
             is_lanes, item = task
-            return item.advance(n) if is_lanes else item.advance(duration)
+            t0, c0 = time.perf_counter(), time.thread_time()
+            if is_lanes:
+                out = item.advance(max(int(round(duration / item.sims[0].dt)), 0))
+            else:
+                out = item.advance(duration)
+            return out, time.perf_counter() - t0, time.thread_time() - c0
         done = parallel.each(work, tasks, threads if len(tasks) > 1 else 1)
         for (is_lanes, item), (ok, value) in zip(tasks, done):
+            if ok:
+                value, wall, cpu = value
+            members = item.sims if is_lanes else [item]
+            if ok:
+                for s in members:
+                    self.spent[id(s)] = (wall / len(members), cpu / len(members))
             if not is_lanes:
                 self.result[id(item)] = (ok, value)
                 continue
@@ -379,53 +450,3 @@ def groups_of(sims, threads=1, max_lanes=MAX_LANES, min_lanes=2):
             else:
                 singles.extend(part)
     return lists, singles
-
-
-class Chooser:
-    """Picks, call by call, the faster of two ways to step that give the same result (lanes or
-    one simulation at a time): each way's wall time per step, averaged over its recent calls
-    (the first call of a way, which builds and may compile, not counted); until both are known
-    the unknown one is taken, then the cheaper (a switch needs it cheaper by ``margin``), and
-    every ``probe_every`` calls (times how many times slower it was, up to ``patience``) the
-    other one once more: the dynamics change (contact makes lanes wait for each other)."""
-
-    def __init__(self, probe_every=64, weight=0.3, patience=8, margin=0.1):
-        self.probe_every, self.weight, self.patience = probe_every, weight, patience
-        self.margin = margin
-        self.cost = {True: None, False: None}
-        self.seen = {True: 0, False: 0}
-        self.calls = 0
-        self.best = None
-
-    def pick(self):
-        self.calls += 1
-        for way in (True, False):
-            if self.cost[way] is None:
-                return way
-        best = self.cost[True] <= self.cost[False]
-        if self.best is not None and best != self.best and (
-                self.cost[best] > (1.0 - self.margin) * self.cost[self.best]):
-            best = self.best            # not cheaper by the margin: keep the way in use
-        self.best = best
-        # a way that lost by far is probed less often: every probe_every calls times how many
-        # times slower it was (at most ``patience`` times less often)
-        slower = max(self.cost[True], self.cost[False]) / max(
-            min(self.cost[True], self.cost[False]), 1e-300)
-        every = self.probe_every * max(1, min(int(slower), self.patience))
-        return (not best) if self.calls % every == 0 else best
-
-    def run(self, step, n):
-        """``step(way)`` of ``n`` steps by the way :meth:`pick` gives, timed and noted."""
-        way = self.pick()
-        t0 = time.perf_counter()
-        out = step(way)
-        self.note(way, time.perf_counter() - t0, n)
-        return out
-
-    def note(self, way, seconds, n):
-        self.seen[way] += 1
-        if self.seen[way] < 2:
-            return
-        c = seconds / max(n, 1)
-        old = self.cost[way]
-        self.cost[way] = c if old is None else (1 - self.weight) * old + self.weight * c

@@ -150,6 +150,15 @@ class Recorder:
         sim.advance((step - sim.step) * sim.dt)
         self.wall += time.perf_counter() - t0
 
+    def plain_intervals(self):
+        """How many of the next output intervals hold no impact (their steps are one
+        ``sim.advance(per_frame * dt)`` each, then :meth:`record`: what :meth:`interval` does);
+        a large number when no impact is due."""
+        s = None if self.train is None else self.train.next_step()
+        if s is None:
+            return 1 << 30
+        return max((s - self.sim.step - 1) // self.per_frame, 0)
+
     def interval(self, k):
         """Output interval ``k`` (0-based): each impact on its step within it (applied before
         that frame is taken), the steps, the frame."""

@@ -198,13 +198,13 @@ def run_batch(task, scene, items):
     return [task(scene, overrides, pid) for pid, overrides in items]
 
 
-def run_points(scene, items, threads=1, on_row=None):
+def run_points(scene, items, threads=1, on_row=None, lanes=True):
     """The rows of ``items`` (``(point_id, overrides)`` pairs) as one batch
     (:func:`solver.simulate.batch.simulate_batch` on ``threads`` threads): each row as
     :func:`run_point` makes it, ``task_wall_s`` and ``cpu_time_s`` the point's own share (its
     set-up, and its steps, records and summary on its thread; the base force, which a row does
     not hold, is not recorded). ``on_row(row)`` is called as each point finishes. Never raises
-    for a failed point."""
+    for a failed point. ``lanes=False`` steps the points one at a time (the same rows)."""
     from solver import simulate_batch
     rows = [None] * len(items)
 
@@ -223,7 +223,7 @@ def run_points(scene, items, threads=1, on_row=None):
             on_row(row)
 
     simulate_batch([(scene, list(o.items())) for _, o in items], threads=threads, on_point=done,
-                   base=False)             # a row holds no base-force figure
+                   base=False, lanes=lanes)     # a row holds no base-force figure
     return rows
 
 
@@ -285,7 +285,7 @@ def batches(todo, workers, costs, topologies, size=None, seconds=BATCH_SECONDS):
 
 
 def execute(sweep, cluster=None, progress=None, task=None, on_row=None, chunk=None,
-            threads=None, more=None):
+            threads=None, more=None, lanes=True):
     """Run the points of ``sweep`` not yet in its ``out_dir``, in batches (:func:`batches`;
     ``chunk`` fixes the number of points per batch): in this process when ``cluster`` is None
     (each batch on ``threads`` threads, default every core), else one Dask task per batch (one
@@ -294,7 +294,8 @@ def execute(sweep, cluster=None, progress=None, task=None, on_row=None, chunk=No
     ``rows.jsonl`` at once; the table is rewritten every few seconds and at the end (also after
     Ctrl-C or an error). With ``convergence``, once the points and their refined twins have run,
     the sensitivity twins of the points that failed the check run (``more(n)`` is told how many
-    first). Returns ``(rows of every point in order, number run now)``."""
+    first). ``lanes=False``: the points of an in-process batch step one at a time, not as lanes
+    (the same rows). Returns ``(rows of every point in order, number run now)``."""
     out = Path(sweep.out_dir)
     out.mkdir(parents=True, exist_ok=True)
     done = read_rows(out)
@@ -324,21 +325,21 @@ def execute(sweep, cluster=None, progress=None, task=None, on_row=None, chunk=No
     try:
         with (out / ROWS).open('a') as fh:
             _run_all(sweep, missing(runs), cluster, task, chunk, threads,
-                     lambda row: finish(row, fh))
+                     lambda row: finish(row, fh), lanes)
             if sweep.convergence is not None:      # the sensitivity twins of failed points
                 runs = sweep.runs(done)
                 todo = missing(runs)
                 if todo and more is not None:
                     more(len(todo))
                 _run_all(sweep, todo, cluster, task, chunk, threads,
-                         lambda row: finish(row, fh))
+                         lambda row: finish(row, fh), lanes)
     finally:
         rows = sweep.table(done, runs)
         write_table(out, rows, columns)
     return rows, n_run
 
 
-def _run_all(sweep, todo, cluster, task, chunk, threads, finish):
+def _run_all(sweep, todo, cluster, task, chunk, threads, finish, lanes=True):
     """Run ``todo`` (``(point_id, overrides)`` pairs) as :func:`execute` describes, calling
     ``finish(row)`` for each row as it completes."""
     if not todo:
@@ -359,7 +360,7 @@ def _run_all(sweep, todo, cluster, task, chunk, threads, finish):
             from solver import default_threads
             n = threads or default_threads()
             for b in cut(None, seconds=BATCH_SECONDS * n):
-                run_points(sweep.scene, b, threads=n, on_row=finish)
+                run_points(sweep.scene, b, threads=n, on_row=finish, lanes=lanes)
         return
     from distributed import as_completed
     # the scene (about 1 kB pickled) travels inside each task: scattered data lives only on the

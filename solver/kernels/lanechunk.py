@@ -1,0 +1,115 @@
+"""Many output intervals of a lane group in one call (:func:`solver.integrators.rk4lanes.
+chunk_run`): each lane steps its intervals one after another on its own clock, so the lanes wait
+for each other once per call, not at every interval's end.
+
+A lane's steps within an interval depend on its own state: a lane meeting a contact takes ten
+times the steps of one that does not, and the lane that does changes from interval to interval.
+Stepped one interval per call, the lanes wait for the slowest at every interval; over many
+intervals their step counts even out. At each interval's end a lane does what the end of a call
+and the start of the next one do for a single run (the effects' finish and start, the halvings
+kept, the clock from 0, the state summary of the checked call), and its data are kept as they
+stand, for the caller to check and record interval by interval as the single run's calls would.
+"""
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+from solver.compiled import jit_inline, jit_lanes
+from solver.kernels import effects, summary
+from solver.kernels.lanedata import LaneState, lane_out, lane_record
+from solver.kernels.records import ContactState, Data, copy_data
+
+
+class Chunk(NamedTuple):
+    """K intervals of B lanes: ``x`` ... ``refine`` the data of every lane at the start of each
+    interval and at the end of the last (K + 1, B, ...: entry j is interval j's start, entry
+    j + 1 its end); ``out`` (K, B, 4: finite, energy J, constraint error, smallest prism height
+    m) and ``heights`` (K, B, n_columns, n_prisms) the state summary at each interval's end;
+    ``steps`` (K, B) the steps of each interval; ``todo`` (B,) the intervals each lane has still
+    to finish (0: none, as for every lane of an :func:`empty` chunk) and ``done`` (B,) those it
+    finished."""
+    x: np.ndarray
+    v: np.ndarray
+    rest: np.ndarray
+    EA: np.ndarray
+    f_ext: np.ndarray
+    ledger: np.ndarray
+    scan: np.ndarray
+    active: np.ndarray
+    refine: np.ndarray
+    out: np.ndarray
+    heights: np.ndarray
+    steps: np.ndarray
+    todo: np.ndarray
+    done: np.ndarray
+
+
+def chunk(S, n_intervals, heights_shape):
+    """A zeroed :class:`Chunk` of ``n_intervals`` intervals for the lanes of ``S`` (a
+    :class:`~solver.kernels.lanedata.LaneState`)."""
+    b = S.x.shape[0]
+    data = [np.zeros((n_intervals + 1,) + a.shape, a.dtype) for a in S[:9]]
+    return Chunk(*data, np.zeros((n_intervals, b, 4)),
+                 np.zeros((n_intervals, b) + tuple(heights_shape)),
+                 np.zeros((n_intervals, b), np.int64), np.zeros(b, np.int64),
+                 np.zeros(b, np.int64))
+
+
+def empty():
+    """A :class:`Chunk` of no intervals (the calls of one interval)."""
+    z = np.zeros
+    return Chunk(z((0, 0, 0, 3)), z((0, 0, 0, 3)), z((0, 0, 0)), z((0, 0, 0)),
+                 z((0, 0, 0, 3)), z((0, 0, 0)), z((0, 0, 0)), z((0, 0, 0), np.int64),
+                 z((0, 0, 0)), z((0, 0, 4)), z((0, 0, 0, 0)), z((0, 0), np.int64),
+                 z(0, np.int64), z(0, np.int64))
+
+
+@jit_inline
+def record(ch, j, k):
+    """Lane ``k``'s :class:`~solver.kernels.records.Data` at the start of interval ``j`` (views
+    into ``ch``)."""
+    return Data(ch.x[j, k], ch.v[j, k], ch.rest[j, k], ch.EA[j, k], ch.f_ext[j, k],
+                ch.ledger[j, k], ContactState(ch.scan[j, k], ch.active[j, k]), ch.refine[j, k])
+
+
+@jit_inline
+def kept(ch, j, saved):
+    """The data at the start of interval ``j`` as a
+    :class:`~solver.kernels.lanedata.LaneState` (views; ``saved`` the lanes' own)."""
+    return LaneState(ch.x[j], ch.v[j], ch.rest[j], ch.EA[j], ch.f_ext[j], ch.ledger[j],
+                     ch.scan[j], ch.active[j], ch.refine[j], saved)
+
+
+@jit_lanes
+def at_end(m, S, L, C, ch, k, steps):
+    """Lane ``k`` reached the end of its interval ``ch.done[k]``: the end of a call
+    (:func:`~solver.integrators.rk4lanes.end` and the checked call's state summary, with the
+    lane's state from the lane-inner ``L``), its data kept, and, if it has intervals left, the
+    start of the next (:func:`~solver.integrators.rk4lanes.begin` for this lane)."""
+    j = ch.done[k]
+    d = lane_record(S, k)
+    lane_out(L.x, k, d.x)
+    lane_out(L.v, k, d.v)
+    effects.finish(d.x, m, d)
+    effects.keep_levels(m, d, C.level[k], C.clevel[k])
+    finite, e, cerr, h_min = summary.state_summary(d.x, d.v, m, d, ch.heights[j, k])
+    ch.out[j, k, 0] = 1.0 if finite else 0.0
+    ch.out[j, k, 1] = e
+    ch.out[j, k, 2] = cerr
+    ch.out[j, k, 3] = h_min
+    ch.steps[j, k] = steps[k]
+    copy_data(d, record(ch, j + 1, k))
+    ch.done[k] = j + 1
+    ch.todo[k] -= 1
+    if ch.todo[k] > 0:
+        C.t[k] = 0.0
+        C.e0[k] = math.nan
+        C.mode[k] = 0
+        steps[k] = 0
+        effects.start(d.x, m, d)
+        level, clevel = effects.halvings(m, d)
+        C.level[k] = level
+        C.clevel[k] = clevel
