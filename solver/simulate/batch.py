@@ -163,13 +163,18 @@ class BatchSimulation:
             is_group, item = task
             if not is_group:
                 return self._intervals(index[id(item)], counts, duration, visit, spent)
-            t0, c0 = time.perf_counter(), time.thread_time()
             n = max(int(round(duration / item.sims[0].dt)), 0)
-            ch = item.chunk(n, [counts[index[id(s)]] for s in item.sims])
-            share = ((time.perf_counter() - t0) / len(item.sims),
-                     (time.thread_time() - c0) / len(item.sims))
-            self._conclude_chunk(item, n, ch, [index[id(s)] for s in item.sims], counts,
-                                 visit, spent, share)
+            which = [index[id(s)] for s in item.sims]
+            left = {i: counts[i] for i in which}
+            while any(left.values()):       # calls of at most CHUNK intervals
+                part = {i: min(c, CHUNK) if self.status[i] == RUNNING else 0
+                        for i, c in left.items()}
+                t0, c0 = time.perf_counter(), time.thread_time()
+                ch = item.chunk(n, [part[i] for i in which])
+                share = ((time.perf_counter() - t0) / len(which),
+                         (time.thread_time() - c0) / len(which))
+                self._conclude_chunk(item, n, ch, which, part, visit, spent, share)
+                left = {i: c - part[i] for i, c in left.items()}
         tasks = [(True, g) for g in plan.groups] + [(False, s) for s in plan.singles]
         for ok, value in parallel_each(work, tasks, self.threads if len(tasks) > 1 else 1):
             if not ok:
@@ -180,7 +185,8 @@ class BatchSimulation:
         interval (its instances ``which``, ``share`` each one's share of the call's time), on
         the thread that made the call: its Python runs while the other threads step."""
         for i in which:
-            spent[i] = share
+            if counts[i]:
+                spent[i] = share
         for q in range(max(counts[i] for i in which)):
             for k, i in enumerate(which):
                 if q >= counts[i] or self.status[i] != RUNNING:
@@ -411,9 +417,8 @@ def _point(k, item, record, on_frame):
 
 
 def _together(items, threads, record, on_frame, deliver, lanes=True):
-    """:func:`simulate_batch` with ``together=True``: every point set up, then one output
-    interval of every running point at a time; with ``lanes``, the steps of the intervals
-    without an impact are one :meth:`BatchSimulation.advance` (lanes where the points allow)."""
+    """:func:`simulate_batch` with ``together=True``: every point set up, then the running
+    points advanced together, each by its own intervals (see ``advance``)."""
     runs, sims, index, build = [], [], [], {}
     for k, item in enumerate(items):
         run, bp, wall, cpu = _set_up(k, item, record, on_frame)
@@ -426,43 +431,44 @@ def _together(items, threads, record, on_frame, deliver, lanes=True):
             sims.append(run.sim)
             index.append(k)
 
-    def step(j, i):
-        run = runs[j]
+    nxt = [-1] * len(runs)          # each run's next interval (-1: its start)
+
+    def step(j):
+        """The next interval of run ``j`` by itself (its start first)."""
+        run, i = runs[j], nxt[j]
         if i < 0:
             run.start()
         else:
             run.interval(i)
+        nxt[j] = i + 1
         if run.n_out == i + 1:
             _summarise(run)
 
-    def intervals(i, live):
-        """From interval ``i``, as many intervals of the points ``live`` as the points whose
-        next intervals hold no impact have in common (at most :data:`CHUNK`), those points
-        as one :meth:`BatchSimulation.advance_intervals` (lanes where they allow). Returns how
-        many."""
-        plain = {j: min(runs[j].plain_intervals(), runs[j].n_out - i, CHUNK) for j in live}
-        plain = {j: c for j, c in plain.items() if c > 0} if lanes else {}
-        n = min(plain.values()) if len(plain) > 1 else 1
-        if len(plain) < 2:
-            plain = {}
-        by_duration, spent = {}, {}
-        for j in plain:
-            by_duration.setdefault(runs[j].per_frame * sims[j].dt, {})[j] = n
+    def visit(j, q):
+        """Run ``j``'s next interval was stepped by the batch: its frame (and summary)."""
+        if j in spent:
+            runs[j].stepped(spent.pop(j))
+        runs[j].take_frame()
+        nxt[j] += 1
+        if runs[j].n_out == nxt[j]:
+            _summarise(runs[j])
 
-        def visit(j, q):
-            if j in spent:
-                runs[j].stepped(spent.pop(j))
-            runs[j].take_frame()
-            if runs[j].n_out == i + q + 1:
-                _summarise(runs[j])
-
-        def others(j, sim):
-            for q in range(min(n, runs[j].n_out - i)):
-                step(j, i + q)
-        batch.each(others, [j for j in live if j not in plain])
-        for duration, counts in by_duration.items():
-            batch.advance_intervals(counts, duration, visit, spent)
-        return n
+    def advance(live):
+        """Every run of ``live`` through the intervals before its next impact (or its end) in
+        one :meth:`BatchSimulation.advance_intervals` per interval length (lanes where they
+        allow); a run with an impact in its next interval, or every run without ``lanes``,
+        takes that one interval by itself."""
+        counts = {j: min(runs[j].plain_intervals(), runs[j].n_out - nxt[j])
+                  for j in live if nxt[j] >= 0} if lanes else {}
+        counts = {j: c for j, c in counts.items() if c > 0}
+        if len(counts) < 2:
+            counts = {}
+        batch.each(lambda j, sim: step(j), [j for j in live if j not in counts])
+        by_duration = {}
+        for j, c in counts.items():
+            by_duration.setdefault(runs[j].per_frame * sims[j].dt, {})[j] = c
+        for duration, part in by_duration.items():
+            batch.advance_intervals(part, duration, visit, spent)
 
     def finish(j):
         k, run = index[j], runs[j]
@@ -475,17 +481,12 @@ def _together(items, threads, record, on_frame, deliver, lanes=True):
         bp.cpu_time_s = build[k][1] + run.cpu
         deliver(k, bp)
 
+    spent = {}
     with BatchSimulation(sims, threads, lanes) as batch:
-        n_out = max((r.n_out for r in runs), default=0)
-        i = -1
-        while i < n_out:
-            live = [j for j in batch.running if runs[j].n_out > i]
-            if i < 0:
-                batch.each(lambda j, sim: step(j, -1), live)
-                taken = 1
-            else:
-                taken = intervals(i, live)
+        live = list(range(len(runs)))
+        while live:
+            advance(live)
             for j in live:
-                if batch.status[j] != RUNNING or runs[j].n_out <= i + taken:
+                if batch.status[j] != RUNNING or nxt[j] >= runs[j].n_out:
                     finish(j)
-            i += taken
+            live = [j for j in live if batch.status[j] == RUNNING and nxt[j] < runs[j].n_out]

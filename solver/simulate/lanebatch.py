@@ -207,7 +207,7 @@ class LaneGroup:
         :class:`~solver.kernels.lanechunk.Chunk`, for :meth:`conclude` interval by interval."""
         self._check_bound()
         s0, top = self.sims[0], self.blocks[0]
-        top.status[:] = OK
+        top.status[:] = np.where(np.asarray(todo) > 0, OK, NOT_A_LANE)     # 0: left as is
         k_max = max(todo)
         ch = self._chunks.get(k_max)
         if ch is None:
