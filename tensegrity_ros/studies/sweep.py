@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import json
 import os
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -358,9 +359,23 @@ def _run_all(sweep, todo, cluster, task, chunk, threads, finish, lanes=True):
                 finish(task(sweep.scene, o, pid))
         else:
             from solver import default_threads
+            from solver.simulate.parallel import each
             n = threads or default_threads()
-            for b in cut(None, seconds=BATCH_SECONDS * n):
-                run_points(sweep.scene, b, threads=n, on_row=finish, lanes=lanes)
+            if not lanes:
+                for b in cut(None, seconds=BATCH_SECONDS * n):
+                    run_points(sweep.scene, b, threads=n, on_row=finish, lanes=False)
+                return
+            # a batch per thread, each taking the next when done: one thread's set-up and
+            # summaries (Python) overlap the other's steps, and no thread waits for another
+            lock = threading.Lock()
+
+            def locked(row):
+                with lock:
+                    finish(row)
+            for ok, value in each(lambda b: run_points(sweep.scene, b, threads=1, on_row=locked),
+                                  cut(None), n):
+                if not ok:
+                    raise value
         return
     from distributed import as_completed
     # the scene (about 1 kB pickled) travels inside each task: scattered data lives only on the
