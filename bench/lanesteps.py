@@ -22,7 +22,7 @@ import numpy as np
 
 from solver import Scene
 from solver.compiled import jit, jit_lanes
-from solver.integrators.rk4lanes import LaneState, lane_record
+from solver.kernels.lanedata import LaneState, lane_record
 from solver.kernels import dynamics as dyn
 from solver.kernels import lanesteps, records
 from solver.kernels.effects import ledger_energy

@@ -211,9 +211,11 @@ ROWS = [
         J('array.json', 'rows', 1, 'ratio_per_column', spec='.3f'),
         J('array.json', 'rows', 2, 'ratio_per_column', spec='.2f'),
         J('array.json', 'rows', 3, 'ratio_per_column', spec='.1f')]),
-    ('lanes, 64 FB columns', '{}x, {}x; {}, {} (peak {})', [
+    ('lanes, 64 FB columns', '{}x, {}x; {} s ({} s); {}, {} (peak {})', [
         J('lanes.json', 'runs', 4, 'ratio', spec='.2f'),
         J('lanes.json', 'runs', 5, 'ratio', spec='.2f'),
+        J('lanes.json', 'sweep_1024', 'lanes_s', spec='.1f'),
+        J('lanes.json', 'sweep_1024', 'one_at_a_time_s', spec='.1f'),
         J('flops.json', 'rows', 0, 'gflops', spec='.1f'),
         J('flops.json', 'rows', 2, 'gflops', spec='.1f'),
         J('flops.json', 'peak', 'peak_gflops_256bit', spec='.0f')]),

@@ -346,12 +346,15 @@ def _run_all(sweep, todo, cluster, task, chunk, threads, finish, lanes=True):
     if not todo:
         return
 
-    def cut(workers, seconds=BATCH_SECONDS):
+    def cut(workers, seconds=BATCH_SECONDS, threads=None):
         if task is not None:
             return chunks(todo, workers, chunk)
         scenes = [sweep.scene.with_overrides(list(o.items())) for _, o in todo]
-        return batches(todo, workers, [point_cost(sc) for sc in scenes],
-                       [topology_of(o) for _, o in todo], size=chunk, seconds=seconds)
+        costs = [point_cost(sc) for sc in scenes]
+        if threads:             # a batch per thread: a small sweep in as many equal batches
+            seconds = min(seconds, sum(costs) / threads)
+        return batches(todo, workers, costs, [topology_of(o) for _, o in todo], size=chunk,
+                       seconds=seconds)
 
     if cluster is None:
         if task is not None:
@@ -373,7 +376,7 @@ def _run_all(sweep, todo, cluster, task, chunk, threads, finish, lanes=True):
                 with lock:
                     finish(row)
             for ok, value in each(lambda b: run_points(sweep.scene, b, threads=1, on_row=locked),
-                                  cut(None), n):
+                                  cut(None, threads=n), n):
                 if not ok:
                     raise value
         return
