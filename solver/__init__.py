@@ -9,7 +9,9 @@ solver does not import all of it.
 - runs: :func:`simulate_scene` (:func:`solver.simulate.runner.simulate`),
   :func:`frame_count`, :func:`run_frame`, :class:`ImpactTrain`, :data:`T_REF`; their typed
   results :class:`RunSummary` and :func:`json_safe`;
-- many runs: :func:`simulate_batch`, :func:`default_threads`; the convergence check
+- many runs: :func:`simulate_batch`, :func:`default_threads`, :func:`on_threads`
+  (:func:`solver.simulate.parallel.each`: a function of each item on a pool of threads); the
+  convergence check
   (:mod:`solver.simulate.convergence`, as ``convergence``, and its names);
 - studies and analysis modules: ``lens``, ``paper``, ``field``, ``observables``,
   ``lens_record``, ``front``; status codes: ``status``;
@@ -30,6 +32,7 @@ _NAMES = {
     'ImpactTrain': 'solver.simulate.runner', 'T_REF': 'solver.simulate.runner',
     'json_safe': 'solver.simulate.results', 'RunSummary': 'solver.simulate.results',
     'simulate_batch': 'solver.simulate.batch', 'default_threads': 'solver.simulate.batch',
+    'on_threads': 'solver.simulate.parallel:each',
     'compile_all': 'solver.simulate.precompile', 'source_hash': 'solver.compiled',
     # the convergence check
     **{name: 'solver.simulate.convergence' for name in (

@@ -20,26 +20,19 @@ import numpy as np
 from solver.compiled import jit_inline, jit_lanes
 from solver.kernels import effects, summary
 from solver.kernels.lanedata import LaneState, lane_out, lane_record
-from solver.kernels.records import ContactState, Data, copy_data
+from solver.kernels.records import copy_data
 
 
 class Chunk(NamedTuple):
-    """K intervals of B lanes: ``x`` ... ``refine`` the data of every lane at the start of each
-    interval and at the end of the last (K + 1, B, ...: entry j is interval j's start, entry
-    j + 1 its end); ``out`` (K, B, 4: finite, energy J, constraint error, smallest prism height
-    m) and ``heights`` (K, B, n_columns, n_prisms) the state summary at each interval's end;
-    ``steps`` (K, B) the steps of each interval; ``todo`` (B,) the intervals each lane has still
-    to finish (0: none, as for every lane of an :func:`empty` chunk) and ``done`` (B,) those it
+    """K intervals of B lanes: ``data`` (a :class:`~solver.kernels.lanedata.LaneState` whose
+    arrays lead with K + 1 entries) every lane's data at the start of each interval and at the
+    end of the last (entry j is interval j's start, entry j + 1 its end; ``saved`` is empty);
+    ``out`` (K, B, 4: finite, energy J, constraint error, smallest prism height m) and
+    ``heights`` (K, B, n_columns, n_prisms) the state summary at each interval's end; ``steps``
+    (K, B) the steps of each interval; ``todo`` (B,) the intervals each lane has still to
+    finish (0: none, as for every lane of an :func:`empty` chunk) and ``done`` (B,) those it
     finished."""
-    x: np.ndarray
-    v: np.ndarray
-    rest: np.ndarray
-    EA: np.ndarray
-    f_ext: np.ndarray
-    ledger: np.ndarray
-    scan: np.ndarray
-    active: np.ndarray
-    refine: np.ndarray
+    data: LaneState
     out: np.ndarray
     heights: np.ndarray
     steps: np.ndarray
@@ -51,36 +44,41 @@ def chunk(S, n_intervals, heights_shape):
     """A zeroed :class:`Chunk` of ``n_intervals`` intervals for the lanes of ``S`` (a
     :class:`~solver.kernels.lanedata.LaneState`)."""
     b = S.x.shape[0]
-    data = [np.zeros((n_intervals + 1,) + a.shape, a.dtype) for a in S[:9]]
-    return Chunk(*data, np.zeros((n_intervals, b, 4)),
+    return Chunk(_entries(S, n_intervals + 1), np.zeros((n_intervals, b, 4)),
                  np.zeros((n_intervals, b) + tuple(heights_shape)),
                  np.zeros((n_intervals, b), np.int64), np.zeros(b, np.int64),
                  np.zeros(b, np.int64))
 
 
+def _entries(S, n):
+    """A :class:`~solver.kernels.lanedata.LaneState` of ``n`` entries of the data of ``S``
+    (an empty ``saved``)."""
+    return LaneState(*(np.zeros((n,) + a.shape, a.dtype) for a in S[:-1]),
+                     np.zeros((n, 0) + S.saved.shape[1:]))
+
+
 def empty():
     """A :class:`Chunk` of no intervals (the calls of one interval)."""
-    z = np.zeros
-    return Chunk(z((0, 0, 0, 3)), z((0, 0, 0, 3)), z((0, 0, 0)), z((0, 0, 0)),
-                 z((0, 0, 0, 3)), z((0, 0, 0)), z((0, 0, 0)), z((0, 0, 0), np.int64),
-                 z((0, 0, 0)), z((0, 0, 4)), z((0, 0, 0, 0)), z((0, 0), np.int64),
-                 z(0, np.int64), z(0, np.int64))
+    like = LaneState(*(np.zeros((0,) * k) for k in (3, 3, 2, 2, 3, 2, 2)),
+                     np.zeros((0, 0), np.int64), np.zeros((0, 0)), np.zeros((0, 0, 0, 0)))
+    return Chunk(_entries(like, 0), np.zeros((0, 0, 4)), np.zeros((0, 0, 0, 0)),
+                 np.zeros((0, 0), np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64))
 
 
 @jit_inline
 def record(ch, j, k):
     """Lane ``k``'s :class:`~solver.kernels.records.Data` at the start of interval ``j`` (views
     into ``ch``)."""
-    return Data(ch.x[j, k], ch.v[j, k], ch.rest[j, k], ch.EA[j, k], ch.f_ext[j, k],
-                ch.ledger[j, k], ContactState(ch.scan[j, k], ch.active[j, k]), ch.refine[j, k])
+    return lane_record(kept(ch, j, ch.data.saved[j]), k)
 
 
 @jit_inline
 def kept(ch, j, saved):
     """The data at the start of interval ``j`` as a
     :class:`~solver.kernels.lanedata.LaneState` (views; ``saved`` the lanes' own)."""
-    return LaneState(ch.x[j], ch.v[j], ch.rest[j], ch.EA[j], ch.f_ext[j], ch.ledger[j],
-                     ch.scan[j], ch.active[j], ch.refine[j], saved)
+    e = ch.data
+    return LaneState(e.x[j], e.v[j], e.rest[j], e.EA[j], e.f_ext[j], e.ledger[j], e.scan[j],
+                     e.active[j], e.refine[j], saved)
 
 
 @jit_lanes

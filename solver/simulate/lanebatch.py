@@ -320,8 +320,9 @@ NO_CHUNK = lanechunk.empty()
 
 def _chunk_data(ch, j, k):
     """Lane ``k``'s data at entry ``j`` of the chunk ``ch`` (views)."""
-    return records.Data(*(a[j, k] for a in ch[:6]),
-                        records.ContactState(ch.scan[j, k], ch.active[j, k]), ch.refine[j, k])
+    e = ch.data
+    return records.Data(*(a[j, k] for a in e[:6]),
+                        records.ContactState(e.scan[j, k], e.active[j, k]), e.refine[j, k])
 
 
 def _copy_data(src, dst):

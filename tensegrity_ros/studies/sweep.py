@@ -361,8 +361,7 @@ def _run_all(sweep, todo, cluster, task, chunk, threads, finish, lanes=True):
             for pid, o in todo:
                 finish(task(sweep.scene, o, pid))
         else:
-            from solver import default_threads
-            from solver.simulate.parallel import each
+            from solver import default_threads, on_threads
             n = threads or default_threads()
             if not lanes:
                 for b in cut(None, seconds=BATCH_SECONDS * n):
@@ -375,8 +374,9 @@ def _run_all(sweep, todo, cluster, task, chunk, threads, finish, lanes=True):
             def locked(row):
                 with lock:
                     finish(row)
-            for ok, value in each(lambda b: run_points(sweep.scene, b, threads=1, on_row=locked),
-                                  cut(None, threads=n), n):
+            for ok, value in on_threads(
+                    lambda b: run_points(sweep.scene, b, threads=1, on_row=locked),
+                    cut(None, threads=n), n):
                 if not ok:
                     raise value
         return
