@@ -20,9 +20,12 @@ orbits, the reduced bar-contact pairs).
 overrides) points: per point the same :func:`~solver.simulate.runner.summary`, or the status and
 reason of a point that diverged or failed. Without ``frames`` it records only what the summary
 reads (lean recording: no positions, no cable tensions); the figures are the same. A batch of one
-point is the single run. Its threads take the points one after another, each run to its end, so
-that one thread's set-up and summary (Python) overlap another's steps (compiled);
-``together=True`` steps them together, interval by interval, as :class:`BatchSimulation` does.
+point is the single run. By default its points of one model step together as lanes
+(:mod:`solver.simulate.lanebatch`), each through the intervals before its next impact or its end
+in calls of up to :data:`CHUNK` intervals (:meth:`BatchSimulation.advance_intervals`); with
+``lanes=False`` its threads take the points one after another, each run to its end, so that one
+thread's set-up and summary (Python) overlap another's steps (compiled). Every figure is the same
+either way, bit for bit.
 """
 from __future__ import annotations
 
@@ -332,11 +335,12 @@ def simulate_batch(items, threads=None, frames=False, on_frame=None, on_point=No
     call at a time; an exception from it stops the batch after the points running and is
     raised).
 
-    By default each thread takes the next point not yet taken and runs it to its end (set-up,
-    steps, summary): the set-up and summaries one thread computes in Python overlap the steps of
-    the others, and points finish one by one. ``together=True`` sets every point up first and
-    then steps them together, one output interval at a time (a :class:`BatchSimulation`). The
-    figures are the same either way.
+    By default (``lanes``, more than one point) every point is set up first, then the points
+    advance together (a :class:`BatchSimulation`): those of one model as lanes, many intervals
+    per call, the others one interval at a time. With ``lanes=False`` each thread takes the next
+    point not yet taken and runs it to its end (set-up, steps, summary), and points finish one by
+    one; ``together=True`` then sets every point up first and steps them one interval at a time.
+    The figures are the same every way.
 
     ``base=False`` (lean records only) leaves out the base force, the costliest figure of a frame
     (a force evaluation of the full network): the summary's ``base`` is then ``[]``, every other
