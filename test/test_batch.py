@@ -123,3 +123,15 @@ def test_an_array_scene_runs_in_a_batch_as_it_runs_alone():
     assert got.status == 'ok', got.reason
     assert _same({k: v for k, v in single.items() if k != 'base'},
                  {k: v for k, v in got.summary.to_json().items() if k != 'base'}) == []
+
+
+def test_a_point_that_diverges_at_its_first_step_gives_one_reason_alone_and_in_a_batch():
+    """Its load makes the first step fail (gravity 1e4 m/s^2): the single run reports its own
+    first step, impact applied, as the batch does, not a step taken before the run."""
+    point = SHORT + ['loading.gravity=1e4']
+    with pytest.raises(SimulationDiverged) as info:
+        simulate(FB, point)
+    got = simulate_batch([(FB, point), (FB, SHORT)], threads=1)
+    assert [g.status for g in got] == ['diverged', 'ok']
+    assert got[0].reason == str(info.value).splitlines()[0]
+    assert 'step 1' in got[0].reason and 'energy balance' in got[0].reason
