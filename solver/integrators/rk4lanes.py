@@ -10,7 +10,6 @@ instance, in the same order, so each lane equals its single run bit for bit.
 """
 from __future__ import annotations
 
-import math
 from typing import NamedTuple
 
 import numpy as np
@@ -225,16 +224,7 @@ def begin(m, S, L, C, status, steps):
     :func:`solver.integrators.rk4._rk4_run` begins)."""
     lanedata.enter(S, L)
     for k in range(status.shape[0]):
-        C.t[k] = 0.0
-        C.e0[k] = math.nan
-        C.mode[k] = 0
-        steps[k] = 0
-        if status[k] == OK:
-            d = lanedata.lane_record(S, k)
-            effects.start(d.x, m, d)
-            level, clevel = effects.halvings(m, d)
-            C.level[k] = level
-            C.clevel[k] = clevel
+        lanechunk.start_lane(m, S, C, k, steps, status[k] == OK)
 
 
 @jit_lanes
@@ -243,9 +233,7 @@ def end(m, S, C, status):
     ended ``OK``."""
     for k in range(status.shape[0]):
         if status[k] == OK:
-            d = lanedata.lane_record(S, k)
-            effects.finish(d.x, m, d)
-            effects.keep_levels(m, d, C.level[k], C.clevel[k])
+            lanechunk.end_lane(m, S, C, k)
 
 
 @jit_lanes
@@ -349,9 +337,7 @@ def rounds(m, S, L, W, X, C, w0, dt, total, tol, max_iter, kinks, project, statu
             h_c, trial, known = effects.plan(xk, vk, ak, m, d, h, C.met[k], 0.5 ** C.clevel[k])
             if h_c >= h:
                 C.h[k] = h
-            elif trial:
-                lanedata.lane_out(W.a1, k, X.a1[k])
-                lanedata.sync_out(L, S, k)
+            elif trial:             # after a scan: X.a1[k] and S hold the step's start
                 w = lanedata.lane_work_record(w0, S, k)
                 tb, tp, td, tf = effects.begin_trial(d.x, d.v, d, w)
                 C.tb[k] = tb
@@ -471,12 +457,7 @@ def end_checked(m, S, L, W, C, status, out, heights, fresh):
     n_lanes = status.shape[0]
     if m.summary.node_mass.shape[0] == 0:       # no summary arrays: the scalar kernel
         for k in range(n_lanes):
-            d = lanedata.lane_record(S, k)
-            finite, e, cerr, h_min = summary.state_summary(d.x, d.v, m, d, heights[k])
-            out[k, 0] = 1.0 if finite else 0.0
-            out[k, 1] = e
-            out[k, 2] = cerr
-            out[k, 3] = h_min
+            lanechunk.put_summary(m, lanedata.lane_record(S, k), out[k], heights[k])
         return
     if not fresh:
         lanedata.to_lanes(S.x, L.x)

@@ -81,33 +81,58 @@ def kept(ch, j, saved):
                      e.active[j], e.refine[j], saved)
 
 
+@jit_inline
+def start_lane(m, S, C, k, steps, running):
+    """Lane ``k`` at the start of a call: its clock at 0 and, if ``running``, the effects' start
+    and its halving levels (:func:`~solver.integrators.rk4lanes.begin`)."""
+    C.t[k] = 0.0
+    C.e0[k] = math.nan
+    C.mode[k] = 0
+    steps[k] = 0
+    if running:
+        d = lane_record(S, k)
+        effects.start(d.x, m, d)
+        level, clevel = effects.halvings(m, d)
+        C.level[k] = level
+        C.clevel[k] = clevel
+
+
+@jit_inline
+def end_lane(m, S, C, k):
+    """Lane ``k`` at the end of a call that it ended running: the effects' finish and its
+    halving levels kept (:func:`~solver.integrators.rk4lanes.end`)."""
+    d = lane_record(S, k)
+    effects.finish(d.x, m, d)
+    effects.keep_levels(m, d, C.level[k], C.clevel[k])
+
+
+@jit_inline
+def put_summary(m, d, row, heights):
+    """The checked call's state summary of the data ``d``
+    (:func:`solver.kernels.summary.state_summary`) into ``row`` (4: finite, energy J,
+    constraint error, smallest prism height m) and ``heights``."""
+    finite, e, cerr, h_min = summary.state_summary(d.x, d.v, m, d, heights)
+    row[0] = 1.0 if finite else 0.0
+    row[1] = e
+    row[2] = cerr
+    row[3] = h_min
+
+
 @jit_lanes
 def at_end(m, S, L, C, ch, k, steps):
     """Lane ``k`` reached the end of its interval ``ch.done[k]``: the end of a call
-    (:func:`~solver.integrators.rk4lanes.end` and the checked call's state summary, with the
-    lane's state from the lane-inner ``L``), its data kept, and, if it has intervals left, the
-    start of the next (:func:`~solver.integrators.rk4lanes.begin` for this lane)."""
+    (:func:`end_lane` and the checked call's state summary, with the lane's state from the
+    lane-inner ``L``), its data kept, and, if it has intervals left, the start of the next
+    (:func:`start_lane`)."""
     j = ch.done[k]
     d = lane_record(S, k)
     lane_out(L.x, k, d.x)
     lane_out(L.v, k, d.v)
-    effects.finish(d.x, m, d)
-    effects.keep_levels(m, d, C.level[k], C.clevel[k])
-    finite, e, cerr, h_min = summary.state_summary(d.x, d.v, m, d, ch.heights[j, k])
-    ch.out[j, k, 0] = 1.0 if finite else 0.0
-    ch.out[j, k, 1] = e
-    ch.out[j, k, 2] = cerr
-    ch.out[j, k, 3] = h_min
+    end_lane(m, S, C, k)
+    put_summary(m, d, ch.out[j, k], ch.heights[j, k])
     ch.steps[j, k] = steps[k]
     copy_data(d, record(ch, j + 1, k))
     ch.done[k] = j + 1
     ch.todo[k] -= 1
     if ch.todo[k] > 0:
-        C.t[k] = 0.0
-        C.e0[k] = math.nan
-        C.mode[k] = 0
-        steps[k] = 0
-        effects.start(d.x, m, d)
-        level, clevel = effects.halvings(m, d)
-        C.level[k] = level
-        C.clevel[k] = clevel
+        start_lane(m, S, C, k, steps, True)

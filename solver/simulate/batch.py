@@ -117,32 +117,22 @@ class BatchSimulation:
                 self.stop(i, value)
         return out
 
-    def advance(self, duration, indices=None, spent=None):
-        """Advance every running instance (or those of ``indices`` still running) by
-        ``duration`` s (:meth:`~solver.simulate.simulation.Simulation.advance`); an instance
-        that diverges is restored to its last good state and stops. Returns ``{i: steps}`` of
-        the others.
+    def advance(self, duration):
+        """Advance every running instance by ``duration`` s
+        (:meth:`~solver.simulate.simulation.Simulation.advance`); an instance that diverges is
+        restored to its last good state and stops. Returns ``{i: steps}`` of the others.
 
         With :attr:`lanes` (the default) the instances that can step as lanes of one model
         (:mod:`solver.simulate.lanebatch`: the same topology, constants, ``dt`` and integrator)
         step together in one compiled call per group, a group per thread; each lane takes the
-        steps of its single run, so the results are the same bit for bit. ``spent``: a dict
-        that gets ``{i: (wall s, thread CPU s)}``, each instance's share of the time."""
-        todo = [i for i in (self.running if indices is None else indices)
-                if self.status[i] == RUNNING]
+        steps of its single run, so the results are the same bit for bit."""
+        todo = self.running
         if self.lanes and len(todo) > 1:
             sims = [self.sims[i] for i in todo]
             plan = self._lane_plan(todo, sims)
             if plan.groups:
-                return self._advance_lanes(duration, todo, sims, plan, spent)
-
-        def one(i, sim):
-            t0, c0 = time.perf_counter(), time.thread_time()
-            steps = sim.advance(duration)
-            if spent is not None:
-                spent[i] = (time.perf_counter() - t0, time.thread_time() - c0)
-            return steps
-        return self.each(one, todo)
+                return self._advance_lanes(duration, todo, sims, plan)
+        return self.each(lambda i, sim: sim.advance(duration), todo)
 
     def advance_intervals(self, counts, duration, visit, spent):
         """``counts[i]`` intervals of ``duration`` s of each running instance ``i`` of
@@ -223,13 +213,11 @@ class BatchSimulation:
             self._plan = (todo, lanebatch.plan_of(sims, self.threads))
         return self._plan[1]
 
-    def _advance_lanes(self, duration, todo, sims, plan, spent):
+    def _advance_lanes(self, duration, todo, sims, plan):
         step = lanebatch.Step(plan, sims)
         step.run(duration, self.threads)
         out = {}
         for i, sim in zip(todo, sims):
-            if spent is not None and id(sim) in step.spent:
-                spent[i] = step.spent[id(sim)]
             exc = step.error(sim)        # a lane or single that failed restored itself
             if exc is None:
                 out[i] = step.result[id(sim)][1]

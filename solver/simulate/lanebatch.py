@@ -21,7 +21,6 @@ simulation at a time.
 """
 from __future__ import annotations
 
-import time
 from typing import NamedTuple
 
 import numpy as np
@@ -346,31 +345,19 @@ class Step:
         self.keeps = {id(s): s._keep() for s in plan.singles}
         self.result = {}            # id(sim) -> (ok, steps or exception)
         self.where = {}             # id(sim) -> (lane group, lane)
-        self.spent = {}             # id(sim) -> (wall s, thread CPU s) of its share
 
     def run(self, duration, threads):
         """Advance each simulation by ``duration`` s on ``threads`` threads (a group by the
-        whole steps of its ``dt`` that :meth:`Simulation.advance` would take). ``spent`` then
-        holds each simulation's share of the wall and thread CPU time of its task (a group's
-        time divided evenly among its lanes)."""
+        whole steps of its ``dt`` that :meth:`Simulation.advance` would take)."""
         tasks = [(True, g) for g in self.plan.groups] + [(False, s) for s in self.plan.singles]
 
         def work(task):
             is_lanes, item = task
-            t0, c0 = time.perf_counter(), time.thread_time()
             if is_lanes:
-                out = item.advance(max(int(round(duration / item.sims[0].dt)), 0))
-            else:
-                out = item.advance(duration)
-            return out, time.perf_counter() - t0, time.thread_time() - c0
+                return item.advance(max(int(round(duration / item.sims[0].dt)), 0))
+            return item.advance(duration)
         done = parallel.each(work, tasks, threads if len(tasks) > 1 else 1)
         for (is_lanes, item), (ok, value) in zip(tasks, done):
-            if ok:
-                value, wall, cpu = value
-            members = item.sims if is_lanes else [item]
-            if ok:
-                for s in members:
-                    self.spent[id(s)] = (wall / len(members), cpu / len(members))
             if not is_lanes:
                 self.result[id(item)] = (ok, value)
                 continue
