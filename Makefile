@@ -23,8 +23,10 @@ install: $(STAMP)
 demo: $(STAMP)
 	$(VENV)/bin/tensegrity demo
 
+# the suite on every core (pytest-xdist, a test to each idle worker); the kernels are compiled
+# first, once, by test/conftest.py
 test: $(STAMP)
-	$(PY) -m pytest -q test
+	$(PY) -m pytest -q -n auto --dist worksteal test
 
 bench: $(STAMP)
 	$(VENV)/bin/tensegrity bench

@@ -53,7 +53,8 @@ setup(
     install_requires=CORE,
     extras_require={
         'ros': ROS_WHEELS,
-        'test': ['pytest==9.2.0', 'ruff==0.17.6', 'rosbags==0.11.9'],
+        'test': ['pytest==9.2.0', 'pytest-xdist==3.8.0', 'execnet==2.1.2', 'ruff==0.17.6',
+                 'rosbags==0.11.9'],
         'peers': ['mujoco==4.0.0'],
     },
     python_requires='>=3.11',

@@ -38,6 +38,29 @@ def test_a_later_process_loads_every_kernel_from_the_cache():
     assert out.stdout.strip() == '', f'compiled again: {out.stdout.strip()}'
 
 
+def test_the_last_pass_compiles_what_the_parallel_ones_lost(tmp_path):
+    """A copy of the complete cache without the index of one kernel (as when two compiling
+    processes rewrite it at once): the last pass compiles that kernel, and a pass after it
+    compiles nothing."""
+    import os
+    import shutil
+    precompile.compile_all()
+    cache = precompile._marker().parent
+    copy = tmp_path / f'tensegrity-{cache.name}'        # where NUMBA_CACHE_DIR puts it
+    shutil.copytree(cache, copy)
+    lost = list(copy.rglob('rk4._rattle_ramped-*.nbi'))
+    assert len(lost) == 1
+    lost[0].unlink()
+    code = 'from solver.simulate.precompile import _sole_pass\nprint(_sole_pass(600.0))'
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path))
+    passes = [subprocess.run([sys.executable, '-c', code], cwd=ROOT, env=env, text=True,
+                             capture_output=True, timeout=600) for _ in range(2)]
+    for out in passes:
+        assert out.returncode == 0, out.stderr[-2000:]
+    assert '_rattle_ramped' in passes[0].stdout
+    assert passes[1].stdout.strip() == '[]'
+
+
 def test_every_integrator_is_in_a_group():
     from solver.integrators import registry
     methods = {m for group in precompile.GROUPS for m in group}

@@ -4,13 +4,15 @@ A fresh install (or any edit of ``solver/``, which starts a fresh cache: :mod:`s
 compiles its kernels at their first call, one after the other, in whatever process calls them
 first: a few minutes of one core. :func:`compile_all` instead runs short simulations that reach
 every kernel the solver calls (each integrator's checked and run kernels, the chain model, the
-frame's observables), split into groups that compile in parallel processes; a later process
-loads them from the cache. A marker in the cache folder records a complete pass, so a second call
-returns at once.
+frame's observables), split into groups that compile in parallel processes, then all of them in
+one more process, which loads them from the cache and compiles whatever the parallel ones lost
+(:func:`_sole_pass`); a later process loads them all. A marker in the cache folder records a
+complete pass, so a second call returns at once.
 
     python -m solver.simulate.precompile          # or: tensegrity compile
 
-A test run of several files calls it before its first test (``test/conftest.py``).
+A test run of several files calls it before its first test (``test/conftest.py``; with
+pytest-xdist the main process, before its workers start).
 """
 from __future__ import annotations
 
@@ -104,14 +106,61 @@ def compile_all(processes=None, log=print, timeout_s=1200.0):
             failed.append(f'{"/".join(group)}: {out.strip().splitlines()[-1] if out else "?"}')
     if failed:
         raise RuntimeError('precompile failed for ' + '; '.join(failed))
+    again = _sole_pass(max(timeout_s - (time.perf_counter() - t0), 1.0))
+    if again:
+        log(f'compiled again in one process (lost by the parallel ones): {", ".join(again)}')
     marker.write_text(f'{time.time()}\n')
     spent = time.perf_counter() - t0
     log(f'compiled in {spent:.0f} s')
     return spent
 
 
+def _sole_pass(timeout_s):
+    """Every group once more in one process, which loads what the parallel ones cached and
+    compiles what they lost; returns the names of the kernels it compiled. Numba keeps one
+    index file per function, and two processes that compile the same function at once (a kernel
+    every group calls) may each rewrite it from what they read before the other wrote: one of
+    their entries goes, and a later process would compile that kernel again (about 3 s when
+    nothing is lost)."""
+    methods = [m for group in GROUPS for m in group]
+    proc = subprocess.run([sys.executable, '-m', 'solver.simulate.precompile', '--count',
+                           *methods], cwd=ROOT, capture_output=True, text=True,
+                          timeout=timeout_s)
+    if proc.returncode != 0:
+        tail = (proc.stdout + proc.stderr).strip().splitlines()
+        raise RuntimeError(f'precompile failed in its last pass: {tail[-1] if tail else "?"}')
+    return [n for n in proc.stdout.strip().split(',') if n]
+
+
+def compiled_while(methods):
+    """The names of the kernels numba compiles (rather than loads from the cache) while the
+    short runs of ``methods`` (:func:`_exercise`) call them."""
+    from numba.core import event
+    names = []
+
+    class Count(event.Listener):
+        def on_start(self, ev):
+            fn = getattr((ev.data or {}).get('dispatcher'), 'py_func', None)
+            names.append(getattr(fn, '__name__', '?'))
+
+        def on_end(self, ev):
+            pass
+
+    listener = Count()
+    event.register('numba:compile', listener)
+    try:
+        for method in methods:
+            _exercise(method)
+    finally:
+        event.unregister('numba:compile', listener)
+    return names
+
+
 def main(argv=None):
     args = sys.argv[1:] if argv is None else argv
+    if args and args[0] == '--count':   # the last pass: the kernels compiled, comma-separated
+        print(','.join(compiled_while(args[1:])))
+        return 0
     if args:                            # a worker: compile these methods here
         for method in args:
             _exercise(method)
