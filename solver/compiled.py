@@ -13,6 +13,7 @@ detection relies on them).
 import hashlib
 import os
 import shutil
+import uuid
 from pathlib import Path
 
 import numba
@@ -30,9 +31,13 @@ def source_hash(directory=Path(__file__).parent, salt=''):
 
 
 def _writable(folder):
+    """Whether this process can write in ``folder`` (made if missing): a probe file of its own
+    name, written and removed (processes starting at once each test with their own file: with a
+    shared name one could remove another's probe, which then took the folder for read-only and
+    compiled into the fallback cache, where no other process looks)."""
     try:
         folder.mkdir(parents=True, exist_ok=True)
-        probe = folder / '.probe'
+        probe = folder / f'.probe-{os.getpid()}-{uuid.uuid4().hex}'
         probe.write_bytes(b'')
         probe.unlink()
         return True

@@ -38,6 +38,26 @@ def test_a_later_process_loads_every_kernel_from_the_cache():
     assert out.stdout.strip() == '', f'compiled again: {out.stdout.strip()}'
 
 
+def test_compilers_starting_at_once_all_find_the_cache_folder_writable(tmp_path):
+    """solver.compiled._writable asked at once from two threads, 3,000 times each (as the
+    compiling processes of precompile ask when they start together): always yes. A probe file
+    shared by name made some answers no, and such a process compiled into the fallback cache
+    in the home folder, where later processes do not look."""
+    import threading
+    from solver import compiled
+    answers = []
+
+    def ask():
+        answers.extend(compiled._writable(tmp_path) for _ in range(3000))
+    threads = [threading.Thread(target=ask) for _ in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert len(answers) == 6000 and all(answers)
+    assert list(tmp_path.iterdir()) == []           # no probe left behind
+
+
 def test_the_last_pass_compiles_what_the_parallel_ones_lost(tmp_path):
     """A copy of the complete cache without the index of one kernel (as when two compiling
     processes rewrite it at once): the last pass compiles that kernel, and a pass after it
@@ -90,6 +110,16 @@ def test_a_group_that_gives_no_result_in_time_is_killed_and_named(tmp_path):
     for group in precompile.GROUPS:
         assert f'{"/".join(group)}: no result after 0.5 s' in lines[0]
     assert not list(tmp_path.glob('*/.precompiled'))
+    # compiler processes of this call: their environment names its cache (other tests, on
+    # other workers, may be compiling at the same time)
     left = subprocess.run(['pgrep', '-f', 'solver.simulate.precompile'], capture_output=True,
-                          text=True)
-    assert left.stdout.strip() == ''
+                          text=True).stdout.split()
+    assert [pid for pid in left if _environ_holds(pid, str(tmp_path))] == []
+
+
+def _environ_holds(pid, text):
+    """Whether the environment of process ``pid`` holds ``text`` (False once it is gone)."""
+    try:
+        return text.encode() in Path(f'/proc/{pid}/environ').read_bytes()
+    except OSError:
+        return False

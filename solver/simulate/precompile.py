@@ -140,8 +140,7 @@ def compiled_while(methods):
 
     class Count(event.Listener):
         def on_start(self, ev):
-            fn = getattr((ev.data or {}).get('dispatcher'), 'py_func', None)
-            names.append(getattr(fn, '__name__', '?'))
+            names.append(ev.data['dispatcher'].py_func.__name__)
 
         def on_end(self, ev):
             pass
