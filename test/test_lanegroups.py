@@ -98,6 +98,34 @@ def test_mixed_lanes_equal_their_single_runs():
     assert max(s.steps_taken for s in group.sims) > 2 * min(s.steps_taken for s in group.sims)
 
 
+def test_a_lane_in_long_contact_moves_down_every_block_and_equals_its_single_run(monkeypatch):
+    """Sixteen lanes, one struck at 2 m/s and fifteen at 0.05 m/s: within each interval the
+    struck lane steps on long after the others are done, so it moves from the 16 lanes to the
+    blocks of 8, 4 and 2 in turn (each block's lanes: half the last's), and back. Every lane
+    equals its single run after every interval."""
+    scene = Scene.load(FB)
+    v0s = [0.05] * 16
+    v0s[5] = 2.0
+    commands = [_cmd(0.02 + 0.002 * k, v) for k, v in enumerate(v0s)]
+    lanes, singles = _pair(scene, commands)
+    group = lanebatch.LaneGroup(lanes)
+    assert [b.lanes for b in group.blocks] == [16, 8, 4, 2]
+    moves = []
+    take = lanebatch._Block.take
+
+    def spy(block, above, alive):
+        moves.append((above.lanes, block.lanes, len(alive)))
+        return take(block, above, alive)
+    monkeypatch.setattr(lanebatch._Block, 'take', spy)
+    for got, want in _step_both(group, singles, 8, 4):
+        assert got == want
+        assert all(_same(a, b) for a, b in zip(group.sims, singles))
+    # the struck lane alone went down the whole chain, in at least one interval
+    assert {(16, 8, 1), (8, 4, 1), (4, 2, 1)} <= set(moves)
+    assert lanes[5].contacts_met > 0
+    assert all(s.contacts_met == 0 for k, s in enumerate(lanes) if k != 5)
+
+
 def test_damped_lanes_and_a_pulse_train():
     """Cable damping (the power and the energy it takes out, booked per lane) and the impacts
     of a pulse train applied between intervals: lanes equal their single runs."""

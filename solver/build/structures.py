@@ -199,7 +199,8 @@ class PrestrainMap:
 
     Arrays: ``cross`` (n_cross,) cable indices in cable order (the per-cable command order),
     ``cross_prism`` (n_cross,), ``base`` (n_base,) cable indices, ``base_prisms`` (n_base, 2) prism
-    indices (-1 = none), ``length`` (n_cables,) m reference lengths, ``radius`` (n_base,) m.
+    indices (-1 = none), ``length`` (n_cables,) m reference lengths, ``radius`` (n_base,) m,
+    ``cross_count`` (n_columns * n_prisms,) cross cables per prism.
     """
 
     def __init__(self, network):
@@ -244,7 +245,7 @@ class PrestrainMap:
         counts = np.bincount(self.cross_prism, minlength=self.n_columns * self.n_prisms)
         if np.any(counts == 0):
             raise ValueError('prestrain: a prism has no cross cable')
-        self._count = counts
+        self.cross_count = counts
 
     def rest_lengths(self, p, cable_EA, out=None):
         """Cable rest lengths (n_cables,) m that keep the reference geometry in equilibrium at the
@@ -255,7 +256,7 @@ class PrestrainMap:
         rest[self.cross] = s / (1.0 + p[self.cross_prism])
         # gamma_s per prism: mean over its cross cables of EA p / s
         weights = cable_EA[self.cross] * p[self.cross_prism] / s
-        gamma = np.bincount(self.cross_prism, weights=weights, minlength=len(p)) / self._count
+        gamma = np.bincount(self.cross_prism, weights=weights, minlength=len(p)) / self.cross_count
         g_ext = np.append(gamma, 0.0)               # index -1 -> no prism
         t = (g_ext[self.base_prisms[:, 0]] + g_ext[self.base_prisms[:, 1]]) * self.radius
         EA_b = cable_EA[self.base]

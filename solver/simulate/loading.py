@@ -251,11 +251,11 @@ class Loading:
             call.rec = ramped.Ramp(
                 start, np.array(r.target, dtype=np.float64).reshape(-1), start.copy(),
                 start.copy(), np.array(pm.length), np.array(pm.cross), np.array(pm.cross_prism),
-                pm._count.astype(np.float64), np.array(pm.base),
+                pm.cross_count.astype(np.float64), np.array(pm.base),
                 np.ascontiguousarray(pm.base_prisms[:, 0]),
                 np.ascontiguousarray(pm.base_prisms[:, 1]), np.array(pm.radius),
                 np.array(m.cable_EA, dtype=np.float64), cmap, ramped.source_of(cmap, n_model),
-                np.zeros(len(pm._count)), np.zeros(len(pm.length)), np.zeros(4), np.zeros(2))
+                np.zeros(len(pm.cross_count)), np.zeros(len(pm.length)), np.zeros(4), np.zeros(2))
         return call.rec
 
     def _ramped(self, done, n):
