@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from solver import status as codes
-from solver.compiled import jit
+from solver.compiled import compiled_overload, jit
 from solver.kernels import dynamics as dyn
 from solver.kernels import records
 
@@ -70,6 +70,8 @@ class ModelBaseForce:
         self.mult = np.asarray(sm.node_mult, dtype=np.float64)[np.maximum(self.base, 0)]
         self.work = records.clone_work(model.work)
         self.acc = np.zeros_like(model.x)
+        self._entry = None          # the compiled overload of _model_base_force, after a call
+        self._copies = None         # its scratch: the contact state's and the ledger's copies
 
     @staticmethod
     def applies(model):
@@ -81,17 +83,42 @@ class ModelBaseForce:
 
     def __call__(self, model):
         d = model.data
-        contact = records.ContactState(d.contact.scan.copy(), d.contact.active.copy())
-        contact.scan[records.LOOK] = 1.0    # the contact state's copies: every pair and every
-        contact.active[0] = -1              # prism's bases looked at
-        # the damping's power: scratch
-        own = d._replace(contact=contact, ledger=d.ledger.copy())
-        status = dyn.accelerations(d.x, d.v, model.rec, own, self.work, self.acc)
+        like = (d.contact.scan, d.contact.active, d.ledger)
+        c = self._copies
+        if c is None or any(a.shape != b.shape for a, b in zip(c, like)):
+            c = self._copies = tuple(np.empty_like(a) for a in like)
+        out = np.empty(self.base.shape[0])
+        args = (model.rec, d, self.work, self.acc, *c, self.base, self.mult, out)
+        if self._entry is None:     # through numba's dispatch, then its compiled overload
+            status = _model_base_force(*args)
+            self._entry = compiled_overload(_model_base_force, args) or _model_base_force
+        else:
+            status = self._entry(*args)
         if status != dyn.OK:
             raise ValueError(f'base force: {codes.text(status)}')
-        out = np.empty(self.base.shape[0])
-        _base_sum(self.work.f, d.f_ext, self.base, self.mult, out)
         return out
+
+
+@jit
+def _model_base_force(rec, d, work, acc, scan, active, ledger, base, mult, out):
+    """:class:`ModelBaseForce` in one compiled call: the forces of ``d`` (the model ``rec``'s
+    data) evaluated with copies of its contact state, in which every pair and every prism's
+    bases are looked at (``scan``, ``active``), and of its ledger (the damping's power:
+    scratch), then :func:`_base_sum` into ``out``. Returns the evaluation's status."""
+    for i in range(scan.shape[0]):
+        scan[i] = d.contact.scan[i]
+    for i in range(active.shape[0]):
+        active[i] = d.contact.active[i]
+    for i in range(ledger.shape[0]):
+        ledger[i] = d.ledger[i]
+    scan[records.LOOK] = 1.0
+    active[0] = -1
+    own = records.Data(d.x, d.v, d.rest, d.EA, d.f_ext, ledger,
+                       records.ContactState(scan, active), d.refine)
+    status = dyn.accelerations(d.x, d.v, rec, own, work, acc)
+    if status == dyn.OK:
+        _base_sum(work.f, d.f_ext, base, mult, out)
+    return status
 
 
 @jit
