@@ -173,3 +173,35 @@ def test_columns_of_an_array_step_as_if_alone_with_every_method(method):
         g = next(g for g in arr.groups if c in g.columns)
         np.testing.assert_array_equal(g.sim.model.x, alone.model.x, err_msg=f'column {c}')
         np.testing.assert_array_equal(g.sim.model.v, alone.model.v, err_msg=f'column {c}')
+
+
+def test_the_array_frame_equals_the_frames_of_its_column_simulations():
+    """ArraySimulation.frame against the frames of its column simulations, put side by side
+    here (each column's positions shifted by its place in the row): equal bit for bit, with
+    alike columns sharing a simulation, one column expanded to full3d (a cable of its own
+    changed), and contact after a 1 m/s impact."""
+    sim = simulation_for(_scene())
+    rest = np.array(sim.model.cable_rest_length)
+    rest[sim.network.n_cables // 5 + 4] *= 1.0005        # one cross cable of column 1
+    sim.set_cable_rest_lengths(rest)
+    sim.apply_impact(1.0, columns=[1, 3])
+    spacing = sim.scene.structure.column_spacing
+    n, k = sim.network.n_nodes // 5, sim.network.n_cables // 5
+    for _ in range(12):
+        sim.advance(0.005)
+        got = sim.frame()
+        energies, worst = [0.0] * 5, 0.0
+        for g in sim.groups:
+            f = g.sim.frame()
+            for c in g.columns:
+                assert np.array_equal(got.positions[c * n:(c + 1) * n],
+                                      f.positions + np.array([c * spacing, 0.0, 0.0]))
+                assert np.array_equal(got.tension[c * k:(c + 1) * k], f.tension)
+                assert np.array_equal(got.strain[c], f.strain[0])
+                assert got.base_force[c] == f.base_force[0]
+                energies[c] = f.energy
+            worst = max(worst, f.constraint_error)
+        assert got.energy == float(sum(energies)) and got.constraint_error == worst
+    names = {tuple(g.columns): g.sim.model.name for g in sim.groups}
+    assert names == {(0, 2, 4): 'sym3d', (1,): 'full3d', (3,): 'sym3d'}
+    assert sim.contacts_met > 0

@@ -27,6 +27,7 @@ import re
 import numpy as np
 
 from solver.build.scene import Scene
+from solver.analysis import observables
 from solver.build.structures import PrestrainMap, build_network
 from solver.models.base import ModelView
 from solver.simulate import chooser, lanebatch, parallel
@@ -457,25 +458,28 @@ class ArraySimulation(SimulationAPI):
         return FrameFigures(f.t, f.strain, f.energy, f.constraint_error, f.energy_balance_error)
 
     def frame(self):
-        """A copied :class:`~solver.simulate.simulation.Frame` of the whole array."""
+        """A copied :class:`~solver.simulate.simulation.Frame` of the whole array: each group's
+        figures as its ``Simulation.frame``, without a frame per group (a node array's tick)."""
         n, k = self._per
         nc, n_p = self.n_columns, self.network.n_prisms
-        x = np.empty((nc * n, 3))
-        strain = np.empty((nc, n_p))
-        tension = np.empty(nc * k)
-        base = np.empty(nc)
-        energy, cerr = np.empty(nc), 0.0
+        x, strain, tension = np.empty((nc, n, 3)), np.empty((nc, n_p)), np.empty((nc, k))
+        base, energy, cerr = np.empty(nc), np.empty(nc), 0.0
         for grp in self.groups:
-            f = grp.sim.frame()
+            s, m = grp.sim, grp.sim.model
+            pos = m.positions()
+            f = s.frame_figures()
+            ten = observables.cable_tensions(pos, s.network, m.cable_rest_length, m.cable_EA)
+            b = s.base_force()[0]
             for c in grp.columns:
-                x[c * n:(c + 1) * n] = f.positions + self._offset[c]
-                tension[c * k:(c + 1) * k] = f.tension
-            strain[grp.columns] = f.strain[0]
-            base[grp.columns] = f.base_force[0]
-            energy[grp.columns] = f.energy
+                np.add(pos, self._offset[c], out=x[c])
+                tension[c] = ten
+                strain[c] = f.strain[0]
+                base[c] = b
+                energy[c] = f.energy
             cerr = max(cerr, f.constraint_error)
-        return Frame(t=self.t, step=self.step, positions=x, strain=strain, tension=tension,
-                     energy=float(sum(energy.tolist())), constraint_error=cerr, base_force=base,
+        return Frame(t=self.t, step=self.step, positions=x.reshape(nc * n, 3), strain=strain,
+                     tension=tension.reshape(nc * k), energy=float(sum(energy.tolist())),
+                     constraint_error=cerr, base_force=base,
                      energy_balance_error=float(self.energy_error()))
 
 
