@@ -22,9 +22,10 @@ have passed since the impact, whichever comes first: the steps cost more early i
 contacts of the impact) than later, so every way and every N is measured on the same stretch of
 the wave where it keeps up; reported are the simulated seconds per wall second (the achieved
 real-time factor), the frames per wall second, the simulated seconds per CPU second of this
-process (all its threads) and the longest tick. The largest N of the list whose factor is at
-least 1 is given per way; ``--bisect`` narrows it down between that N and the next one of the
-list (to ``--resolution`` columns).
+process (all its threads), the longest tick and the cost of publishing a frame (the pacer's
+moving average: the array's frame, its messages, handing them to DDS). The largest N of the
+list whose factor is at least 1 is given per way; ``--bisect`` narrows it down between that N
+and the next one of the list (to ``--resolution`` columns).
 
 Then, for each N, one prestrain command with a ramp (``--ramp`` s of simulation time, the
 columns' prestrains reversed) from the rest state: the real-time factor while the ramp runs
@@ -210,6 +211,7 @@ class Session:
                 'stepping_ticks': len(steps),
                 'steps_per_tick': float(np.mean(steps)) if steps else 0.0,
                 'part_step_ticks': sum(1 for n in steps if n < 1),
+                'publish_ms': 1e3 * node.pacer.publish_cost,
                 'divergences': node.divergences - d0}
 
     def close(self):
@@ -306,7 +308,8 @@ def main(out_dir='bench/results', log=print, columns=(10, 20, 30, 50), window_s=
                     got.append(row)
                     log(f'{n:4d} columns, {row["mode"]:>6}: {row["rtf"]:.3f}x real time at '
                         f'{row["rate_hz"]:.0f} Hz ({row["sim_per_cpu_s"]:.3f} s per CPU s, '
-                        f'longest tick {row["tick_max_ms"]:.1f} ms)')
+                        f'longest tick {row["tick_max_ms"]:.1f} ms, a frame '
+                        f'{row["publish_ms"]:.2f} ms)')
                 ramp = measure_ramp(session, ramp_s, window_s) if with_ramp else None
                 if ramp is not None:
                     log(f'{n:4d} columns, ramp of {ramp_s:g} s: {ramp["rtf"]:.4f}x real time '
