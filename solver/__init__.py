@@ -10,7 +10,8 @@ solver does not import all of it.
   :func:`frame_count`, :func:`run_frame`, :class:`ImpactTrain`, :data:`T_REF`; their typed
   results :class:`RunSummary` and :func:`json_safe`;
 - many runs: :func:`simulate_batch`, :func:`default_threads`, :func:`on_threads`
-  (:func:`solver.simulate.parallel.each`: a function of each item on a pool of threads); the
+  (:func:`solver.simulate.parallel.each`: a function of each item on a pool of threads),
+  :data:`MAX_LANES` (the most instances a lane group steps together); the
   convergence check
   (:mod:`solver.simulate.convergence`, as ``convergence``, and its names);
 - studies and analysis modules: ``lens``, ``paper``, ``field``, ``observables``,
@@ -32,7 +33,7 @@ _NAMES = {
     'ImpactTrain': 'solver.simulate.runner', 'T_REF': 'solver.simulate.runner',
     'json_safe': 'solver.simulate.results', 'RunSummary': 'solver.simulate.results',
     'simulate_batch': 'solver.simulate.batch', 'default_threads': 'solver.simulate.batch',
-    'on_threads': 'solver.simulate.parallel:each',
+    'on_threads': 'solver.simulate.parallel:each', 'MAX_LANES': 'solver.simulate.lanebatch',
     'compile_all': 'solver.simulate.precompile', 'source_hash': 'solver.compiled',
     # the convergence check
     **{name: 'solver.simulate.convergence' for name in (
