@@ -117,6 +117,23 @@ def test_a_group_that_gives_no_result_in_time_is_killed_and_named(tmp_path):
     assert [pid for pid in left if _environ_holds(pid, str(tmp_path))] == []
 
 
+def test_a_last_pass_that_gives_no_result_in_time_is_killed_and_named(tmp_path):
+    """The single-process pass on an empty cache with a 0.5 s limit: a RuntimeError that says
+    so (what compile_all's callers catch), and its process is gone."""
+    import os
+    code = ('import sys\nfrom solver.simulate.precompile import _sole_pass\n'
+            'try:\n    _sole_pass(0.5)\n'
+            'except RuntimeError as exc:\n    print(exc)\n    sys.exit(3)\n')
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path))
+    out = subprocess.run([sys.executable, '-c', code], cwd=ROOT, env=env, capture_output=True,
+                         text=True, timeout=120)
+    assert out.returncode == 3, out.stderr[-2000:]
+    assert out.stdout.strip() == 'precompile failed: its last pass gave no result after 0.5 s'
+    left = subprocess.run(['pgrep', '-f', 'solver.simulate.precompile'], capture_output=True,
+                          text=True).stdout.split()
+    assert [pid for pid in left if _environ_holds(pid, str(tmp_path))] == []
+
+
 def _environ_holds(pid, text):
     """Whether the environment of process ``pid`` holds ``text`` (False once it is gone)."""
     try:

@@ -123,9 +123,13 @@ def _sole_pass(timeout_s):
     their entries goes, and a later process would compile that kernel again (about 3 s when
     nothing is lost)."""
     methods = [m for group in GROUPS for m in group]
-    proc = subprocess.run([sys.executable, '-m', 'solver.simulate.precompile', '--count',
-                           *methods], cwd=ROOT, capture_output=True, text=True,
-                          timeout=timeout_s)
+    try:
+        proc = subprocess.run([sys.executable, '-m', 'solver.simulate.precompile', '--count',
+                               *methods], cwd=ROOT, capture_output=True, text=True,
+                              timeout=timeout_s)
+    except subprocess.TimeoutExpired:        # (run kills the process)
+        raise RuntimeError(f'precompile failed: its last pass gave no result after '
+                           f'{timeout_s:g} s') from None
     if proc.returncode != 0:
         tail = (proc.stdout + proc.stderr).strip().splitlines()
         raise RuntimeError(f'precompile failed in its last pass: {tail[-1] if tail else "?"}')
