@@ -94,44 +94,41 @@ def test_the_cli_refuses_zero_processes():
     assert out.stderr.strip() == 'tensegrity: --processes: must be at least 1, got 0'
 
 
-def test_a_group_that_gives_no_result_in_time_is_killed_and_named(tmp_path):
-    """On an empty cache with a 0.5 s limit: one line naming every group, exit not 0, no
-    compiler process left behind, no marker written."""
+def _limited(tmp_path, call):
+    """``call`` (a line of code that calls into ``precompile``) in a process of its own on an
+    empty cache in ``tmp_path``: the message of the RuntimeError it raised (exit 3 expected),
+    after checking that no compiler process of that cache is left (their environment names
+    it: other tests, on other workers, may be compiling at the same time)."""
     import os
-    code = ('import sys\nfrom solver.simulate.precompile import compile_all\n'
-            'try:\n    compile_all(timeout_s=0.5, log=lambda m: None)\n'
+    code = ('import sys\nfrom solver.simulate import precompile\n'
+            f'try:\n    {call}\n'
             'except RuntimeError as exc:\n    print(exc)\n    sys.exit(3)\n')
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path))
     out = subprocess.run([sys.executable, '-c', code], cwd=ROOT, env=env, capture_output=True,
                          text=True, timeout=120)
     assert out.returncode == 3, out.stderr[-2000:]
-    lines = out.stdout.strip().splitlines()
+    left = subprocess.run(['pgrep', '-f', 'solver.simulate.precompile'], capture_output=True,
+                          text=True).stdout.split()
+    assert [pid for pid in left if _environ_holds(pid, str(tmp_path))] == []
+    return out.stdout.strip()
+
+
+def test_a_group_that_gives_no_result_in_time_is_killed_and_named(tmp_path):
+    """On an empty cache with a 0.5 s limit: one line naming every group, exit not 0, no
+    compiler process left behind, no marker written."""
+    lines = _limited(tmp_path, 'precompile.compile_all(timeout_s=0.5, log=lambda m: None)'
+                     ).splitlines()
     assert len(lines) == 1 and lines[0].startswith('precompile failed for ')
     for group in precompile.GROUPS:
         assert f'{"/".join(group)}: no result after 0.5 s' in lines[0]
     assert not list(tmp_path.glob('*/.precompiled'))
-    # compiler processes of this call: their environment names its cache (other tests, on
-    # other workers, may be compiling at the same time)
-    left = subprocess.run(['pgrep', '-f', 'solver.simulate.precompile'], capture_output=True,
-                          text=True).stdout.split()
-    assert [pid for pid in left if _environ_holds(pid, str(tmp_path))] == []
 
 
 def test_a_last_pass_that_gives_no_result_in_time_is_killed_and_named(tmp_path):
     """The single-process pass on an empty cache with a 0.5 s limit: a RuntimeError that says
     so (what compile_all's callers catch), and its process is gone."""
-    import os
-    code = ('import sys\nfrom solver.simulate.precompile import _sole_pass\n'
-            'try:\n    _sole_pass(0.5)\n'
-            'except RuntimeError as exc:\n    print(exc)\n    sys.exit(3)\n')
-    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path))
-    out = subprocess.run([sys.executable, '-c', code], cwd=ROOT, env=env, capture_output=True,
-                         text=True, timeout=120)
-    assert out.returncode == 3, out.stderr[-2000:]
-    assert out.stdout.strip() == 'precompile failed: its last pass gave no result after 0.5 s'
-    left = subprocess.run(['pgrep', '-f', 'solver.simulate.precompile'], capture_output=True,
-                          text=True).stdout.split()
-    assert [pid for pid in left if _environ_holds(pid, str(tmp_path))] == []
+    assert _limited(tmp_path, 'precompile._sole_pass(0.5)') == (
+        'precompile failed: its last pass gave no result after 0.5 s')
 
 
 def _environ_holds(pid, text):
