@@ -229,9 +229,9 @@ class LaneGroup:
         if self._fallen[k] or j >= ch.done[k]:
             if not self._fallen[k]:
                 self._fallen[k] = True
-                _copy_data(_chunk_data(ch, j, k), s.model.data)
+                records.copy_data(_chunk_data(ch, j, k), s.model.data)
             return s.advance(n * s.dt)
-        _copy_data(_chunk_data(ch, j + 1, k), s.model.data)
+        records.copy_data(_chunk_data(ch, j + 1, k), s.model.data)
         o = ch.out[j, k]
         s._cache = {'summary': StateSummary(o[0] != 0.0, o[1], ch.heights[j, k].copy(), o[2],
                                             o[3])}
@@ -322,11 +322,6 @@ def _chunk_data(ch, j, k):
     e = ch.data
     return records.Data(*(a[j, k] for a in e[:6]),
                         records.ContactState(e.scan[j, k], e.active[j, k]), e.refine[j, k])
-
-
-def _copy_data(src, dst):
-    for a, b in zip(src[:6] + src.contact + src[7:], dst[:6] + dst.contact + dst[7:]):
-        np.copyto(b, a)
 
 
 def clock_of(sim):

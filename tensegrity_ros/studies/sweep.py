@@ -346,22 +346,21 @@ def _run_all(sweep, todo, cluster, task, chunk, threads, finish, lanes=True):
     if not todo:
         return
 
-    def cut(workers, seconds=BATCH_SECONDS, threads=None, lanes=False):
+    def cut(workers, seconds=BATCH_SECONDS, threads=None):
         if task is not None:
             return chunks(todo, workers, chunk)
         scenes = [sweep.scene.with_overrides(list(o.items())) for _, o in todo]
         costs = [point_cost(sc) for sc in scenes]
         size = chunk
-        if threads:             # a batch per thread: a small sweep in as many equal batches
-            seconds = min(seconds, sum(costs) / threads)
-            if lanes and not chunk:
-                # as many points as the largest lane group (solver.MAX_LANES): the 1,024-point
-                # sweep of docs/sweeps.md on two threads, one run each in the same minutes,
-                # took 24.8-26.4 s (44-46 s of CPU) in batches of 64 points against
-                # 27.7-29.9 s (53-57 s) in batches of about 2 s of estimated work (35 points):
-                # a lane group's rounds cost less per lane the more lanes share them
-                from solver import MAX_LANES
-                size = min(MAX_LANES, -(-len(todo) // threads))
+        if threads and not chunk:
+            # batches stepped as lanes, one per thread at a time: as many points as the largest
+            # lane group (solver.MAX_LANES), a small sweep in as many equal batches as threads.
+            # The 1,024-point sweep of docs/sweeps.md on two threads, one run each in the same
+            # minutes, took 24.8-26.4 s (44-46 s of CPU) in batches of 64 points against
+            # 27.7-29.9 s (53-57 s) in batches of about 2 s of estimated work (35 points): a
+            # lane group's rounds cost less per lane the more lanes share them
+            from solver import MAX_LANES
+            size = min(MAX_LANES, -(-len(todo) // threads))
         return batches(todo, workers, costs, [topology_of(o) for _, o in todo], size=size,
                        seconds=seconds)
 
@@ -385,7 +384,7 @@ def _run_all(sweep, todo, cluster, task, chunk, threads, finish, lanes=True):
                     finish(row)
             for ok, value in on_threads(
                     lambda b: run_points(sweep.scene, b, threads=1, on_row=locked),
-                    cut(None, threads=n, lanes=True), n):
+                    cut(None, threads=n), n):
                 if not ok:
                     raise value
         return
