@@ -27,12 +27,13 @@ moving average: the array's frame, its messages, handing them to DDS). The large
 list whose factor is at least 1 is given per way; ``--bisect`` narrows it down between that N
 and the next one of the list (to ``--resolution`` columns).
 
-Then, for each N, one prestrain command with a ramp (``--ramp`` s of simulation time, the
-columns' prestrains reversed) from the rest state: the real-time factor while the ramp runs
-(measured until the ramp ends or for ``--window`` wall seconds, whichever comes first). While a
-ramp runs the array steps one column simulation at a time, each of them in one compiled call per
-advance that sets the ramp's rest lengths before every step
-(:meth:`solver.simulate.loading.Loading._ramped`).
+Then, for each N and each way of stepping, one prestrain command with a ramp (``--ramp`` s of
+simulation time, the columns' prestrains reversed) from the rest state: the real-time factor
+while the ramp runs (measured until the ramp ends or for ``--window`` wall seconds, whichever
+comes first). One column simulation at a time, each column takes one compiled call per advance
+that sets the ramp's rest lengths before every step
+(:meth:`solver.simulate.loading.Loading._ramped`); as lanes, the ramping columns step as lane
+groups of their own, each lane with its ramp (:mod:`solver.integrators.rk4laneramp`).
 
 ``--whole-steps`` makes every stepping tick take at least one whole step. The node's pacer
 (:class:`tensegrity_ros.node.pacing.Pacer`) takes a fraction of a step when its estimate of one
@@ -112,7 +113,10 @@ class Session:
         from tensegrity_ros.node.qos import QOS
 
         self.n_columns = n_columns
-        scene = Scene.load(COLUMNS['FB']).with_overrides([f'structure.n_columns={n_columns}'])
+        # integrator.lanes on: the node's start loads the ramped lanes' call too
+        # (params.warm_ramp); each measurement then sets the way it steps
+        scene = Scene.load(COLUMNS['FB']).with_overrides([('structure.n_columns', n_columns),
+                                                          ('integrator.lanes', 'on')])
         path = Path(folder) / f'fb_column_{n_columns}.yaml'
         path.write_text(yaml.safe_dump(scene.data))
         self.ctx = rclpy.Context()
@@ -257,11 +261,12 @@ def measure_mode(session, mode, v0, window_s, span_s):
     return row
 
 
-def measure_ramp(session, ramp_s, window_s):
-    """The factor while a prestrain ramp of ``ramp_s`` s runs on the array (from rest)."""
+def measure_ramp(session, ramp_s, window_s, mode):
+    """The factor while a prestrain ramp of ``ramp_s`` s runs on the array (from rest), the
+    array stepping in ``mode``."""
     node = session.node
     sim = node.sim
-    sim.lanes = 'auto'
+    sim.lanes = mode
     session.reset()
     session.set_ramp(ramp_s)
     t_cmd = sim.t
@@ -269,7 +274,8 @@ def measure_ramp(session, ramp_s, window_s):
     # the tick that applies the command steps on: the window starts from that point
     row = session.window(window_s, until_t=t_cmd + ramp_s)
     done = sim.t >= t_cmd + ramp_s - 1e-9
-    row.update(n_columns=session.n_columns, ramp_s=ramp_s, ramp_done=bool(done),
+    row.update(n_columns=session.n_columns, mode=mode_name(mode), ramp_s=ramp_s,
+               ramp_done=bool(done),
                ramp_wall_s_estimate=ramp_s / row['rtf'] if row['rtf'] > 0 else None)
     session.set_ramp(0.0)
     return row
@@ -310,20 +316,21 @@ def main(out_dir='bench/results', log=print, columns=(10, 20, 30, 50), window_s=
                         f'{row["rate_hz"]:.0f} Hz ({row["sim_per_cpu_s"]:.3f} s per CPU s, '
                         f'longest tick {row["tick_max_ms"]:.1f} ms, a frame '
                         f'{row["publish_ms"]:.2f} ms)')
-                ramp = measure_ramp(session, ramp_s, window_s) if with_ramp else None
-                if ramp is not None:
-                    log(f'{n:4d} columns, ramp of {ramp_s:g} s: {ramp["rtf"]:.4f}x real time '
-                        f'at {ramp["rate_hz"]:.0f} Hz over {ramp["wall_s"]:.1f} s'
+                ramps = [measure_ramp(session, ramp_s, window_s, m)
+                         for m in (modes if with_ramp else ())]
+                for ramp in ramps:
+                    log(f'{n:4d} columns, {ramp["mode"]:>6}, ramp of {ramp_s:g} s: '
+                        f'{ramp["rtf"]:.4f}x real time at {ramp["rate_hz"]:.0f} Hz over '
+                        f'{ramp["wall_s"]:.1f} s'
                         f'{"" if ramp["ramp_done"] else " (the ramp still ran)"}')
-                return got, ramp
+                return got, ramps
             finally:
                 session.close()
 
         for n in columns:
             got, ramp = run(n, MODES, ramp_s > 0)
             rows += got
-            if ramp is not None:
-                ramps.append(ramp)
+            ramps += ramp
         if bisect:
             for mode in MODES:
                 name = mode_name(mode)
@@ -368,8 +375,8 @@ def table(result):
             cells.append(f'{r["rtf"]:7.3f}x {r["rate_hz"]:4.0f} Hz' if r else ' ' * 16)
         lines.append(f'{n:4d}  ' + '  '.join(cells))
     for r in result['ramp']:
-        lines.append(f'{r["n_columns"]:4d}  ramp of {r["ramp_s"]:g} s: {r["rtf"]:.4f}x at '
-                     f'{r["rate_hz"]:.0f} Hz')
+        lines.append(f'{r["n_columns"]:4d}  {r["mode"]:>6}, ramp of {r["ramp_s"]:g} s: '
+                     f'{r["rtf"]:.4f}x at {r["rate_hz"]:.0f} Hz')
     return '\n'.join(lines)
 
 

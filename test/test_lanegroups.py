@@ -227,8 +227,8 @@ def test_the_scene_chooses_the_arrays_way_of_stepping():
 
 
 def test_columns_join_the_lanes_again_after_a_ramp():
-    """A ramped prestrain steps each column alone (the ramp's path); once it has ended the
-    columns step as lanes again, and the array equals its one-at-a-time twin."""
+    """A ramped prestrain steps the columns as ramped lanes; once it has ended they step as
+    plain lanes again, and the array equals its one-at-a-time twin."""
     scene = Scene.load(FB).with_overrides([('structure.n_columns', 6)])
     sims = []
     for lanes in (True, False):

@@ -85,10 +85,10 @@ def both_paths(run, monkeypatch, compiled_calls=True):
     """``run()`` (the energy balance errors it saw) with the ramp compiled and in Python: the
     same, bit for bit. ``compiled_calls``: whether the first run stepped in ramped calls."""
     calls = []
-    ramped = Loading._ramped
+    went = Loading._ramp_went           # after every ramped call, a lane group's too
     with monkeypatch.context() as mp:
-        mp.setattr(Loading, '_ramped', lambda self, done, n: calls.append(
-            ramped(self, done, n)) or calls[-1])
+        mp.setattr(Loading, '_ramp_went', lambda self, *args: calls.append(
+            went(self, *args)) or calls[-1])
         compiled = run()
     assert any(c is not None for c in calls) == compiled_calls
     with monkeypatch.context() as mp:

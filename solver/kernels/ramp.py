@@ -168,3 +168,53 @@ def source_of(cable_map, n_model):
     src = np.full(n_model, -1, dtype=np.int64)
     src[cable_map] = np.arange(len(cable_map), dtype=np.int64)
     return src
+
+
+class LaneRamp(NamedTuple):
+    """The ramps of B lanes of one model (:func:`stack`): the fields of :class:`Ramp`, those a
+    lane has of its own stacked (B, ...) (``start``, ``target``, ``p``, ``p_next``, ``EA``,
+    ``clock``, ``book``), the map and the scratch shared (the lanes share the network)."""
+    start: np.ndarray
+    target: np.ndarray
+    p: np.ndarray
+    p_next: np.ndarray
+    length: np.ndarray
+    cross: np.ndarray
+    cross_prism: np.ndarray
+    count: np.ndarray
+    base: np.ndarray
+    below: np.ndarray
+    above: np.ndarray
+    radius: np.ndarray
+    EA: np.ndarray
+    cable_map: np.ndarray
+    source: np.ndarray
+    gamma: np.ndarray
+    rest: np.ndarray
+    clock: np.ndarray
+    book: np.ndarray
+
+
+OWN = ('start', 'target', 'p', 'p_next', 'EA', 'clock', 'book')    # a lane's own fields
+
+
+def shared_part(r):
+    """The fields of the :class:`Ramp` ``r`` that the lanes of one :class:`LaneRamp` share
+    (the map), in field order."""
+    return tuple(getattr(r, f) for f in Ramp._fields if f not in OWN)
+
+
+def stack(records):
+    """The :class:`LaneRamp` of the :class:`Ramp` records of B lanes (copies; the shared fields
+    from the first, which the others must equal: :func:`shared_part`)."""
+    first = records[0]
+    return LaneRamp(*(np.stack([getattr(r, f) for r in records]) if f in OWN
+                      else getattr(first, f).copy() for f in Ramp._fields))
+
+
+@jit
+def lane_ramp(R, k):
+    """Lane ``k``'s :class:`Ramp` (views into ``R``)."""
+    return Ramp(R.start[k], R.target[k], R.p[k], R.p_next[k], R.length, R.cross, R.cross_prism,
+                R.count, R.base, R.below, R.above, R.radius, R.EA[k], R.cable_map, R.source,
+                R.gamma, R.rest, R.clock[k], R.book[k])

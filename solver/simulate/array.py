@@ -410,7 +410,7 @@ class ArraySimulation(SimulationAPI):
         holds (:meth:`~solver.simulate.lanebatch.Plan.holds`)."""
         if self._plan is None or not self._plan.holds():
             self._plan = lanebatch.plan_of([g.sim for g in self.groups],
-                                           self.threads or parallel.default_threads())
+                                           self.threads or parallel.default_threads(), True)
         return self._plan
 
     def _advance_lanes(self, duration, n):

@@ -15,9 +15,10 @@ After the call each simulation concludes its interval on its own
 per lane, and on a failure the restore from the data the call kept and the replay that names
 the failing step. One lane's failure leaves the others' results as they are.
 
-Lanes serve ``rk4_projected`` and ``rk4`` on exact models without a running prestrain ramp and
-without the KKT system of massive bars (:func:`eligible`); everything else steps one
-simulation at a time.
+Lanes serve ``rk4_projected`` and ``rk4`` on exact models without the KKT system of massive bars
+(:func:`eligible`); everything else steps one simulation at a time. Simulations whose prestrain
+ramps run step as lanes of groups of their own where the caller asks for it (``ramps``: an
+array's columns), each lane with its own ramp (:mod:`solver.integrators.rk4laneramp`).
 """
 from __future__ import annotations
 
@@ -26,8 +27,8 @@ from typing import NamedTuple
 import numpy as np
 
 from solver.compiled import compiled_overload
-from solver.integrators import rk4lanes
-from solver.kernels import lanechunk, lanedata, lanes as lanes_mod, records
+from solver.integrators import rk4laneramp, rk4lanes
+from solver.kernels import lanechunk, lanedata, lanes as lanes_mod, ramp, records
 from solver.simulate import parallel
 from solver.simulate.simulation import StateSummary
 from solver.status import OK
@@ -42,11 +43,13 @@ MAX_LANES = 64
 SMALLEST = 2            # blocks of stragglers halve down to this many lanes
 
 
-def eligible(sim):
+def eligible(sim, ramps=False):
     """Whether ``sim`` can step as a lane: an exact record model (not ``chain1d``), an
-    integrator of :data:`LANE_METHODS`, no prestrain ramp running, no KKT system."""
+    integrator of :data:`LANE_METHODS`, no KKT system, no prestrain ramp running unless
+    ``ramps``."""
     m = sim.model
-    return (not m.integrates_itself and m.exact and sim._ramp is None
+    return (not m.integrates_itself and m.exact
+            and (sim._ramp is None or (ramps and sim._ramp_record() is not None))
             and sim.integrator.name in LANE_METHODS
             and m.rec.topo.kkt.node_u.shape[0] == 0)
 
@@ -76,28 +79,49 @@ def _record_number(rec):
     return hit[1]
 
 
+_MAPS: dict = {}            # id(ramp record) -> (record, the number of its map)
+
+
+def _map_number(rec):
+    """A number per distinct prestrain map of :class:`~solver.kernels.ramp.Ramp` records (their
+    shared fields, by value), computed once per record object."""
+    hit = _MAPS.get(id(rec))
+    if hit is None or hit[0] is not rec:
+        if len(_MAPS) > 4096:
+            _MAPS.clear()
+        key = ('ramp map', _fingerprint(ramp.shared_part(rec)))
+        hit = _MAPS[id(rec)] = (rec, _NUMBERS.setdefault(key, len(_NUMBERS)))
+    return hit[1]
+
+
 def lane_key(sim):
     """What simulations must share to step as lanes of one group: the model class, its
-    constants (by value), the shapes of its data, ``dt`` and the integrator's settings."""
+    constants (by value), the shapes of its data, ``dt``, the integrator's settings and,
+    while a prestrain ramp runs, its map (by value)."""
     m = sim.model
     d = m.data
     return (type(m).__name__, _record_number(m.rec), d.x.shape, d.contact.scan.shape,
             d.contact.active.shape, sim.integrator.name, float(sim.dt), float(sim.tol),
-            int(sim.max_iter), bool(sim.kinks), sim._heights_shape)
+            int(sim.max_iter), bool(sim.kinks), sim._heights_shape,
+            None if sim._ramp is None else _map_number(sim._ramp_record()))
 
 
 class LaneGroup:
-    """B simulations of one :func:`lane_key` stepped together (see the module text)."""
+    """B simulations of one :func:`lane_key` stepped together (see the module text); with
+    ``ramps``, simulations whose prestrain ramps run (each its own, :attr:`R`)."""
 
-    def __init__(self, sims):
+    def __init__(self, sims, ramps=False):
         sims = list(sims)
         if not sims:
             raise ValueError('a lane group needs simulations')
         key = lane_key(sims[0])
         for s in sims:
-            if not eligible(s) or lane_key(s) != key:
+            if not eligible(s, ramps) or lane_key(s) != key:
                 raise ValueError('lane group: the simulations are not alike')
         self.sims = sims
+        self._ramps = [s._ramp for s in sims]
+        self.R = None if key[-1] is None else ramp.stack([s._ramp_record() for s in sims])
+        self._keeps = None              # a ramped call's Kept per simulation
         b = len(sims)
         m0 = sims[0].model
         self.rec = m0.rec
@@ -139,9 +163,10 @@ class LaneGroup:
                             records.ContactState(S.scan[k], S.active[k]), S.refine[k])
 
     def bound(self):
-        """Whether every simulation still steps on this group's memory, alike and eligible."""
-        return all(s.model is m and m.data is d and eligible(s)
-                   for s, m, d in zip(self.sims, self._models, self._data))
+        """Whether every simulation still steps on this group's memory, alike and eligible,
+        with the prestrain ramp (or none) it had when the group was made."""
+        return all(s.model is m and m.data is d and s._ramp is r and eligible(s, True)
+                   for s, m, d, r in zip(self.sims, self._models, self._data, self._ramps))
 
     def _check_bound(self):
         if not self.bound():
@@ -155,6 +180,8 @@ class LaneGroup:
         self._check_bound()
         if n <= 0:
             return [(True, s.advance(0.0)) for s in self.sims]
+        if self.R is not None:
+            return self._advance_ramped(n)
         s0 = self.sims[0]
         top = self.blocks[0]
         top.status[:] = OK
@@ -167,6 +194,34 @@ class LaneGroup:
             s._cache = {'summary': StateSummary(o[0] != 0.0, o[1], h, o[2], o[3])}
             try:
                 results.append((True, s._conclude(n, steps, status, kept, None)))
+            except Exception as exc:            # noqa: BLE001 - this lane's result
+                results.append((False, exc))
+        return results
+
+    def _advance_ramped(self, n):
+        """:meth:`advance` of simulations whose ramps run: their first ramped calls as lanes
+        (:func:`solver.integrators.rk4laneramp.ramped`), then each simulation's interval goes
+        on by itself from where its call stopped (:meth:`Simulation._stepped`)."""
+        sims, R, top = self.sims, self.R, self.blocks[0]
+        s0, b = sims[0], len(sims)
+        self._keeps = [s._keep() for s in sims]
+        for k, s in enumerate(sims):
+            R.clock[k] = (s.t, s._ramp.t0, s._ramp.duration, s.dt)
+            R.book[k] = (s._energy_ref, s._energy_scale)
+        top.status[:] = OK
+        st, steps, done, taken, went, made = np.zeros((6, b), np.int64)
+        heights = np.empty((b,) + s0._heights_shape)
+        self._call(rk4laneramp.ramped, (
+            self.rec, top.S, top.L, top.W, top.X, top.C, top.w0, float(s0.dt), int(n),
+            float(s0.tol), int(s0.max_iter), bool(s0.kinks), bool(s0.integrator.projected), R,
+            NO_CHUNK, top.status, st, steps, done, taken, went, made, self.out, heights))
+        results = []
+        for k, (s, o) in enumerate(zip(sims, self.out.tolist())):
+            call = (int(done[k]), int(taken[k]), int(top.status[k]), int(went[k]))
+            end = (o[0] != 0.0, o[1], heights[k], o[2], o[3]) if made[k] else None
+            try:
+                first = s._ramp_went(0, n, call, end, R.book[k], R.p[k])
+                results.append((True, s._stepped(n, self._keeps[k], first)))
             except Exception as exc:            # noqa: BLE001 - this lane's result
                 results.append((False, exc))
         return results
@@ -205,6 +260,8 @@ class LaneGroup:
         (:func:`solver.integrators.rk4lanes.chunk_run`), none of them concluded yet: returns the
         :class:`~solver.kernels.lanechunk.Chunk`, for :meth:`conclude` interval by interval."""
         self._check_bound()
+        if self.R is not None:
+            raise RuntimeError('lane group: a chunk of ramped lanes')
         s0, top = self.sims[0], self.blocks[0]
         top.status[:] = np.where(np.asarray(todo) > 0, OK, NOT_A_LANE)     # 0: left as is
         k_max = max(todo)
@@ -252,7 +309,7 @@ class LaneGroup:
         interval (an array restores every column when one fails); ``before``: its
         ``(t, step, steps_taken, energy scale, twist reference)`` before the call."""
         s = self.sims[k]
-        s._restore(s._kept(self._kept[k], None))
+        s._restore(s._kept(self._kept[k], None) if self.R is None else self._keeps[k])
         s.t, s.step, s.steps_taken, s._energy_scale, s._twist_ref = before
 
 
@@ -391,30 +448,33 @@ class Plan(NamedTuple):
     groups: list
     singles: list
     n_eligible: int
+    ramps: bool = False
 
     def holds(self):
         """Whether the split still holds: every group bound (:meth:`LaneGroup.bound`) and as
         many singles eligible as when it was made (a column whose prestrain ramp ended can join
         a group again)."""
         return (all(g.bound() for g in self.groups)
-                and sum(map(eligible, self.singles)) == self.n_eligible)
+                and sum(eligible(s, self.ramps) for s in self.singles) == self.n_eligible)
 
 
-def plan_of(sims, threads=1):
+def plan_of(sims, threads=1, ramps=False):
     """The :class:`Plan` of ``sims`` (:func:`groups_of`), lane groups built."""
-    lists, singles = groups_of(sims, threads)
-    return Plan([LaneGroup(x) for x in lists], singles, sum(map(eligible, singles)))
+    lists, singles = groups_of(sims, threads, ramps=ramps)
+    return Plan([LaneGroup(x, ramps) for x in lists], singles,
+                sum(eligible(s, ramps) for s in singles), ramps)
 
 
-def groups_of(sims, threads=1, max_lanes=MAX_LANES, min_lanes=2):
+def groups_of(sims, threads=1, max_lanes=MAX_LANES, min_lanes=2, ramps=False):
     """Split ``sims`` into lists that step as lane groups (alike and eligible, at most
     ``max_lanes`` a list, in the given order within a key; a key with more than ``threads``
     times ``min_lanes`` members is cut into at least ``threads`` lists, so that every thread
-    steps one) and the rest, which step one at a time. Returns ``(lane lists, singles)``."""
+    steps one; ``ramps``: simulations whose prestrain ramps run too, in groups of their own)
+    and the rest, which step one at a time. Returns ``(lane lists, singles)``."""
     by_key = {}
     singles = []
     for s in sims:
-        if eligible(s):
+        if eligible(s, ramps):
             by_key.setdefault(lane_key(s), []).append(s)
         else:
             singles.append(s)

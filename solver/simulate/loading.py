@@ -282,15 +282,23 @@ class Loading:
         else:
             out = call.entry(*args)
         k, steps, status, went, made, finite, e, cerr, h_min = out
+        return self._ramp_went(done, n, (int(k), int(steps), int(status), int(went)),
+                               (finite, e, h, cerr, h_min) if made else None, rec.book, rec.p)
+
+    def _ramp_went(self, done, n, call, made, book, p):
+        """:meth:`_ramped`'s result from what a ramped call from step ``done`` of ``n`` returned
+        (``call``: steps done, integrator steps, status, what the last ``set_rest`` returned;
+        ``made``: the end state's summary or None), its ramp's ``book`` and prestrain ``p``
+        (this simulation's, or its lane's of a lane group: :mod:`solver.simulate.lanebatch`)."""
+        k, steps, status, went = call
         self._changed()
         if went == ramped.ASYMMETRIC and k == done:
             return None
-        self._energy_ref, self._energy_scale = float(rec.book[0]), float(rec.book[1])
-        self._prestrain = rec.p.reshape(self._prestrain.shape).copy()
+        self._energy_ref, self._energy_scale = float(book[0]), float(book[1])
+        self._prestrain = p.reshape(self._prestrain.shape).copy()
         if went == ramped.ENDED:
             self._ramp = None
-        return (int(k), int(steps), int(status), k == n and went != ramped.ASYMMETRIC,
-                (finite, e, h, cerr, h_min) if made else None)
+        return k, steps, status, k == n and went != ramped.ASYMMETRIC, made
 
 
 @dataclass

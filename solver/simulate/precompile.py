@@ -50,6 +50,9 @@ def _exercise(method):
         pair = [Simulation(base), Simulation(base)]
         pair[1].apply_impact(0.1)
         LaneGroup(pair).advance(2)
+        for s in pair:                          # and with prestrain ramps running
+            s.apply_prestrain(0.0025, ramp_s=3 * s.dt)
+        LaneGroup(pair, ramps=True).advance(2)
         return
     if method == 'chain1d':
         scene = base.with_overrides([('model', 'chain1d'), ('contact.bars', 'none')])

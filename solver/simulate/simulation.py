@@ -337,11 +337,11 @@ class Simulation(Loading, Checks, SimulationAPI):
         """Load full (n_cables,) rest lengths and EA; asymmetric ones expand ``sym3d``."""
         self._into_model('set_cables', rest, EA)
 
-    def _integrate(self, n):
+    def _integrate(self, n, first=None):
         """``n`` steps; while a prestrain ramp runs, one step at a time with rest lengths updated
         at the start of each step (in the integrator's compiled ramped call where it has one:
-        :meth:`~solver.simulate.loading.Loading._ramped`). Returns ``(steps, status)`` of the
-        integrator."""
+        :meth:`~solver.simulate.loading.Loading._ramped`; ``first``: the result of the first
+        such call, made by a lane group). Returns ``(steps, status)`` of the integrator."""
         m = self.model
         self._changed()
         if m.integrates_itself:                     # chain1d: its own state and kernel
@@ -351,8 +351,8 @@ class Simulation(Loading, Checks, SimulationAPI):
         done = total = 0
         status = dyn.OK
         end_set = False             # the rest lengths at t + n dt set (by a ramped call)
-        while done < n and self._ramp is not None:
-            ramped = self._ramped(done, n)
+        while first is not None or (done < n and self._ramp is not None):
+            ramped, first = (self._ramped(done, n) if first is None else first), None
             if ramped is not None:
                 done, steps, status, end_set, made = ramped
                 if made is not None:                # the end state's, from the same call
@@ -389,25 +389,28 @@ class Simulation(Loading, Checks, SimulationAPI):
             return 0
         m = self.model
         if not m.exact or self._ramp is not None:
-            keep = self._keep()
-            steps, status = self._integrate(n)
+            return self._stepped(n, self._keep())
+        integ, call = self.integrator, self._call
+        if call is None or call.model is not m or call.integrator is not integ:
+            kept = records.clone_data(m.data)       # where the call keeps the start data
+            call = self._call = CheckedCall(m, integ, kept, integ.checked_args(
+                m.rec, m.data, m.work, self.tol, self.max_iter, self.kinks, kept))
+        integ_state = integ.get_state()
+        h = np.empty(self._heights_shape)
+        args = (m.rec, m.data, m.work, float(self.dt), n, *call.fixed, h)
+        if call.entry is None:  # through numba's dispatch, then its compiled overload
+            out = integ.checked(*args)
+            call.entry = compiled_overload(integ.checked, args) or integ.checked
         else:
-            integ, call = self.integrator, self._call
-            if call is None or call.model is not m or call.integrator is not integ:
-                kept = records.clone_data(m.data)       # where the call keeps the start data
-                call = self._call = CheckedCall(m, integ, kept, integ.checked_args(
-                    m.rec, m.data, m.work, self.tol, self.max_iter, self.kinks, kept))
-            integ_state = integ.get_state()
-            h = np.empty(self._heights_shape)
-            args = (m.rec, m.data, m.work, float(self.dt), n, *call.fixed, h)
-            if call.entry is None:  # through numba's dispatch, then its compiled overload
-                out = integ.checked(*args)
-                call.entry = compiled_overload(integ.checked, args) or integ.checked
-            else:
-                out = call.entry(*args)
-            steps, status, finite, e, cerr, h_min = out
-            self._cache = {'summary': StateSummary(finite, e, h, cerr, h_min)}
-            return self._conclude(n, steps, status, call.kept, integ_state)
+            out = call.entry(*args)
+        steps, status, finite, e, cerr, h_min = out
+        self._cache = {'summary': StateSummary(finite, e, h, cerr, h_min)}
+        return self._conclude(n, steps, status, call.kept, integ_state)
+
+    def _stepped(self, n, keep, first=None):
+        """:meth:`advance` by :meth:`_integrate` (``first`` its argument) from the state
+        ``keep`` holds, concluded."""
+        steps, status = self._integrate(n, first)
         return self._conclude(n, steps, status, keep=keep)
 
     def _conclude(self, n, steps, status, kept_data=None, integ_state=None, keep=None):
