@@ -177,25 +177,29 @@ def _single_run(method):
     return errors
 
 
-@pytest.mark.parametrize('columns', [1, 3])
-def test_the_node_loads_the_ramped_step_at_start_and_leaves_the_state_as_loaded(columns):
-    """``warm_ramp`` (the node's start, after timing a step): the ramped twin runs, and the
-    simulation is the freshly loaded one again: positions, velocities, time, prestrain, balance,
-    and the steps it then takes equal those of a simulation never warmed."""
+@pytest.mark.parametrize('columns, lanes', [(1, 'off'), (3, 'off'), (3, 'on')])
+def test_the_node_loads_the_ramped_step_at_start_and_leaves_the_state_as_loaded(
+        columns, lanes, monkeypatch):
+    """``warm_ramp`` (the node's start, after timing a step): the ramped twin runs (an array
+    that steps as lanes: its ramped lane call), and the simulation is the freshly loaded one
+    again: positions, velocities, time, prestrain, balance, and the steps it then takes equal
+    those of a simulation never warmed."""
     from solver.simulate.array import simulation_for
+    from solver.simulate.lanebatch import LaneGroup
     from tensegrity_ros.node.params import warm_ramp
     scene = Scene.load(ROOT / 'config' / 'scenes' / 'fb_column.yaml').with_overrides(
-        [f'structure.n_columns={columns}'])
+        [('structure.n_columns', columns), ('integrator.lanes', lanes)])
     warmed, fresh = simulation_for(scene), simulation_for(scene)
-    sims = warmed.groups[0].sim if columns > 1 else warmed
     calls = []
-    real = sims._ramped
+    real = LaneGroup._advance_ramped if lanes == 'on' else Loading._ramped
 
-    def counted(*args):
-        calls.append(real(*args))
+    def counted(self, *args):
+        calls.append(real(self, *args))
         return calls[-1]
-    sims._ramped = counted
-    warm_ramp(warmed)
+    with monkeypatch.context() as mp:
+        mp.setattr(LaneGroup if lanes == 'on' else Loading,
+                   '_advance_ramped' if lanes == 'on' else '_ramped', counted)
+        warm_ramp(warmed)
     assert any(out is not None for out in calls)        # stepped by the compiled twin
     for sim in (warmed, fresh):
         sim.apply_impact(0.1)

@@ -188,6 +188,8 @@ class ArraySimulation(SimulationAPI):
         self.groups = sorted((g for g, _ in new_groups), key=lambda g: g.columns[0])
         self._cache = {}
         self._plan = None
+        if self.lanes and len(self.groups) > 1:
+            self._lane_plan()       # with the command, not in the next step's time (the node)
 
     # -- assembling full arrays -----------------------------------------------------------------
     def _assemble_nodes(self, get, offset):
