@@ -244,3 +244,42 @@ def test_columns_join_the_lanes_again_after_a_ramp():
     assert [len(g.sims) for g in a._plan.groups] == [6] and not a._plan.singles
     assert np.array_equal(a.frame().positions, b.frame().positions)
     assert a.steps_taken == b.steps_taken and a.energy() == b.energy()
+
+
+@pytest.mark.parametrize('threads', [1, 2])
+def test_fractions_of_a_step_step_as_lanes(threads, monkeypatch):
+    """``advance_part`` on an array that steps as lanes: one step of the fraction of ``dt`` as
+    lanes (no column simulation takes a part alone), equal to the array stepped one column at
+    a time, bit for bit: after impacts of 0.2-1 m/s (bar contact) and through a ramp."""
+    scene = Scene.load(FB).with_overrides([('structure.n_columns', 8)])
+    sims = []
+    for lanes in (True, False):
+        sim = simulation_for(scene)
+        sim.lanes, sim.threads = lanes, threads
+        n_p = sim.network.n_prisms
+        sim.apply_prestrain(np.linspace(0.02, 0.05, 8)[:, None] * np.ones((1, n_p)))
+        sim.apply_impact(np.linspace(0.2, 1.0, 8))
+        sims.append(sim)
+    a, b = sims
+
+    def alone(self, fraction):
+        raise AssertionError('a column simulation took a part of a step alone')
+    for k, f in enumerate([0.5, 0.25, 1.0, 0.75, 0.3] * 3):
+        if k == 5:
+            for sim in sims:
+                sim.apply_prestrain(np.linspace(0.05, 0.02, 8), ramp_s=6 * sim.dt)
+        with monkeypatch.context() as mp:
+            mp.setattr(Simulation, 'advance_part', alone)
+            assert a.advance_part(f) >= 1
+        b.advance_part(f)
+        for sim in sims:
+            sim.advance(2 * sim.dt)
+        fa, fb = a.frame(), b.frame()
+        assert a.t == b.t and a.step == b.step and a.steps_taken == b.steps_taken
+        assert np.array_equal(fa.positions, fb.positions)
+        assert np.array_equal(fa.strain, fb.strain) and fa.energy == fb.energy
+        assert fa.energy_balance_error == fb.energy_balance_error
+        assert np.array_equal(a.prestrain, b.prestrain)
+    assert a.contacts_met > 0 and a.contacts_met == b.contacts_met
+    with pytest.raises(ValueError, match='fraction'):
+        a.advance_part(1.5)

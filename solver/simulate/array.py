@@ -22,7 +22,6 @@ column.
 from __future__ import annotations
 
 import math
-import re
 
 import numpy as np
 
@@ -426,14 +425,27 @@ class ArraySimulation(SimulationAPI):
             step.restore()
             grp, exc = failed
             if isinstance(exc, SimulationDiverged):
-                raise _renamed(exc, grp.columns) from None
+                raise exc.for_columns(grp.columns) from None
             raise exc
         return step.most_steps()
 
     def advance_part(self, fraction):
         """Every column by one step shortened to ``fraction`` of ``dt``
-        (:meth:`Simulation.advance_part`), as :meth:`advance` steps them."""
-        return self._each(lambda sim: sim.advance_part(fraction))
+        (:meth:`Simulation.advance_part`): as lanes where :meth:`advance` steps them so
+        (``'auto'``: the way its chooser prefers), every column's ``dt`` that fraction for the
+        call, else one column simulation at a time."""
+        sims = [g.sim for g in self.groups]
+        way = self.lanes if self.lanes != 'auto' else self._chooser and self._chooser.best
+        if not (way and len(sims) > 1 and 0.0 < float(fraction) <= 1.0):
+            return self._each(lambda sim: sim.advance_part(fraction))
+        dts = [s.dt for s in sims]
+        for s in sims:
+            s.dt = float(fraction) * s.dt      # as Simulation.advance_part
+        try:
+            return self._advance_lanes(sims[0].dt, 1)
+        finally:
+            for s, dt in zip(sims, dts):
+                s.dt = dt
 
     def _each(self, step):
         groups = self.groups
@@ -449,7 +461,7 @@ class ArraySimulation(SimulationAPI):
                     g.sim.t, g.sim.step, g.sim.steps_taken = t, step, taken
             grp, exc = failed
             if isinstance(exc, SimulationDiverged):
-                raise _renamed(exc, grp.columns) from None
+                raise exc.for_columns(grp.columns) from None
             raise exc
         return max(v for _, v in results)
 
@@ -484,16 +496,3 @@ class ArraySimulation(SimulationAPI):
                      constraint_error=cerr, base_force=base,
                      energy_balance_error=float(self.energy_error()))
 
-
-def _renamed(exc, columns):
-    """``exc`` of a one-column simulation, its text naming the array's column(s)."""
-    text = str(exc)
-    name = (f'column {columns[0]}' if len(columns) == 1
-            else f'columns {", ".join(map(str, columns))}')
-    if 'column 0' in text:
-        text = re.sub(r'\bcolumn 0\b', name, text)
-    else:
-        text = text.replace(': ', f': {name}: ', 1)
-    new = SimulationDiverged(exc.t, exc.step, exc.quantity, '', exc.hint)
-    new.args = (text,)
-    return new

@@ -5,6 +5,7 @@ state kept to restore, and the search for the first failing step that names it i
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 
 import numpy as np
@@ -21,6 +22,19 @@ class SimulationDiverged(RuntimeError):
         self.t, self.step, self.quantity, self.hint = t, step, quantity, hint
         super().__init__(f'simulation diverged at t = {t:.6g} s (step {step}): {quantity} '
                          f'{detail}; {hint}')
+
+    def for_columns(self, columns):
+        """This exception of a one-column simulation, its text naming an array's ``columns``."""
+        text = str(self)
+        name = (f'column {columns[0]}' if len(columns) == 1
+                else f'columns {", ".join(map(str, columns))}')
+        if 'column 0' in text:
+            text = re.sub(r'\bcolumn 0\b', name, text)
+        else:
+            text = text.replace(': ', f': {name}: ', 1)
+        new = SimulationDiverged(self.t, self.step, self.quantity, '', self.hint)
+        new.args = (text,)
+        return new
 
 
 @dataclass(frozen=True)
