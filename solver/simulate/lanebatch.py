@@ -204,11 +204,12 @@ class LaneGroup:
         on by itself from where its call stopped (:meth:`Simulation._stepped`)."""
         sims, R, top = self.sims, self.R, self.blocks[0]
         s0, b = sims[0], len(sims)
-        self._keeps = [s._keep() for s in sims]
+        top.status[:] = OK
+        self._call(lanedata.keep, (top.S, self.kept, top.status))     # what a failure restores
+        self._keeps = [s._kept(d, s.integrator.get_state()) for s, d in zip(sims, self._kept)]
         for k, s in enumerate(sims):
             R.clock[k] = (s.t, s._ramp.t0, s._ramp.duration, s.dt)
             R.book[k] = (s._energy_ref, s._energy_scale)
-        top.status[:] = OK
         st, steps, done, taken, went, made = np.zeros((6, b), np.int64)
         heights = np.empty((b,) + s0._heights_shape)
         self._call(rk4laneramp.ramped, (
