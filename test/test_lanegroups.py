@@ -31,6 +31,21 @@ def _same(a, b):
             and a.model.dissipated() == b.model.dissipated())
 
 
+def _arrays(n, ways, threads, p_high, v0):
+    """Arrays of ``n`` FB columns, one per way of stepping in ``ways``, on ``threads``:
+    prestrains 0.02 to ``p_high`` (one per column), each column hit at ``v0``."""
+    scene = Scene.load(FB).with_overrides([('structure.n_columns', n)])
+    sims = []
+    for lanes in ways:
+        sim = simulation_for(scene)
+        sim.lanes, sim.threads = lanes, threads
+        n_p = sim.network.n_prisms
+        sim.apply_prestrain(np.linspace(0.02, p_high, n)[:, None] * np.ones((1, n_p)))
+        sim.apply_impact(v0)
+        sims.append(sim)
+    return sims
+
+
 def _pair(scene, commands):
     """Two lists of simulations of ``scene``, each with ``commands[k](sim)`` applied."""
     def make():
@@ -166,17 +181,10 @@ def test_array_lanes_equal_one_column_at_a_time(threads, way):
     """An array of 20 columns with different prestrains hit at 0.5 m/s: stepped as lanes (one
     lane group per thread), or switching between lanes and single simulations as measured
     (``'auto'``), it equals the array stepped one column simulation at a time."""
-    scene = Scene.load(FB).with_overrides([('structure.n_columns', 20)])
-    sims = []
-    for lanes in (way, False):
-        sim = simulation_for(scene)
-        sim.lanes, sim.threads = lanes, threads
-        n_p = sim.network.n_prisms
-        sim.apply_prestrain(np.linspace(0.02, 0.06, 20)[:, None] * np.ones((1, n_p)))
-        sim.apply_impact(0.5)
+    sims = _arrays(20, (way, False), threads, 0.06, 0.5)
+    for sim in sims:
         for _ in range(6):
             sim.advance(8 * sim.dt)
-        sims.append(sim)
     a, b = sims
     assert a._plan is not None and len(a._plan.groups) == threads
     fa, fb = a.frame(), b.frame()
@@ -251,15 +259,7 @@ def test_fractions_of_a_step_step_as_lanes(threads, monkeypatch):
     """``advance_part`` on an array that steps as lanes: one step of the fraction of ``dt`` as
     lanes (no column simulation takes a part alone), equal to the array stepped one column at
     a time, bit for bit: after impacts of 0.2-1 m/s (bar contact) and through a ramp."""
-    scene = Scene.load(FB).with_overrides([('structure.n_columns', 8)])
-    sims = []
-    for lanes in (True, False):
-        sim = simulation_for(scene)
-        sim.lanes, sim.threads = lanes, threads
-        n_p = sim.network.n_prisms
-        sim.apply_prestrain(np.linspace(0.02, 0.05, 8)[:, None] * np.ones((1, n_p)))
-        sim.apply_impact(np.linspace(0.2, 1.0, 8))
-        sims.append(sim)
+    sims = _arrays(8, (True, False), threads, 0.05, np.linspace(0.2, 1.0, 8))
     a, b = sims
 
     def alone(self, fraction):

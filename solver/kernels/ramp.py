@@ -170,29 +170,10 @@ def source_of(cable_map, n_model):
     return src
 
 
-class LaneRamp(NamedTuple):
-    """The ramps of B lanes of one model (:func:`stack`): the fields of :class:`Ramp`, those a
-    lane has of its own stacked (B, ...) (``start``, ``target``, ``p``, ``p_next``, ``EA``,
-    ``clock``, ``book``), the map and the scratch shared (the lanes share the network)."""
-    start: np.ndarray
-    target: np.ndarray
-    p: np.ndarray
-    p_next: np.ndarray
-    length: np.ndarray
-    cross: np.ndarray
-    cross_prism: np.ndarray
-    count: np.ndarray
-    base: np.ndarray
-    below: np.ndarray
-    above: np.ndarray
-    radius: np.ndarray
-    EA: np.ndarray
-    cable_map: np.ndarray
-    source: np.ndarray
-    gamma: np.ndarray
-    rest: np.ndarray
-    clock: np.ndarray
-    book: np.ndarray
+# The ramps of B lanes of one model (:func:`stack`): the fields of :class:`Ramp`, those a lane
+# has of its own stacked (B, ...) (:data:`OWN`), the map and the scratch shared (the lanes share
+# the network).
+LaneRamp = NamedTuple('LaneRamp', [(f, np.ndarray) for f in Ramp._fields])
 
 
 OWN = ('start', 'target', 'p', 'p_next', 'EA', 'clock', 'book')    # a lane's own fields
