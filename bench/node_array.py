@@ -328,9 +328,9 @@ def main(out_dir='bench/results', log=print, columns=(10, 20, 30, 50), window_s=
                 session.close()
 
         for n in columns:
-            got, ramp = run(n, MODES, ramp_s > 0)
+            got, ramped = run(n, MODES, ramp_s > 0)
             rows += got
-            ramps += ramp
+            ramps += ramped
         if bisect:
             for mode in MODES:
                 name = mode_name(mode)

@@ -63,35 +63,32 @@ def _fingerprint(value):
     return value
 
 
-_PRINTS: dict = {}          # id(record) -> (record, its number)
 _NUMBERS: dict = {}         # fingerprint -> number
+_RECORDS: dict = {}         # id(constants record) -> (record, its number)
+_MAPS: dict = {}            # id(ramp record) -> (record, the number of its map)
 
 
-def _record_number(rec):
-    """A number per distinct constants record (by value), computed once per record object (a
-    record is never edited: :mod:`solver.kernels.records`)."""
-    hit = _PRINTS.get(id(rec))
-    if hit is None or hit[0] is not rec:
-        if len(_PRINTS) > 4096:
-            _PRINTS.clear()
-        number = _NUMBERS.setdefault(_fingerprint(rec), len(_NUMBERS))
-        hit = _PRINTS[id(rec)] = (rec, number)
+def _number(obj, seen, value):
+    """A number per distinct ``value(obj)`` (a fingerprint), computed once per object ``obj``
+    (never edited) and kept in ``seen`` (id -> (object, number))."""
+    hit = seen.get(id(obj))
+    if hit is None or hit[0] is not obj:
+        if len(seen) > 4096:
+            seen.clear()
+        hit = seen[id(obj)] = (obj, _NUMBERS.setdefault(value(obj), len(_NUMBERS)))
     return hit[1]
 
 
-_MAPS: dict = {}            # id(ramp record) -> (record, the number of its map)
+def _record_number(rec):
+    """A number per distinct constants record, by value (a record is never edited:
+    :mod:`solver.kernels.records`)."""
+    return _number(rec, _RECORDS, _fingerprint)
 
 
 def _map_number(rec):
     """A number per distinct prestrain map of :class:`~solver.kernels.ramp.Ramp` records (their
-    shared fields, by value), computed once per record object."""
-    hit = _MAPS.get(id(rec))
-    if hit is None or hit[0] is not rec:
-        if len(_MAPS) > 4096:
-            _MAPS.clear()
-        key = ('ramp map', _fingerprint(ramp.shared_part(rec)))
-        hit = _MAPS[id(rec)] = (rec, _NUMBERS.setdefault(key, len(_NUMBERS)))
-    return hit[1]
+    shared fields, by value)."""
+    return _number(rec, _MAPS, lambda r: ('ramp map', _fingerprint(ramp.shared_part(r))))
 
 
 def lane_key(sim):
