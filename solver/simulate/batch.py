@@ -22,7 +22,8 @@ reason of a point that diverged or failed. Without ``frames`` it records only wh
 reads (lean recording: no positions, no cable tensions); the figures are the same. A batch of one
 point is the single run. By default its points of one model step together as lanes
 (:mod:`solver.simulate.lanebatch`), each through the intervals before its next impact or its end
-in calls of up to :data:`CHUNK` intervals (:meth:`BatchSimulation.advance_intervals`); with
+in calls of up to :data:`CHUNK` intervals (fewer where their data would pass :data:`CHUNK_BYTES`:
+:meth:`BatchSimulation.advance_intervals`); with
 ``lanes=False`` its threads take the points one after another, each run to its end, so that one
 thread's set-up and summary (Python) overlap another's steps (compiled). Every figure is the same
 either way, bit for bit.
@@ -45,8 +46,14 @@ from solver.simulate.simulation import SimulationDiverged
 RUNNING, OK, DIVERGED, ERROR = 'running', 'ok', 'diverged', 'error'
 # the most output intervals a lane group takes in one call (simulate_batch): over many intervals
 # the lanes' step counts even out (a lane in contact takes ten times the steps of one that is
-# not, and which lane that is changes from interval to interval)
-CHUNK = 40
+# not, and which lane that is changes from interval to interval). A call waits for its slowest
+# lane: in two 64-point batches of the 1,024-point sweep (docs/sweeps.md, 200 intervals a
+# point) the lanes' steps were 0.73-0.95 of the slowest lane's in calls of 40 intervals, 0.89 and
+# 0.94 in one call of 200; three batches took 0.91-1.00 of the time on one thread (four runs
+# each, alternating: the machine's noise is of that order). The call keeps every lane's data at
+# each interval's end, about 10 kB a lane for the FB column: at most CHUNK_BYTES in all
+CHUNK = 200
+CHUNK_BYTES = 256 << 20
 
 
 def reason_of(exc):
@@ -157,10 +164,11 @@ class BatchSimulation:
             if not is_group:
                 return self._intervals(index[id(item)], counts, duration, visit, spent)
             n = max(int(round(duration / item.sims[0].dt)), 0)
+            most = max(1, min(CHUNK, CHUNK_BYTES // sum(a.nbytes for a in item.S)))
             which = [index[id(s)] for s in item.sims]
             left = {i: counts[i] for i in which}
-            while any(left.values()):       # calls of at most CHUNK intervals
-                part = {i: min(c, CHUNK) if self.status[i] == RUNNING else 0
+            while any(left.values()):       # calls of at most `most` intervals
+                part = {i: min(c, most) if self.status[i] == RUNNING else 0
                         for i, c in left.items()}
                 t0, c0 = time.perf_counter(), time.thread_time()
                 ch = item.chunk(n, [part[i] for i in which])

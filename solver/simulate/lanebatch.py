@@ -140,7 +140,7 @@ class LaneGroup:
             size = (size + 1) // 2
             self.blocks.append(_Block(None, self.rec.topo, m0.work, like=self.S, lanes=size))
         self.out = np.zeros((b, 4))
-        self._chunks = {}               # intervals -> a Chunk of as many
+        self._chunk = None              # the Chunk of the most intervals asked for so far
         self._fallen = [False] * b      # the simulations that left the last chunk
         self._entries = {}              # kernel -> its compiled overload for this group
         self._models = []
@@ -263,9 +263,9 @@ class LaneGroup:
         s0, top = self.sims[0], self.blocks[0]
         top.status[:] = np.where(np.asarray(todo) > 0, OK, NOT_A_LANE)     # 0: left as is
         k_max = max(todo)
-        ch = self._chunks.get(k_max)
-        if ch is None:
-            ch = self._chunks[k_max] = lanechunk.chunk(self.S, k_max, s0._heights_shape)
+        ch = self._chunk        # one of more intervals serves: the lanes' todo say how many
+        if ch is None or ch.out.shape[0] < k_max:
+            ch = self._chunk = lanechunk.chunk(self.S, k_max, s0._heights_shape)
         ch.todo[:] = todo
         self._fallen = [False] * len(self.sims)
         self._call(rk4lanes.chunk_run, (self.rec, top.S, top.L, top.W, top.X, top.C, top.w0,
