@@ -259,13 +259,13 @@ def peak(ghz, flags):
 
 # -- timing -----------------------------------------------------------------------------------
 @jit
-def _scalar_evaluations(m, d, w, out, n):
+def scalar_evaluations(m, d, w, out, n):
     for _ in range(n):
         dyn.accelerations(d.x, d.v, m, d, w, out)
 
 
 @jit_lanes
-def _lane_evaluations(topo, data, work, out, status, n):
+def lane_evaluations(topo, data, work, out, status, n):
     for _ in range(n):
         lanes.accelerations(data.x, data.v, topo, data, work, out, status)
 
@@ -279,7 +279,7 @@ def network():
 
 def scalar_state(net):
     """``(Model, Data, Work)`` of :func:`solver.kernels.records.plain` at rest, the top level hit
-    at 0.1 m/s (velocities projected), as :mod:`bench.lanes`."""
+    at 0.1 m/s (velocities projected); :mod:`bench.lanes` times the same state."""
     m, d, w = records.plain(net)
     d.v[net.levels[0, -1], 2] = -0.1
     dyn.project_velocities(d.x, d.v, m.topo, w)
@@ -323,7 +323,7 @@ def time_scalar(m, d, w):
     out = np.zeros_like(d.x)
 
     def call(n):
-        _scalar_evaluations(m, d, w, out, n)
+        scalar_evaluations(m, d, w, out, n)
     call(1)
     return _per_call(call, 5e-6)
 
@@ -334,7 +334,7 @@ def time_lanes(net, n_lanes, v):
     status = np.zeros(n_lanes, np.int64)
 
     def call(n):
-        _lane_evaluations(net.topology(), data, work, out, status, n)
+        lane_evaluations(net.topology(), data, work, out, status, n)
     call(1)
     t = _per_call(call, 2e-6 * n_lanes)
     if not (status == dyn.OK).all():

@@ -34,54 +34,19 @@ from pathlib import Path
 
 import numpy as np
 
-from solver.build import structures
 from solver.build.scene import Scene
-from solver.compiled import jit, jit_lanes
 from solver.integrators import rk4lanes
 from solver.integrators.rk4 import RK4Projected
 from solver.kernels import dynamics as dyn
-from solver.kernels import lanes, records
 
 from .common import COLUMNS
+from .flops import lane_evaluations, lane_state, network, scalar_evaluations, scalar_state
 
 LANES = (1, 8, 32, 64, 128)
 DT = 6.25e-4
 TOL = 1e-12
 MAX_ITER = 20
 SECONDS = 0.15          # the length of one timed measurement
-
-
-@jit
-def _scalar_evaluations(m, d, w, out, n):
-    for _ in range(n):
-        dyn.accelerations(d.x, d.v, m, d, w, out)
-
-
-@jit_lanes
-def _lane_evaluations(topo, data, work, out, status, n):
-    for _ in range(n):
-        lanes.accelerations(data.x, data.v, topo, data, work, out, status)
-
-
-def _network():
-    scene = Scene.load(COLUMNS['FB']).with_overrides([('model', 'full3d'),
-                                                      ('contact.bars', 'none')])
-    return structures.build_network(scene)
-
-
-def _scalar(net):
-    m, d, w = records.plain(net)
-    d.v[net.levels[0, -1], 2] = -0.1
-    dyn.project_velocities(d.x, d.v, m.topo, w)
-    return m, d, w
-
-
-def _lanes(net, n_lanes, v):
-    data = lanes.lane_data([net.x0] * n_lanes, [v] * n_lanes,
-                           [net.cable_rest_length * (1.0 - 1e-5 * k) for k in range(n_lanes)],
-                           [net.cable_EA] * n_lanes,
-                           [np.zeros((net.n_nodes, 3))] * n_lanes)
-    return data, lanes.lane_work(net.topology(), net.n_nodes, n_lanes)
 
 
 def _timed(call, unit_s):
@@ -95,8 +60,8 @@ def _timed(call, unit_s):
 def _measure(net, n_lanes, kind):
     """(scalar s, lanes s per instance) of one evaluation or one step, the pair of lowest
     ratio of three."""
-    m, d, w = _scalar(net)
-    data, work = _lanes(net, n_lanes, d.v)
+    m, d, w = scalar_state(net)
+    data, work = lane_state(net, n_lanes, d.v)
     topo = net.topology()
     out1 = np.zeros_like(d.x)
     out = np.zeros_like(data.x)
@@ -104,10 +69,10 @@ def _measure(net, n_lanes, kind):
     steps = np.zeros(n_lanes, np.int64)
     if kind == 'evaluation':
         def one(n):
-            _scalar_evaluations(m, d, w, out1, n)
+            scalar_evaluations(m, d, w, out1, n)
 
         def many(n):
-            _lane_evaluations(topo, data, work, out, status, n)
+            lane_evaluations(topo, data, work, out, status, n)
     else:
         def one(n):
             RK4Projected.kernel(m, d, w, DT, n, TOL, MAX_ITER, False, True)
@@ -242,7 +207,7 @@ def sweep(log=print, threads=2):
 def main(out_dir='bench/results', log=print):
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    net = _network()
+    net = network()
     load = [os.getloadavg()[0]]         # how busy the machine was (1-minute load average)
     rows = []
     for n_lanes in LANES:
