@@ -65,13 +65,19 @@ class ModelBaseForce:
     ValueError if the constraint matrix is singular."""
 
     def __init__(self, model):
-        sm = model.rec.summary
-        self.base = _base_rows(sm.levels, sm.clamped)
-        self.mult = np.asarray(sm.node_mult, dtype=np.float64)[np.maximum(self.base, 0)]
+        self.base, self.mult = self.rows(model)
         self.work = records.clone_work(model.work)
         self.acc = np.zeros_like(model.x)
         self._entry = None          # the compiled overload of _model_base_force, after a call
         self._copies = None         # its scratch: the contact state's and the ledger's copies
+
+    @staticmethod
+    def rows(model):
+        """``(base, mult)``: the reduced base nodes of each column (n_columns, k; -1 rows for
+        a column without a base) and their multiplicities."""
+        sm = model.rec.summary
+        base = _base_rows(sm.levels, sm.clamped)
+        return base, np.asarray(sm.node_mult, dtype=np.float64)[np.maximum(base, 0)]
 
     @staticmethod
     def applies(model):

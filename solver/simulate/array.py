@@ -29,7 +29,7 @@ from solver.build.scene import Scene
 from solver.analysis import observables
 from solver.build.structures import PrestrainMap, build_network
 from solver.models.base import ModelView
-from solver.simulate import chooser, lanebatch, parallel
+from solver.simulate import chooser, lanebatch, laneframe, parallel
 from solver.simulate.interface import SimulationAPI
 from solver.simulate.loading import prestrain_values, rest_length_values
 from solver.simulate.simulation import Frame, FrameFigures, Simulation, SimulationDiverged
@@ -472,12 +472,13 @@ class ArraySimulation(SimulationAPI):
         return FrameFigures(f.t, f.strain, f.energy, f.constraint_error, f.energy_balance_error)
 
     def frame(self):
-        """A copied :class:`~solver.simulate.simulation.Frame` of the whole array: each group's
-        figures as its ``Simulation.frame``, without a frame per group (a node array's tick)."""
+        """A copied :class:`~solver.simulate.simulation.Frame` of the whole array (each group's
+        figures as its ``Simulation.frame``; the lane groups' base forces in one call each)."""
         n, k = self._per
         nc, n_p = self.n_columns, self.network.n_prisms
         x, strain, tension = np.empty((nc, n, 3)), np.empty((nc, n_p)), np.empty((nc, k))
         base, energy, cerr = np.empty(nc), np.empty(nc), 0.0
+        laneframe.put_base_forces(self._plan)      # one call per lane group, not per column
         for grp in self.groups:
             s, m = grp.sim, grp.sim.model
             pos = m.positions()

@@ -1,0 +1,57 @@
+"""What an array's frame reads of its lane groups, one compiled call per group instead of one
+per column: the columns' base forces (:func:`solver.kernels.lanebase.base_forces`), kept in each
+simulation's cache, where :meth:`~solver.simulate.simulation.Simulation.base_force` finds them
+(the values it computes itself one column at a time, bit for bit)."""
+from __future__ import annotations
+
+import weakref
+
+import numpy as np
+
+from solver.analysis.support import ModelBaseForce
+from solver.compiled import compiled_overload
+from solver.kernels import lanebase
+
+_KEPT = weakref.WeakKeyDictionary()     # lane group -> (its call's arguments, compiled entry)
+
+
+def put_base_forces(plan):
+    """For every lane group of ``plan`` (a :class:`~solver.simulate.lanebatch.Plan`, or None)
+    that still holds its simulations (their data are its lanes): the base force of each of them
+    in one call, kept as its ``base_force``. A group is left to its simulations (each computes
+    its own when asked) where one of them has its base force already, where their model has no
+    base force of its own state (:meth:`ModelBaseForce.applies`) or an evaluation fails."""
+    for group in () if plan is None else plan.groups:
+        sims = group.sims
+        if any('base_force' in s._cache for s in sims) or not group.bound():
+            continue
+        kept = _KEPT.get(group)
+        if kept is None:
+            kept = _KEPT[group] = _arguments(group)
+        if kept is None:
+            continue
+        args, entry = kept
+        if entry is None:       # through numba's dispatch, then its compiled overload
+            failed = lanebase.base_forces(*args)
+            _KEPT[group] = (args, compiled_overload(lanebase.base_forces, args)
+                            or lanebase.base_forces)
+        else:
+            failed = entry(*args)
+        if not failed:
+            out = args[-1]
+            for k, s in enumerate(sims):
+                s._cache['base_force'] = out[k].copy()
+
+
+def _arguments(group):
+    """The arguments of :func:`solver.kernels.lanebase.base_forces` for ``group`` (its scratch
+    made once), or None where its model has no base force of its own state."""
+    s0, top = group.sims[0], group.blocks[0]
+    m = s0.model
+    if not s0.network.levels.size or m.integrates_itself or not ModelBaseForce.applies(m):
+        return None
+    base, mult = ModelBaseForce.rows(m)
+    S, C = top.S, top.C
+    return (group.rec, S, top.L, top.W, top.X, C, np.empty_like(S.scan), np.empty_like(S.active),
+            np.empty_like(S.ledger), np.empty_like(C.go), np.empty_like(C.st), base, mult,
+            np.empty((len(group.sims), base.shape[0]))), None
