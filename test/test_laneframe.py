@@ -9,6 +9,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from solver import Scene
 from solver.analysis.support import ModelBaseForce
@@ -19,11 +20,11 @@ ROOT = Path(__file__).resolve().parents[1]
 FB = ROOT / 'config' / 'scenes' / 'fb_column.yaml'
 
 
-def _array(n, v0s):
-    """An array of ``n`` FB columns stepped as lanes, prestrains 0.02 to 0.08, column ``c`` hit
-    at ``v0s[c]``."""
+def _array(n, v0s, lanes=True):
+    """An array of ``n`` FB columns, prestrains 0.02 to 0.08, column ``c`` hit at ``v0s[c]``,
+    stepped as lanes or (``lanes`` False, the scene's default) one column at a time."""
     sim = simulation_for(Scene.load(FB).with_overrides([('structure.n_columns', n)]))
-    sim.lanes, sim.threads = True, 1
+    sim.lanes, sim.threads = lanes, 1
     sim.apply_prestrain(np.linspace(0.02, 0.08, n)[:, None] * np.ones((1, sim.network.n_prisms)))
     for c, v0 in enumerate(v0s):
         if v0:
@@ -40,13 +41,17 @@ def _alone(sim):
     return out
 
 
-def test_a_lane_groups_base_forces_equal_each_columns_own_bit_for_bit(monkeypatch):
+@pytest.mark.parametrize('lanes', [True, False])
+def test_a_lane_groups_base_forces_equal_each_columns_own_bit_for_bit(monkeypatch, lanes):
+    """Stepped as lanes or one column at a time: the frame makes the lane groups of its
+    columns either way (their data in the groups' memory), and the steps of an array that
+    publishes frames are those of one that does not."""
     calls = []                              # columns that computed their own base force
     own = ModelBaseForce.__call__
     monkeypatch.setattr(ModelBaseForce, '__call__', lambda me, m: calls.append(1) or own(me, m))
     v0s = (0.0, 0.1, 0.3, 1.0, 0.5, 0.0)
-    sim = _array(6, v0s)
-    twin = _array(6, v0s)                   # steps the same, never publishes a frame
+    sim = _array(6, v0s, lanes)
+    twin = _array(6, v0s, lanes)            # steps the same, never publishes a frame
     met, largest = 0, 0.0
     for q in range(100):                    # 0.5 s: the fronts reach the base at about 0.4 s
         sim.advance(0.005)

@@ -478,7 +478,7 @@ class ArraySimulation(SimulationAPI):
         nc, n_p = self.n_columns, self.network.n_prisms
         x, strain, tension = np.empty((nc, n, 3)), np.empty((nc, n_p)), np.empty((nc, k))
         base, energy, cerr = np.empty(nc), np.empty(nc), 0.0
-        laneframe.put_base_forces(self._plan)      # one call per lane group, not per column
+        laneframe.put_base_forces(self._lane_plan() if len(self.groups) > 1 else None)
         for grp in self.groups:
             s, m = grp.sim, grp.sim.model
             pos = m.positions()

@@ -1,7 +1,10 @@
 """What an array's frame reads of its lane groups, one compiled call per group instead of one
 per column: the columns' base forces (:func:`solver.kernels.lanebase.base_forces`), kept in each
 simulation's cache, where :meth:`~solver.simulate.simulation.Simulation.base_force` finds them
-(the values it computes itself one column at a time, bit for bit)."""
+(the values it computes itself one column at a time, bit for bit). An array that steps one
+column simulation at a time makes its lane groups for its frames all the same
+(:meth:`~solver.simulate.array.ArraySimulation.frame`): the columns' data then live in the
+groups' memory, where each column steps as before."""
 from __future__ import annotations
 
 import weakref
