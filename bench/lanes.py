@@ -178,13 +178,19 @@ SWEEP_GRID = ('loading.impact.v0=0.05:0.2:16', 'prestrain=0.001:0.004:32',
 def sweep(log=print, threads=2):
     """The 1,024-point sweep of docs/sweeps.md (1 s runs) in this process on ``threads``
     threads, its batches stepped as lanes, then one point at a time: the wall times and whether
-    the rows are equal (every figure, timings aside)."""
+    the rows are equal (every figure, timings aside). A sweep of four short points in each way
+    goes first, untimed: a kernel that numba loads or compiles on its first call does so there,
+    not in the timed sweeps."""
     import tempfile
     from tensegrity_ros.studies import sweep as sw
     from tensegrity_ros.studies.table import TIMING_FIELDS
     out = {'grid': list(SWEEP_GRID), 't_end_s': 1.0, 'threads': threads}
     rows = {}
     with tempfile.TemporaryDirectory() as tmp:
+        for lanes in (True, False):
+            warm = sw.build(COLUMNS['FB'], ['loading.impact.v0=0.1,0.2', 'prestrain=0.001,0.002'],
+                            out=Path(tmp) / f'warm_{lanes}', t_end=0.05)
+            sw.execute(warm, threads=threads, lanes=lanes)
         for lanes in (True, False):
             sweep = sw.build(COLUMNS['FB'], list(SWEEP_GRID), out=Path(tmp) / str(lanes),
                              t_end=1.0)
