@@ -202,14 +202,14 @@ class LaneGroup:
         sims, R, top = self.sims, self.R, self.blocks[0]
         s0, b = sims[0], len(sims)
         top.status[:] = OK
-        self._call(lanedata.keep, (top.S, self.kept, top.status))     # what a failure restores
+        self.call(lanedata.keep, (top.S, self.kept, top.status))     # what a failure restores
         self._keeps = [s._kept(d, s.integrator.get_state()) for s, d in zip(sims, self._kept)]
         for k, s in enumerate(sims):
             R.clock[k] = (s.t, s._ramp.t0, s._ramp.duration, s.dt)
             R.book[k] = (s._energy_ref, s._energy_scale)
         st, steps, done, taken, went, made = np.zeros((6, b), np.int64)
         heights = np.empty((b,) + s0._heights_shape)
-        self._call(rk4laneramp.ramped, (
+        self.call(rk4laneramp.ramped, (
             self.rec, top.S, top.L, top.W, top.X, top.C, top.w0, float(s0.dt), int(n),
             float(s0.tol), int(s0.max_iter), bool(s0.kinks), bool(s0.integrator.projected), R,
             NO_CHUNK, top.status, st, steps, done, taken, went, made, self.out, heights))
@@ -235,7 +235,7 @@ class LaneGroup:
         fixed = (dt, total, float(s0.tol), int(s0.max_iter), bool(s0.kinks),
                  bool(s0.integrator.projected))
         top = self.blocks[0]
-        self._call(rk4lanes.begin_checked, (self.rec, top.S, top.L, top.C, top.status,
+        self.call(rk4lanes.begin_checked, (self.rec, top.S, top.L, top.C, top.status,
                                              top.steps, self.kept))
         chain = []                      # (block, its lanes' slots in the block above)
         block = top
@@ -250,7 +250,7 @@ class LaneGroup:
         for above, alive in reversed(chain):
             block.give(above, alive)
             block = above
-        self._call(rk4lanes.end_checked, (self.rec, top.S, top.L, top.W, top.C, top.status,
+        self.call(rk4lanes.end_checked, (self.rec, top.S, top.L, top.W, top.C, top.status,
                                            self.out, heights, not chain))
 
     def chunk(self, n, todo):
@@ -268,7 +268,7 @@ class LaneGroup:
             ch = self._chunk = lanechunk.chunk(self.S, k_max, s0._heights_shape)
         ch.todo[:] = todo
         self._fallen = [False] * len(self.sims)
-        self._call(rk4lanes.chunk_run, (self.rec, top.S, top.L, top.W, top.X, top.C, top.w0,
+        self.call(rk4lanes.chunk_run, (self.rec, top.S, top.L, top.W, top.X, top.C, top.w0,
                                         float(s0.dt), int(n), float(s0.tol), int(s0.max_iter),
                                         bool(s0.kinks), bool(s0.integrator.projected),
                                         top.status, top.steps, ch))
@@ -292,7 +292,7 @@ class LaneGroup:
                                             o[3])}
         return s._conclude(n, int(ch.steps[j, k]), OK, _chunk_data(ch, j, k), None)
 
-    def _call(self, kernel, args):
+    def call(self, kernel, args):
         """``kernel(*args)`` through numba's dispatch the first time, then through the compiled
         overload (the arguments are this group's arrays, or new ones of the same types)."""
         entry = self._entries.get(kernel)

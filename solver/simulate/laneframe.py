@@ -12,10 +12,9 @@ import weakref
 import numpy as np
 
 from solver.analysis.support import ModelBaseForce
-from solver.compiled import compiled_overload
 from solver.kernels import lanebase
 
-_KEPT = weakref.WeakKeyDictionary()     # lane group -> (its call's arguments, compiled entry)
+_ARGS = weakref.WeakKeyDictionary()     # lane group -> its call's arguments (or None: no call)
 
 
 def put_base_forces(plan):
@@ -28,19 +27,10 @@ def put_base_forces(plan):
         sims = group.sims
         if any('base_force' in s._cache for s in sims) or not group.bound():
             continue
-        kept = _KEPT.get(group)
-        if kept is None:
-            kept = _KEPT[group] = _arguments(group)
-        if kept is None:
-            continue
-        args, entry = kept
-        if entry is None:       # through numba's dispatch, then its compiled overload
-            failed = lanebase.base_forces(*args)
-            _KEPT[group] = (args, compiled_overload(lanebase.base_forces, args)
-                            or lanebase.base_forces)
-        else:
-            failed = entry(*args)
-        if not failed:
+        if group not in _ARGS:
+            _ARGS[group] = _arguments(group)
+        args = _ARGS[group]
+        if args is not None and not group.call(lanebase.base_forces, args):
             out = args[-1]
             for k, s in enumerate(sims):
                 s._cache['base_force'] = out[k].copy()
@@ -57,4 +47,4 @@ def _arguments(group):
     S, C = top.S, top.C
     return (group.rec, S, top.L, top.W, top.X, C, np.empty_like(S.scan), np.empty_like(S.active),
             np.empty_like(S.ledger), np.empty_like(C.go), np.empty_like(C.st), base, mult,
-            np.empty((len(group.sims), base.shape[0]))), None
+            np.empty((len(group.sims), base.shape[0])))
