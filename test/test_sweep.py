@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from tensegrity_ros import cli
-from tensegrity_ros.studies import grid
+from tensegrity_ros.studies import batching, grid
 from tensegrity_ros.studies import sweep as sw
 
 from sweep_helpers import FB, RB, T_END
@@ -80,12 +80,12 @@ def test_batches_cover_every_point_once_in_order_and_shrink_to_single_points(n, 
     batches = sw.chunks(range(n), workers)
     assert [i for b in batches for i in b] == list(range(n))
     sizes = [len(b) for b in batches]
-    assert all(1 <= k <= sw.MAX_BATCH for k in sizes)
+    assert all(1 <= k <= batching.MAX_BATCH for k in sizes)
     assert sizes == sorted(sizes, reverse=True)
     # the points left after a batch keep at least GUIDED_SHARE batches of that size per worker
     for i, k in enumerate(sizes):
         left = sum(sizes[i:])
-        assert k == 1 or k * sw.GUIDED_SHARE * workers <= left
+        assert k == 1 or k * batching.GUIDED_SHARE * workers <= left
     assert sizes[-min(n, workers):] == [1] * min(n, workers)   # the last tasks are single points
     assert [len(b) for b in sw.chunks(range(10), 2, size=4)] == [4, 4, 2]
 
@@ -240,3 +240,38 @@ def test_batches_keep_a_topology_together_and_cover_every_point_once():
     assert [len(b) for b in got][-1] == 1                       # guided: shrinks to one point
     alone = sw.batches(list(range(n)), None, [0.1] * n, [()] * n, seconds=1.0)
     assert [len(b) for b in alone] == [10] * 4
+
+
+def test_contact_cost_grows_with_the_fastest_shot_of_a_train():
+    from solver.build.scene import Scene
+    base = Scene.load(FB)
+    plain = sw.point_cost(base)
+    slow = base.with_overrides([('loading.impact.v0', 0.05)])
+    fast = base.with_overrides([('loading.impact.v0', -0.2)])         # its speed counts
+    train = base.with_overrides([('loading.impact.v0', 0.05),
+                                 ('loading.impact.times', [0.0, 0.1]),
+                                 ('loading.impact.velocities', [0.05, 0.2])])
+    assert sw.contact_cost(slow) == pytest.approx(plain * (1 + 0.05 / batching.CONTACT_SPEED))
+    assert sw.contact_cost(fast) == pytest.approx(plain * (1 + 0.2 / batching.CONTACT_SPEED))
+    assert sw.contact_cost(train) == pytest.approx(sw.contact_cost(fast))
+
+
+def test_in_process_batches_go_to_the_threads_dearest_first(tmp_path, monkeypatch):
+    """The threads take the batches in the order given: the fastest shots first (longest
+    processing time first), every point once, the rows those of the points."""
+    import solver
+    given = []
+
+    def in_order(fn, items, n):
+        items = list(items)
+        given.extend(sorted({o['loading.impact.v0'] for _, o in b}) for b in items)
+        return [(True, fn(b)) for b in items]
+    monkeypatch.setattr(solver, 'on_threads', in_order)
+    sweep = sw.build(FB, ['loading.impact.v0=0.02,0.2,0.08', 'prestrain=0.002,0.003'],
+                     out=tmp_path, t_end=0.01)
+    rows, n = sw.execute(sweep, threads=3)
+    assert given == [[0.2], [0.08], [0.02]]             # grid order would be 0.02, 0.2, 0.08
+    assert n == 6 and all(r['status'] == 'ok' for r in rows)
+    assert sorted((r['loading.impact.v0'], r['prestrain']) for r in rows) == sorted(
+        (v, p) for v in (0.02, 0.2, 0.08) for p in (0.002, 0.003))
+    assert sw.dearest_first([['a'], ['b'], ['c']], [1.0, 1.0, 2.0]) == [['c'], ['a'], ['b']]

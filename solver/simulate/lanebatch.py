@@ -284,13 +284,14 @@ class LaneGroup:
         if self._fallen[k] or j >= ch.done[k]:
             if not self._fallen[k]:
                 self._fallen[k] = True
-                records.copy_data(_chunk_data(ch, j, k), s.model.data)
+                self.call(records.copy_data, (_chunk_data(ch, j, k), s.model.data))
             return s.advance(n * s.dt)
-        records.copy_data(_chunk_data(ch, j + 1, k), s.model.data)
+        self.call(records.copy_data, (_chunk_data(ch, j + 1, k), s.model.data))
         o = ch.out[j, k]
         s._cache = {'summary': StateSummary(o[0] != 0.0, o[1], ch.heights[j, k].copy(), o[2],
                                             o[3])}
-        return s._conclude(n, int(ch.steps[j, k]), OK, _chunk_data(ch, j, k), None)
+        # the interval's start is read only on a failure (to restore it)
+        return s._conclude(n, int(ch.steps[j, k]), OK, lambda: _chunk_data(ch, j, k), None)
 
     def call(self, kernel, args):
         """``kernel(*args)`` through numba's dispatch the first time, then through the compiled

@@ -418,13 +418,14 @@ class Simulation(Loading, Checks, SimulationAPI):
         ``status`` (from :meth:`advance`, or a lane group's call:
         :mod:`solver.simulate.lanebatch`), the state summary of the call, if it made one,
         already in the cache. Checks the state; on a failure restores the interval's start (the
-        :class:`Kept` ``keep``, or the data ``kept_data`` the call kept and the integrator's
-        ``integ_state``) and raises :class:`SimulationDiverged` naming the step, else moves the
-        clock. Returns ``steps``."""
+        :class:`Kept` ``keep``, or the data ``kept_data`` the call kept, or a function that
+        gives them, and the integrator's ``integ_state``) and raises
+        :class:`SimulationDiverged` naming the step, else moves the clock. Returns ``steps``."""
         problem = self._check(status)
         if problem is not None:
             if keep is None:
-                keep = self._kept(kept_data, integ_state)
+                keep = self._kept(kept_data() if callable(kept_data) else kept_data,
+                                  integ_state)
             self._restore(keep)
             raise self._locate(n, keep, problem)
         self._energy_scale = max(self._energy_scale, abs(self._summary().energy))

@@ -21,6 +21,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from tensegrity_ros.io.progress import growing_bar
+from tensegrity_ros.studies.batching import (BATCH_SECONDS, batches, chunks, contact_cost,
+                                             dearest_first, point_cost, topology_of)
 from tensegrity_ros.studies.cluster import Cluster, dashboard_option
 from tensegrity_ros.studies.grid import (SweepError, canonical, code_version, parse_axis,
                                          point_id, points)
@@ -53,10 +55,6 @@ def run_point(scene, overrides, pid=None):
     row['cpu_time_s'] = time.process_time() - cpu0
     row['worker_pid'] = os.getpid()
     return row
-
-
-GUIDED_SHARE = 3                 # a batch takes 1/(3 x workers) of the points still to run,
-MAX_BATCH = 8                    # at most this many (Ctrl-C loses the rows of running batches)
 
 
 # -- the sweep ------------------------------------------------------------------------------------
@@ -177,22 +175,6 @@ def validate_points(scene, sweep_points, extra, convergence=None):
                                  f'{exc}') from None
 
 
-def chunks(todo, workers, size=None):
-    """``todo`` cut into consecutive batches, one Dask task each. With ``size`` every batch has
-    ``size`` points; by default the batches shrink as the sweep goes (guided self-scheduling):
-    each takes a third of the remaining points divided among the workers, at least one and at most
-    :data:`MAX_BATCH`, so the early tasks are long (few round trips to the scheduler) and the last
-    ones short (the workers finish together)."""
-    todo = list(todo)
-    out = []
-    i = 0
-    while i < len(todo):
-        n = size or min(MAX_BATCH, max(1, (len(todo) - i) // (GUIDED_SHARE * max(workers, 1))))
-        out.append(todo[i:i + n])
-        i += n
-    return out
-
-
 def run_batch(task, scene, items):
     """The rows of ``items`` (``(point_id, overrides)`` pairs), one ``task`` (e.g.
     :func:`run_point`) each."""
@@ -226,63 +208,6 @@ def run_points(scene, items, threads=1, on_row=None, lanes=True):
     simulate_batch([(scene, list(o.items())) for _, o in items], threads=threads, on_point=done,
                    base=False, lanes=lanes)     # a row holds no base-force figure
     return rows
-
-
-# -- batches --------------------------------------------------------------------------------------
-BATCH_SECONDS = 2.0            # the estimated work of a batch, s (a Ctrl-C loses the running one)
-STEP_SECONDS_PER_PRISM = 0.7e-6  # the estimate: a step of a sym3d column, per prism, s
-# scene keys whose (non-float) values may change the network's topology or the kernels a point
-# runs: points that differ in them go in different batches
-TOPOLOGY_KEYS = ('structure.', 'model', 'contact.bars', 'contact.lock', 'loading.impact.mode',
-                 'integrator.method')
-
-
-def topology_of(overrides):
-    """What of a point's ``overrides`` may change its network topology (a key of
-    :data:`TOPOLOGY_KEYS` set to a value that is not a float): the points of a batch agree on it,
-    so they share the topology's sym3d reduction (:mod:`solver.build.memo`)."""
-    return tuple(sorted((k, repr(canonical(v))) for k, v in overrides.items()
-                        if k.startswith(TOPOLOGY_KEYS) and not isinstance(canonical(v), float)))
-
-
-def point_cost(scene):
-    """The estimated time s of a point's run (``scene`` with its overrides): steps x prisms."""
-    prisms = scene.structure.n_prisms * scene.structure.n_columns \
-        if scene.structure.builder == 'column' else 50
-    return scene.run.t_end / scene.integrator.dt * max(prisms, 1) * STEP_SECONDS_PER_PRISM
-
-
-def batches(todo, workers, costs, topologies, size=None, seconds=BATCH_SECONDS):
-    """``todo`` cut into batches of points of one topology (``topologies``, one per point), one
-    Dask task (or one in-process batch) each, in the order the topologies first appear. With
-    ``size`` every batch has ``size`` points (fewer at the end of a topology); by default a batch
-    holds about ``seconds`` of estimated work (``costs``, s per point), and, for Dask
-    ``workers``, less as the sweep goes (guided self-scheduling: at most a third of the work left
-    divided among the workers), so the workers finish together (``workers=None``: no shrinking,
-    the batches of one process that runs them one after the other). Every batch has at least
-    one point."""
-    groups = {}
-    for item, cost, topo in zip(todo, costs, topologies):
-        groups.setdefault(topo, []).append((item, cost))
-    left = sum(costs)
-    out = []
-    for members in groups.values():
-        i = 0
-        while i < len(members):
-            if size:
-                n = size
-            else:
-                budget = seconds if workers is None else min(
-                    seconds, left / (GUIDED_SHARE * max(workers, 1)))
-                n, work = 1, members[i][1]
-                while i + n < len(members) and work + members[i + n][1] <= budget:
-                    work += members[i + n][1]
-                    n += 1
-            part = members[i:i + n]
-            out.append([item for item, _ in part])
-            left -= sum(c for _, c in part)
-            i += n
-    return out
 
 
 def execute(sweep, cluster=None, progress=None, task=None, on_row=None, chunk=None,
@@ -346,7 +271,9 @@ def _run_all(sweep, todo, cluster, task, chunk, threads, finish, lanes=True):
     if not todo:
         return
 
-    def cut(workers, seconds=BATCH_SECONDS, threads=None):
+    def cut(workers, seconds=BATCH_SECONDS, threads=None, dearest=False):
+        """The batches of ``todo`` (:func:`batches`), with ``dearest`` in the order of
+        :func:`dearest_first` by their :func:`contact_cost`."""
         if task is not None:
             return chunks(todo, workers, chunk)
         scenes = [sweep.scene.with_overrides(list(o.items())) for _, o in todo]
@@ -361,8 +288,12 @@ def _run_all(sweep, todo, cluster, task, chunk, threads, finish, lanes=True):
             # lane group's rounds cost less per lane the more lanes share them
             from solver import MAX_LANES
             size = min(MAX_LANES, -(-len(todo) // threads))
-        return batches(todo, workers, costs, [topology_of(o) for _, o in todo], size=size,
-                       seconds=seconds)
+        parts = batches(todo, workers, costs, [topology_of(o) for _, o in todo], size=size,
+                        seconds=seconds)
+        if not dearest:
+            return parts
+        cost = {pid: contact_cost(sc) for (pid, _), sc in zip(todo, scenes)}
+        return dearest_first(parts, [sum(cost[pid] for pid, _ in b) for b in parts])
 
     if cluster is None:
         if task is not None:
@@ -377,6 +308,7 @@ def _run_all(sweep, todo, cluster, task, chunk, threads, finish, lanes=True):
                 return
             # a batch per thread, each taking the next when done: one thread's set-up and
             # summaries (Python) overlap the other's steps, and no thread waits for another
+            # (:func:`dearest_first`: the batches of the fastest shots go first)
             lock = threading.Lock()
 
             def locked(row):
@@ -384,7 +316,7 @@ def _run_all(sweep, todo, cluster, task, chunk, threads, finish, lanes=True):
                     finish(row)
             for ok, value in on_threads(
                     lambda b: run_points(sweep.scene, b, threads=1, on_row=locked),
-                    cut(None, threads=n), n):
+                    cut(None, threads=n, dearest=True), n):
                 if not ok:
                     raise value
         return
