@@ -37,7 +37,7 @@ from dataclasses import dataclass
 
 from solver.build.scene import Scene
 from solver.build import memo
-from solver.simulate import lanebatch
+from solver.simulate import lanebatch, lanebulk
 from solver.simulate.array import simulation_for
 from solver.simulate.parallel import default_threads, each as parallel_each
 from solver.simulate.runner import ImpactTrain, Point, Recorder, summary
@@ -141,10 +141,12 @@ class BatchSimulation:
                 return self._advance_lanes(duration, todo, sims, plan)
         return self.each(lambda i, sim: sim.advance(duration), todo)
 
-    def advance_intervals(self, counts, duration, visit, spent):
+    def advance_intervals(self, counts, duration, visit, spent, many=None):
         """``counts[i]`` intervals of ``duration`` s of each running instance ``i`` of
         ``counts``, each followed by ``visit(i, q)`` (``q``: the interval, from 0) with the
-        instance's state at that interval's end. An instance that diverges or fails in an
+        instance's state at that interval's end; with ``many``, a lane's intervals that
+        :func:`solver.simulate.lanebulk.conclude` concludes at once are followed by one
+        ``many(i, lean)`` instead. An instance that diverges or fails in an
         interval or its visit stops there. ``spent[i]`` is set to the (wall s, thread CPU s) of
         the instance's steps not yet reported, before each visit that follows them.
 
@@ -174,32 +176,13 @@ class BatchSimulation:
                 ch = item.chunk(n, [part[i] for i in which])
                 share = ((time.perf_counter() - t0) / len(which),
                          (time.thread_time() - c0) / len(which))
-                self._conclude_chunk(item, n, ch, which, part, visit, spent, share)
+                lanebulk.conclude_chunk(item, n, ch, which, part, visit, spent, share,
+                                        lambda i: self.status[i] == RUNNING, self.stop, many)
                 left = {i: c - part[i] for i, c in left.items()}
         tasks = [(True, g) for g in plan.groups] + [(False, s) for s in plan.singles]
         for ok, value in parallel_each(work, tasks, self.threads if len(tasks) > 1 else 1):
             if not ok:
                 raise value         # a group's call itself failed: not a lane's divergence
-
-    def _conclude_chunk(self, group, n, ch, which, counts, visit, spent, share):
-        """The intervals of the lane ``group``'s chunk ``ch`` concluded and visited interval by
-        interval (its instances ``which``, ``share`` each one's share of the call's time), on
-        the thread that made the call: its Python runs while the other threads step."""
-        for i in which:
-            if counts[i]:
-                spent[i] = share
-        for q in range(max(counts[i] for i in which)):
-            for k, i in enumerate(which):
-                if q >= counts[i] or self.status[i] != RUNNING:
-                    continue
-                try:
-                    t0, c0 = time.perf_counter(), time.thread_time()
-                    group.conclude(k, q, n, ch)
-                    w, c = spent.pop(i, (0.0, 0.0))
-                    spent[i] = (w + time.perf_counter() - t0, c + time.thread_time() - c0)
-                    visit(i, q)
-                except Exception as exc:            # noqa: BLE001 - this instance stops
-                    self.stop(i, exc)
 
     def _intervals(self, i, counts, duration, visit, spent):
         """:meth:`advance_intervals` of instance ``i`` one interval at a time."""
@@ -307,6 +290,10 @@ class _Run(Recorder):
     def take_frame(self):
         """:meth:`record`, timed: the end of an interval the batch stepped."""
         self._timed(self.record)
+
+    def take_frames(self, lean):
+        """:meth:`record_many`, timed: the ends of intervals the batch stepped."""
+        self._timed(self.record_many, lean)
 
 
 def _prepare(scene, overrides):
@@ -453,6 +440,17 @@ def _together(items, threads, record, on_frame, deliver, lanes=True):
         if runs[j].n_out == nxt[j]:
             _summarise(runs[j])
 
+    def many(j, lean):
+        """Run ``j``'s next ``len(lean)`` intervals were stepped and concluded at once: their
+        lean record (and summary)."""
+        if j in spent:
+            runs[j].stepped(spent.pop(j))
+        runs[j].take_frames(lean)
+        nxt[j] += len(lean)
+        if runs[j].n_out == nxt[j]:
+            _summarise(runs[j])
+    lean = all(not (r.frames or r.with_base) for r in runs)
+
     def advance(live):
         """Every run of ``live`` through the intervals before its next impact (or its end) in
         one :meth:`BatchSimulation.advance_intervals` per interval length (lanes where they
@@ -468,7 +466,7 @@ def _together(items, threads, record, on_frame, deliver, lanes=True):
         for j, c in counts.items():
             by_duration.setdefault(runs[j].per_frame * sims[j].dt, {})[j] = c
         for duration, part in by_duration.items():
-            batch.advance_intervals(part, duration, visit, spent)
+            batch.advance_intervals(part, duration, visit, spent, many if lean else None)
 
     def finish(j):
         k, run = index[j], runs[j]

@@ -286,12 +286,17 @@ class LaneGroup:
                 self._fallen[k] = True
                 self.call(records.copy_data, (_chunk_data(ch, j, k), s.model.data))
             return s.advance(n * s.dt)
+        self.to_end(k, j, ch)
+        # the interval's start is read only on a failure (to restore it)
+        return s._conclude(n, int(ch.steps[j, k]), OK, lambda: _chunk_data(ch, j, k), None)
+
+    def to_end(self, k, j, ch):
+        """Simulation ``k``'s data and summary at the end of interval ``j`` of chunk ``ch``."""
+        s = self.sims[k]
         self.call(records.copy_data, (_chunk_data(ch, j + 1, k), s.model.data))
         o = ch.out[j, k]
         s._cache = {'summary': StateSummary(o[0] != 0.0, o[1], ch.heights[j, k].copy(), o[2],
                                             o[3])}
-        # the interval's start is read only on a failure (to restore it)
-        return s._conclude(n, int(ch.steps[j, k]), OK, lambda: _chunk_data(ch, j, k), None)
 
     def call(self, kernel, args):
         """``kernel(*args)`` through numba's dispatch the first time, then through the compiled

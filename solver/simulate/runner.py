@@ -144,6 +144,30 @@ class Recorder:
         self.balance.append(bal)
         self.at_ref.note(sim, t, len(self.times) - 1)
 
+    def record_many(self, lean):
+        """:meth:`record` of each interval of ``lean`` (a
+        :class:`~solver.simulate.lanebulk.Lean`: the lean figures of the intervals the
+        simulation has just passed, its state at the last), for a lean record only (no frames,
+        no base force); the state of an interval whose momenta :class:`RefMomenta` reads is set
+        for it."""
+        if self.frames or self.with_base:
+            raise ValueError('record_many: a lean record only')
+        moved = False
+        for q in range(len(lean)):
+            t = lean.t[q]
+            self.times.append(t)
+            self.strain.append(lean.strain[q])
+            self.energy.append(lean.energy[q])
+            self.cerr.append(lean.constraint_error[q])
+            self.base.append(None)
+            self.balance.append(float(lean.balance[q]))
+            if self.at_ref.reads(t):
+                lean.at(q)
+                moved = q != len(lean) - 1
+            self.at_ref.note(self.sim, t, len(self.times) - 1)
+        if moved:
+            lean.at(len(lean) - 1)
+
     def _advance_to(self, step):
         sim = self.sim
         t0 = time.perf_counter()
@@ -196,11 +220,15 @@ class RefMomenta:
         self.interval = interval        # between frames, s: a frame farther before T_REF than
         # 1.5 intervals is never the one read (a later one is nearer, or none is near enough)
 
+    def reads(self, t):
+        """Whether :meth:`note` reads the state of a frame at time ``t`` s."""
+        if self.interval > 0 and T_REF - t > 1.5 * self.interval:
+            return False
+        return self.masses is not None and abs(t - T_REF) < self.dt - 1e-12
+
     def note(self, sim, t, k):
         """Frame ``k`` at time ``t`` s was just recorded from the present state of ``sim``."""
-        if self.interval > 0 and T_REF - t > 1.5 * self.interval:
-            return
-        if self.masses is not None and abs(t - T_REF) < self.dt - 1e-12:
+        if self.reads(t):
             self.dt, self.k = abs(t - T_REF), k
             self.p = observables.level_momenta(sim.model.velocities(), sim.network.levels,
                                                self.masses)

@@ -1,0 +1,129 @@
+"""The intervals of a lane group's chunk concluded and recorded lane by lane, for the lean
+records of sweeps and fits (:meth:`solver.simulate.batch.BatchSimulation.advance_intervals`).
+
+Concluding one interval at a time (:meth:`solver.simulate.lanebatch.LaneGroup.conclude`, then
+the run's :meth:`~solver.simulate.runner.Recorder.record`) runs about 35 us of Python a point and
+interval, one thread at a time (the GIL), while the compiled lane steps of a 64-point batch cost
+about 70-340 us a point and interval. Here the figures of every interval a lane finished
+are computed at once, from the chunk's state summaries and ledgers, with the operations the
+single interval does, element by element (so the same values, bit for bit): the divergence
+check of :meth:`Simulation._check`, the energy scale, the clock, the frame figures of the lean
+record. The intervals up to the first one that fails a check are concluded so; from that one
+on the lane goes on one interval at a time (which restores, raises and names the step as the
+single run does). A simulation whose check needs its full state (the prisms' twists:
+``divergence.bar_crossing``), or a run that records more than the lean figures, goes one
+interval at a time."""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from solver.kernels import records
+
+
+class Lean:
+    """The lean figures of ``m`` consecutive intervals of one simulation (as
+    :meth:`Simulation.frame_figures` gives them after each): ``t`` (list of s), ``strain``
+    (m, columns, prisms), ``energy``, ``constraint_error``, ``balance`` (m,); ``at(q)`` sets the
+    simulation's data to the end of the ``q``-th of them (a record that reads the state there)."""
+
+    def __init__(self, t, strain, energy, cerr, balance, at):
+        self.t, self.strain, self.energy, self.constraint_error = t, strain, energy, cerr
+        self.balance, self.at = balance, at
+
+    def __len__(self):
+        return len(self.t)
+
+
+def applies(sim):
+    """Whether :func:`conclude` serves ``sim``: its check reads no full state."""
+    return not sim._check_twist
+
+
+def conclude(group, k, n, ch, count):
+    """The first of ``count`` intervals (of ``n`` steps) of lane ``k`` of ``group`` from its
+    chunk ``ch`` concluded at once, up to the first that the lane did not finish or that fails
+    the divergence check: the simulation's clock, step counts, energy scale and data moved to
+    the last of them, as as many :meth:`LaneGroup.conclude` calls would. Returns their
+    :class:`Lean` figures, or None where none is concluded so."""
+    s = group.sims[k]
+    if group._fallen[k] or not applies(s):
+        return None
+    m = min(count, int(ch.done[k]))
+    if m <= 0:
+        return None
+    out = ch.out[:m, k]
+    finite, e, cerr, h_min = out[:, 0] != 0.0, out[:, 1], out[:, 2], out[:, 3]
+    D = ch.data.ledger[1:m + 1, k, records.DISSIPATED]
+    # the energy scale each interval's check reads: the one the previous interval left
+    # (Simulation._conclude), then max(|E_ref|, |e|, that scale) as Simulation._balance takes it
+    ref = s._energy_ref
+    before = np.maximum.accumulate(np.concatenate(([s._energy_scale], np.abs(e[:-1]))))
+    scale = np.maximum(np.maximum(np.maximum(abs(ref), np.abs(e)), before), 1e-300)
+    balance = (e + D - ref) / scale
+    lim, div = s.div.energy_error, s.div
+    ok = finite & (cerr <= div.constraint_error) & (balance <= lim)
+    if not (s.effects.damp is not None and not s._books_dissipation):
+        ok &= balance >= -lim
+    levels = s.network.levels.size
+    heights = ch.heights[:m, k]
+    if levels and heights[0].size:
+        ok &= h_min > 0.0
+    bad = np.flatnonzero(~ok)
+    m = int(bad[0]) if bad.size else m
+    if m == 0:
+        return None
+    t, t_now, span = [], s.t, n * s.dt
+    for _ in range(m):
+        t_now += span
+        t.append(t_now)
+    s.t, s.step = t_now, s.step + n * m
+    s.steps_taken += int(ch.steps[:m, k].sum())
+    s._energy_scale = max(s._energy_scale, float(np.max(np.abs(e[:m]))))
+    if levels:
+        strain = (heights[:m] - s.network.h0) / heights[:m]     # Simulation.frame_figures
+    else:
+        strain = np.zeros((m, 0, 0))
+
+    group.to_end(k, m - 1, ch)
+    return Lean(t, strain, e[:m], cerr[:m], balance[:m], lambda q: group.to_end(k, q, ch))
+
+
+def conclude_chunk(group, n, ch, which, counts, visit, spent, share, running, stop, many=None):
+    """The intervals of the lane ``group``'s chunk ``ch`` concluded and visited (its instances
+    ``which``, ``counts`` their intervals, ``share`` each one's share of the call's time): with
+    ``many``, each lane's first intervals at once (:func:`conclude`, then ``many(i, lean)``),
+    the rest interval by interval (:meth:`LaneGroup.conclude`, then ``visit(i, q)``), on the
+    thread that made the call: its Python runs while the other threads step. ``running(i)``:
+    whether instance ``i`` still runs; ``stop(i, exc)`` stops it."""
+    for i in which:
+        if counts[i]:
+            spent[i] = share
+    done = {}
+    for k, i in enumerate(which):
+        if many is None or not counts[i] or not running(i):
+            continue
+        try:
+            t0, c0 = time.perf_counter(), time.thread_time()
+            lean = conclude(group, k, n, ch, counts[i])
+            if lean is None:
+                continue
+            w, c = spent.pop(i, (0.0, 0.0))
+            spent[i] = (w + time.perf_counter() - t0, c + time.thread_time() - c0)
+            done[i] = len(lean)
+            many(i, lean)
+        except Exception as exc:                    # noqa: BLE001 - this instance stops
+            stop(i, exc)
+    for q in range(max(counts[i] for i in which)):
+        for k, i in enumerate(which):
+            if q < done.get(i, 0) or q >= counts[i] or not running(i):
+                continue
+            try:
+                t0, c0 = time.perf_counter(), time.thread_time()
+                group.conclude(k, q, n, ch)
+                w, c = spent.pop(i, (0.0, 0.0))
+                spent[i] = (w + time.perf_counter() - t0, c + time.thread_time() - c0)
+                visit(i, q)
+            except Exception as exc:                # noqa: BLE001 - this instance stops
+                stop(i, exc)
