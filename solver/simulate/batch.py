@@ -449,7 +449,7 @@ def _together(items, threads, record, on_frame, deliver, lanes=True):
         nxt[j] += len(lean)
         if runs[j].n_out == nxt[j]:
             _summarise(runs[j])
-    lean = all(not (r.frames or r.with_base) for r in runs)
+    lean_only = all(not (r.frames or r.with_base) for r in runs)     # many() serves them
 
     def advance(live):
         """Every run of ``live`` through the intervals before its next impact (or its end) in
@@ -466,7 +466,8 @@ def _together(items, threads, record, on_frame, deliver, lanes=True):
         for j, c in counts.items():
             by_duration.setdefault(runs[j].per_frame * sims[j].dt, {})[j] = c
         for duration, part in by_duration.items():
-            batch.advance_intervals(part, duration, visit, spent, many if lean else None)
+            batch.advance_intervals(part, duration, visit, spent,
+                                    many if lean_only else None)
 
     def finish(j):
         k, run = index[j], runs[j]
