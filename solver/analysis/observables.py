@@ -44,7 +44,11 @@ def prism_heights(x, levels):
 
 def prism_strains(x, levels, h0):
     """Axial strain per prism (n_columns, n_prisms): ``(h - h0) / h``, negative in compression."""
-    h = prism_heights(x, levels)
+    return strains_of_heights(prism_heights(x, levels), h0)
+
+
+def strains_of_heights(h, h0):
+    """Axial strains ``(h - h0) / h`` of prism heights ``h`` (any shape), element by element."""
     return (h - h0) / h
 
 

@@ -431,24 +431,24 @@ def _together(items, threads, record, on_frame, deliver, lanes=True):
         if run.n_out == i + 1:
             _summarise(run)
 
-    def visit(j, q):
-        """Run ``j``'s next interval was stepped by the batch: its frame (and summary)."""
+    def recorded(j, take, count):
+        """Run ``j``'s next ``count`` intervals were stepped by the batch: the steps' time
+        booked, ``take()`` (their frames), and the summary after the last interval."""
         if j in spent:
             runs[j].stepped(spent.pop(j))
-        runs[j].take_frame()
-        nxt[j] += 1
+        take()
+        nxt[j] += count
         if runs[j].n_out == nxt[j]:
             _summarise(runs[j])
+
+    def visit(j, q):
+        """Run ``j``'s next interval was stepped by the batch: its frame (and summary)."""
+        recorded(j, runs[j].take_frame, 1)
 
     def many(j, lean):
         """Run ``j``'s next ``len(lean)`` intervals were stepped and concluded at once: their
         lean record (and summary)."""
-        if j in spent:
-            runs[j].stepped(spent.pop(j))
-        runs[j].take_frames(lean)
-        nxt[j] += len(lean)
-        if runs[j].n_out == nxt[j]:
-            _summarise(runs[j])
+        recorded(j, lambda: runs[j].take_frames(lean), len(lean))
     lean_only = all(not (r.frames or r.with_base) for r in runs)     # many() serves them
 
     def advance(live):

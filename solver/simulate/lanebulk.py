@@ -19,6 +19,7 @@ import time
 
 import numpy as np
 
+from solver.analysis import observables
 from solver.kernels import records
 
 
@@ -82,7 +83,7 @@ def conclude(group, k, n, ch, count):
     s.steps_taken += int(ch.steps[:m, k].sum())
     s._energy_scale = max(s._energy_scale, float(np.max(np.abs(e[:m]))))
     if levels:
-        strain = (heights[:m] - s.network.h0) / heights[:m]     # Simulation.frame_figures
+        strain = observables.strains_of_heights(heights[:m], s.network.h0)
     else:
         strain = np.zeros((m, 0, 0))
 
@@ -100,6 +101,11 @@ def conclude_chunk(group, n, ch, which, counts, visit, spent, share, running, st
     for i in which:
         if counts[i]:
             spent[i] = share
+
+    def book(i, t0, c0):
+        """Add the time since ``t0``, ``c0`` (wall, thread CPU) to instance ``i``'s share."""
+        w, c = spent.pop(i, (0.0, 0.0))
+        spent[i] = (w + time.perf_counter() - t0, c + time.thread_time() - c0)
     done = {}
     for k, i in enumerate(which):
         if many is None or not counts[i] or not running(i):
@@ -109,8 +115,7 @@ def conclude_chunk(group, n, ch, which, counts, visit, spent, share, running, st
             lean = conclude(group, k, n, ch, counts[i])
             if lean is None:
                 continue
-            w, c = spent.pop(i, (0.0, 0.0))
-            spent[i] = (w + time.perf_counter() - t0, c + time.thread_time() - c0)
+            book(i, t0, c0)
             done[i] = len(lean)
             many(i, lean)
         except Exception as exc:                    # noqa: BLE001 - this instance stops
@@ -122,8 +127,7 @@ def conclude_chunk(group, n, ch, which, counts, visit, spent, share, running, st
             try:
                 t0, c0 = time.perf_counter(), time.thread_time()
                 group.conclude(k, q, n, ch)
-                w, c = spent.pop(i, (0.0, 0.0))
-                spent[i] = (w + time.perf_counter() - t0, c + time.thread_time() - c0)
+                book(i, t0, c0)
                 visit(i, q)
             except Exception as exc:                # noqa: BLE001 - this instance stops
                 stop(i, exc)

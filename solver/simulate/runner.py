@@ -136,13 +136,17 @@ class Recorder:
             t, strain, e, cerr, bal = (f.t, f.strain, f.energy, f.constraint_error,
                                        f.energy_balance_error)
             base = np.array(sim.base_force()) if self.with_base else None
+        self._append(t, strain, e, cerr, base, bal)
+        self.at_ref.note(sim, t, len(self.times) - 1)
+
+    def _append(self, t, strain, e, cerr, base, bal):
+        """A frame's figures onto the record's lists."""
         self.times.append(t)
         self.strain.append(strain)
         self.energy.append(e)
         self.cerr.append(cerr)
         self.base.append(base)
         self.balance.append(bal)
-        self.at_ref.note(sim, t, len(self.times) - 1)
 
     def record_many(self, lean):
         """:meth:`record` of each interval of ``lean`` (a
@@ -155,12 +159,8 @@ class Recorder:
         moved = False
         for q in range(len(lean)):
             t = lean.t[q]
-            self.times.append(t)
-            self.strain.append(lean.strain[q])
-            self.energy.append(lean.energy[q])
-            self.cerr.append(lean.constraint_error[q])
-            self.base.append(None)
-            self.balance.append(float(lean.balance[q]))
+            self._append(t, lean.strain[q], lean.energy[q], lean.constraint_error[q], None,
+                         float(lean.balance[q]))
             if self.at_ref.reads(t):
                 lean.at(q)
                 moved = q != len(lean) - 1

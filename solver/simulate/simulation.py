@@ -476,8 +476,7 @@ class Simulation(Loading, Checks, SimulationAPI):
         summary reads, without copying positions or computing tensions."""
         net = self.network
         if net.levels.size:
-            h = self._heights()
-            strain = (h - net.h0) / h          # observables.prism_strains, from the shared heights
+            strain = observables.strains_of_heights(self._heights(), net.h0)
         else:
             strain = np.zeros((0, 0))
         return FrameFigures(self.t, strain, self.energy(), self.constraint_error(),
