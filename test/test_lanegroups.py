@@ -113,6 +113,21 @@ def test_mixed_lanes_equal_their_single_runs():
     assert max(s.steps_taken for s in group.sims) > 2 * min(s.steps_taken for s in group.sims)
 
 
+def test_full3d_lanes_equal_their_single_runs():
+    """Columns on ``full3d`` (plain cables: no rotated images) step as lanes too: four lanes,
+    different prestrains, impacts of 0.3 and 1 m/s (bar contact), equal to their single runs
+    after every interval."""
+    scene = Scene.load(FB).with_overrides([('model', 'full3d')])
+    commands = [_cmd(0.02 + 0.01 * k, v) for k, v in enumerate((0.3, 1.0, 0.3, 1.0))]
+    lanes, singles = _pair(scene, commands)
+    assert lanes[0].model.name == 'full3d'
+    group = lanebatch.LaneGroup(lanes)
+    for got, want in _step_both(group, singles, 8, 6):
+        assert got == want
+        assert all(_same(a, b) for a, b in zip(lanes, singles))
+    assert all(s.contacts_met > 0 for s in lanes[1::2])
+
+
 def test_a_lane_in_long_contact_moves_down_every_block_and_equals_its_single_run(monkeypatch):
     """Sixteen lanes, one struck at 2 m/s and fifteen at 0.05 m/s: within each interval the
     struck lane steps on long after the others are done, so it moves from the 16 lanes to the

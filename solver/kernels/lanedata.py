@@ -118,7 +118,8 @@ def evaluate(x, v, m, S, L, W, X, C, out):
     for k in range(ev.shape[0]):
         ev[k] = 1 if C.go[k] != 0 and C.st[k] == OK else 0
     lanes.copy(f, L.f_ext)
-    lanes.cables(x, v, m.topo, m.damping.coef, L.rest, L.EA, f, W.pair, W.piv, ev)
+    lanes.cables(x, v, m.topo, m.damping.coef, L.rest, L.EA, f, W.tmp, W.pair, W.piv,
+                 ev)
     if m.damping.coef.shape[0] != 0:
         for k in range(ev.shape[0]):
             if ev[k] != 0:

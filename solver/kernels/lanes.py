@@ -438,16 +438,17 @@ def rhs_plain(wf, v, bvec, topo, lam):
 
 
 @jit_lanes
-def cables(x, v, topo, damp, rest, EA, f, tmp, power, live):
+def cables(x, v, topo, damp, rest, EA, f, tmp, pair, power, live):
     """Add the cable forces of every lane to ``f``: damped (``damp`` not empty; the power into
-    ``power`` where ``live``), plain or rotated."""
+    ``power`` where ``live``), plain or rotated; scratch ``tmp`` (3, B) for plain cables,
+    ``pair`` (6, B) for the others."""
     if damp.shape[0] != 0:
         cable_forces_damped(x, v, topo.cable_a, topo.cable_b, topo.cable_rot, rest, EA, damp, f,
-                            tmp, power, live)
+                            pair, power, live)
     elif topo.cable_rot.shape[0] == 0:
         cable_forces(x, topo.cable_a, topo.cable_b, rest, EA, f, tmp)
     else:
-        cable_forces_rot(x, topo.cable_a, topo.cable_b, topo.cable_rot, rest, EA, f, tmp)
+        cable_forces_rot(x, topo.cable_a, topo.cable_b, topo.cable_rot, rest, EA, f, pair)
 
 
 @jit_lanes

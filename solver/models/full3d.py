@@ -36,6 +36,12 @@ class Full3D(RecordModel):
         n = self.network.n_nodes
         return self.x if self.x.shape[0] == n else self.x[:n]
 
+    def expansion(self):
+        """How a state expands to the full network (:func:`solver.kernels.laneview.frame_rows`):
+        ``(rep, cos, sin, rotate, cable_map)``; here each node and cable is its own."""
+        n, k = self.network.n_nodes, self.network.n_cables
+        return (np.arange(n), np.ones(n), np.zeros(n), False, np.arange(k))
+
     def velocities(self):
         n = self.network.n_nodes
         return self.v if self.v.shape[0] == n else self.v[:n]

@@ -355,6 +355,13 @@ class Sym3D(RecordModel):
                        out)
         return out
 
+    def expansion(self):
+        """How a state expands to the full network (:func:`solver.kernels.laneview.frame_rows`):
+        ``(rep, cos, sin, rotate, cable_map)``, as :meth:`_expand` and the cable properties
+        read it."""
+        return (self._rep, self._cos, self._sin, True,
+                np.ascontiguousarray(self.reduced.cable_map, dtype=np.int64))
+
     def _reduce(self, a_full, what, tol=1e-12):
         """Representative rows of a full (n_nodes, 3) array; :class:`NotSymmetric` if the array
         differs from its symmetric expansion by more than ``tol`` of its largest entry."""

@@ -238,13 +238,8 @@ class ArraySimulation(SimulationAPI):
         self._dispatch(lambda c: keys[c], lambda s, key: s._set_cables(*rows[key]))
 
     # -- clock and summaries --------------------------------------------------------------------
-    @property
-    def t(self):
-        return self.groups[0].sim.t
-
-    @property
-    def step(self):
-        return self.groups[0].sim.step
+    t = property(lambda self: self.groups[0].sim.t)
+    step = property(lambda self: self.groups[0].sim.step)
 
     @property
     def steps_taken(self):
@@ -255,9 +250,7 @@ class ArraySimulation(SimulationAPI):
     def expanded(self):
         """Why columns were expanded to ``full3d`` (text naming them), or None."""
         why = [(g.columns, g.sim.expanded) for g in self.groups if g.sim.expanded]
-        if not why:
-            return None
-        return '; '.join(f'columns {cols}: {text}' for cols, text in why)
+        return '; '.join(f'columns {cols}: {text}' for cols, text in why) if why else None
 
     @property
     def f_ext(self):
@@ -473,24 +466,27 @@ class ArraySimulation(SimulationAPI):
 
     def frame(self):
         """A copied :class:`~solver.simulate.simulation.Frame` of the whole array (each group's
-        figures as its ``Simulation.frame``; the lane groups' base forces in one call each)."""
+        figures as its ``Simulation.frame``; the lane groups' a group at a time:
+        :func:`~solver.simulate.laneframe.fill`)."""
         n, k = self._per
         nc, n_p = self.n_columns, self.network.n_prisms
         x, strain, tension = np.empty((nc, n, 3)), np.empty((nc, n_p)), np.empty((nc, k))
         base, energy, cerr = np.empty(nc), np.empty(nc), 0.0
-        laneframe.put_base_forces(self._lane_plan() if len(self.groups) > 1 else None)
+        errs = laneframe.fill(self._lane_plan() if len(self.groups) > 1 else None,
+                              {id(g.sim): g.columns for g in self.groups}, self._offset, x,
+                              strain, tension, base, energy)
         for grp in self.groups:
             s, m = grp.sim, grp.sim.model
+            if id(s) in errs:
+                cerr = max(cerr, errs[id(s)])
+                continue
             pos = m.positions()
             f = s.frame_figures()
             ten = observables.cable_tensions(pos, s.network, m.cable_rest_length, m.cable_EA)
             b = s.base_force()[0]
             for c in grp.columns:
                 np.add(pos, self._offset[c], out=x[c])
-                tension[c] = ten
-                strain[c] = f.strain[0]
-                base[c] = b
-                energy[c] = f.energy
+                tension[c], strain[c], base[c], energy[c] = ten, f.strain[0], b, f.energy
             cerr = max(cerr, f.constraint_error)
         return Frame(t=self.t, step=self.step, positions=x.reshape(nc * n, 3), strain=strain,
                      tension=tension.reshape(nc * k), energy=float(sum(energy.tolist())),

@@ -10,10 +10,11 @@ call copies nothing in or out. A group notices when a simulation's model or data
 (an expansion to ``full3d``, a reset of the model) and is then rebuilt by its owner
 (:meth:`LaneGroup.bound`).
 
-After the call each simulation concludes its interval on its own
-(:meth:`Simulation._conclude`): the divergence checks on the state summary the call computed
-per lane, and on a failure the restore from the data the call kept and the replay that names
-the failing step. One lane's failure leaves the others' results as they are.
+After the call the divergence checks run on the state summaries the call computed per lane,
+all lanes at once (:func:`solver.simulate.lanebulk.conclude_call`); a simulation that fails them
+concludes on its own (:meth:`Simulation._conclude`: the restore from the data the call kept and
+the replay that names the failing step). One lane's failure leaves the others' results as they
+are.
 
 Lanes serve ``rk4_projected`` and ``rk4`` on exact models without the KKT system of massive bars
 (:func:`eligible`); everything else steps one simulation at a time. Simulations whose prestrain
@@ -29,7 +30,7 @@ import numpy as np
 from solver.compiled import compiled_overload
 from solver.integrators import rk4laneramp, rk4lanes
 from solver.kernels import lanechunk, lanedata, lanes as lanes_mod, ramp, records
-from solver.simulate import parallel
+from solver.simulate import lanebulk, parallel
 from solver.simulate.simulation import StateSummary
 from solver.status import OK
 
@@ -117,6 +118,7 @@ class LaneGroup:
                 raise ValueError('lane group: the simulations are not alike')
         self.sims = sims
         self._ramps = [s._ramp for s in sims]
+        self._integrators = [s.integrator for s in sims]
         self.R = None if key[-1] is None else ramp.stack([s._ramp_record() for s in sims])
         self._keeps = None              # a ramped call's Kept per simulation
         b = len(sims)
@@ -162,8 +164,11 @@ class LaneGroup:
     def bound(self):
         """Whether every simulation still steps on this group's memory, alike and eligible,
         with the prestrain ramp (or none) it had when the group was made."""
-        return all(s.model is m and m.data is d and s._ramp is r and eligible(s, True)
-                   for s, m, d, r in zip(self.sims, self._models, self._data, self._ramps))
+        # the model, its data, the ramp and the integrator the group was made with: what
+        # eligible() read of each then
+        return all(s.model is m and m.data is d and s._ramp is r and s.integrator is i
+                   for s, m, d, r, i in zip(self.sims, self._models, self._data, self._ramps,
+                                            self._integrators))
 
     def _check_bound(self):
         if not self.bound():
@@ -184,16 +189,7 @@ class LaneGroup:
         top.status[:] = OK
         heights = np.empty((len(self.sims),) + s0._heights_shape)
         self._step(n, heights)
-        results = []
-        for s, o, h, steps, status, kept in zip(self.sims, self.out.tolist(), heights,
-                                                top.steps.tolist(), top.status.tolist(),
-                                                self._kept):
-            s._cache = {'summary': StateSummary(o[0] != 0.0, o[1], h, o[2], o[3])}
-            try:
-                results.append((True, s._conclude(n, steps, status, kept, None)))
-            except Exception as exc:            # noqa: BLE001 - this lane's result
-                results.append((False, exc))
-        return results
+        return lanebulk.conclude_call(self, n, heights, top.steps, top.status)
 
     def _advance_ramped(self, n):
         """:meth:`advance` of simulations whose ramps run: their first ramped calls as lanes

@@ -1,5 +1,7 @@
-"""The intervals of a lane group's chunk concluded and recorded lane by lane, for the lean
-records of sweeps and fits (:meth:`solver.simulate.batch.BatchSimulation.advance_intervals`).
+"""A lane group's intervals concluded for all its lanes at once: one call's interval for every
+lane (:func:`conclude_call`, :meth:`solver.simulate.lanebatch.LaneGroup.advance`: arrays, the
+node), and the intervals of a chunk, lane by lane, for the lean records of sweeps and fits
+(:meth:`solver.simulate.batch.BatchSimulation.advance_intervals`).
 
 Concluding one interval at a time (:meth:`solver.simulate.lanebatch.LaneGroup.conclude`, then
 the run's :meth:`~solver.simulate.runner.Recorder.record`) runs about 35 us of Python a point and
@@ -21,6 +23,8 @@ import numpy as np
 
 from solver.analysis import observables
 from solver.kernels import records
+from solver.simulate.simulation import StateSummary
+from solver.status import OK
 
 
 class Lean:
@@ -89,6 +93,58 @@ def conclude(group, k, n, ch, count):
 
     group.to_end(k, m - 1, ch)
     return Lean(t, strain, e[:m], cerr[:m], balance[:m], lambda q: group.to_end(k, q, ch))
+
+
+def sound(sims, status, out, D, levels):
+    """Which of ``sims`` pass :meth:`Simulation._check` after one interval, each from its lane's
+    integrator ``status``, state summary row ``out`` (finite, energy, constraint error, smallest
+    height) and ledger ``D`` (its cable damping's energy): the same operations, element by element
+    over the lanes (so the same verdicts), as the check of one simulation makes; ``levels``:
+    whether the network has prism levels. A simulation whose check reads its full state
+    (:func:`applies`) is never counted sound here."""
+    finite, e, cerr, h_min = out[:, 0] != 0.0, out[:, 1], out[:, 2], out[:, 3]
+    ref = np.array([s._energy_ref for s in sims])
+    before = np.array([s._energy_scale for s in sims])
+    scale = np.maximum(np.maximum(np.maximum(np.abs(ref), np.abs(e)), before), 1e-300)
+    balance = (e + D - ref) / scale
+    lim = np.array([s.div.energy_error for s in sims])
+    one_sided = np.array([s.effects.damp is not None and not s._books_dissipation
+                          for s in sims])
+    ok = (finite & (status == OK) & (cerr <= np.array([s.div.constraint_error for s in sims]))
+          & (balance <= lim) & ((balance >= -lim) | one_sided)
+          & np.array([applies(s) for s in sims]))
+    if levels:
+        ok &= h_min > 0.0
+    return ok
+
+
+def conclude_call(group, n, heights, steps, status):
+    """The end of :meth:`LaneGroup.advance`'s call of ``n`` steps for every lane (its steps
+    ``steps``, integrator ``status``, prism ``heights``, the state summaries in ``group.out``):
+    each simulation that passes the divergence check (:func:`sound`) moves its clock, step
+    counts and energy scale as :meth:`Simulation._conclude` does; any other concludes by itself
+    (restores, raises naming the step). Returns ``[(ok, steps or exception)]`` per
+    simulation."""
+    sims = group.sims
+    levels = sims[0].network.levels.size and heights[0].size
+    ok = sound(sims, status, group.out, group.blocks[0].S.ledger[:, records.DISSIPATED],
+               levels).tolist()
+    results = []
+    for s, o, h, taken, st, kept, good in zip(sims, group.out.tolist(), heights,
+                                              steps.tolist(), status.tolist(), group._kept, ok):
+        s._cache = {'summary': StateSummary(o[0] != 0.0, o[1], h, o[2], o[3])}
+        if good:
+            s._energy_scale = max(s._energy_scale, abs(o[1]))
+            s.t += n * s.dt
+            s.step += n
+            s.steps_taken += taken
+            results.append((True, taken))
+            continue
+        try:
+            results.append((True, s._conclude(n, taken, st, kept, None)))
+        except Exception as exc:            # noqa: BLE001 - this lane's result
+            results.append((False, exc))
+    return results
 
 
 def conclude_chunk(group, n, ch, which, counts, visit, spent, share, running, stop, many=None):

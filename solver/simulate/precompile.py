@@ -53,6 +53,12 @@ def _exercise(method):
         for s in pair:                          # and with prestrain ramps running
             s.apply_prestrain(0.0025, ramp_s=3 * s.dt)
         LaneGroup(pair, ramps=True).advance(2)
+        from solver.simulate.array import simulation_for
+        arr = simulation_for(base.with_overrides([('structure.n_columns', 2)]))
+        arr.lanes = True
+        arr.apply_impact(0.1, columns=[1])      # two column simulations: a lane group
+        arr.advance(2 * arr.dt)
+        arr.frame()                             # its base forces, positions and tensions
         return
     if method == 'chain1d':
         scene = base.with_overrides([('model', 'chain1d'), ('contact.bars', 'none')])
