@@ -140,9 +140,14 @@ _COUNTS = {'level', 'clevel', 'refine', 'mode', 'live', 'go', 'st', 'ev', 'mk', 
 
 
 def lane_control(lanes_n):
-    """A zeroed :class:`LaneControl` of ``lanes_n`` lanes."""
-    return LaneControl(*(np.zeros(lanes_n, np.int64 if name in _COUNTS else np.float64)
-                         for name in LaneControl._fields))
+    """A zeroed :class:`LaneControl` of ``lanes_n`` lanes, and the two arrays its fields are
+    rows of: the float fields' (n_float, B) and the int64 fields' (n_int, B) (a block of lanes
+    moves in two copies: :meth:`solver.simulate.lanebatch._Block.take`)."""
+    floats = np.zeros((len(LaneControl._fields) - len(_COUNTS), lanes_n))
+    ints = np.zeros((len(_COUNTS), lanes_n), np.int64)
+    rows = {'f': iter(floats), 'i': iter(ints)}
+    return (LaneControl(*(next(rows['i' if name in _COUNTS else 'f'])
+                          for name in LaneControl._fields)), floats, ints)
 
 
 @jit_lanes

@@ -329,7 +329,7 @@ class _Block:
                                     np.zeros((nc, b)), np.zeros((nc, b)), np.zeros((n, 3, b)))
         self.W = lanes_mod.lane_work(topo, n, b)
         self.X = lanedata.LaneScratch(np.zeros((b, n, 3)))
-        self.C = rk4lanes.lane_control(b)
+        self.C, self._floats, self._ints = rk4lanes.lane_control(b)
         self.w0 = records.clone_work(work)
         self.status = np.zeros(b, np.int64)
         self.steps = np.zeros(b, np.int64)
@@ -350,8 +350,10 @@ class _Block:
         """Move the lanes ``alive`` of the block ``above`` into the first lanes of this one;
         the others here do not step."""
         m = len(alive)
-        for mine, theirs in zip(self.S + self.C, above.S + above.C):
+        for mine, theirs in zip(self.S, above.S):
             mine[:m] = theirs[alive]
+        self._floats[:, :m] = above._floats[:, alive]
+        self._ints[:, :m] = above._ints[:, alive]
         self.X.a1[:m] = above.X.a1[alive]
         self.status[:m] = above.status[alive]
         self.status[m:] = NOT_A_LANE
@@ -361,8 +363,10 @@ class _Block:
     def give(self, above, alive):
         """Move the lanes taken by :meth:`take` back into the block ``above``."""
         m = len(alive)
-        for mine, theirs in zip(self.S + self.C, above.S + above.C):
+        for mine, theirs in zip(self.S, above.S):
             theirs[alive] = mine[:m]
+        above._floats[:, alive] = self._floats[:, :m]
+        above._ints[:, alive] = self._ints[:, :m]
         above.X.a1[alive] = self.X.a1[:m]
         above.status[alive] = self.status[:m]
         above.steps[alive] = self.steps[:m]
