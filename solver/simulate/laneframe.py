@@ -1,7 +1,8 @@
 """What an array's frame reads of its lane groups, a group at a time instead of a column at a
 time: the columns' base forces in one compiled call (:func:`solver.kernels.lanebase.base_forces`),
 kept in each simulation's cache, where :meth:`~solver.simulate.simulation.Simulation.base_force`
-finds them, and the positions, strains and cable tensions of all lanes in a few array operations
+finds them, and the positions and cable tensions of all lanes in another
+(:func:`solver.kernels.laneview.frame_rows`), the strains from their state summaries
 (:func:`fill`); each the values a simulation computes itself one column at a time, bit for bit.
 An array that steps one column simulation at a time makes its lane groups for its frames all the
 same (:meth:`~solver.simulate.array.ArraySimulation.frame`): the columns' data then live in the
