@@ -205,3 +205,31 @@ def ledger_energies(m, S, L, go, out, tmp):
     ``out`` (:func:`solver.kernels.lanesteps.ledger_energy_lanes` on the lane-inner state ``L``
     and each lane's contact scans); ``tmp`` (3, B) scratch."""
     lanesteps.ledger_energy_lanes(L.x, L.v, m, L.rest, L.EA, L.f_ext, S.scan, go, out, tmp)
+
+
+@jit_lanes
+def move(S, F, I, a1, status, steps, T, F2, I2, a12, status2, steps2, src, dst):
+    """Lane ``src[i]`` of one block of lanes into lane ``dst[i]`` of another, for every ``i``:
+    its data (``S`` into ``T``, every field), step control (the float rows ``F`` and int rows
+    ``I`` of :func:`solver.integrators.rk4lanes.lane_control`), pending accelerations ``a1``,
+    ``status`` and ``steps``; copies only, so the lanes step on bit for bit."""
+    for i in range(src.shape[0]):
+        a = src[i]
+        b = dst[i]
+        lanes.copy(T.x[b], S.x[a])
+        lanes.copy(T.v[b], S.v[a])
+        lanes.copy(T.rest[b], S.rest[a])
+        lanes.copy(T.EA[b], S.EA[a])
+        lanes.copy(T.f_ext[b], S.f_ext[a])
+        lanes.copy(T.ledger[b], S.ledger[a])
+        lanes.copy(T.scan[b], S.scan[a])
+        lanes.copy(T.active[b], S.active[a])
+        lanes.copy(T.refine[b], S.refine[a])
+        lanes.copy(T.saved[b], S.saved[a])
+        for j in range(F.shape[0]):
+            F2[j, b] = F[j, a]
+        for j in range(I.shape[0]):
+            I2[j, b] = I[j, a]
+        lanes.copy(a12[b], a1[a])
+        status2[b] = status[a]
+        steps2[b] = steps[a]

@@ -333,7 +333,7 @@ class _Block:
         self.w0 = records.clone_work(work)
         self.status = np.zeros(b, np.int64)
         self.steps = np.zeros(b, np.int64)
-        self._entry = None
+        self._entry = self._mover = None
 
     def rounds(self, rec, fixed, min_live):
         """:func:`solver.integrators.rk4lanes.rounds` on this block's lanes."""
@@ -350,26 +350,25 @@ class _Block:
         """Move the lanes ``alive`` of the block ``above`` into the first lanes of this one;
         the others here do not step."""
         m = len(alive)
-        for mine, theirs in zip(self.S, above.S):
-            mine[:m] = theirs[alive]
-        self._floats[:, :m] = above._floats[:, alive]
-        self._ints[:, :m] = above._ints[:, alive]
-        self.X.a1[:m] = above.X.a1[alive]
-        self.status[:m] = above.status[alive]
+        above.move(self, alive, np.arange(m))
         self.status[m:] = NOT_A_LANE
-        self.steps[:m] = above.steps[alive]
         lanedata.enter(self.S, self.L)
 
     def give(self, above, alive):
         """Move the lanes taken by :meth:`take` back into the block ``above``."""
-        m = len(alive)
-        for mine, theirs in zip(self.S, above.S):
-            theirs[alive] = mine[:m]
-        above._floats[:, alive] = self._floats[:, :m]
-        above._ints[:, alive] = self._ints[:, :m]
-        above.X.a1[alive] = self.X.a1[:m]
-        above.status[alive] = self.status[:m]
-        above.steps[alive] = self.steps[:m]
+        self.move(above, np.arange(len(alive)), alive)
+
+    def move(self, b, src, dst):
+        """This block's lanes ``src`` into lanes ``dst`` of block ``b``
+        (:func:`solver.kernels.lanedata.move`; through its compiled overload after the first)."""
+        args = (self.S, self._floats, self._ints, self.X.a1, self.status, self.steps, b.S,
+                b._floats, b._ints, b.X.a1, b.status, b.steps, np.asarray(src, np.int64),
+                np.asarray(dst, np.int64))
+        if self._mover is None:
+            lanedata.move(*args)
+            self._mover = compiled_overload(lanedata.move, args) or lanedata.move
+        else:
+            self._mover(*args)
 
 
 NOT_A_LANE = -99        # the status of an empty lane of a block of stragglers

@@ -53,6 +53,10 @@ def _exercise(method):
         for s in pair:                          # and with prestrain ramps running
             s.apply_prestrain(0.0025, ramp_s=3 * s.dt)
         LaneGroup(pair, ramps=True).advance(2)
+        trio = LaneGroup([Simulation(base) for _ in range(3)])      # stragglers' moves
+        top, fewer = trio.blocks[0], trio.blocks[1]
+        fewer.take(top, [0, 2])
+        fewer.give(top, [0, 2])
         from solver.simulate.array import simulation_for
         arr = simulation_for(base.with_overrides([('structure.n_columns', 2)]))
         arr.lanes = True
