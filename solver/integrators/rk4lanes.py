@@ -145,8 +145,8 @@ def lane_control(lanes_n):
     moves in two copies: :meth:`solver.simulate.lanebatch._Block.take`)."""
     floats = np.zeros((len(LaneControl._fields) - len(_COUNTS), lanes_n))
     ints = np.zeros((len(_COUNTS), lanes_n), np.int64)
-    rows = {'f': iter(floats), 'i': iter(ints)}
-    return (LaneControl(*(next(rows['i' if name in _COUNTS else 'f'])
+    f, i = iter(floats), iter(ints)
+    return (LaneControl(*(next(i) if name in _COUNTS else next(f)
                           for name in LaneControl._fields)), floats, ints)
 
 

@@ -1,6 +1,6 @@
 """What an array's frame shows of the lanes of a lane group, in one call: each lane's state
 expanded to the full network as its model expands it (``sym3d``:
-:func:`solver.models.sym3d._expand_kernel`'s operations; ``full3d``: its rows as they are), and
+:func:`solver.kernels.rotation.expand`; ``full3d``: its rows as they are), and
 its cable tensions as :func:`solver.kernels.summary.cable_tensions` computes them from those
 positions; both with the same operations, so the same values, bit for bit, as the frame of each
 column simulation by itself (:meth:`solver.simulate.simulation.Simulation.frame`)."""
@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 
 from solver.compiled import jit
+from solver.kernels.rotation import expand
 
 
 @jit
@@ -25,15 +26,12 @@ def frame_rows(x, rep, cos, sin, rotate, cable_a, cable_b, cable_map, rest, EA, 
     for k in range(x.shape[0]):
         if first[k + 1] == first[k]:
             continue
-        for p in range(n):
-            q = rep[p]
-            if rotate:
-                pos[p, 0] = cos[p] * x[k, q, 0] - sin[p] * x[k, q, 1]
-                pos[p, 1] = sin[p] * x[k, q, 0] + cos[p] * x[k, q, 1]
-            else:
-                pos[p, 0] = x[k, q, 0]
-                pos[p, 1] = x[k, q, 1]
-            pos[p, 2] = x[k, q, 2]
+        if rotate:
+            expand(x[k], rep, cos, sin, pos)
+        else:
+            for p in range(n):
+                for d in range(3):
+                    pos[p, d] = x[k, rep[p], d]
         c0 = cols[first[k]]
         for j in range(cable_a.shape[0]):
             a = cable_a[j]

@@ -20,6 +20,17 @@ ROT_S = np.array([0.0, math.sqrt(3.0) / 2.0, -math.sqrt(3.0) / 2.0])
 
 
 @jit_inline
+def expand(a, rep, cos, sin, out):
+    """``out[p] = Rz(angle_p) a[rep[p]]`` with ``cos``/``sin`` of each full node's angle: a
+    reduced (``sym3d``) array expanded to the full network."""
+    for p in range(rep.shape[0]):
+        q = rep[p]
+        out[p, 0] = cos[p] * a[q, 0] - sin[p] * a[q, 1]
+        out[p, 1] = sin[p] * a[q, 0] + cos[p] * a[q, 1]
+        out[p, 2] = a[q, 2]
+
+
+@jit_inline
 def rel(u, t, h, rot, c):
     """``R^r u[h] - u[t]`` with ``r = rot[c]`` (r = 0 when ``rot`` is empty): a 3-tuple. Inlined
     by numba where it is called (a call would cost more than the member loop around it)."""

@@ -28,6 +28,7 @@ from scipy.spatial import cKDTree
 
 from solver.kernels import records
 from solver.kernels import summary
+from solver.kernels.rotation import expand
 from solver.compiled import jit
 from solver.build import memo
 from solver.models import extras
@@ -45,12 +46,8 @@ ROT = (np.eye(3), R3, R3 @ R3)       # R^r, r = 0, 1, 2
 
 @jit
 def _expand_kernel(a, rep, cos, sin, out):
-    """``out[p] = Rz(angle_p) a[rep[p]]`` with ``cos``/``sin`` of each full node's angle."""
-    for p in range(rep.shape[0]):
-        q = rep[p]
-        out[p, 0] = cos[p] * a[q, 0] - sin[p] * a[q, 1]
-        out[p, 1] = sin[p] * a[q, 0] + cos[p] * a[q, 1]
-        out[p, 2] = a[q, 2]
+    """:func:`solver.kernels.rotation.expand`, compiled to be called from Python."""
+    expand(a, rep, cos, sin, out)
 
 
 class NotSymmetric(ValueError):

@@ -59,22 +59,15 @@ def conclude(group, k, n, ch, count):
     if m <= 0:
         return None
     out = ch.out[:m, k]
-    finite, e, cerr, h_min = out[:, 0] != 0.0, out[:, 1], out[:, 2], out[:, 3]
-    D = ch.data.ledger[1:m + 1, k, records.DISSIPATED]
+    e, cerr = out[:, 1], out[:, 2]
     # the energy scale each interval's check reads: the one the previous interval left
-    # (Simulation._conclude), then max(|E_ref|, |e|, that scale) as Simulation._balance takes it
-    ref = s._energy_ref
+    # (Simulation._conclude)
     before = np.maximum.accumulate(np.concatenate(([s._energy_scale], np.abs(e[:-1]))))
-    scale = np.maximum(np.maximum(np.maximum(abs(ref), np.abs(e)), before), 1e-300)
-    balance = (e + D - ref) / scale
-    lim, div = s.div.energy_error, s.div
-    ok = finite & (cerr <= div.constraint_error) & (balance <= lim)
-    if not (s.effects.damp is not None and not s._books_dissipation):
-        ok &= balance >= -lim
     levels = s.network.levels.size
     heights = ch.heights[:m, k]
-    if levels and heights[0].size:
-        ok &= h_min > 0.0
+    ok, balance = _verdicts(out, ch.data.ledger[1:m + 1, k, records.DISSIPATED], s._energy_ref,
+                            before, s.div.energy_error, s.div.constraint_error, _one_sided(s),
+                            levels and heights[0].size)
     bad = np.flatnonzero(~ok)
     m = int(bad[0]) if bad.size else m
     if m == 0:
@@ -95,6 +88,30 @@ def conclude(group, k, n, ch, count):
     return Lean(t, strain, e[:m], cerr[:m], balance[:m], lambda q: group.to_end(k, q, ch))
 
 
+def _one_sided(sim):
+    """Whether ``sim``'s balance is checked against gains only (:meth:`Simulation._check`: cable
+    damping under a method that does not book it)."""
+    return sim.effects.damp is not None and not sim._books_dissipation
+
+
+def _verdicts(out, D, ref, before, lim, cerr_lim, one_sided, levels):
+    """The divergence checks of :meth:`Simulation._check` on state summary rows ``out``
+    (finite, energy, constraint error, smallest height), element by element over the rows
+    (intervals of one simulation, or lanes; the other arguments scalars or one per row): the
+    ledger's ``D``, the energy reference ``ref``, the energy scale ``before`` the check, the
+    limits ``lim`` (balance) and ``cerr_lim``, ``one_sided`` balance checks, ``levels``: whether
+    prism heights are checked. The balance as :meth:`Simulation._balance` computes it:
+    ``(e + D - ref) / max(|ref|, |e|, before, 1e-300)``. Returns (verdicts, balances)."""
+    finite, e, cerr, h_min = out[:, 0] != 0.0, out[:, 1], out[:, 2], out[:, 3]
+    scale = np.maximum(np.maximum(np.maximum(np.abs(ref), np.abs(e)), before), 1e-300)
+    balance = (e + D - ref) / scale
+    ok = (finite & (cerr <= cerr_lim) & (balance <= lim)
+          & ((balance >= -lim) | np.asarray(one_sided)))
+    if levels:
+        ok &= h_min > 0.0
+    return ok, balance
+
+
 def sound(sims, status, out, D, levels):
     """Which of ``sims`` pass :meth:`Simulation._check` after one interval, each from its lane's
     integrator ``status``, state summary row ``out`` (finite, energy, constraint error, smallest
@@ -102,20 +119,12 @@ def sound(sims, status, out, D, levels):
     over the lanes (so the same verdicts), as the check of one simulation makes; ``levels``:
     whether the network has prism levels. A simulation whose check reads its full state
     (:func:`applies`) is never counted sound here."""
-    finite, e, cerr, h_min = out[:, 0] != 0.0, out[:, 1], out[:, 2], out[:, 3]
-    ref = np.array([s._energy_ref for s in sims])
-    before = np.array([s._energy_scale for s in sims])
-    scale = np.maximum(np.maximum(np.maximum(np.abs(ref), np.abs(e)), before), 1e-300)
-    balance = (e + D - ref) / scale
-    lim = np.array([s.div.energy_error for s in sims])
-    one_sided = np.array([s.effects.damp is not None and not s._books_dissipation
-                          for s in sims])
-    ok = (finite & (status == OK) & (cerr <= np.array([s.div.constraint_error for s in sims]))
-          & (balance <= lim) & ((balance >= -lim) | one_sided)
-          & np.array([applies(s) for s in sims]))
-    if levels:
-        ok &= h_min > 0.0
-    return ok
+    ok, _ = _verdicts(out, D, np.array([s._energy_ref for s in sims]),
+                      np.array([s._energy_scale for s in sims]),
+                      np.array([s.div.energy_error for s in sims]),
+                      np.array([s.div.constraint_error for s in sims]),
+                      np.array([_one_sided(s) for s in sims]), levels)
+    return ok & (status == OK) & np.array([applies(s) for s in sims])
 
 
 def conclude_call(group, n, heights, steps, status):
