@@ -2,7 +2,8 @@
 layout): where a step ends (:func:`next_kink_lanes`, twin of
 :func:`solver.kernels.kinks.next_kink`) and the energy the ledger compares
 (:func:`step_energy_lanes`, twin of :func:`solver.kernels.summary.step_energy`;
-:func:`ledger_energy_lanes`, twin of :func:`solver.kernels.effects.ledger_energy`).
+:func:`ledger_energy_lanes`, twin of :func:`solver.kernels.effects.ledger_energy`; its terms,
+:func:`energy_rows` and :func:`cable_energy_lanes`, which a ramp books).
 
 ``x``, ``v``, ``acc``, ``f_ext`` are (n_nodes, 3, B), ``rest``, ``EA`` (n_cables, B); ``m`` is
 the scalar :class:`~solver.kernels.records.Model` all lanes share. The loops over cables, nodes
@@ -169,21 +170,36 @@ def constraint_error_lanes(x, topo, out):
 def step_energy_lanes(x, v, m, rest, EA, f_ext, go, out, tmp):
     """For each lane ``k`` with ``go[k]`` set, ``out[k]`` = :func:`solver.kernels.summary.
     step_energy` of that lane: node (kinetic and external-force), bar kinetic and cable energies,
-    each summed over lanes into its own row of ``tmp`` (3, B) (scratch), then added as the scalar
-    kernel adds them, plus the strikers and stops of the model by the scalar
-    :func:`~solver.kernels.contact.extra_energy` on views of the lane; NaN when the model has no
-    summary."""
+    each summed over lanes into its own row of ``tmp`` (3, B) (scratch: :func:`energy_rows`),
+    then added as the scalar kernel adds them, plus the strikers and stops of the model by the
+    scalar :func:`~solver.kernels.contact.extra_energy` on views of the lane; NaN when the model
+    has no summary."""
     n_lanes = out.shape[0]
-    sm, topo = m.summary, m.topo
-    if sm.node_mass.shape[0] == 0:
+    if m.summary.node_mass.shape[0] == 0:
         for k in range(n_lanes):
             out[k] = math.nan if go[k] != 0 else out[k]
         return
+    energy_rows(x, v, m, rest, EA, f_ext, tmp)
     en, eb, ec = tmp[0], tmp[1], tmp[2]
+    for k in range(n_lanes):
+        out[k] = en[k] + eb[k] + ec[k] if go[k] != 0 else out[k]
+    if m.stops.height.shape[0] != 0 or m.strikers.row.shape[0] != 0:     # kernels.contact
+        for k in range(n_lanes):
+            if go[k] != 0:
+                out[k] += extra_energy(x[:, :, k], v[:, :, k], m)
+
+
+@jit_lanes
+def energy_rows(x, v, m, rest, EA, f_ext, tmp):
+    """Every lane's node (kinetic and external-force) energy into ``tmp[0]``, bar kinetic energy
+    into ``tmp[1]`` and cable energy into ``tmp[2]`` (:func:`cable_energy_lanes`): the terms of
+    :func:`solver.kernels.summary._contact_free_energy` (a model with summary arrays)."""
+    n_lanes = x.shape[2]
+    sm = m.summary
+    en, eb = tmp[0], tmp[1]
     for k in range(n_lanes):
         en[k] = 0.0
         eb[k] = 0.0
-        ec[k] = 0.0
     # summary._node_energy
     x0, node_mass, clamped, node_mult = sm.x0, sm.node_mass, sm.clamped, sm.node_mult
     for p in range(x.shape[0]):
@@ -212,6 +228,17 @@ def step_energy_lanes(x, v, m, rest, EA, f_ext, go, out, tmp):
                                  + v[a, 0, k] * v[b, 0, k] + v[a, 1, k] * v[b, 1, k]
                                  + v[a, 2, k] * v[b, 2, k]
                                  + v[b, 0, k] ** 2 + v[b, 1, k] ** 2 + v[b, 2, k] ** 2)
+    cable_energy_lanes(x, m, rest, EA, tmp[2])
+
+
+@jit_lanes
+def cable_energy_lanes(x, m, rest, EA, ec):
+    """Every lane's cable energy into ``ec`` (B,): :func:`solver.kernels.summary.cable_energy`
+    of the lane, operation for operation."""
+    n_lanes = x.shape[2]
+    topo, sm = m.topo, m.summary
+    for k in range(n_lanes):
+        ec[k] = 0.0
     # summary._cable_energy (rotation.rel: plain or to the rotated image)
     cable_a, cable_b, cable_rot, cable_mult = topo.cable_a, topo.cable_b, topo.cable_rot, \
         sm.cable_mult
@@ -241,12 +268,6 @@ def step_energy_lanes(x, v, m, rest, EA, f_ext, go, out, tmp):
                 L = rest[c, k]
                 e = mc * 0.5 * EA[c, k] / L * (s - L) ** 2
                 ec[k] = ec[k] + e if s > L else ec[k]
-    for k in range(n_lanes):
-        out[k] = en[k] + eb[k] + ec[k] if go[k] != 0 else out[k]
-    if m.stops.height.shape[0] != 0 or m.strikers.row.shape[0] != 0:     # kernels.contact
-        for k in range(n_lanes):
-            if go[k] != 0:
-                out[k] += extra_energy(x[:, :, k], v[:, :, k], m)
 
 
 @jit_lanes

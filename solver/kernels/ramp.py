@@ -127,17 +127,44 @@ def set_rest(m, d, r, k):
     change booked as work: ``ref += after - before``, ``scale = max(scale, |after|, |ref|)``), the
     prestrain into ``r.p``. Returns :data:`SET`, :data:`ENDED` or :data:`ASYMMETRIC` (nothing
     changed)."""
+    went = next_rest(r, k)
+    if went == ASYMMETRIC:
+        return ASYMMETRIC
+    a, cables, extra, touch = summary.energy_parts(d.x, d.v, m, d)
+    before = summary.energy_sum(m, a, cables, extra, touch)
+    load(d, r)
+    after = summary.energy_sum(m, a, summary.cable_energy(d.x, m, d), extra, touch)
+    book(r, before, after)
+    return went
+
+
+@jit
+def next_rest(r, k):
+    """The first part of :func:`set_rest`: the rest lengths at step ``k`` into ``r.rest``;
+    :data:`SET`, :data:`ENDED` or :data:`ASYMMETRIC` (then :func:`load` and :func:`book` are
+    not to follow)."""
     ended = _prestrain_at(r, k)
     _rest_lengths(r)
     if not _symmetric(r):
         return ASYMMETRIC
-    a, cables, extra, touch = summary.energy_parts(d.x, d.v, m, d)
-    before = summary.energy_sum(m, a, cables, extra, touch)
-    for j in range(d.rest.shape[0]):            # as set_cables: rest lengths and EA
+    return ENDED if ended else SET
+
+
+@jit
+def load(d, r):
+    """The rest lengths of :func:`next_rest` and the EA into the data ``d``, as the model's
+    ``set_cables`` loads them."""
+    for j in range(d.rest.shape[0]):
         i = r.source[j]
         d.rest[j] = r.rest[i] if i >= 0 else 0.0
         d.EA[j] = r.EA[i] if i >= 0 else 0.0
-    after = summary.energy_sum(m, a, summary.cable_energy(d.x, m, d), extra, touch)
+
+
+@jit
+def book(r, before, after):
+    """The work of a :func:`load` that took the energy from ``before`` to ``after`` J:
+    ``ref += after - before``, ``scale = max(scale, |after|, |ref|)``; the prestrain of
+    :func:`next_rest` kept in ``r.p``."""
     b = r.book
     b[REF] += after - before
     scale = b[SCALE]                 # Python's max(scale, |after|, |ref|)
@@ -148,7 +175,6 @@ def set_rest(m, d, r, k):
     b[SCALE] = scale
     for i in range(r.p.shape[0]):
         r.p[i] = r.p_next[i]
-    return ENDED if ended else SET
 
 
 @jit
@@ -199,3 +225,117 @@ def lane_ramp(R, k):
     return Ramp(R.start[k], R.target[k], R.p[k], R.p_next[k], R.length, R.cross, R.cross_prism,
                 R.count, R.base, R.below, R.above, R.radius, R.EA[k], R.cable_map, R.source,
                 R.gamma, R.rest, R.clock[k], R.book[k])
+
+
+# The ramps' steps over lanes (:func:`next_rests`): each lane performs the operations of
+# :func:`next_rest` and :func:`load` on its own ramp in the same order, the lane index innermost.
+class LaneRest(NamedTuple):
+    """Lane-inner scratch of :func:`next_rests` for B lanes: ``p`` (n_prisms, B) the
+    prestrains, ``gamma`` (n_gamma, B), ``rest`` and ``EA`` (n_cables, B) of the full network,
+    per lane (B,) ``f`` the ramp's fraction, ``ended``, ``worst``, ``top``, ``nan``; ``E``
+    (4, B) the energy terms a ramp's step books."""
+    p: np.ndarray
+    gamma: np.ndarray
+    rest: np.ndarray
+    EA: np.ndarray
+    f: np.ndarray
+    ended: np.ndarray
+    worst: np.ndarray
+    top: np.ndarray
+    nan: np.ndarray
+    E: np.ndarray
+
+
+def lane_rest(R):
+    """The :class:`LaneRest` of the :class:`LaneRamp` ``R``: its EA lane-inner, its rest lengths
+    the scratch's."""
+    b = R.p.shape[0]
+    f = np.zeros(b)
+    return LaneRest(np.zeros((R.p.shape[1], b)), np.zeros((R.gamma.shape[0], b)),
+                    np.repeat(R.rest[:, None], b, axis=1), np.ascontiguousarray(R.EA.T),
+                    f, np.zeros(b, np.int64), f.copy(), f.copy(), np.zeros(b, np.int64),
+                    np.zeros((4, b)))
+
+
+@jit
+def next_rests(R, Q, k, go, went):
+    """:func:`next_rest` of step ``k`` for each lane whose ``go`` is set, over lanes: the
+    prestrains into ``Q.p`` (and ``R.p_next``), the rest lengths into ``Q.rest``, what it
+    returns into ``went``."""
+    n_lanes = go.shape[0]
+    p, g, rest, EA, length = Q.p, Q.gamma, Q.rest, Q.EA, R.length
+    for k2 in range(n_lanes):               # _prestrain_at
+        c = R.clock[k2]
+        t = c[T_CALL] + k * c[DT]
+        u = (t - c[T0]) / c[DURATION]
+        Q.ended[k2] = 1 if u >= 1.0 else 0
+        f = u
+        if 0.0 > u:                         # Python's max(u, 0.0)
+            f = 0.0
+        Q.f[k2] = f
+    for i in range(p.shape[0]):
+        for k2 in range(n_lanes):
+            a = R.start[k2, i]
+            p[i, k2] = R.target[k2, i] if Q.ended[k2] else a + Q.f[k2] * (R.target[k2, i] - a)
+    for i in range(g.shape[0]):             # _rest_lengths
+        for k2 in range(n_lanes):
+            g[i, k2] = 0.0
+    for j in range(R.cross.shape[0]):
+        c = R.cross[j]
+        q = R.cross_prism[j]
+        s = length[c]
+        for k2 in range(n_lanes):
+            rest[c, k2] = s / (1.0 + p[q, k2])
+            g[q, k2] += EA[c, k2] * p[q, k2] / s
+    for i in range(R.count.shape[0]):
+        n = R.count[i]
+        for k2 in range(n_lanes):
+            g[i, k2] = g[i, k2] / n
+    for j in range(R.base.shape[0]):
+        c = R.base[j]
+        a, b = R.below[j], R.above[j]
+        r = R.radius[j]
+        for k2 in range(n_lanes):
+            t = ((g[a, k2] if a >= 0 else 0.0) + (g[b, k2] if b >= 0 else 0.0)) * r
+            rest[c, k2] = EA[c, k2] * length[c] / (EA[c, k2] + t)
+    cmap, src = R.cable_map, R.source
+    for k2 in range(n_lanes):               # _symmetric
+        Q.worst[k2] = 0.0
+        Q.top[k2] = 0.0
+        Q.nan[k2] = 0
+    for i in range(cmap.shape[0]):
+        j = src[cmap[i]]
+        for k2 in range(n_lanes):
+            diff = abs((rest[j, k2] if j >= 0 else 0.0) - rest[i, k2])
+            size = abs(rest[i, k2])
+            if diff != diff or size != size:
+                Q.nan[k2] = 1
+            Q.worst[k2] = max(Q.worst[k2], diff)
+            Q.top[k2] = max(Q.top[k2], size)
+    for k2 in range(n_lanes):
+        if go[k2] == 0:
+            continue
+        for i in range(p.shape[0]):
+            R.p_next[k2, i] = p[i, k2]
+        if Q.nan[k2] or not Q.worst[k2] > 1e-12 * Q.top[k2]:
+            went[k2] = ENDED if Q.ended[k2] else SET
+        else:
+            went[k2] = ASYMMETRIC
+
+
+@jit
+def load_lanes(R, Q, go, went, rest, EA, S_rest, S_EA):
+    """:func:`load` of each lane whose ``go`` is set and whose :func:`next_rests` set its rest
+    lengths: into the lane-inner ``rest`` and ``EA`` (n_model_cables, B) and the lane-outer
+    ``S_rest`` and ``S_EA`` (B, n_model_cables)."""
+    n_lanes = go.shape[0]
+    for j in range(rest.shape[0]):
+        i = R.source[j]
+        for k2 in range(n_lanes):
+            if go[k2] != 0 and went[k2] != ASYMMETRIC:
+                r = Q.rest[i, k2] if i >= 0 else 0.0
+                e = Q.EA[i, k2] if i >= 0 else 0.0
+                rest[j, k2] = r
+                EA[j, k2] = e
+                S_rest[k2, j] = r
+                S_EA[k2, j] = e

@@ -151,13 +151,20 @@ def energy_parts(x, v, m, d):
     sm = m.summary
     a = (_node_energy(x, v, sm.x0, d.f_ext, sm.node_mass, sm.clamped, sm.node_mult)
          + _bar_kinetic_energy(v, sm.bar_a, sm.bar_b, sm.bar_mass))
+    extra, touch = contact_parts(x, v, m, d)
+    return a, cable_energy(x, m, d), extra, touch
+
+
+@jit
+def contact_parts(x, v, m, d):
+    """The last two terms of :func:`energy_parts`: ``(strikers and stops, bar contact)`` J."""
     extra = 0.0
     if m.stops.height.shape[0] != 0 or m.strikers.row.shape[0] != 0:     # kernels.contact
         extra = extra_energy(x, v, m)
     touch = 0.0
     if m.bar_contact.pairs.shape[0] != 0:
         touch = contact_energy(x, m, d)
-    return a, cable_energy(x, m, d), extra, touch
+    return extra, touch
 
 
 @jit

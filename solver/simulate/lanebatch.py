@@ -120,6 +120,7 @@ class LaneGroup:
         self._ramps = [s._ramp for s in sims]
         self._integrators = [s.integrator for s in sims]
         self.R = None if key[-1] is None else ramp.stack([s._ramp_record() for s in sims])
+        self.Q = None if self.R is None else ramp.lane_rest(self.R)
         self._keeps = None              # a ramped call's Kept per simulation
         b = len(sims)
         m0 = sims[0].model
@@ -208,7 +209,7 @@ class LaneGroup:
         self.call(rk4laneramp.ramped, (
             self.rec, top.S, top.L, top.W, top.X, top.C, top.w0, float(s0.dt), int(n),
             float(s0.tol), int(s0.max_iter), bool(s0.kinks), bool(s0.integrator.projected), R,
-            NO_CHUNK, top.status, st, steps, done, taken, went, made, self.out, heights))
+            NO_CHUNK, top.status, st, steps, done, taken, went, made, self.out, heights, self.Q))
         results = []
         for k, (s, o) in enumerate(zip(sims, self.out.tolist())):
             call = (int(done[k]), int(taken[k]), int(top.status[k]), int(went[k]))
