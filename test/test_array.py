@@ -205,3 +205,21 @@ def test_the_array_frame_equals_the_frames_of_its_column_simulations():
     names = {tuple(g.columns): g.sim.model.name for g in sim.groups}
     assert names == {(0, 2, 4): 'sym3d', (1,): 'full3d', (3,): 'sym3d'}
     assert sim.contacts_met > 0
+
+
+def test_a_command_on_every_column_builds_their_prestrain_map_once():
+    """Distinct prestrains split the array into one simulation per column; the columns share one
+    prestrain map (built once for the command), equal to a map built afresh from a column's
+    network; each column then holds its own prestrain."""
+    from solver.build.structures import PrestrainMap
+    sim = simulation_for(_scene())
+    p = np.linspace(0.02, 0.06, sim.n_columns)
+    sim.apply_prestrain(p)
+    maps = [g.sim.prestrain_map for g in sim.groups]
+    assert len(maps) == sim.n_columns and all(m is maps[0] for m in maps)
+    fresh = PrestrainMap(sim.groups[-1].sim.network)
+    for name in ('length', 'cross', 'cross_prism', 'base', 'base_prisms', 'radius',
+                 'cross_count'):
+        assert np.array_equal(getattr(maps[0], name), getattr(fresh, name)), name
+    np.testing.assert_allclose(sim.prestrain, p[:, None] * np.ones((1, sim.network.n_prisms)),
+                               rtol=1e-12)

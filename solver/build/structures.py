@@ -16,6 +16,7 @@ import math
 
 import numpy as np
 
+from solver.build import memo
 from solver.build.network import Network, NetworkError
 
 PHI0 = 5.0 * math.pi / 6.0   # self-equilibrated twist of the minimal triangular prism
@@ -186,6 +187,15 @@ BUILDERS = {'column': column, 'prism': column, 'explicit': explicit}
 
 
 # -- prestrain as an actuator (column networks) ---------------------------------------------------
+def prestrain_map(network):
+    """The :class:`PrestrainMap` of ``network``; inside :func:`solver.build.memo.sharing` one
+    for every network of the same levels, geometry, cables and stacking (the columns of an
+    array that a command reaches one by one)."""
+    return memo.lookup('prestrain-map', (network.levels, network.x0, network.cable_a,
+                                         network.cable_b, str(network.meta.get('stacking'))),
+                       lambda: PrestrainMap(network))
+
+
 class PrestrainMap:
     """Which prism self-stress each cable of a column network carries, from ``network.levels``.
 

@@ -25,6 +25,7 @@ import math
 
 import numpy as np
 
+from solver.build import memo
 from solver.build.scene import Scene
 from solver.analysis import observables
 from solver.build.structures import PrestrainMap, build_network
@@ -180,10 +181,12 @@ class ArraySimulation(SimulationAPI):
             for i, (key, cols) in enumerate(items):
                 sim = grp.sim if i == 0 else grp.sim.clone()
                 new_groups.append((_Group(sim, cols), key))
-        # apply after every copy is made (a copy must be of the state before the command)
-        for grp, key in new_groups:
-            if key is not None:
-                apply(grp.sim, key)
+        # apply after every copy is made (a copy must be of the state before the command); what
+        # the columns' commands build of their network, they build once (memo)
+        with memo.sharing():
+            for grp, key in new_groups:
+                if key is not None:
+                    apply(grp.sim, key)
         self.groups = sorted((g for g, _ in new_groups), key=lambda g: g.columns[0])
         self._cache = {}
         self._plan = None

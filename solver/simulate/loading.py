@@ -174,7 +174,7 @@ class Loading:
         """The :class:`~solver.build.structures.PrestrainMap` of the network (built on first
         use)."""
         if self._prestrain_map is None:
-            self._prestrain_map = structures.PrestrainMap(self.network)
+            self._prestrain_map = structures.prestrain_map(self.network)
         return self._prestrain_map
 
     def prestrain_target(self, p, columns=None):
