@@ -194,8 +194,9 @@ class LaneGroup:
 
     def _advance_ramped(self, n):
         """:meth:`advance` of simulations whose ramps run: their first ramped calls as lanes
-        (:func:`solver.integrators.rk4laneramp.ramped`), then each simulation's interval goes
-        on by itself from where its call stopped (:meth:`Simulation._stepped`)."""
+        (:func:`solver.integrators.rk4laneramp.ramped`), concluded at once where a lane's call
+        ended its interval (:func:`~solver.simulate.lanebulk.conclude_ramped`); any other
+        simulation's interval goes on by itself from where its call stopped."""
         sims, R, top = self.sims, self.R, self.blocks[0]
         s0, b = sims[0], len(sims)
         top.status[:] = OK
@@ -210,16 +211,7 @@ class LaneGroup:
             self.rec, top.S, top.L, top.W, top.X, top.C, top.w0, float(s0.dt), int(n),
             float(s0.tol), int(s0.max_iter), bool(s0.kinks), bool(s0.integrator.projected), R,
             NO_CHUNK, top.status, st, steps, done, taken, went, made, self.out, heights, self.Q))
-        results = []
-        for k, (s, o) in enumerate(zip(sims, self.out.tolist())):
-            call = (int(done[k]), int(taken[k]), int(top.status[k]), int(went[k]))
-            end = (o[0] != 0.0, o[1], heights[k], o[2], o[3]) if made[k] else None
-            try:
-                first = s._ramp_went(0, n, call, end, R.book[k], R.p[k])
-                results.append((True, s._stepped(n, self._keeps[k], first)))
-            except Exception as exc:            # noqa: BLE001 - this lane's result
-                results.append((False, exc))
-        return results
+        return lanebulk.conclude_ramped(self, n, heights, (done, taken, went, made))
 
     def _step(self, n, heights):
         """The compiled call of :meth:`advance`: the lanes step together while at least half of

@@ -1,6 +1,7 @@
 """A lane group's intervals concluded for all its lanes at once: one call's interval for every
 lane (:func:`conclude_call`, :meth:`solver.simulate.lanebatch.LaneGroup.advance`: arrays, the
-node), and the intervals of a chunk, lane by lane, for the lean records of sweeps and fits
+node; :func:`conclude_ramped`, the call of ramping lanes), and the intervals of a chunk, lane
+by lane, for the lean records of sweeps and fits
 (:meth:`solver.simulate.batch.BatchSimulation.advance_intervals`).
 
 Concluding one interval at a time (:meth:`solver.simulate.lanebatch.LaneGroup.conclude`, then
@@ -22,7 +23,7 @@ import time
 import numpy as np
 
 from solver.analysis import observables
-from solver.kernels import records
+from solver.kernels import ramp, records
 from solver.simulate.simulation import StateSummary
 from solver.status import OK
 
@@ -112,15 +113,17 @@ def _verdicts(out, D, ref, before, lim, cerr_lim, one_sided, levels):
     return ok, balance
 
 
-def sound(sims, status, out, D, levels):
+def sound(sims, status, out, D, levels, book=None):
     """Which of ``sims`` pass :meth:`Simulation._check` after one interval, each from its lane's
     integrator ``status``, state summary row ``out`` (finite, energy, constraint error, smallest
     height) and ledger ``D`` (its cable damping's energy): the same operations, element by element
     over the lanes (so the same verdicts), as the check of one simulation makes; ``levels``:
-    whether the network has prism levels. A simulation whose check reads its full state
-    (:func:`applies`) is never counted sound here."""
-    ok, _ = _verdicts(out, D, np.array([s._energy_ref for s in sims]),
-                      np.array([s._energy_scale for s in sims]),
+    whether the network has prism levels; ``book`` (B, 2): the energy references and scales the
+    check reads, where not the simulations' own (a ramp's). A simulation whose check reads its
+    full state (:func:`applies`) is never counted sound here."""
+    if book is None:
+        book = np.array([(s._energy_ref, s._energy_scale) for s in sims]).reshape(-1, 2)
+    ok, _ = _verdicts(out, D, book[:, 0], book[:, 1],
                       np.array([s.div.energy_error for s in sims]),
                       np.array([s.div.constraint_error for s in sims]),
                       np.array([_one_sided(s) for s in sims]), levels)
@@ -151,6 +154,45 @@ def conclude_call(group, n, heights, steps, status):
             continue
         try:
             results.append((True, s._conclude(n, taken, st, kept, None)))
+        except Exception as exc:            # noqa: BLE001 - this lane's result
+            results.append((False, exc))
+    return results
+
+
+def conclude_ramped(group, n, heights, call):
+    """The end of :meth:`LaneGroup._advance_ramped`'s call of ``n`` steps (``call``: per lane
+    the steps done, the integrator's steps, what the last rest lengths set returned, whether the
+    lane ended the interval: :func:`solver.integrators.rk4laneramp.ramped`). A simulation whose
+    lane ended the interval and passes the divergence check (:func:`sound`, with the energy
+    reference and scale its ramp booked) takes its ramp's prestrain, booking and end as
+    :meth:`~solver.simulate.loading.Loading._ramp_went` does, then moves as :func:`conclude_call`
+    moves one; any other goes on from where its call stopped by itself (its interval's rest, or
+    the restore and the error naming the step). Returns ``[(ok, steps or exception)]``."""
+    sims, R, status = group.sims, group.R, group.blocks[0].status
+    done, taken, went, made = (a.tolist() for a in call)
+    levels = sims[0].network.levels.size and heights[0].size
+    whole = (call[3] == 1) & (status == OK)
+    ok = (whole & sound(sims, status, group.out, group.blocks[0].S.ledger[:, records.DISSIPATED],
+                        levels, R.book)).tolist()
+    results = []
+    for k, (s, o) in enumerate(zip(sims, group.out.tolist())):
+        end = (o[0] != 0.0, o[1], heights[k], o[2], o[3]) if made[k] else None
+        if ok[k]:
+            s._cache = {'summary': StateSummary(*end)}
+            s._energy_ref, s._energy_scale = float(R.book[k, 0]), float(R.book[k, 1])
+            s._prestrain = R.p[k].reshape(s._prestrain.shape).copy()
+            if went[k] == ramp.ENDED:
+                s._ramp = None
+            s._energy_scale = max(s._energy_scale, abs(o[1]))
+            s.t += n * s.dt
+            s.step += n
+            s.steps_taken += taken[k]
+            results.append((True, taken[k]))
+            continue
+        try:
+            first = s._ramp_went(0, n, (done[k], taken[k], int(status[k]), went[k]), end,
+                                 R.book[k], R.p[k])
+            results.append((True, s._stepped(n, group._keeps[k], first)))
         except Exception as exc:            # noqa: BLE001 - this lane's result
             results.append((False, exc))
     return results
