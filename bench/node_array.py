@@ -114,7 +114,7 @@ class Session:
 
         self.n_columns = n_columns
         # integrator.lanes on: the node's start loads the ramped lanes' call too
-        # (params.warm_ramp); each measurement then sets the way it steps
+        # (params.warm_commands); each measurement then sets the way it steps
         scene = Scene.load(COLUMNS['FB']).with_overrides([('structure.n_columns', n_columns),
                                                           ('integrator.lanes', 'on')])
         path = Path(folder) / f'fb_column_{n_columns}.yaml'

@@ -180,13 +180,13 @@ def _single_run(method):
 @pytest.mark.parametrize('columns, lanes', [(1, 'off'), (3, 'off'), (3, 'on')])
 def test_the_node_loads_the_ramped_step_at_start_and_leaves_the_state_as_loaded(
         columns, lanes, monkeypatch):
-    """``warm_ramp`` (the node's start, after timing a step): the ramped twin runs (an array
-    that steps as lanes: its ramped lane call), and the simulation is the freshly loaded one
-    again: positions, velocities, time, prestrain, balance, and the steps it then takes equal
-    those of a simulation never warmed."""
+    """``warm_commands`` (the node's start, after timing a step): the ramped twin runs (an array
+    that steps as lanes: its ramped lane call, then its plain lane call), and the simulation is
+    the freshly loaded one again: positions, velocities, time, prestrain, balance, and the steps
+    it then takes equal those of a simulation never warmed."""
     from solver.simulate.array import simulation_for
     from solver.simulate.lanebatch import LaneGroup
-    from tensegrity_ros.node.params import warm_ramp
+    from tensegrity_ros.node.params import warm_commands
     scene = Scene.load(ROOT / 'config' / 'scenes' / 'fb_column.yaml').with_overrides(
         [('structure.n_columns', columns), ('integrator.lanes', lanes)])
     warmed, fresh = simulation_for(scene), simulation_for(scene)
@@ -196,11 +196,19 @@ def test_the_node_loads_the_ramped_step_at_start_and_leaves_the_state_as_loaded(
     def counted(self, *args):
         calls.append(real(self, *args))
         return calls[-1]
+    plain = []
+    real_step = LaneGroup._step
+
+    def stepped(self, *args):
+        plain.append(len(self.sims))
+        return real_step(self, *args)
     with monkeypatch.context() as mp:
         mp.setattr(LaneGroup if lanes == 'on' else Loading,
                    '_advance_ramped' if lanes == 'on' else '_ramped', counted)
-        warm_ramp(warmed)
+        mp.setattr(LaneGroup, '_step', stepped)
+        warm_commands(warmed)
     assert any(out is not None for out in calls)        # stepped by the compiled twin
+    assert bool(plain) == (lanes == 'on')               # and the plain lane steps after it
     for sim in (warmed, fresh):
         sim.apply_impact(0.1)
         sim.advance(0.05)

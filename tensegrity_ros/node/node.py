@@ -44,7 +44,7 @@ from tensegrity_ros.node.pacing import Pacer
 from tensegrity_ros.node.params import (DEFAULTS, LOG_THROTTLE_S, ParameterError, ThrottledLog,
                                         check_parameters, descriptor, find_config,
                                         load_simulation,
-                                        measure_step_cost, unknown_parameters, warm_ramp)
+                                        measure_step_cost, unknown_parameters, warm_commands)
 from tensegrity_ros.node.publishing import Publishing
 from tensegrity_ros.node.realtime import RealTime
 from tensegrity_ros.node.recorders import open_recorders
@@ -174,7 +174,7 @@ class TensegritySim(LifecycleNode):
                 f'install or a change of solver/ compiles for a minute or more)')
             sim = load_simulation(self.params)
             step_cost = measure_step_cost(sim)
-            warm_ramp(sim)
+            warm_commands(sim)
         else:                      # a caller's simulation, in its state: start cautiously
             step_cost = 0.1 * self.period
         self.sim, net = sim, sim.network

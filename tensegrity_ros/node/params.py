@@ -182,21 +182,26 @@ def measure_step_cost(sim, n=20):
     return cost
 
 
-def warm_ramp(sim):
-    """Load the compiled ramped step a prestrain command with a ramp runs (the integrator's
-    ramped twin, ``Simulation._ramped``, and on an array its ramped lanes), so that the first
-    such command does not spend a tick loading it from numba's cache: a ramp to the present
-    prestrain over two steps (the second column's a billionth above it: two column
-    simulations, which an array that steps as lanes steps as a ramped lane group), then a reset
-    (so only for a simulation at its initial state). Nothing where the scene has no prestrain to
-    command."""
+def warm_commands(sim):
+    """Load the compiled calls a prestrain command brings in, so that no tick after the first
+    such command spends its time loading them from numba's cache (the pacer would take that for
+    the cost of a step): the ramped step (the integrator's ramped twin,
+    ``Simulation._ramped``, and on an array its ramped lanes), the plain steps after a ramp ends
+    within an interval, and on an array the lane steps and the lane frame of columns that a
+    command set apart. A ramp to the present prestrain over two steps (the second column's a
+    billionth above it: two column simulations, which an array that steps as lanes steps as a
+    lane group), one step, three (the ramp ends in the second), two more and a frame, then a
+    reset (so only for a simulation at its initial state). Nothing where the scene has no
+    prestrain to command."""
     if sim.prestrain is None:
         return
     goal = np.array(sim.prestrain_goal)
     goal[1:2] *= 1.0 + 1e-9
     try:
         sim.apply_prestrain(goal, ramp_s=2 * sim.dt)
-        sim.advance(2 * sim.dt)
+        for n in (1, 3, 2):         # the ramp ends within the second call: its rest alone
+            sim.advance(n * sim.dt)
+        sim.frame()
     except SimulationDiverged:
         pass
     sim.reset()
