@@ -270,3 +270,25 @@ def test_front_stations_scale_with_the_column(n, near, far):
     # an arrival at the near station only: no speed
     fade = strain * (np.arange(n)[::-1] <= near + 2)[None, :]
     assert np.isnan(track_pulse(times, fade, h0).front_speed_m_s)
+
+
+def test_the_peaks_of_all_frames_at_once_equal_leading_peak_frame_by_frame():
+    """``_peaks`` (every frame at once) against :func:`leading_peak` called frame by frame (the
+    obvious twin), bit for bit: travelling pulses with tails, random profiles with plateaus and
+    ties, peaks at either end, frames at rest, under the noise floor, with NaN."""
+    from solver.analysis.observables import _peaks
+    rng = np.random.default_rng(7)
+    _, pulse = _travelling_pulse(60.0, 0.01, 2.0)
+    noisy = rng.normal(0.0, 1e-3, (300, 40))
+    plateaus = -np.round(rng.uniform(0, 3, (300, 12))) * 1e-3      # ties everywhere
+    ends = np.zeros((4, 10))
+    ends[0, 0], ends[1, -1], ends[2, :] = -1e-3, -1e-3, -1e-3
+    ends[3, 5] = -1e-9                                               # under the floor
+    nan = pulse[:5].copy()
+    nan[2, 7] = np.nan
+    for profiles in (pulse, noisy, plateaus, ends, nan, np.zeros((3, 8)), np.zeros((0, 8))):
+        want = [leading_peak(e) for e in profiles]
+        pos, amp = _peaks(profiles)
+        assert np.array_equal(pos, np.array([w[0] for w in want]).reshape(-1), equal_nan=True)
+        assert np.array_equal(amp, np.abs(np.array([w[1] for w in want])).reshape(-1),
+                              equal_nan=True)
