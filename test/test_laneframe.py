@@ -110,9 +110,10 @@ def _rows_alone(sim):
 def test_an_arrays_frame_rows_equal_each_columns_own_frame_bit_for_bit(model, lanes):
     """Positions, strains, tensions and energies of an array's frame, taken a lane group at a
     time (laneframe.fill: one compiled call for positions and tensions), equal each column's
-    own frame, bit for bit (the bytes: signs of zeros too), on sym3d columns and on columns
-    expanded to full3d; columns of equal prestrain share one simulation (a lane shows two
-    columns); through bar contact after impacts of 0.3 and 1 m/s."""
+    own frame, bit for bit (the bytes: signs of zeros too), and so does the energy balance error
+    of the column furthest from balance, on sym3d columns and on columns expanded to full3d;
+    columns of equal prestrain share one simulation (a lane shows two columns); through bar
+    contact after impacts of 0.3 and 1 m/s."""
     sim = simulation_for(Scene.load(FB).with_overrides([('structure.n_columns', 6)]))
     sim.lanes, sim.threads = lanes, 1
     p = np.array([0.02, 0.03, 0.02, 0.04, 0.03, 0.05])
@@ -134,6 +135,8 @@ def test_an_arrays_frame_rows_equal_each_columns_own_frame_bit_for_bit(model, la
         assert f.strain.tobytes() == strain.tobytes(), q
         assert f.tension.tobytes() == tension.reshape(-1).tobytes(), q
         assert f.energy == float(sum(energy.tolist())), q
+        balance = [g.sim.energy_error() for g in sim.groups]    # each column's own
+        assert f.energy_balance_error == max(balance, key=abs) != 0.0, q
     assert sim._plan is not None and len(sim._plan.groups) == 1
     assert sim.contacts_met > 0
     n, k = sim._per                     # the lane group served every column (none by itself)

@@ -104,13 +104,20 @@ def _verdicts(out, D, ref, before, lim, cerr_lim, one_sided, levels):
     prism heights are checked. The balance as :meth:`Simulation._balance` computes it:
     ``(e + D - ref) / max(|ref|, |e|, before, 1e-300)``. Returns (verdicts, balances)."""
     finite, e, cerr, h_min = out[:, 0] != 0.0, out[:, 1], out[:, 2], out[:, 3]
-    scale = np.maximum(np.maximum(np.maximum(np.abs(ref), np.abs(e)), before), 1e-300)
-    balance = (e + D - ref) / scale
+    balance = balances(e, D, ref, before)
     ok = (finite & (cerr <= cerr_lim) & (balance <= lim)
           & ((balance >= -lim) | np.asarray(one_sided)))
     if levels:
         ok &= h_min > 0.0
     return ok, balance
+
+
+def balances(e, D, ref, scale):
+    """:meth:`Simulation._balance` element by element: ``(e + D - ref) / max(|ref|, |e|,
+    scale, 1e-300)`` for energies ``e``, ledgers ``D``, references ``ref`` and scales
+    ``scale`` (arrays, or scalars for all)."""
+    return (e + D - ref) / np.maximum(np.maximum(np.maximum(np.abs(ref), np.abs(e)), scale),
+                                      1e-300)
 
 
 def sound(sims, status, out, D, levels, book=None):

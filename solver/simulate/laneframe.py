@@ -15,7 +15,8 @@ import numpy as np
 
 from solver.analysis import observables
 from solver.analysis.support import ModelBaseForce
-from solver.kernels import lanebase, laneview
+from solver.kernels import lanebase, laneview, records
+from solver.simulate import lanebulk
 
 _ARGS = weakref.WeakKeyDictionary()     # lane group -> its call's arguments (or None: no call)
 _VIEWS = weakref.WeakKeyDictionary()    # lane group -> its expansion and scratch (fill)
@@ -62,7 +63,8 @@ def fill(plan, columns_of, offset, x, strain, tension, base, energy):
     by ``offset``) and tensions in one call (:func:`solver.kernels.laneview.frame_rows`), strains
     of the state summaries' heights, energies and base forces (:func:`put_base_forces` first).
     ``columns_of``: id of a simulation -> the columns it stands for. Returns id of each
-    simulation served -> its constraint error."""
+    simulation served -> its constraint error and energy balance error
+    (:meth:`Simulation.energy_error`, over the group's lanes: :func:`lanebulk.balances`)."""
     put_base_forces(plan)
     errs = {}
     for group in () if plan is None else plan.groups:
@@ -91,6 +93,10 @@ def fill(plan, columns_of, offset, x, strain, tension, base, energy):
         h = observables.strains_of_heights(np.stack([u.heights for u in summ]), s0.network.h0)
         strain[cols] = h[lane, 0]
         base[cols] = np.take([s.base_force()[0] for s in sims], lane)
-        energy[cols] = np.take([u.energy for u in summ], lane)
-        errs.update(zip(map(id, sims), (u.constraint_error for u in summ)))
+        e = np.array([u.energy for u in summ])
+        energy[cols] = e[lane]
+        bal = lanebulk.balances(e, S.ledger[:, records.DISSIPATED],
+                                np.array([s._energy_ref for s in sims]),
+                                np.array([s._energy_scale for s in sims]))
+        errs.update(zip(map(id, sims), zip((u.constraint_error for u in summ), bal.tolist())))
     return errs
