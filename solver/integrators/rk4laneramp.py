@@ -83,15 +83,9 @@ def set_rests(m, S, L, R, Q, k, go, went, tmp):
     scratch ``Q``, a :class:`~solver.kernels.ramp.LaneRest`) into ``S`` and the lane-inner
     ``L`` (which holds the lanes' states), the energies before and after over lanes
     (:func:`solver.kernels.lanesteps.energy_rows` into ``tmp`` (3, B)), the contact terms lane
-    by lane. The same operations as ``set_rest`` lane by lane."""
+    by lane. The same operations as ``set_rest`` lane by lane. A model with summary arrays (a
+    ramp steps in a compiled call only on an exact model: ``Loading._ramp_record``)."""
     n_lanes = go.shape[0]
-    if m.summary.node_mass.shape[0] == 0:       # no summary arrays: the scalar kernel
-        for j in range(n_lanes):
-            if go[j] != 0:
-                went[j] = ramp.set_rest(m, lanedata.lane_record(S, j), ramp.lane_ramp(R, j), k)
-                lanedata.lane_in(S.rest[j], j, L.rest)
-                lanedata.lane_in(S.EA[j], j, L.EA)
-        return
     ramp.next_rests(R, Q, k, go, went)
     lanesteps.energy_rows(L.x, L.v, m, L.rest, L.EA, L.f_ext, tmp)
     E = Q.E

@@ -153,17 +153,24 @@ def conclude_call(group, n, heights, steps, status):
                                               steps.tolist(), status.tolist(), group._kept, ok):
         s._cache = {'summary': StateSummary(o[0] != 0.0, o[1], h, o[2], o[3])}
         if good:
-            s._energy_scale = max(s._energy_scale, abs(o[1]))
-            s.t += n * s.dt
-            s.step += n
-            s.steps_taken += taken
-            results.append((True, taken))
+            results.append((True, _moved(s, n, o[1], taken)))
             continue
         try:
             results.append((True, s._conclude(n, taken, st, kept, None)))
         except Exception as exc:            # noqa: BLE001 - this lane's result
             results.append((False, exc))
     return results
+
+
+def _moved(s, n, energy, taken):
+    """Simulation ``s`` past an interval of ``n`` steps that passed its check, as
+    :meth:`Simulation._conclude` moves it (its end state's ``energy`` J, the integrator's
+    ``taken`` steps): the energy scale, the clock, the step counts. Returns ``taken``."""
+    s._energy_scale = max(s._energy_scale, abs(energy))
+    s.t += n * s.dt
+    s.step += n
+    s.steps_taken += taken
+    return taken
 
 
 def conclude_ramped(group, n, heights, call):
@@ -190,11 +197,7 @@ def conclude_ramped(group, n, heights, call):
             s._prestrain = R.p[k].reshape(s._prestrain.shape).copy()
             if went[k] == ramp.ENDED:
                 s._ramp = None
-            s._energy_scale = max(s._energy_scale, abs(o[1]))
-            s.t += n * s.dt
-            s.step += n
-            s.steps_taken += taken[k]
-            results.append((True, taken[k]))
+            results.append((True, _moved(s, n, o[1], taken[k])))
             continue
         try:
             first = s._ramp_went(0, n, (done[k], taken[k], int(status[k]), went[k]), end,
