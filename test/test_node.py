@@ -18,7 +18,7 @@ from solver.simulate.array import simulation_for  # noqa: E402
 from tensegrity_ros.node.demo import Commander, spin_until  # noqa: E402
 from tensegrity_ros.node.node import (DEFAULTS, ParameterError, TensegritySim,  # noqa: E402
                                       check_parameters)
-from tensegrity_ros.node.pacing import (FAST_WORK_FRACTION, MIN_STEP_FRACTION,  # noqa: E402
+from tensegrity_ros.node.pacing import (FAST_WORK_FRACTION, MIN_STEP_FRACTION, Pacer,  # noqa: E402
                                         MIN_WORK_FRACTION, WORK_FRACTION)
 from tensegrity_ros.io.sinks import Sink  # noqa: E402
 
@@ -264,8 +264,7 @@ def test_divergence_pauses_with_on_divergence_pause_and_publishes_no_nan(tmp_pat
 
 def test_pacing_logic(ros):
     node, sim = ros.node, ros.node.sim
-    pacer = node.pacer
-    pacer.period, pacer.publish_cost, pacer.step_cost = 0.005, 0.0, 1e-6
+    pacer = node.pacer = Pacer(0.005, 1e-6)                   # measured nothing yet
     node.params['real_time_factor'] = 1.0
     pacer.anchor(sim.t, 100.0)
     assert node.steps_this_tick(100.01) == round(0.01 / sim.dt)

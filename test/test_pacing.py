@@ -40,20 +40,24 @@ def floor_plus(floor, whole):
     return lambda f, k: floor + f * (whole(k) - floor)
 
 
-def drive(pacer, part, whole, ticks, rtf=0.0):
+def drive(pacer, part, whole, ticks, rtf=0.0, call=lambda k: 0.0, command_at=None):
     """``ticks`` ticks of the node: each asks the pacer for its steps, takes them at the cost the
-    model gives (``n`` whole steps: ``n whole(k)``; a fraction ``f``: ``part(f, k)``; whole steps
-    and a fraction of one more: the sum; all with the jitter) and tells the pacer. The next tick
-    is due a period on, or when this one ends. Returns ``(steps, seconds)`` of each tick."""
+    model gives (``n`` whole steps: ``call(k) + n whole(k)``; a fraction ``f``: ``part(f, k)``;
+    whole steps and a fraction of one more: the sum; all with the jitter) and tells the pacer.
+    The next tick is due a period on, or when this one ends. At tick ``command_at`` a command
+    is applied first (``Pacer.changed``). Returns ``(steps, seconds)`` of each tick."""
     now = t_sim = 0.0
     pacer.anchor(t_sim, now)
     ticks_out = []
     for k in range(ticks):
+        if k == command_at:
+            pacer.changed()
         n = pacer.steps(now, t_sim, DT, rtf, deadline=now + PERIOD)
         seconds = 0.0
         if n > 0:
             w = int(n)
-            seconds = (w * whole(k) + (part(n - w, k) if n > w else 0.0)) * jitter(k)
+            seconds = ((call(k) + w * whole(k) if w else 0.0)
+                       + (part(n - w, k) if n > w else 0.0)) * jitter(k)
             pacer.stepped(n, seconds)
             t_sim += n * DT
         ticks_out.append((n, seconds))
@@ -174,3 +178,35 @@ def test_cheap_steps_and_arrays_take_whole_steps_only():
     dear = contact_from(0, after=0.6 * BUDGET)
     ticks = drive(Pacer(PERIOD, 0.6 * BUDGET), with_floor(0.6 * BUDGET, dear), dear, 100)
     assert all(n == int(n) for n, _ in ticks)
+
+
+@pytest.mark.parametrize('fixed, step', [(0.55, 0.05), (0.3, 0.06), (0.05, 0.1)])
+def test_a_fixed_cost_per_call_does_not_hold_the_ticks_to_few_steps(fixed, step):
+    """A call costs ``fixed`` budgets plus ``step`` budgets a step (an array while a ramp runs:
+    about a millisecond a call on 64 columns). The ticks settle within a step of the most that
+    fit, ``(1 - fixed) / step``, and stay within the budget (the jitter aside), from an estimate
+    of a step of ten budgets (a cost measured before a command; a fraction costs the call and its
+    share of a step). A cost taken in proportion to the steps (1 step for 0.6 budgets: 1.7 fit)
+    would hold the first case to one step a tick, where nine fit."""
+    whole = contact_from(0, after=step * BUDGET)
+    most = int((1.0 - fixed) / step + 1e-9)
+    ticks = drive(Pacer(PERIOD, CONTACT), lambda f, k: fixed * BUDGET + f * whole(k), whole, 300,
+                  call=lambda k: fixed * BUDGET)
+    settled = ticks[60:]
+    assert sum(n for n, _ in settled) / len(settled) >= most - 1
+    assert sum(1 for _, s in settled if s > 1.15 * BUDGET) <= 0.05 * len(settled)
+
+
+@pytest.mark.parametrize('fixed', [0.0, 0.5])
+def test_after_a_command_the_steps_grow_from_one(fixed):
+    """Out of contact many steps fit (a hundredth of a budget each); a command makes a step cost
+    a third of a budget (a ramp on an array run one column at a time). The tick after it takes
+    one step, and the ticks after that never run over the budget by more than one step's cost
+    (the jitter aside), instead of the hundred steps the earlier cost allowed (30 budgets)."""
+    after = (1.0 - fixed) / 3.0 * BUDGET
+    whole = contact_from(100, REST, after)
+    ticks = drive(Pacer(PERIOD, REST), proportional(whole), whole, 300,
+                  call=lambda k: fixed * BUDGET if k >= 100 else 0.0, command_at=100)
+    assert ticks[99][0] >= 50 and ticks[100][0] == 1
+    assert max(s for _, s in ticks[100:]) < 1.1 * (BUDGET + after)
+    assert sum(n for n, _ in ticks[150:]) / 150 >= 2

@@ -170,6 +170,7 @@ class Intake:
                 self.reject(key, exc)
                 continue
             self.counts['accepted'] += 1
+            node.pacer.changed()                # the cost of a step may have changed
             self.last_command = (key, 'accepted', detail)
             self.last_command_t = node.clock_time()
             node.log('accepted', 'info', f'{key}: {detail}')
