@@ -14,10 +14,12 @@ proportion to the steps (``K`` = 0) would hold ticks whose fixed cost fills half
 one step, where eight fit. Where the model gives no more steps than the last tick took and that
 tick left a quarter of its budget unused, a tick takes one step more (a probe, which measures
 the line; at most one in :data:`PROBE_EVERY` ticks). The steps a tick takes grow at most to
-``2 n + 1`` from the last tick's ``n`` beyond what that tick's cost allows in proportion, and
-after :meth:`Pacer.changed` (a command: the cost of a step may change by orders) a tick takes
-one whole step, from which they grow again, instead of the many steps the cost before the
-command allowed.
+``2 n + 1`` from the last tick's ``n`` beyond what that tick's cost allows in proportion. After
+:meth:`Pacer.changed` (a command: the cost of a step may change by orders) a tick takes one
+whole step, whose cost is not taken (it carries what the command leaves to the next step: an
+array's lane groups split anew), and the ticks after it whole steps that grow from there until
+one is measured, instead of the many steps the cost before the command allowed or fractions of
+a step from a cost that no longer holds.
 
 A tick takes whole steps while one fits in its budget; at ``real_time_factor`` 0, for a single
 simulation (``fill``: not an array, whose fractions cost about a whole step), when only a few fit
@@ -31,14 +33,14 @@ column in contact has a floor near 0 (its cost follows ``f``); an array has a la
 each column out of contact takes a whole integrator step and each column costs its per-call
 overhead whatever the fraction.
 
-- A fractional step moves ``C`` towards the smaller of its cost over ``f`` (a bound from above:
-  the ticks return to whole steps when the contact ends) and the cost of one step in the last
-  whole steps taken. A fraction that costs more than ``f C`` so never makes a whole step look
-  dearer than the last whole steps were, and the fraction does not shrink towards
-  :data:`MIN_STEP_FRACTION` while simulated time stops.
+- A fractional step moves ``c`` towards the smaller of its cost less ``K`` over ``f`` (a bound
+  from above: the ticks return to whole steps when the contact ends) and the last whole steps'.
+  A fraction that costs more than ``K + f c`` so never makes a whole step look dearer than the
+  last whole steps were, and the fraction does not shrink towards :data:`MIN_STEP_FRACTION`
+  while simulated time stops.
 - ``F`` follows the difference between the cost of each fractional step and its prediction
-  (``F`` at most ``C``); each whole step shrinks it by the weight :data:`SMOOTHING`, so that
-  fractions are tried again.
+  (``F`` at least ``K``, at most ``C``); each whole step shrinks it by the weight
+  :data:`SMOOTHING`, so that fractions are tried again.
 - The fraction is the largest whose predicted cost fits in the budget, or in
   :data:`FLOOR_MULTIPLE` times the floor when that is larger: a floor near or above the budget
   leaves the fraction about half of the tick, and simulated time keeps about half the pace of
@@ -93,6 +95,8 @@ class Pacer:
         self._moments = None            # moving (n, s, n^2, n s) of the ticks of whole steps
         self._count = 0                 # ticks in them
         self._probe_wait = 0            # ticks of whole steps until a probe may be taken
+        self._skip = False              # the next tick's cost is not taken (see changed)
+        self._fresh = False             # no whole steps measured since the last command
         self._last = None               # (steps, seconds, budget) of the last tick of whole steps
         self.budget = math.inf          # s: the budget of the last tick the pacer was asked for
         self._growing = False           # its whole steps were held to the growth from the last
@@ -103,9 +107,12 @@ class Pacer:
 
     def changed(self):
         """A command may have changed the cost of a step by orders (an impact, a prestrain
-        ramp): the next tick that takes whole steps takes one, the ticks after it grow from
-        there, and the line ``K + n c`` is refitted from the ticks after the command."""
+        ramp): the next tick takes one whole step, whose cost is not taken (it carries what the
+        command leaves to the next step: an array's lane groups split anew, a kernel loaded);
+        the ticks after it take whole steps that grow from there (fractions again once whole
+        steps were measured), and the line ``K + n c`` is refitted from them."""
         self._last, self._moments, self._probe_wait = (0, 0.0, 0.0), None, 0
+        self._skip = self._fresh = True
 
     def steps(self, now, t_sim, dt, rtf, deadline=None, markers=False):
         """Steps to take now: towards the paced target time, capped by the work budget. At
@@ -145,9 +152,9 @@ class Pacer:
         largest fraction ``f`` whose predicted cost ``F + f (C - F)`` is at most ``budget`` or
         :data:`FLOOR_MULTIPLE` ``F``, whichever is larger; one whole step when that fraction
         reaches 1, or while fractional steps cost more than predicted (``excess`` above
-        :data:`EXCESS_RECHECK`)."""
+        :data:`EXCESS_RECHECK`). After a command, whole steps until they are measured."""
         whole, floor = self._costs()
-        if budget >= whole:
+        if budget >= whole or self._fresh:
             return self._whole_steps(budget)
         allowed = max(budget, FLOOR_MULTIPLE * floor)
         if allowed >= whole or self.excess > EXCESS_RECHECK:
@@ -207,8 +214,15 @@ class Pacer:
         (with a fraction of one more: :meth:`_fill`) measure the line ``K + n c`` (and shrink
         the floor). A fraction of one (``n`` < 1) moves ``c`` towards the smaller of its cost
         less ``K`` over ``n`` and the last whole steps' ``c``, and the floor (at least ``K``)
-        and ``excess`` by the difference between ``seconds`` and the cost so predicted."""
+        and ``excess`` by the difference between ``seconds`` and the cost so predicted. The
+        first tick after :meth:`changed` measures nothing."""
+        if self._skip:
+            self._skip = False
+            if n >= 1:               # the next tick grows from n by 2 n + 1 only
+                self._last = (n, math.inf, self.budget)
+            return
         if n >= 1:
+            self._fresh = False
             self._probe_wait -= 1
             self._line(n, seconds)
             self._last = (n, seconds, self.budget)
@@ -227,8 +241,6 @@ class Pacer:
                        + SMOOTHING * min(miss / max(predicted, 1e-12), 1.0))
         self.floor_cost = min(max(floor + SMOOTHING * miss, 0.0),
                               self.call_cost + self.step_cost)
-        if self._last is not None and self._last[0] == 0:
-            self._last = None           # the command's cost measured by this fraction
 
     def _line(self, n, seconds):
         """Refit ``K`` (where the counts vary and the slope is positive) and move ``c`` towards
