@@ -304,7 +304,7 @@ def test_a_tick_takes_a_fraction_of_a_step_when_a_step_costs_more_than_a_period(
     node, sim = ros.node, ros.node.sim
     ros.cmd.impact([0.1])
     assert ros.spin(lambda: node.intake.counts['accepted'] >= 1)
-    node.pacer.step_cost = 1e3 * node.period                  # as if one step took 1,000 ticks
+    node.pacer = Pacer(node.period, 1e3 * node.period)       # as if one step took 1,000 ticks
     node.pacer.stepped = lambda n, seconds: None              # keep that estimate
     n0, t0, step0 = len(ros.cmd.strain), sim.t, sim.step
     assert ros.spin(lambda: len(ros.cmd.strain) >= n0 + 20)

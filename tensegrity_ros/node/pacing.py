@@ -201,10 +201,11 @@ class Pacer:
         """With ``fill``: the fraction of a further step that fits in what ``n`` whole steps
         leave of ``budget`` (predicted cost ``F + f (C - F)``, as :meth:`_fit`), when ``n`` is
         below :data:`FILL_BELOW`, fractions pay (a floor below half a whole step, and no
-        ``excess``) and the fraction is at least :data:`MIN_FILL`; else 0."""
+        ``excess``), the steps are those the cost allows (not held to their growth after a
+        command) and the fraction is at least :data:`MIN_FILL`; else 0."""
         whole, floor = self._costs()
         if (not self.fill or n >= FILL_BELOW or 2.0 * floor >= whole
-                or self.excess > EXCESS_RECHECK):
+                or self.excess > EXCESS_RECHECK or self._growing or self._fresh):
             return 0.0
         f = (budget - self.call_cost - n * self.step_cost - floor) / (whole - floor)
         return min(f, 1.0 - MIN_FILL) if f >= MIN_FILL else 0.0
