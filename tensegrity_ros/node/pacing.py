@@ -67,6 +67,8 @@ EXCESS_RECHECK = 0.25            # fractional steps costing this share more than
 FILL_BELOW = 4                   # at real_time_factor 0, a tick that fits fewer whole steps
                                  # than this fills the rest of its budget with a fraction
 MIN_FILL = 0.1                   # the shortest fraction a tick adds to its whole steps
+SHIFT = 2.0                      # a tick of whole steps costing this factor more or less than the
+                                 # line K + n c predicts starts its fit anew (a contact began)
 MIN_SPREAD = 0.05                # the moving variance of the ticks' step counts over their squared
                                  # mean below which the line K + n c is not refitted (the counts
                                  # vary too little to tell K from c)
@@ -244,14 +246,19 @@ class Pacer:
                               self.call_cost + self.step_cost)
 
     def _line(self, n, seconds):
-        """Refit ``K`` (where the counts vary and the slope is positive) and move ``c`` towards
-        this tick's cost less ``K`` over its steps (to it, on the first tick after a command);
-        ``K`` stays at most ``n / (n + 1)`` of this tick's cost (a noisy fit leaves a share to
-        ``c``). The line's moments are the mean of the ticks since the command while they are
-        fewer than ``1 /`` :data:`LINE_SMOOTHING`, then a moving average of that weight: a fixed
-        cost changes with the way the simulation steps, on commands, not from tick to tick."""
+        """Refit the line ``K + n c`` with this tick. Its moments are the mean of the ticks
+        since the command (or since the cost moved by more than :data:`SHIFT` from the line's
+        prediction: a contact began or ended) while they are fewer than ``1 /``
+        :data:`LINE_SMOOTHING`, then a moving average of that weight. Where the counts vary and
+        the slope is positive, ``K`` is the intercept and ``c`` the slope through the mean; else
+        ``c`` moves towards this tick's cost less ``K`` over its steps (to it, on the first tick
+        of the moments). ``K`` stays at most ``n / (n + 1)`` of this tick's cost (a noisy fit
+        leaves a share to ``c``)."""
+        predicted = self.call_cost + n * self.step_cost
+        if not predicted / SHIFT <= seconds <= SHIFT * predicted:
+            self._moments = None                # the cost moved: refit from this tick
         sample = (n, seconds, n * n, n * seconds)
-        first = self._moments is None           # the first tick of whole steps after a command
+        first = self._moments is None
         if first:
             self._moments, self._count = sample, 1
         else:
@@ -259,14 +266,19 @@ class Pacer:
             w = max(1.0 / self._count, LINE_SMOOTHING)
             self._moments = tuple((1 - w) * m + w * x for m, x in zip(self._moments, sample))
         mn, ms, mnn, mns = self._moments
+        fitted = False
         if self._spread() >= MIN_SPREAD:
             slope = (mns - mn * ms) / (mnn - mn * mn)
             if slope > 0.0:
-                self.call_cost = max(ms - slope * mn, 0.0)
+                self.call_cost, fitted = max(ms - slope * mn, 0.0), True
         self.call_cost = min(self.call_cost, seconds * n / (n + 1.0))
         per_step = (seconds - self.call_cost) / n
-        self.step_cost = (per_step if first
-                          else (1 - SMOOTHING) * self.step_cost + SMOOTHING * per_step)
+        if first:
+            self.step_cost = per_step
+        elif fitted:
+            self.step_cost = max(ms - self.call_cost, 0.0) / mn
+        else:
+            self.step_cost = (1 - SMOOTHING) * self.step_cost + SMOOTHING * per_step
         self.whole_cost = self.call_cost + per_step
 
     def published(self, seconds, markers):
