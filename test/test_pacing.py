@@ -210,3 +210,17 @@ def test_after_a_command_the_steps_grow_from_one(fixed):
     assert ticks[99][0] >= 50 and ticks[100][0] == 1
     assert max(s for _, s in ticks[100:]) < 1.1 * (BUDGET + after)
     assert sum(n for n, _ in ticks[150:]) / 150 >= 2
+
+
+def test_paced_ticks_catch_up_after_a_command():
+    """At real_time_factor 1 with steps that cost a twentieth of the budget (eight a tick keep
+    the pace): a command makes a tick take one step and the ticks after it grow; they catch up
+    with the pace instead of re-anchoring it (simulated time would fall behind wall time by the
+    steps not taken, at every command)."""
+    whole = contact_from(0, after=0.05 * BUDGET)
+    plain = drive(Pacer(PERIOD, 0.05 * BUDGET), proportional(whole), whole, 200, rtf=1.0)
+    pacer = Pacer(PERIOD, 0.05 * BUDGET)
+    ticks = drive(pacer, proportional(whole), whole, 200, rtf=1.0, command_at=100)
+    assert ticks[100][0] == 1 and ticks[101][0] == 3
+    lost = sum(n for n, _ in plain) - sum(n for n, _ in ticks)
+    assert 0 <= lost <= 4           # (re-anchored at each tick of growth: 12)
