@@ -202,9 +202,8 @@ class LaneGroup:
         top.status[:] = OK
         self.call(lanedata.keep, (top.S, self.kept, top.status))     # what a failure restores
         self._keeps = [s._kept(d, s.integrator.get_state()) for s, d in zip(sims, self._kept)]
-        for k, s in enumerate(sims):
-            R.clock[k] = (s.t, s._ramp.t0, s._ramp.duration, s.dt)
-            R.book[k] = (s._energy_ref, s._energy_scale)
+        R.clock[:] = [(s.t, s._ramp.t0, s._ramp.duration, s.dt) for s in sims]
+        R.book[:] = [(s._energy_ref, s._energy_scale) for s in sims]
         st, steps, done, taken, went, made = np.zeros((6, b), np.int64)
         heights = np.empty((b,) + s0._heights_shape)
         self.call(rk4laneramp.ramped, (

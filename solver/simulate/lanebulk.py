@@ -189,12 +189,14 @@ def conclude_ramped(group, n, heights, call):
     ok = (whole & sound(sims, status, group.out, group.blocks[0].S.ledger[:, records.DISSIPATED],
                         levels, R.book)).tolist()
     results = []
+    book = R.book.tolist()
+    p = R.p.copy()                  # each concluded lane's prestrain: a row of this copy
     for k, (s, o) in enumerate(zip(sims, group.out.tolist())):
         end = (o[0] != 0.0, o[1], heights[k], o[2], o[3]) if made[k] else None
         if ok[k]:
             s._cache = {'summary': StateSummary(*end)}
-            s._energy_ref, s._energy_scale = float(R.book[k, 0]), float(R.book[k, 1])
-            s._prestrain = R.p[k].reshape(s._prestrain.shape).copy()
+            s._energy_ref, s._energy_scale = book[k]
+            s._prestrain = p[k].reshape(s._prestrain.shape)
             if went[k] == ramp.ENDED:
                 s._ramp = None
             results.append((True, _moved(s, n, o[1], taken[k])))
