@@ -18,7 +18,13 @@ reported too, but behind the front the response is chaotic). The train case is t
 (:func:`coarse`): each case at ``contact.resolution`` 40, 20, 10 and 5 with the energy ledger
 5,000 times looser (``divergence.energy_error`` 0.5, which also loosens the refinement's check
 of each step), with and without the refinement, against the same refined reference. Writes
-``shots_coarse.json``."""
+``shots_coarse.json``.
+
+``--census`` counts where a shot's steps go (:func:`census`): each case stepped one ``dt`` at a
+time, each interval of ``dt`` classed by whether its force evaluations met a contact, the steps
+of each class and their refinement levels, and at the end of each interval the pairs of bars in
+contact, the model's nodes they hold and the prisms whose bases touch. Writes
+``shots_census.json``."""
 from __future__ import annotations
 
 import argparse
@@ -181,6 +187,61 @@ def coarse(out_dir='bench/results', log=print, t_end=T_END):
     return [str(path)]
 
 
+def census(out_dir='bench/results', log=print, t_end=T_END):
+    """The census of each case (module text): per class of interval (a contact met; several
+    steps, none met; one plain step) the intervals and the RK4 steps; the steps by the contact
+    step's refinement level at the interval's end; and the touching pairs, their nodes and the
+    touching bases at the end of each interval (mean and largest)."""
+    import numpy as np
+
+    from solver.kernels import barcontact as bcm
+    from solver.kernels.records import CONTACT_LEVEL, MET
+    rows = []
+    for name, v0 in CASES:
+        scene, sim = _at_rest(_scene(name), [f'loading.impact.v0={v0!r}'])
+        sim.apply_impact(v0)
+        m, d = sim.model, sim.model.data
+        bc = m.rec.bar_contact
+        ends = np.asarray(bc.pairs)[:, [bcm.A_LO, bcm.A_HI, bcm.B_LO, bcm.B_HI]]
+        classes = {k: [0, 0] for k in ('contact met', 'several steps, none met', 'one step')}
+        by_level, pairs, nodes, bases = {}, [], [], []
+        while sim.t < t_end - 1e-9:
+            met, taken = d.contact.scan[MET], sim.steps_taken
+            sim.advance(sim.dt)
+            steps = sim.steps_taken - taken
+            key = ('contact met' if d.contact.scan[MET] > met
+                   else 'one step' if steps == 1 else 'several steps, none met')
+            classes[key][0] += 1
+            classes[key][1] += steps
+            level = int(d.refine[CONTACT_LEVEL])
+            by_level[level] = by_level.get(level, 0) + steps
+            touching = [i for i in range(ends.shape[0]) if bcm._pair_energy(d.x, bc, i) > 0.0]
+            pairs.append(len(touching))
+            nodes.append(len(set(ends[touching].ravel().tolist())))
+            bases.append(int(np.sum(sim._summary().heights < bc.diameter)))
+        total = sum(n for _, n in classes.values())
+        row = {'scene': name, 'v0': v0, 'model': m.name, 'model_nodes': int(d.x.shape[0]),
+               'steps': total, 'intervals': {k: v[0] for k, v in classes.items()},
+               'interval_steps': {k: v[1] for k, v in classes.items()},
+               'steps_by_contact_level': {str(k): v for k, v in sorted(by_level.items())},
+               'touching_pairs_mean': float(np.mean(pairs)), 'touching_pairs_max': max(pairs),
+               'intervals_touching': float(np.mean(np.array(pairs) > 0)),
+               'nodes_in_contact_mean': float(np.mean(nodes)),
+               'nodes_in_contact_max': max(nodes),
+               'touching_bases_mean': float(np.mean(bases)), 'touching_bases_max': max(bases)}
+        rows.append(row)
+        met = row['interval_steps']['contact met']
+        log(f"{name} {v0} m/s: {total} steps, {met / total:.1%} in the "
+            f"{row['intervals']['contact met']} intervals that met a contact; at an interval's "
+            f"end {row['touching_pairs_mean']:.2f} pairs touch (at most "
+            f"{row['touching_pairs_max']}), holding {row['nodes_in_contact_mean']:.1f} of "
+            f"{row['model_nodes']} nodes (at most {row['nodes_in_contact_max']})")
+    path = Path(out_dir) / 'shots_census.json'
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps({'t_end_s': t_end, 'rows': rows}, indent=1))
+    return [str(path)]
+
+
 def _line(r):
     if 'stopped' in r:
         return f"stopped: {r['stopped']}"
@@ -196,8 +257,12 @@ if __name__ == '__main__':
     ap.add_argument('--out', default='bench/results')
     ap.add_argument('--coarse', action='store_true',
                     help='what the front figures alone ask of the contact steps (about 5 min)')
+    ap.add_argument('--census', action='store_true',
+                    help='where the steps of each shot go (about 1 min)')
     a = ap.parse_args()
     if a.coarse:
         coarse(a.out, t_end=0.5 if a.quick else T_END)
+    elif a.census:
+        census(a.out, t_end=0.5 if a.quick else T_END)
     else:
         main(a.out, quick=a.quick)

@@ -19,7 +19,7 @@ the line; at most one in :data:`PROBE_EVERY` ticks). The steps a tick takes grow
 whole step, whose cost is not taken (it carries what the command leaves to the next step: an
 array's lane groups split anew), and the ticks after it whole steps that grow from there until
 one is measured, instead of the many steps the cost before the command allowed or fractions of
-a step from a cost that no longer holds.
+a step from a cost measured before the command.
 
 A tick takes whole steps while one fits in its budget; at ``real_time_factor`` 0, for a single
 simulation (``fill``: not an array, whose fractions cost about a whole step), when only a few fit
