@@ -155,6 +155,7 @@ class Pacer:
         :data:`FLOOR_MULTIPLE` ``F``, whichever is larger; one whole step when that fraction
         reaches 1, or while fractional steps cost more than predicted (``excess`` above
         :data:`EXCESS_RECHECK`). After a command, whole steps until they are measured."""
+        self._growing = False
         whole, floor = self._costs()
         if budget >= whole or self._fresh:
             return self._whole_steps(budget)
@@ -170,7 +171,6 @@ class Pacer:
         the last :data:`PROBE_EVERY` ticks of whole steps."""
         c = max(self.step_cost, 1e-12)
         n = max(int((budget - self.call_cost) / c), 1)
-        self._growing = False
         if self._last is None:
             return n
         last, seconds, last_budget = self._last
