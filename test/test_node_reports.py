@@ -66,6 +66,9 @@ def test_real_time_factor_over_the_window_and_the_reason():
     assert calm.reason(1.0, 6.25e-4, 1.2e-5, 5e-3, 200.0).startswith('publishing')
     assert calm.reason(1.0, 6.25e-4, 1.2e-5, 1e-4, 200.0).startswith('CPU time: stepping and '
                                                                      'publishing need 4 %')
+    # an array's stepping call costs its fixed part every tick: 5 ms at 200 Hz is all of it
+    slow = calm.reason(1.0, 6.25e-4, 1.2e-5, 1e-4, 200.0, call_cost=5e-3)
+    assert slow.startswith('publishing') and '5 ms per stepping call' in slow
     rt.restart()
     assert rt.factor() is None
 

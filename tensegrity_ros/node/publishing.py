@@ -146,7 +146,7 @@ class Publishing:
         pacer = node.pacer
         behind, log = node.realtime.status(now, node.params['real_time_factor'], node.running,
                                            node.sim.dt, pacer.step_cost, pacer.publish_cost,
-                                           node.params['publish_rate_hz'])
+                                           node.params['publish_rate_hz'], pacer.call_cost)
         if log:
             node.log('real time', 'warning', log)
         if behind:

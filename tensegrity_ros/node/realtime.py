@@ -58,13 +58,14 @@ class RealTime:
         self.span_s = w1 - w0
         return (t1 - t0) / (w1 - w0) if w1 - w0 >= MIN_SPAN_S else None
 
-    def reason(self, target, dt, step_cost, publish_cost, rate_hz):
+    def reason(self, target, dt, step_cost, publish_cost, rate_hz, call_cost=0.0):
         """Why the node is behind: a step's wall cost now against its cost at rest and against
         the wall time real time allows it (``dt / target``), and the share of the wall time the
-        steps and ``rate_hz`` frames need at the target."""
+        steps and ``rate_hz`` frames need at the target (each frame's tick one stepping call,
+        which costs ``call_cost`` however few its steps)."""
         allowed = dt / target
         cost = f'a step of {dt * 1e3:.3g} ms costs {step_cost * 1e3:.3g} ms of wall time'
-        need = step_cost / allowed + publish_cost * rate_hz
+        need = step_cost / allowed + (publish_cost + call_cost) * rate_hz
         if step_cost > CONTACT_COST * self.rest_step_cost and step_cost > allowed * BEHIND:
             return (f'contact sub-steps: {cost}, {step_cost / self.rest_step_cost:.3g}x its '
                     f'cost at rest')
@@ -76,10 +77,12 @@ class RealTime:
             return (f'CPU time: stepping and publishing need {100 * need:.0f} % of the wall '
                     f'time at this pace, and the node got less (other processes, or a long '
                     f'callback)')
-        return (f'publishing: {cost}, {publish_cost * 1e3:.3g} ms per frame to publish at '
+        call = (f' and {call_cost * 1e3:.3g} ms per stepping call however few its steps'
+                if call_cost > 0.0 else '')
+        return (f'publishing: {cost}, {publish_cost * 1e3:.3g} ms per frame to publish{call} at '
                 f'{rate_hz:g} Hz')
 
-    def status(self, now, target, running, dt, step_cost, publish_cost, rate_hz):
+    def status(self, now, target, running, dt, step_cost, publish_cost, rate_hz, call_cost=0.0):
         """``(message, log_line)`` while running below :data:`BEHIND` of a target > 0 (the log
         line None when one went out less than :data:`LOG_EVERY_S` ago in the same spell), else
         ``(None, None)``."""
@@ -89,7 +92,7 @@ class RealTime:
             return None, None
         message = (f'behind real time: {f:.3g}x achieved over the last {self.span_s:.2g} s, '
                    f'target {target:g}x; '
-                   f'{self.reason(target, dt, step_cost, publish_cost, rate_hz)}')
+                   f'{self.reason(target, dt, step_cost, publish_cost, rate_hz, call_cost)}')
         log = None
         if self.behind_since is None or now - self._last_log >= LOG_EVERY_S:
             self._last_log = now
