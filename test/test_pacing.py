@@ -224,3 +224,15 @@ def test_paced_ticks_catch_up_after_a_command():
     assert ticks[100][0] == 1 and ticks[101][0] == 3
     lost = sum(n for n, _ in plain) - sum(n for n, _ in ticks)
     assert 0 <= lost <= 4           # (re-anchored at each tick of growth: 12)
+
+
+@pytest.mark.parametrize('spike_at', [101, 150])
+def test_a_single_slow_tick_of_cheap_steps_keeps_them_whole(spike_at):
+    """A single column at rest (a step costs a hundredth of the budget) whose tick ``spike_at``
+    is slowed by three budgets (the machine paused it): the ticks keep taking whole steps,
+    neither a fraction nor a fill, so the frames stay on the dt grid. (101: the first tick the
+    pacer measures after a command; 150: any tick.)"""
+    whole = contact_from(0, after=REST)
+    ticks = drive(Pacer(PERIOD, REST, fill=True), proportional(whole), whole, 300,
+                  call=lambda k: 3 * BUDGET if k == spike_at else 0.0, command_at=100)
+    assert all(n == int(n) and n >= 1 for n, _ in ticks[100:])

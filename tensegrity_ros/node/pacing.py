@@ -75,6 +75,8 @@ MIN_SPREAD = 0.05                # the moving variance of the ticks' step counts
 PROBE_LEFT = 0.25                # share of the budget a tick of whole steps left unused for the
                                  # next to take one step more than the model gives (a probe)
 PROBE_EVERY = 8                  # ticks of whole steps from one probe to the next
+SETTLE = 2                       # ticks of whole steps measured after a command before a tick
+                                 # takes a fraction of a step or fills with one
 
 
 class Pacer:
@@ -98,7 +100,7 @@ class Pacer:
         self._count = 0                 # ticks in them
         self._probe_wait = 0            # ticks of whole steps until a probe may be taken
         self._skip = False              # the next tick's cost is not taken (see changed)
-        self._fresh = False             # no whole steps measured since the last command
+        self._settle = 0                # ticks of whole steps still to measure after a command
         self._last = None               # (steps, seconds, budget) of the last tick of whole steps
         self.budget = math.inf          # s: the budget of the last tick the pacer was asked for
         self._growing = False           # its whole steps were held to the growth from the last
@@ -111,10 +113,11 @@ class Pacer:
         """A command may have changed the cost of a step by orders (an impact, a prestrain
         ramp): the next tick takes one whole step, whose cost is not taken (it carries what the
         command leaves to the next step: an array's lane groups split anew, a kernel loaded);
-        the ticks after it take whole steps that grow from there (fractions again once whole
-        steps were measured), and the line ``K + n c`` is refitted from them."""
+        the ticks after it take whole steps that grow from there (fractions and fills again
+        once :data:`SETTLE` ticks of whole steps were measured), and the line ``K + n c`` is
+        refitted from them."""
         self._last, self._moments, self._probe_wait = (0, 0.0, 0.0), None, 0
-        self._skip = self._fresh = True
+        self._skip, self._settle = True, SETTLE
 
     def steps(self, now, t_sim, dt, rtf, deadline=None, markers=False):
         """Steps to take now: towards the paced target time, capped by the work budget. At
@@ -154,10 +157,11 @@ class Pacer:
         largest fraction ``f`` whose predicted cost ``F + f (C - F)`` is at most ``budget`` or
         :data:`FLOOR_MULTIPLE` ``F``, whichever is larger; one whole step when that fraction
         reaches 1, or while fractional steps cost more than predicted (``excess`` above
-        :data:`EXCESS_RECHECK`). After a command, whole steps until they are measured."""
+        :data:`EXCESS_RECHECK`). After a command, whole steps until :data:`SETTLE` ticks of them
+        are measured."""
         self._growing = False
         whole, floor = self._costs()
-        if budget >= whole or self._fresh:
+        if budget >= whole or self._settle > 0:
             return self._whole_steps(budget)
         allowed = max(budget, FLOOR_MULTIPLE * floor)
         if allowed >= whole or self.excess > EXCESS_RECHECK:
@@ -207,7 +211,7 @@ class Pacer:
         command) and the fraction is at least :data:`MIN_FILL`; else 0."""
         whole, floor = self._costs()
         if (not self.fill or n >= FILL_BELOW or 2.0 * floor >= whole
-                or self.excess > EXCESS_RECHECK or self._growing or self._fresh):
+                or self.excess > EXCESS_RECHECK or self._growing or self._settle > 0):
             return 0.0
         f = (budget - self.call_cost - n * self.step_cost - floor) / (whole - floor)
         return min(f, 1.0 - MIN_FILL) if f >= MIN_FILL else 0.0
@@ -225,9 +229,9 @@ class Pacer:
                 self._last = (n, math.inf, self.budget)
             return
         if n >= 1:
-            self._fresh = False
             self._probe_wait -= 1
             self._line(n, seconds)
+            self._settle -= 1
             self._last = (n, seconds, self.budget)
             self.floor_cost = min((1 - SMOOTHING) * self.floor_cost,
                                   self.call_cost + self.step_cost)
@@ -251,9 +255,10 @@ class Pacer:
         prediction: a contact began or ended) while they are fewer than ``1 /``
         :data:`LINE_SMOOTHING`, then a moving average of that weight. Where the counts vary and
         the slope is positive, ``K`` is the intercept and ``c`` the slope through the mean; else
-        ``c`` moves towards this tick's cost less ``K`` over its steps (to it, on the first tick
-        of the moments). ``K`` stays at most ``n / (n + 1)`` of this tick's cost (a noisy fit
-        leaves a share to ``c``)."""
+        ``c`` moves towards this tick's cost less ``K`` over its steps: on the first tick of the
+        moments to it after a command or where it is cheaper, else halfway (a single tick
+        slowed by the machine moves it by half). ``K`` stays at most ``n / (n + 1)`` of this
+        tick's cost (a noisy fit leaves a share to ``c``)."""
         predicted = self.call_cost + n * self.step_cost
         if not predicted / SHIFT <= seconds <= SHIFT * predicted:
             self._moments = None                # the cost moved: refit from this tick
@@ -273,8 +278,10 @@ class Pacer:
                 self.call_cost, fitted = max(ms - slope * mn, 0.0), True
         self.call_cost = min(self.call_cost, seconds * n / (n + 1.0))
         per_step = (seconds - self.call_cost) / n
-        if first:
-            self.step_cost = per_step
+        if first and (self._settle == SETTLE or per_step < self.step_cost):
+            self.step_cost = per_step           # after a command, or cheaper
+        elif first:                             # dearer: halfway (one tick may have been slowed)
+            self.step_cost = 0.5 * (self.step_cost + per_step)
         elif fitted:
             self.step_cost = max(ms - self.call_cost, 0.0) / mn
         else:
