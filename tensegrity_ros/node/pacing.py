@@ -255,10 +255,9 @@ class Pacer:
         prediction: a contact began or ended) while they are fewer than ``1 /``
         :data:`LINE_SMOOTHING`, then a moving average of that weight. Where the counts vary and
         the slope is positive, ``K`` is the intercept and ``c`` the slope through the mean; else
-        ``c`` moves towards this tick's cost less ``K`` over its steps: on the first tick of the
-        moments to it after a command or where it is cheaper, else halfway (a single tick
-        slowed by the machine moves it by half). ``K`` stays at most ``n / (n + 1)`` of this
-        tick's cost (a noisy fit leaves a share to ``c``)."""
+        ``c`` moves towards this tick's cost less ``K`` over its steps (to it, on the first tick
+        of the moments while a command settles: :data:`SETTLE`). ``K`` stays at most
+        ``n / (n + 1)`` of this tick's cost (a noisy fit leaves a share to ``c``)."""
         predicted = self.call_cost + n * self.step_cost
         if not predicted / SHIFT <= seconds <= SHIFT * predicted:
             self._moments = None                # the cost moved: refit from this tick
@@ -278,10 +277,8 @@ class Pacer:
                 self.call_cost, fitted = max(ms - slope * mn, 0.0), True
         self.call_cost = min(self.call_cost, seconds * n / (n + 1.0))
         per_step = (seconds - self.call_cost) / n
-        if first and (self._settle == SETTLE or per_step < self.step_cost):
-            self.step_cost = per_step           # after a command, or cheaper
-        elif first:                             # dearer: halfway (one tick may have been slowed)
-            self.step_cost = 0.5 * (self.step_cost + per_step)
+        if first and self._settle > 0:         # a new fit while a command settles
+            self.step_cost = per_step
         elif fitted:
             self.step_cost = max(ms - self.call_cost, 0.0) / mn
         else:
