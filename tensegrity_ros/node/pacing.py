@@ -14,12 +14,14 @@ proportion to the steps (``K`` = 0) would hold ticks whose fixed cost fills half
 one step, where eight fit. Where the model gives no more steps than the last tick took and that
 tick left a quarter of its budget unused, a tick takes one step more (a probe, which measures
 the line; at most one in :data:`PROBE_EVERY` ticks). The steps a tick takes grow at most to
-``2 n + 1`` from the last tick's ``n`` beyond what that tick's cost allows in proportion. After
-:meth:`Pacer.changed` (a command: the cost of a step may change by orders) a tick takes one
-whole step, whose cost is not taken (it carries what the command leaves to the next step: an
-array's lane groups split anew), and the ticks after it whole steps that grow from there until
-one is measured, instead of the many steps the cost before the command allowed or fractions of
-a step from a cost measured before the command.
+``2 n + 1`` from the last tick's ``n`` beyond what that tick's cost allows in proportion
+(unpaced, where a tick takes all that fits; paced, the pace bounds it). After
+:meth:`Pacer.changed` (a command: the cost of a step may change by orders) the next tick's cost
+is not taken (it carries what the command leaves to the next step: an array's lane groups split
+anew) and the ticks take whole steps until :data:`SETTLE` of them are measured, instead of
+fractions of a step from a cost measured before the command; unpaced, that tick takes one step
+and the ticks after it grow from there, instead of the many steps the cost before the command
+allowed.
 
 A tick takes whole steps while one fits in its budget; at ``real_time_factor`` 0, for a single
 simulation (``fill``: not an array, whose fractions cost about a whole step), when only a few fit
@@ -136,7 +138,7 @@ class Pacer:
             left = self.period if deadline is None else deadline - now
             budget = max(FAST_WORK_FRACTION * left - publish, MIN_WORK_FRACTION * self.period)
             self.budget = budget
-            n = self._fit(budget)
+            n = self._fit(budget, grow=True)
             return n + self._fill(n, budget) if n >= 1 else n
         # paced, a tick keeps a margin so that it ends before the next one is due
         budget = max(WORK_FRACTION * self.period - publish - self.cmd_wall,
@@ -146,14 +148,14 @@ class Pacer:
         target = self.anchor_t + rtf * (now - self.anchor_wall)
         want = int(math.floor((target - t_sim) / dt + 1e-9))
         if want > cap:                 # cannot keep up: do what fits, do not accumulate debt
-            if not self._growing:      # (the steps grow back after a command: catch up)
-                self.anchor(t_sim + cap * dt, now)
+            self.anchor(t_sim + cap * dt, now)
             return cap
         return max(want, 0)
 
-    def _fit(self, budget):
-        """The steps that fit in ``budget`` s: whole ones (``K + n c`` at most ``budget``, within
-        the growth from the last tick, or one more as a probe: see the module text); else the
+    def _fit(self, budget, grow=False):
+        """The steps that fit in ``budget`` s: whole ones (``K + n c`` at most ``budget``; with
+        ``grow``, unpaced, within the growth from the last tick; or one more as a probe: see the
+        module text); else the
         largest fraction ``f`` whose predicted cost ``F + f (C - F)`` is at most ``budget`` or
         :data:`FLOOR_MULTIPLE` ``F``, whichever is larger; one whole step when that fraction
         reaches 1, or while fractional steps cost more than predicted (``excess`` above
@@ -162,29 +164,33 @@ class Pacer:
         self._growing = False
         whole, floor = self._costs()
         if budget >= whole or self._settle > 0:
-            return self._whole_steps(budget)
+            return self._whole_steps(budget, grow)
         allowed = max(budget, FLOOR_MULTIPLE * floor)
         if allowed >= whole or self.excess > EXCESS_RECHECK:
             return 1
         return max((allowed - floor) / (whole - floor), MIN_STEP_FRACTION)
 
-    def _whole_steps(self, budget):
-        """Whole steps (at least one) that fit in ``budget`` by ``K + n c``: at most ``2 n + 1``
-        from the last tick's ``n``; one more than the last tick's where the model gives no more,
-        that tick left :data:`PROBE_LEFT` of its budget unused and no such probe was taken in
-        the last :data:`PROBE_EVERY` ticks of whole steps."""
+    def _whole_steps(self, budget, grow):
+        """Whole steps (at least one) that fit in ``budget`` by ``K + n c``; one more than the
+        last tick's where the model gives no more, that tick left :data:`PROBE_LEFT` of its
+        budget unused and no such probe was taken in the last :data:`PROBE_EVERY` ticks of
+        whole steps. With ``grow`` (unpaced: a tick takes all that fits), one step on the tick
+        after a command and at most ``2 n + 1`` from the last tick's ``n`` beyond what its cost
+        allows in proportion; paced, the pace bounds the steps a tick asks for."""
         c = max(self.step_cost, 1e-12)
         n = max(int((budget - self.call_cost) / c), 1)
         if self._last is None:
             return n
         last, seconds, last_budget = self._last
         if last < 1:
-            self._growing = n > 1
-            return 1
+            self._growing = grow and n > 1
+            return 1 if grow else n
         if (n <= last and self._probe_wait <= 0
                 and seconds <= (1.0 - PROBE_LEFT) * last_budget):
             n = int(last) + 1
             self._probe_wait = PROBE_EVERY
+        if not grow:
+            return n
         # beyond what the last tick's cost allows in proportion: at most doubled
         cap = max(2 * int(last) + 1, int(budget * last / max(seconds, 1e-12)))
         self._growing = n > cap
