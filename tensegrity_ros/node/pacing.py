@@ -7,9 +7,10 @@ time its command callbacks took since the last tick.
 **The cost of a tick's steps** is modelled as ``K + n c``: ``c`` the cost of one more step,
 ``K`` the fixed cost of a call however few its steps (an array's call prepares and concludes each
 lane group and column, about a millisecond on 64 columns while a ramp runs; near 0 for a single
-column). Both follow the ticks of whole steps: ``K`` is the intercept of the least-squares line
-through the ticks' step counts and costs since the last command (a moving average once they are
-many), refitted while the counts vary; ``c`` follows each tick's cost less ``K``. A model in
+column). Both follow the ticks of whole steps: the least-squares line through the ticks' step
+counts and costs since the last command (a moving average once they are many) gives ``K`` as its
+intercept and ``c`` as its slope while the counts vary; else ``c`` follows each tick's cost less
+``K`` (:meth:`Pacer._line`). A model in
 proportion to the steps (``K`` = 0) would hold ticks whose fixed cost fills half the budget to
 one step, where eight fit. Where the model gives no more steps than the last tick took and that
 tick left a quarter of its budget unused, a tick takes one step more (a probe, which measures
@@ -113,11 +114,11 @@ class Pacer:
 
     def changed(self):
         """A command may have changed the cost of a step by orders (an impact, a prestrain
-        ramp): the next tick takes one whole step, whose cost is not taken (it carries what the
-        command leaves to the next step: an array's lane groups split anew, a kernel loaded);
-        the ticks after it take whole steps that grow from there (fractions and fills again
-        once :data:`SETTLE` ticks of whole steps were measured), and the line ``K + n c`` is
-        refitted from them."""
+        ramp): the next tick's cost is not taken (it carries what the command leaves to the next
+        step: an array's lane groups split anew, a kernel loaded); the ticks take whole steps
+        (fractions and fills again once :data:`SETTLE` ticks of them were measured), unpaced
+        one on the next tick and growing from there; the line ``K + n c`` is refitted from
+        them."""
         self._last, self._moments, self._probe_wait = (0, 0.0, 0.0), None, 0
         self._skip, self._settle = True, SETTLE
 
@@ -153,9 +154,7 @@ class Pacer:
         return max(want, 0)
 
     def _fit(self, budget, grow=False):
-        """The steps that fit in ``budget`` s: whole ones (``K + n c`` at most ``budget``; with
-        ``grow``, unpaced, within the growth from the last tick; or one more as a probe: see the
-        module text); else the
+        """The steps that fit in ``budget`` s: whole ones (:meth:`_whole_steps`); else the
         largest fraction ``f`` whose predicted cost ``F + f (C - F)`` is at most ``budget`` or
         :data:`FLOOR_MULTIPLE` ``F``, whichever is larger; one whole step when that fraction
         reaches 1, or while fractional steps cost more than predicted (``excess`` above
@@ -195,13 +194,6 @@ class Pacer:
         cap = max(2 * int(last) + 1, int(budget * last / max(seconds, 1e-12)))
         self._growing = n > cap
         return min(n, cap)
-
-    def _spread(self):
-        """The moving variance of the ticks' step counts over their squared mean."""
-        if self._moments is None:
-            return 0.0
-        mn, _, mnn, _ = self._moments
-        return (mnn - mn * mn) / (mn * mn)
 
     def _costs(self):
         """``(C, F)``: the predicted cost of a whole step, ``K + c``, and the floor of a
@@ -277,8 +269,9 @@ class Pacer:
             self._moments = tuple((1 - w) * m + w * x for m, x in zip(self._moments, sample))
         mn, ms, mnn, mns = self._moments
         fitted = False
-        if self._spread() >= MIN_SPREAD:
-            slope = (mns - mn * ms) / (mnn - mn * mn)
+        var = mnn - mn * mn                     # of the step counts
+        if var >= MIN_SPREAD * mn * mn:
+            slope = (mns - mn * ms) / var
             if slope > 0.0:
                 self.call_cost, fitted = max(ms - slope * mn, 0.0), True
         self.call_cost = min(self.call_cost, seconds * n / (n + 1.0))
